@@ -1,0 +1,255 @@
+"""OpenCL runtime: device choice, fp64 check, program builds with a complete cache key.
+
+Nothing here runs at import. Callers create a :class:`ComputeContext` once and pass it to every
+numerical routine (``ctx`` is always an explicit argument, never a module global).
+
+Device choice (:func:`create_context`): an explicit ``spec`` argument, else the environment
+variable ``WAVEBRDF_DEVICE``, else ``auto``:
+
+``auto``
+    the first GPU with double precision, else the first PoCL CPU device, else any CPU device.
+``gpu`` / ``cpu`` / ``pocl``
+    the first device of that kind.
+``P:D``
+    device D of platform P (indices as printed by ``wavebrdf devices``).
+any other text
+    the first device whose "platform / device" name contains it (case-insensitive).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import warnings
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+
+from wavebrdf.kernels import load_source, source_hash
+
+logger = logging.getLogger(__name__)
+
+__all__ = [
+    "ComputeContext",
+    "DeviceInfo",
+    "OpenCLUnavailable",
+    "create_context",
+    "list_devices",
+]
+
+INSTALL_HINT = (
+    "Install a CPU OpenCL runtime: 'sudo apt-get install pocl-opencl-icd' (Debian/Ubuntu), or "
+    "without root 'pip install \"wavebrdf[pocl]\"' (PoCL wheel). For a GPU install the vendor "
+    "driver, which registers an ICD file in /etc/OpenCL/vendors (or point OCL_ICD_VENDORS at "
+    "a folder holding one). 'wavebrdf devices' lists what is visible."
+)
+
+
+class OpenCLUnavailable(RuntimeError):
+    """No usable OpenCL platform/device; the message names the fix."""
+
+
+@dataclass(frozen=True)
+class DeviceInfo:
+    """One OpenCL device as listed by ``wavebrdf devices``."""
+
+    platform_index: int
+    device_index: int
+    platform: str
+    platform_version: str
+    name: str
+    kind: str  # "GPU", "CPU", "ACCELERATOR", ...
+    fp64: bool
+    compute_units: int
+    global_mem_gib: float
+    max_alloc_gib: float
+
+    @property
+    def spec(self) -> str:
+        return f"{self.platform_index}:{self.device_index}"
+
+    @property
+    def is_pocl(self) -> bool:
+        return "portable computing language" in self.platform.lower() or "pocl" in (
+            self.platform_version.lower()
+        )
+
+
+def _import_cl():
+    try:
+        import pyopencl as cl
+    except ImportError as exc:  # pragma: no cover - pyopencl is a hard dependency
+        raise OpenCLUnavailable(f"pyopencl is not importable ({exc}). {INSTALL_HINT}") from exc
+    return cl
+
+
+def _platforms():
+    cl = _import_cl()
+    try:
+        platforms = cl.get_platforms()
+    except (cl.LogicError, cl.RuntimeError) as exc:
+        raise OpenCLUnavailable(f"No OpenCL platform found ({exc}). {INSTALL_HINT}") from exc
+    if not platforms:
+        raise OpenCLUnavailable(f"No OpenCL platform found. {INSTALL_HINT}")
+    return platforms
+
+
+def _describe(pi: int, di: int, platform, device) -> DeviceInfo:
+    cl = _import_cl()
+    kinds = [
+        name
+        for name, flag in (
+            ("GPU", cl.device_type.GPU),
+            ("CPU", cl.device_type.CPU),
+            ("ACCELERATOR", cl.device_type.ACCELERATOR),
+        )
+        if device.type & flag
+    ]
+    return DeviceInfo(
+        platform_index=pi,
+        device_index=di,
+        platform=platform.name.strip(),
+        platform_version=platform.version.strip(),
+        name=device.name.strip(),
+        kind="/".join(kinds) or "OTHER",
+        fp64="cl_khr_fp64" in device.extensions or device.double_fp_config != 0,
+        compute_units=int(device.max_compute_units),
+        global_mem_gib=device.global_mem_size / 2**30,
+        max_alloc_gib=device.max_mem_alloc_size / 2**30,
+    )
+
+
+def list_devices() -> list[DeviceInfo]:
+    """All OpenCL devices of all platforms (raises :class:`OpenCLUnavailable` if none)."""
+    out = []
+    for pi, platform in enumerate(_platforms()):
+        try:
+            devices = platform.get_devices()
+        except Exception as exc:  # a broken ICD must not hide the others
+            logger.warning("platform %s: cannot list devices (%s)", platform.name, exc)
+            continue
+        out.extend(_describe(pi, di, platform, d) for di, d in enumerate(devices))
+    if not out:
+        raise OpenCLUnavailable(f"OpenCL platforms exist but expose no device. {INSTALL_HINT}")
+    return out
+
+
+def _choose(spec: str, infos: list[DeviceInfo]) -> DeviceInfo:
+    spec_l = spec.strip().lower()
+    listing = "; ".join(f"{i.spec} {i.platform} / {i.name} ({i.kind})" for i in infos)
+    if spec_l in ("", "auto"):
+        for pick in (
+            lambda i: "GPU" in i.kind and i.fp64,
+            lambda i: i.is_pocl and "CPU" in i.kind,
+            lambda i: "CPU" in i.kind,
+            lambda i: True,
+        ):
+            found = [i for i in infos if pick(i)]
+            if found:
+                return found[0]
+    if spec_l in ("gpu", "cpu"):
+        found = [i for i in infos if spec_l.upper() in i.kind]
+    elif spec_l == "pocl":
+        found = [i for i in infos if i.is_pocl]
+    elif ":" in spec_l and all(p.strip().isdigit() for p in spec_l.split(":", 1)):
+        p, d = (int(x) for x in spec_l.split(":", 1))
+        found = [i for i in infos if (i.platform_index, i.device_index) == (p, d)]
+    else:
+        found = [i for i in infos if spec_l in f"{i.platform} / {i.name}".lower()]
+    if not found:
+        raise OpenCLUnavailable(
+            f"WAVEBRDF_DEVICE={spec!r} matches no OpenCL device. Available: {listing}. "
+            "Use auto, gpu, cpu, pocl, P:D or part of a device name."
+        )
+    return found[0]
+
+
+@dataclass
+class ComputeContext:
+    """An OpenCL context + in-order queue on one device, with a program cache.
+
+    Programs are built from ``kernels/<file>`` with ``-D`` defines. The build key is
+    (source hash with headers inlined, defines, device); the source hash also enters the
+    options as ``-D WB_SOURCE_HASH=...`` so driver-side caches (PoCL, NVIDIA) see the complete key.
+    """
+
+    context: Any
+    queue: Any
+    info: DeviceInfo
+    _programs: dict = field(default_factory=dict, repr=False)
+    _kernels: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def device(self):
+        return self.queue.device
+
+    @property
+    def fp64(self) -> bool:
+        return self.info.fp64
+
+    def describe(self) -> str:
+        return f"{self.info.platform} / {self.info.name} ({self.info.kind})"
+
+    def real_dtype(self, precision: str = "double") -> np.dtype:
+        """float64 or float32 for ``precision`` ("double" | "single"), checking fp64 support."""
+        if precision not in ("double", "single"):
+            raise ValueError(f"precision must be 'double' or 'single', got {precision!r}")
+        if precision == "double" and not self.fp64:
+            raise OpenCLUnavailable(
+                f"device {self.describe()} has no double precision (cl_khr_fp64); choose another "
+                "device with WAVEBRDF_DEVICE or precision = \"single\""
+            )
+        return np.dtype(np.float64 if precision == "double" else np.float32)
+
+    def program(self, source: str, defines: Mapping[str, Any] | None = None):
+        """Build (once) and return the program of ``kernels/<source>`` with ``defines``."""
+        cl = _import_cl()
+        text = load_source(source)
+        digest = source_hash(text)
+        items = tuple(sorted((str(k), str(v)) for k, v in (defines or {}).items()))
+        key = (source, digest, items)
+        prog = self._programs.get(key)
+        if prog is None:
+            options = [f"-DWB_SOURCE_HASH={digest}"] + [f"-D{k}={v}" for k, v in items]
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", cl.CompilerWarning)
+                try:
+                    prog = cl.Program(self.context, text).build(options=options)
+                except cl.RuntimeError as exc:
+                    raise RuntimeError(
+                        f"OpenCL build of kernels/{source} failed on {self.describe()} "
+                        f"with options {options}:\n{exc}"
+                    ) from exc
+            self._programs[key] = prog
+        return prog
+
+    def kernel(self, source: str, name: str, defines: Mapping[str, Any] | None = None):
+        """Return kernel ``name`` of ``kernels/<source>`` (one Kernel object per key)."""
+        cl = _import_cl()
+        prog = self.program(source, defines)
+        key = (id(prog), name)
+        knl = self._kernels.get(key)
+        if knl is None:
+            knl = cl.Kernel(prog, name)
+            self._kernels[key] = knl
+        return knl
+
+
+def create_context(spec: str | None = None, *, require_fp64: bool = True) -> ComputeContext:
+    """Create a :class:`ComputeContext` on the device chosen by ``spec`` / ``WAVEBRDF_DEVICE``."""
+    cl = _import_cl()
+    if spec is None:
+        spec = os.environ.get("WAVEBRDF_DEVICE", "auto")
+    infos = list_devices()
+    info = _choose(spec, infos)
+    if require_fp64 and not info.fp64:
+        raise OpenCLUnavailable(
+            f"device {info.platform} / {info.name} has no double precision (cl_khr_fp64). "
+            "Pick another with WAVEBRDF_DEVICE (see 'wavebrdf devices')."
+        )
+    device = cl.get_platforms()[info.platform_index].get_devices()[info.device_index]
+    context = cl.Context([device])
+    queue = cl.CommandQueue(context)
+    logger.info("OpenCL device: %s / %s", info.platform, info.name)
+    return ComputeContext(context=context, queue=queue, info=info)

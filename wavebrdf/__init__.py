@@ -1,0 +1,23 @@
+"""wavebrdf: wave-optics BRDFs of microgeometry, from Kirchhoff to full-wave BEM.
+
+Subpackages: ``wavebrdf.solver`` (numerics), ``wavebrdf.kernels`` (OpenCL C sources),
+``wavebrdf.jobs`` (configs, planning, scheduling, HDF5 storage, CLI).
+"""
+
+from __future__ import annotations
+
+from importlib.metadata import PackageNotFoundError, version as _version
+
+try:
+    __version__ = _version("wavebrdf")
+except PackageNotFoundError:  # pragma: no cover - running from a source tree without install
+    __version__ = "0+unknown"
+
+__all__ = ["__version__", "open"]
+
+
+def open(path):  # noqa: A001 - mirrors xarray.open_dataset / h5py.File usage
+    """Open a wavebrdf HDF5 dataset; returns a :class:`wavebrdf.jobs.store.Dataset`."""
+    from wavebrdf.jobs.store import open_dataset
+
+    return open_dataset(path)

@@ -1,0 +1,3 @@
+from wavebrdf.jobs.cli import main
+
+raise SystemExit(main())
