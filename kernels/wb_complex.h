@@ -53,5 +53,12 @@ inline cplx_t c_sqrt(cplx_t a)
     return (cplx_t)(fabs(a.y) / (R(2.0) * re), copysign(re, a.y));
 }
 inline cplx_t c_log(cplx_t a) { return (cplx_t)(log(c_abs(a)), atan2(a.y, a.x)); }
+/* e^a - 1 without cancellation for small |a|: Re = expm1(x) cos y - 2 sin^2(y/2) */
+inline cplx_t c_expm1(cplx_t a)
+{
+    real_t c, s = sincos(a.y, &c);
+    real_t sh = sin(R(0.5) * a.y);
+    return (cplx_t)(expm1(a.x) * c - R(2.0) * sh * sh, exp(a.x) * s);
+}
 
 #endif

@@ -135,7 +135,7 @@ def list_devices() -> list[DeviceInfo]:
     return out
 
 
-def _choose(spec: str, infos: list[DeviceInfo]) -> DeviceInfo:
+def choose_device(spec: str, infos: list[DeviceInfo]) -> DeviceInfo:
     spec_l = spec.strip().lower()
     listing = "; ".join(f"{i.spec} {i.platform} / {i.name} ({i.kind})" for i in infos)
     if spec_l in ("", "auto"):
@@ -242,7 +242,7 @@ def create_context(spec: str | None = None, *, require_fp64: bool = True) -> Com
     if spec is None:
         spec = os.environ.get("WAVEBRDF_DEVICE", "auto")
     infos = list_devices()
-    info = _choose(spec, infos)
+    info = choose_device(spec, infos)
     if require_fp64 and not info.fp64:
         raise OpenCLUnavailable(
             f"device {info.platform} / {info.name} has no double precision (cl_khr_fp64). "

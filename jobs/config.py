@@ -1,0 +1,513 @@
+"""Study configuration: TOML → validated, typed objects; sweeps expanded into cases.
+
+Every problem is reported as a :class:`ConfigError` whose one-line message names the key, the
+value and what is allowed, e.g. ``[illumination] wavelengths_um = [-0.4]: values must be > 0``.
+Relative ``surface.file`` paths are resolved against the config file's folder; ``study.output``
+against the working directory.
+
+Sections (see configs/*.toml and the README for a full example)::
+
+    [study]        name, output
+    [surface]      file + size_um | generator ("flat"|"gaussian"|"sinusoid") + size_um, cells,
+                   seed, rms_height_um, correlation_um, amplitude_um, period_um, angle_deg
+    [material]     name | table = [[λ_um, n, κ], ...] | n (+ kappa); exterior_index (default 1)
+    [illumination] wavelengths_um, directions_deg = [[θ, φ], ...], waist_um,
+                   polarization ("unpolarized"|"s"|"p"), beam ("exact"|"paraxial"|"plane")
+    [model]        name, method, precision ("double"|"single")
+    [output]       resolution, per_polarization
+    [sweep]        "section.key" = [values...]: one case per combination
+"""
+
+from __future__ import annotations
+
+import copy
+import difflib
+import itertools
+import math
+import os
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+__all__ = [
+    "ConfigError",
+    "Study",
+    "StudyConfig",
+    "load_config",
+    "parse_config",
+    "register_section",
+]
+
+POLARIZATION_CHOICES = ("unpolarized", "s", "p")
+BEAM_CHOICES = ("exact", "paraxial", "plane")
+PRECISION_CHOICES = ("double", "single")
+NOT_SWEEPABLE = {
+    "illumination.wavelengths_um": "it is already a dataset axis; list the values there",
+    "illumination.directions_deg": "it is already a dataset axis; list the directions there",
+    "output.resolution": "every case must share one output grid",
+    "study.output": "a study writes one dataset",
+    "study.name": "a study has one name",
+}
+
+
+class ConfigError(ValueError):
+    """Invalid configuration; the message names the key, the value and what is allowed."""
+
+
+def _fmt(value: Any) -> str:
+    text = repr(value) if not isinstance(value, str) else f'"{value}"'
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+def _fail(section: str, key: str, value: Any, problem: str) -> ConfigError:
+    return ConfigError(f"[{section}] {key} = {_fmt(value)}: {problem}")
+
+
+# ---------------------------------------------------------------------------------------------
+# Value checkers: each takes (section, key, value) and returns the converted value or raises.
+
+
+def _number(section, key, value, *, integer=False, low=None, high=None, low_open=False, high_open=False):
+    ok_type = isinstance(value, int) if integer else isinstance(value, (int, float))
+    if isinstance(value, bool) or not ok_type:
+        raise _fail(section, key, value, f"must be {'an integer' if integer else 'a number'}")
+    if not integer and not math.isfinite(value):
+        raise _fail(section, key, value, "must be finite (not NaN/inf)")
+    if low is not None and (value <= low if low_open else value < low):
+        raise _fail(section, key, value, f"must be {'>' if low_open else '>='} {low}")
+    if high is not None and (value >= high if high_open else value > high):
+        raise _fail(section, key, value, f"must be {'<' if high_open else '<='} {high}")
+    return int(value) if integer else float(value)
+
+
+def _positive(section, key, value):
+    return _number(section, key, value, low=0, low_open=True)
+
+
+def _nonnegative(section, key, value):
+    return _number(section, key, value, low=0)
+
+
+def _integer_at_least(minimum: int) -> Callable:
+    return lambda s, k, v: _number(s, k, v, integer=True, low=minimum)
+
+
+def _string(section, key, value):
+    if not isinstance(value, str) or not value.strip():
+        raise _fail(section, key, value, "must be a non-empty string")
+    return value
+
+
+def _boolean(section, key, value):
+    if not isinstance(value, bool):
+        raise _fail(section, key, value, "must be true or false")
+    return value
+
+
+def _choice(*choices: str) -> Callable:
+    def check(section, key, value):
+        if value not in choices:
+            raise _fail(section, key, value, f"must be one of {', '.join(repr(c) for c in choices)}")
+        return value
+
+    return check
+
+
+def _positive_list(section, key, value):
+    if not isinstance(value, list) or not value:
+        raise _fail(section, key, value, "must be a non-empty list of numbers")
+    out = []
+    for item in value:
+        if isinstance(item, bool) or not isinstance(item, (int, float)) or not math.isfinite(item) or item <= 0:
+            raise _fail(section, key, value, f"values must be finite numbers > 0 (bad: {_fmt(item)})")
+        out.append(float(item))
+    if len(set(out)) != len(out):
+        raise _fail(section, key, value, "values must be distinct")
+    return tuple(out)
+
+
+def _directions(section, key, value):
+    if not isinstance(value, list) or not value:
+        raise _fail(section, key, value, "must be a non-empty list of [theta_deg, phi_deg] pairs")
+    out = []
+    for item in value:
+        if (
+            not isinstance(item, list)
+            or len(item) != 2
+            or any(isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x) for x in item)
+        ):
+            raise _fail(section, key, value, f"each direction must be [theta_deg, phi_deg] (bad: {_fmt(item)})")
+        theta, phi = float(item[0]), float(item[1])
+        if not 0.0 <= theta < 90.0:
+            raise _fail(section, key, value, f"theta must be in [0, 90) degrees (bad: {theta:g})")
+        out.append((theta, phi))
+    if len(set(out)) != len(out):
+        raise _fail(section, key, value, "directions must be distinct")
+    return tuple(out)
+
+
+def _table(section, key, value):
+    if not isinstance(value, list) or not value or not all(isinstance(r, list) and len(r) == 3 for r in value):
+        raise _fail(section, key, value, "must be a list of [wavelength_um, n, kappa] rows")
+    return value
+
+
+@dataclass(frozen=True)
+class Spec:
+    check: Callable
+    default: Any = None
+    required: bool = False
+
+
+SCHEMA: dict[str, dict[str, Spec]] = {
+    "study": {
+        "name": Spec(_string),
+        "output": Spec(_string),
+    },
+    "surface": {
+        "file": Spec(_string),
+        "size_um": Spec(_positive, required=True),
+        "generator": Spec(_choice("flat", "gaussian", "sinusoid")),
+        "cells": Spec(_integer_at_least(3), default=256),
+        "seed": Spec(_integer_at_least(0), default=0),
+        "rms_height_um": Spec(_nonnegative),
+        "correlation_um": Spec(_positive),
+        "amplitude_um": Spec(lambda s, k, v: _number(s, k, v)),
+        "period_um": Spec(_positive),
+        "angle_deg": Spec(lambda s, k, v: _number(s, k, v)),
+    },
+    "material": {
+        "name": Spec(_string),
+        "table": Spec(_table),
+        "n": Spec(_positive),
+        "kappa": Spec(_nonnegative, default=0.0),
+        "exterior_index": Spec(lambda s, k, v: _number(s, k, v, low=1.0), default=1.0),
+    },
+    "illumination": {
+        "wavelengths_um": Spec(_positive_list, required=True),
+        "directions_deg": Spec(_directions, required=True),
+        "waist_um": Spec(_positive, required=True),
+        "polarization": Spec(_choice(*POLARIZATION_CHOICES), default="unpolarized"),
+        "beam": Spec(_choice(*BEAM_CHOICES), default="exact"),
+    },
+    "model": {
+        "name": Spec(_string, required=True),
+        "method": Spec(_string),
+        "precision": Spec(_choice(*PRECISION_CHOICES), default="double"),
+    },
+    "output": {
+        "resolution": Spec(lambda s, k, v: _number(s, k, v, integer=True, low=16, high=8192), default=512),
+        "per_polarization": Spec(_boolean, default=False),
+    },
+}
+REQUIRED_SECTIONS = ("surface", "material", "illumination", "model")
+GENERATOR_KEYS = ("rms_height_um", "correlation_um", "amplitude_um", "period_um", "angle_deg")
+
+
+def register_section(name: str, keys: dict[str, Spec]) -> None:
+    """Let a later subsystem (steering, fibers, execution) add a config section."""
+    SCHEMA[name] = keys
+
+
+# ---------------------------------------------------------------------------------------------
+# Typed study objects
+
+
+@dataclass(frozen=True)
+class SurfaceSpec:
+    size_um: float
+    file: Path | None
+    generator: str | None
+    cells: int
+    seed: int
+    parameters: dict
+
+    def build(self):
+        """Load or generate the :class:`~wavebrdf.solver.surface.HeightField`."""
+        from wavebrdf.solver.surface import HeightField, generate, load_heights
+
+        if self.file is not None:
+            return HeightField(load_heights(self.file), self.size_um)
+        return generate(self.generator, cells=self.cells, size_um=self.size_um, seed=self.seed, **self.parameters)
+
+
+@dataclass(frozen=True)
+class MaterialSpec:
+    name: str | None
+    table: tuple | None
+    n: float | None
+    kappa: float
+    exterior_index: float
+
+    def build(self):
+        from wavebrdf.solver.materials import Material
+
+        if self.name is not None:
+            return Material.from_name(self.name)
+        if self.table is not None:
+            return Material.from_table(self.table)
+        return Material.from_constant(self.n, self.kappa)
+
+
+@dataclass(frozen=True)
+class IlluminationSpec:
+    wavelengths_um: tuple[float, ...]
+    directions_deg: tuple[tuple[float, float], ...]
+    waist_um: float
+    polarization: str
+    beam: str
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    name: str
+    method: str | None
+    precision: str
+
+
+@dataclass(frozen=True)
+class OutputSpec:
+    resolution: int
+    per_polarization: bool
+
+
+@dataclass(frozen=True)
+class Study:
+    """One fully validated case of a study (one combination of the sweep values)."""
+
+    name: str
+    output: Path
+    surface: SurfaceSpec
+    material: MaterialSpec
+    illumination: IlluminationSpec
+    model: ModelSpec
+    output_options: OutputSpec
+    sections: dict = field(repr=False)  # validated values of every section (incl. registered ones)
+    sweep_values: dict = field(default_factory=dict)  # {"surface.rms_height_um": 0.1, ...}
+
+
+@dataclass(frozen=True)
+class StudyConfig:
+    """A parsed config file: its text, the sweep axes and the validated cases."""
+
+    text: str
+    path: Path | None
+    sweep_axes: dict  # {"section.key": (values...)} in file order
+    cases: tuple[Study, ...]
+
+    @property
+    def name(self) -> str:
+        return self.cases[0].name
+
+    @property
+    def output(self) -> Path:
+        return self.cases[0].output
+
+    @property
+    def case_shape(self) -> tuple[int, ...]:
+        return tuple(len(v) for v in self.sweep_axes.values())
+
+
+# ---------------------------------------------------------------------------------------------
+# Parsing
+
+
+def _suggest(key: str, options) -> str:
+    close = difflib.get_close_matches(key, list(options), n=1)
+    return f"; did you mean {close[0]!r}?" if close else ""
+
+
+def _validate_section(section: str, raw: Any) -> dict:
+    schema = SCHEMA[section]
+    if not isinstance(raw, dict):
+        raise ConfigError(f"[{section}] must be a table, got {_fmt(raw)}")
+    for key in raw:
+        if key not in schema:
+            raise ConfigError(
+                f"[{section}] {key}: unknown key{_suggest(key, schema)} (allowed: {', '.join(schema)})"
+            )
+    out = {}
+    for key, spec in schema.items():
+        if key in raw:
+            out[key] = spec.check(section, key, raw[key])
+        elif spec.required:
+            raise ConfigError(f"[{section}] {key}: missing required key")
+        else:
+            out[key] = spec.default
+    return out
+
+
+def _exactly_one(section: str, values: dict, keys: tuple[str, ...]) -> str:
+    given = [k for k in keys if values.get(k) is not None]
+    if len(given) != 1:
+        raise ConfigError(
+            f"[{section}]: give exactly one of {', '.join(keys)} (got {', '.join(given) or 'none'})"
+        )
+    return given[0]
+
+
+def _check_output_path(raw_output: str) -> Path:
+    path = Path(raw_output).expanduser()
+    if path.suffix not in (".h5", ".hdf5", ".nc"):
+        raise _fail("study", "output", raw_output, "must end in .h5 (or .hdf5/.nc)")
+    parent = path.resolve().parent
+    probe = parent
+    while not probe.exists():
+        probe = probe.parent
+    if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
+        raise _fail("study", "output", raw_output, f"folder {str(probe)!r} is not writable")
+    if path.exists() and path.is_dir():
+        raise _fail("study", "output", raw_output, "is a folder")
+    return path
+
+
+def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: dict) -> Study:
+    for section in data:
+        if section not in SCHEMA and section != "sweep":
+            raise ConfigError(f"[{section}]: unknown section{_suggest(section, SCHEMA)} (allowed: {', '.join(SCHEMA)})")
+    for section in REQUIRED_SECTIONS:
+        if section not in data:
+            raise ConfigError(f"[{section}]: missing required section")
+    v = {s: _validate_section(s, data.get(s, {})) for s in SCHEMA}
+
+    name = v["study"]["name"] or default_name
+    output = _check_output_path(v["study"]["output"] or f"{name}.h5")
+
+    s = v["surface"]
+    _exactly_one("surface", s, ("file", "generator"))
+    file = None
+    if s["file"] is not None:
+        file = Path(s["file"]).expanduser()
+        if not file.is_absolute():
+            file = base_dir / file
+        extra = [k for k in GENERATOR_KEYS if s[k] is not None]
+        if extra:
+            raise ConfigError(f"[surface] {extra[0]}: only used with a generator, not with surface.file")
+    params = {k: s[k] for k in GENERATOR_KEYS if s[k] is not None}
+    surface = SurfaceSpec(s["size_um"], file, s["generator"], s["cells"], s["seed"], params)
+
+    m = v["material"]
+    _exactly_one("material", m, ("name", "table", "n"))
+    material = MaterialSpec(
+        m["name"], None if m["table"] is None else tuple(map(tuple, m["table"])), m["n"], m["kappa"],
+        m["exterior_index"],
+    )
+    ill = v["illumination"]
+    illumination = IlluminationSpec(
+        ill["wavelengths_um"], ill["directions_deg"], ill["waist_um"], ill["polarization"], ill["beam"]
+    )
+    mod = v["model"]
+    from wavebrdf.solver.models import model_names
+
+    if mod["name"] not in model_names():
+        raise _fail("model", "name", mod["name"], f"must be one of {', '.join(repr(n) for n in model_names())}")
+    model = ModelSpec(mod["name"], mod["method"], mod["precision"])
+    out = OutputSpec(v["output"]["resolution"], v["output"]["per_polarization"])
+    study = Study(name, output, surface, material, illumination, model, out, v, dict(sweep_values))
+    _check_physics(study)
+    return study
+
+
+def _check_physics(study: Study) -> None:
+    """Checks that need the built objects: material range, height matrix contents."""
+    from wavebrdf.solver.materials import MaterialError
+    from wavebrdf.solver.surface import SurfaceError
+
+    try:
+        material = study.material.build()
+        index = material.index(np.array(study.illumination.wavelengths_um))
+    except MaterialError as exc:
+        raise ConfigError(f"[material] {exc}") from None
+    if np.any(np.imag(index) > 0):  # pragma: no cover - Material guarantees κ >= 0
+        raise ConfigError("[material]: negative kappa (gain medium)")
+    try:
+        study.surface.build()
+    except SurfaceError as exc:
+        raise ConfigError(f"[surface] {exc}") from None
+
+
+def _set_dotted(data: dict, dotted: str, value: Any) -> None:
+    section, key = dotted.split(".", 1)
+    data.setdefault(section, {})[key] = value
+
+
+def parse_config(text: str, path: Path | None = None) -> StudyConfig:
+    """Parse and validate config ``text`` (from ``path`` if given, for relative file paths)."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        where = f"{path}: " if path else ""
+        raise ConfigError(f"{where}not valid TOML: {exc}") from None
+    base_dir = path.parent.resolve() if path else Path.cwd()
+    default_name = path.stem if path else "study"
+
+    sweep = data.pop("sweep", {})
+    if not isinstance(sweep, dict):
+        raise ConfigError(f"[sweep] must be a table of \"section.key\" = [values], got {_fmt(sweep)}")
+    axes: dict[str, tuple] = {}
+    for dotted, values in _flatten_sweep(sweep).items():
+        section, _, key = dotted.partition(".")
+        if section not in SCHEMA or key not in SCHEMA[section]:
+            raise ConfigError(f"[sweep] {dotted}: not a config key{_suggest(dotted, _all_keys())}")
+        if dotted in NOT_SWEEPABLE:
+            raise ConfigError(f"[sweep] {dotted}: cannot be swept ({NOT_SWEEPABLE[dotted]})")
+        if not isinstance(values, list) or not values:
+            raise ConfigError(f"[sweep] {dotted} = {_fmt(values)}: must be a non-empty list of values")
+        if len(set(map(repr, values))) != len(values):
+            raise ConfigError(f"[sweep] {dotted} = {_fmt(values)}: values must be distinct")
+        axes[dotted] = tuple(values)
+
+    cases = []
+    for combo in itertools.product(*axes.values()):
+        case_data = copy.deepcopy(data)
+        values = dict(zip(axes, combo))
+        for dotted, value in values.items():
+            _set_dotted(case_data, dotted, value)
+        try:
+            cases.append(_build_study(case_data, base_dir, default_name, values))
+        except ConfigError as exc:
+            if values:
+                where = ", ".join(f"{k} = {_fmt(x)}" for k, x in values.items())
+                raise ConfigError(f"{exc} (in the sweep case {where})") from None
+            raise
+    return StudyConfig(text=text, path=path, sweep_axes=axes, cases=tuple(cases))
+
+
+def _flatten_sweep(sweep: dict) -> dict:
+    """Accept both ``"surface.seed" = [...]`` and a nested ``[sweep.surface] seed = [...]``."""
+    flat = {}
+    for key, value in sweep.items():
+        if isinstance(value, dict):
+            for sub, inner in value.items():
+                flat[f"{key}.{sub}"] = inner
+        else:
+            flat[key] = value
+    return flat
+
+
+def _all_keys() -> list[str]:
+    return [f"{s}.{k}" for s, keys in SCHEMA.items() for k in keys]
+
+
+def load_config(path: str | Path, output: str | Path | None = None) -> StudyConfig:
+    """Read and validate a config file; ``output`` overrides ``[study] output``."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"config file {str(path)!r} does not exist")
+    text = path.read_text()
+    if output is not None:
+        data_override = f"\n# --output given on the command line: {output}\n"
+        cfg = parse_config(text, path)
+        out = _check_output_path(str(output))
+        cases = tuple(_replace_output(c, out) for c in cfg.cases)
+        return StudyConfig(text=text + data_override, path=path, sweep_axes=cfg.sweep_axes, cases=cases)
+    return parse_config(text, path)
+
+
+def _replace_output(study: Study, output: Path) -> Study:
+    from dataclasses import replace
+
+    return replace(study, output=output)

@@ -1,0 +1,299 @@
+"""HDF5 dataset schema v1: writer (atomic), reader (:func:`open_dataset`, ``wavebrdf.open``).
+
+Layout (every coordinate is a 1-D dataset registered as an HDF5 dimension scale, so
+``xarray.open_dataset(path, engine="h5netcdf")`` reads it with no custom code)::
+
+    /                         attrs: format="wavebrdf", format_version=1, software_version,
+                              config (TOML text), created (UTC ISO 8601), device, study, conventions
+    <sweep key>               one coordinate per swept config key, e.g. "surface.rms_height_um"
+    wavelength_um             vacuum wavelengths (µm)
+    incidence                 0..n-1; with coordinates theta_i, phi_i (degrees) along it
+    polarization              "s", "p"
+    u, v                      projected-hemisphere pixel centres (direction cosines x, y)
+    brdf       [sweep..., wavelength_um, incidence, u, v]  float32, 1/sr, NaN outside the disk,
+                              for the configured polarization (attribute "polarization")
+    albedo     [sweep..., wavelength_um, incidence]        Σ brdf Δu Δv
+    albedo_sp  [sweep..., wavelength_um, incidence, polarization]
+    brdf_sp    [sweep..., wavelength_um, incidence, polarization, u, v]  (output.per_polarization)
+    ior_n, ior_kappa [sweep..., wavelength_um]          material index n − jκ
+    surface/<case>            height matrix (µm) of each sweep case; attrs size_um, spacing_um, stats
+    tasks/                    one row per task: case, wavelength/incidence index, model, status,
+                              wall_time_s, peak_memory_mb, device, message (diagnostics)
+
+Writing is atomic: the file is assembled under a temporary name in the target folder and
+renamed into place only when complete, so a crash never leaves a half-written dataset.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from contextlib import contextmanager
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+__all__ = ["FORMAT", "FORMAT_VERSION", "Dataset", "DatasetWriter", "StoreError", "atomic_h5", "open_dataset"]
+
+FORMAT = "wavebrdf"
+FORMAT_VERSION = 1
+CONVENTIONS = (
+    "lengths in micrometres; vacuum wavelength; time dependence exp(+j omega t); index n - j kappa; "
+    "theta_i/phi_i in degrees toward the light; u (rows) = x direction cosine, v (columns) = y; "
+    "BRDF f = |0.5 Re(E x H*)| / (Phi_i cos theta_o) in 1/sr; unpolarized = mean of s and p"
+)
+STRING = h5py.string_dtype()
+
+
+class StoreError(RuntimeError):
+    """The file is not a readable wavebrdf dataset."""
+
+
+@contextmanager
+def atomic_h5(path: Path):
+    """Open a temporary HDF5 file next to ``path``; rename it to ``path`` on success."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        with h5py.File(tmp, "w", track_order=True) as h5:
+            yield h5
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
+
+
+def _coordinate(h5: h5py.File, name: str, values, attrs: dict | None = None) -> h5py.Dataset:
+    values = np.asarray(values)
+    if values.dtype.kind in "UO":
+        ds = h5.create_dataset(name, data=np.array(values, dtype=object), dtype=STRING)
+    else:
+        ds = h5.create_dataset(name, data=values)
+    ds.make_scale(name)
+    for key, value in (attrs or {}).items():
+        ds.attrs[key] = value
+    return ds
+
+
+def _attach(var: h5py.Dataset, dims: list[str], h5: h5py.File) -> None:
+    for axis, dim in enumerate(dims):
+        var.dims[axis].attach_scale(h5[dim])
+
+
+@dataclass
+class DatasetWriter:
+    """Creates the schema-v1 layout in an open h5py file and fills it task by task."""
+
+    h5: h5py.File
+    sweep_axes: dict  # {"section.key": values}
+    wavelengths_um: np.ndarray
+    directions_deg: np.ndarray  # (n, 2): theta, phi
+    resolution: int
+    polarization: str
+    per_polarization: bool
+
+    def create(self, *, config_text: str, study: str, software_version: str, device: str) -> None:
+        h5 = self.h5
+        h5.attrs.update(
+            {
+                "format": FORMAT,
+                "format_version": FORMAT_VERSION,
+                "software_version": software_version,
+                "config": config_text,
+                "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+                "device": device,
+                "study": study,
+                "conventions": CONVENTIONS,
+            }
+        )
+        for key, values in self.sweep_axes.items():
+            _coordinate(h5, key, list(values), {"long_name": f"swept config key {key}"})
+        _coordinate(h5, "wavelength_um", self.wavelengths_um, {"units": "um", "long_name": "vacuum wavelength"})
+        n_inc = len(self.directions_deg)
+        _coordinate(h5, "incidence", np.arange(n_inc), {"long_name": "incident direction index"})
+        _coordinate(h5, "polarization", np.array(["s", "p"], dtype=object))
+        u = 2.0 * (np.arange(self.resolution) + 0.5) / self.resolution - 1.0
+        _coordinate(h5, "u", u, {"long_name": "x direction cosine of the outgoing direction"})
+        _coordinate(h5, "v", u, {"long_name": "y direction cosine of the outgoing direction"})
+        for name, column, long_name in (("theta_i", 0, "incident polar angle"), ("phi_i", 1, "incident azimuth")):
+            ds = h5.create_dataset(name, data=np.asarray(self.directions_deg, dtype=float)[:, column])
+            ds.attrs.update({"units": "degree", "long_name": f"{long_name} (toward the light)"})
+            _attach(ds, ["incidence"], h5)
+
+        sweep = list(self.sweep_axes)
+        lead = [len(v) for v in self.sweep_axes.values()]
+        n_wl = len(self.wavelengths_um)
+        res = self.resolution
+        coords = "theta_i phi_i"
+        self._variable(
+            "brdf", sweep + ["wavelength_um", "incidence", "u", "v"], lead + [n_wl, n_inc, res, res],
+            np.float32, {"units": "1/sr", "polarization": self.polarization, "coordinates": coords},
+            chunks=tuple([1] * (len(lead) + 2) + [res, res]),
+        )
+        self._variable(
+            "albedo", sweep + ["wavelength_um", "incidence"], lead + [n_wl, n_inc], np.float64,
+            {"units": "1", "polarization": self.polarization, "coordinates": coords,
+             "long_name": "sum of brdf * pixel area over the unit disk"},
+        )
+        self._variable(
+            "albedo_sp", sweep + ["wavelength_um", "incidence", "polarization"], lead + [n_wl, n_inc, 2],
+            np.float64, {"units": "1", "coordinates": coords},
+        )
+        if self.per_polarization:
+            self._variable(
+                "brdf_sp", sweep + ["wavelength_um", "incidence", "polarization", "u", "v"],
+                lead + [n_wl, n_inc, 2, res, res], np.float32, {"units": "1/sr", "coordinates": coords},
+                chunks=tuple([1] * (len(lead) + 3) + [res, res]),
+            )
+        for name, long_name in (("ior_n", "real part n of the index n - j kappa"),
+                                ("ior_kappa", "extinction coefficient kappa (>= 0 is loss)")):
+            self._variable(name, sweep + ["wavelength_um"], lead + [n_wl], np.float64, {"long_name": long_name})
+        h5.create_group("surface")
+
+    def _variable(self, name, dims, shape, dtype, attrs, chunks=None):
+        fill = np.nan
+        kwargs = {"chunks": chunks, "compression": "gzip", "compression_opts": 4, "shuffle": True} if chunks else {}
+        ds = self.h5.create_dataset(name, shape=tuple(shape), dtype=dtype, fillvalue=fill, **kwargs)
+        ds.attrs.update(attrs)
+        _attach(ds, dims, self.h5)
+        return ds
+
+    def write_case(self, case_index: tuple[int, ...], case_id: str, heights: np.ndarray, size_um: float,
+                   stats: dict, index: np.ndarray) -> None:
+        """Per-case data: surface heights and the material index at every wavelength."""
+        ds = self.h5["surface"].create_dataset(case_id, data=heights, compression="gzip", shuffle=True)
+        ds.attrs.update({"size_um": size_um, "spacing_um": size_um / (heights.shape[0] - 1), "units": "um",
+                         "case_index": list(case_index), **stats})
+        self.h5["ior_n"][case_index] = np.real(index)
+        self.h5["ior_kappa"][case_index] = -np.imag(index)
+
+    def write_result(self, case_index: tuple[int, ...], wl: int, inc: int, brdf_sp: np.ndarray,
+                     brdf: np.ndarray, albedo_sp: np.ndarray, albedo: float) -> None:
+        """One task's slices."""
+        where = tuple(case_index) + (wl, inc)
+        self.h5["brdf"][where] = brdf.astype(np.float32)
+        self.h5["albedo"][where] = albedo
+        self.h5["albedo_sp"][where] = albedo_sp
+        if self.per_polarization:
+            self.h5["brdf_sp"][where] = brdf_sp.astype(np.float32)
+
+    def write_tasks(self, rows: list[dict]) -> None:
+        """The task table (diagnostics + completion status), one entry per task."""
+        grp = self.h5.create_group("tasks")
+        if not rows:
+            return
+        for key in rows[0]:
+            values = [r.get(key) for r in rows]
+            if all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in values):
+                grp.create_dataset(key, data=np.asarray(values, dtype=np.int64))
+            elif all(isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, bool)
+                     for v in values):
+                grp.create_dataset(key, data=np.asarray(values, dtype=np.float64))
+            else:
+                data = [v if isinstance(v, str) else json.dumps(v) for v in values]
+                grp.create_dataset(key, data=np.array(data, dtype=object), dtype=STRING)
+
+
+class Dataset:
+    """Read access to a wavebrdf HDF5 dataset (``wavebrdf.open(path)``).
+
+    Arrays are read on access: ``ds.brdf`` (numpy, float32), ``ds.albedo``, ``ds.coords``
+    (dict of coordinate arrays), ``ds.config`` (TOML text), ``ds.tasks`` (task table dict).
+    ``ds.to_xarray()`` returns the same file as an ``xarray.Dataset``.
+    """
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise StoreError(f"{str(self.path)!r} does not exist")
+        try:
+            self._h5 = h5py.File(self.path, "r")
+        except OSError as exc:
+            raise StoreError(f"{str(self.path)!r} is not a readable HDF5 file: {exc}") from None
+        if self._h5.attrs.get("format") != FORMAT:
+            self._h5.close()
+            raise StoreError(f"{str(self.path)!r} is not a wavebrdf dataset (no format=\"wavebrdf\" attribute)")
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self) -> None:
+        self._h5.close()
+
+    @property
+    def h5(self) -> h5py.File:
+        return self._h5
+
+    @property
+    def attrs(self) -> dict:
+        return {k: (v.decode() if isinstance(v, bytes) else v) for k, v in self._h5.attrs.items()}
+
+    @property
+    def config(self) -> str:
+        return self.attrs["config"]
+
+    @property
+    def sweep_keys(self) -> list[str]:
+        dims = self._dims("albedo")
+        return dims[: dims.index("wavelength_um")]
+
+    def _dims(self, name: str) -> list[str]:
+        return [d.label or self._scale_name(d) for d in self._h5[name].dims]
+
+    @staticmethod
+    def _scale_name(dim) -> str:
+        return dim[0].name.lstrip("/") if len(dim) else ""
+
+    @property
+    def coords(self) -> dict[str, np.ndarray]:
+        names = self.sweep_keys + ["wavelength_um", "incidence", "theta_i", "phi_i", "polarization", "u", "v"]
+        out = {}
+        for name in names:
+            data = self._h5[name][()]
+            if data.dtype.kind == "O":
+                data = np.array([x.decode() if isinstance(x, bytes) else x for x in data])
+            out[name] = data
+        return out
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self._h5[name][()]
+
+    @property
+    def brdf(self) -> np.ndarray:
+        return self["brdf"]
+
+    @property
+    def albedo(self) -> np.ndarray:
+        return self["albedo"]
+
+    @property
+    def tasks(self) -> dict[str, np.ndarray]:
+        grp = self._h5.get("tasks")
+        return {} if grp is None else {k: grp[k][()] for k in grp}
+
+    def surface(self, case: int = 0) -> np.ndarray:
+        return self._h5["surface"][str(case)][()]
+
+    def to_xarray(self):
+        import xarray as xr
+
+        return xr.open_dataset(self.path, engine="h5netcdf")
+
+    def __repr__(self) -> str:
+        shape = dict(zip(self._dims("brdf"), self._h5["brdf"].shape))
+        return f"<wavebrdf.Dataset {self.path.name} study={self.attrs.get('study')!r} brdf{shape}>"
+
+
+def open_dataset(path: str | Path) -> Dataset:
+    """Open a wavebrdf dataset for reading."""
+    return Dataset(path)
