@@ -26,7 +26,7 @@ def _user_errors():
     from wavebrdf.solver.opencl import OpenCLUnavailable
     from wavebrdf.solver.surface import SurfaceError
 
-    return (ConfigError, ResumeError, StoreError, MaterialError, OpenCLUnavailable, SurfaceError)
+    return (ConfigError, ResumeError, StoreError, MaterialError, OpenCLUnavailable, SurfaceError, OSError)
 
 
 def cmd_run(args) -> int:

@@ -160,7 +160,7 @@ def test_single_precision_close_to_double(cl_ctx):
     assert 0 < rel_l2 < 1e-4
 
 
-def test_chebyshev_truncation_is_exact_to_1e_12():
+def test_chebyshev_truncation_is_exact_to_1e_11():
     """The truncated Jacobi–Anger series reproduces e^{jkμ_o z} over μ_o ∈ [0, 1]."""
     for x_max in (0.0, 0.3, 2.0, 9.0, 30.0):
         n_max = chebyshev_order(x_max)
@@ -172,7 +172,7 @@ def test_chebyshev_truncation_is_exact_to_1e_12():
                 * np.cos(n[:, None] * np.arccos(t)[None]),
                 axis=0,
             )
-            assert np.max(np.abs(series - np.exp(1j * x * t))) < 1e-12
+            assert np.max(np.abs(series - np.exp(1j * x * t))) < 1e-11
 
 
 def test_footprint_warning_when_beam_exceeds_patch(cl_ctx):

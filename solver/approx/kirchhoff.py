@@ -46,7 +46,7 @@ __all__ = [
     "kirchhoff_farfield_numpy",
 ]
 
-BESSEL_TAIL = 1e-14  # truncate the Jacobi–Anger series where |J_n(x_max)| falls below this
+BESSEL_TAIL = 1e-12  # truncate the Jacobi–Anger series where |J_n(x_max)| falls below this
 EDGE_AMPLITUDE = 1e-3  # footprint amplitude at the patch edge above which we warn
 
 
