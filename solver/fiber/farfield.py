@@ -36,20 +36,21 @@ __all__ = [
     "gram_matrix",
     "radiation_matrices",
     "required_samples",
+    "sample_scattering",
 ]
 
 MIN_ANGULAR_SAMPLES = 360
 
 
-def required_samples(shape: CrossSection, wavelength_um: float) -> int:
+def required_samples(r_max_um: float, wavelength_um: float) -> int:
     """Minimum number of φ samples over 2π: max(360, 4(k₀ r_max + 10)) (fiber.md §14.8)."""
     k0 = 2.0 * np.pi / wavelength_um
-    return int(max(MIN_ANGULAR_SAMPLES, np.ceil(4.0 * (k0 * shape.r_max + 10.0))))
+    return int(max(MIN_ANGULAR_SAMPLES, np.ceil(4.0 * (k0 * r_max_um + 10.0))))
 
 
-def angular_oversampling(bins: int, shape: CrossSection, wavelength_um: float) -> int:
+def angular_oversampling(bins: int, r_max_um: float, wavelength_um: float) -> int:
     """Samples per bin so that bins·s >= :func:`required_samples`."""
-    return int(np.ceil(required_samples(shape, wavelength_um) / bins))
+    return int(np.ceil(required_samples(r_max_um, wavelength_um) / bins))
 
 
 def bin_centres(bins: int) -> np.ndarray:
@@ -69,6 +70,22 @@ def bin_average(values: np.ndarray, per_bin: int, axis: int = -1) -> np.ndarray:
     values = np.moveaxis(values, axis, -1)
     out = values.reshape(values.shape[:-1] + (-1, per_bin)).mean(axis=-1)
     return np.moveaxis(out, -1, axis)
+
+
+def sample_scattering(dcs, r_max_um: float, wavelength_um: float, phi_r=None, bins: int = 360):
+    """Sample an angular scattering function on the band-limit-resolving grid.
+
+    ``dcs(phi)`` returns dC_s/dφ of shape (len(phi), C). Returns (phi_out, values (R, C), C_sca
+    (C,)): point samples at ``phi_r`` if given, else box averages over ``bins`` bins centred on
+    i·2π/bins; C_sca is the periodic-trapezoid integral on the fine grid.
+    """
+    per_bin = angular_oversampling(bins, r_max_um, wavelength_um)
+    fine = dcs(bin_samples(bins, per_bin))
+    c_sca = fine.mean(axis=0) * 2.0 * np.pi
+    if phi_r is None:
+        return bin_centres(bins), bin_average(fine, per_bin, axis=0), c_sca
+    phi_out = np.atleast_1d(np.asarray(phi_r, dtype=float))
+    return phi_out, dcs(phi_out), c_sca
 
 
 def _element_hat_phases(shape: CrossSection, k: float, phi: np.ndarray, points: int):

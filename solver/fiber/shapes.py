@@ -8,6 +8,12 @@ Constructors: :func:`circle`, :func:`ellipse` (nodes equally spaced in arclength
 :func:`polygon` (corners kept as nodes, optional grading towards corners), :func:`spline`
 (periodic cubic spline through points) and :func:`load_shape` for user files.
 
+Smooth shapes (circle, ellipse, spline) are discretised *area-preserving* by default: every node
+is moved outward along the curve normal by κΔ²/12 (κ curvature, Δ element length), so each chord
+cuts off as much area outside the arc as it adds inside; the second-order geometric error of the
+inscribed polygon cancels. For a 1 µm circle at λ = 0.4 µm with N = 300 this takes the BEM-vs-Mie
+error from 8e-4 to 5e-6 (tests/fiber). ``preserve_area=False`` puts the nodes on the curve.
+
 Shape file format (text, lengths in µm)::
 
     # wavebrdf fiber cross-section
@@ -219,16 +225,21 @@ def _segment_count(segments, what: str = "segments", minimum: int = MIN_NODES) -
     return int(segments)
 
 
-def circle(radius_um: float, segments: int, rotation: float = 0.0) -> CrossSection:
-    """Regular N-gon inscribed in a circle of radius ``radius_um``, first node at angle ``rotation``."""
+def circle(radius_um: float, segments: int, rotation: float = 0.0, preserve_area: bool = True) -> CrossSection:
+    """Regular N-gon approximating a circle of radius ``radius_um``, first node at angle
+    ``rotation``; with ``preserve_area`` its area equals πa² (else it is inscribed)."""
     a = _positive(radius_um, "radius_um")
     n = _segment_count(segments)
     t = rotation + 2.0 * np.pi * np.arange(n) / n
-    return CrossSection(a * np.stack([np.cos(t), np.sin(t)], axis=1), name=f"circle r={a:g}um")
+    if preserve_area:
+        a *= np.sqrt(2.0 * np.pi / (n * np.sin(2.0 * np.pi / n)))
+    return CrossSection(a * np.stack([np.cos(t), np.sin(t)], axis=1), name=f"circle r={radius_um:g}um")
 
 
-def ellipse(a_um: float, b_um: float, segments: int, rotation: float = 0.0) -> CrossSection:
-    """Ellipse with semi-axes a (along x before rotation) and b, nodes equally spaced in arclength."""
+def ellipse(a_um: float, b_um: float, segments: int, rotation: float = 0.0,
+            preserve_area: bool = True) -> CrossSection:
+    """Ellipse with semi-axes a (along x before rotation) and b, nodes equally spaced in
+    arclength (moved outward by κΔ²/12 with ``preserve_area``)."""
     a = _positive(a_um, "semi_axes_um[0]")
     b = _positive(b_um, "semi_axes_um[1]")
     n = _segment_count(segments)
@@ -240,9 +251,22 @@ def ellipse(a_um: float, b_um: float, segments: int, rotation: float = 0.0) -> C
     targets = s[-1] * np.arange(n) / n
     tn = np.interp(targets, s, t)
     pts = np.stack([a * np.cos(tn), b * np.sin(tn)], axis=1)
+    if preserve_area:
+        velocity = np.stack([-a * np.sin(tn), b * np.cos(tn)], axis=1)
+        accel = -pts
+        pts = _sagitta_compensated(pts, velocity, accel, s[-1] / n)
     c, si = np.cos(rotation), np.sin(rotation)
     pts = pts @ np.array([[c, si], [-si, c]])
     return CrossSection(pts, name=f"ellipse {a:g}x{b:g}um")
+
+
+def _sagitta_compensated(points, velocity, accel, step: float) -> np.ndarray:
+    """Move nodes of a counter-clockwise curve outward by κΔ²/12 (κ from the parametric first
+    and second derivatives, Δ the uniform element length)."""
+    speed = np.hypot(velocity[:, 0], velocity[:, 1])
+    kappa = (velocity[:, 0] * accel[:, 1] - velocity[:, 1] * accel[:, 0]) / speed**3
+    outward = np.stack([velocity[:, 1], -velocity[:, 0]], axis=1) / speed[:, None]
+    return points + outward * (kappa * step * step / 12.0)[:, None]
 
 
 def _counter_clockwise(points, what: str) -> np.ndarray:
@@ -295,9 +319,10 @@ def polygon(points, segments: int | None = None, corner_grading: int = 0) -> Cro
     return CrossSection(np.concatenate(nodes), name=f"polygon {len(pts)} corners")
 
 
-def spline(points, segments: int) -> CrossSection:
+def spline(points, segments: int, preserve_area: bool = True) -> CrossSection:
     """Periodic cubic spline through ``points`` (µm), resampled at ``segments`` nodes equally
-    spaced in arclength (for digitised smooth contours, fiber.md §12)."""
+    spaced in arclength (for digitised smooth contours, fiber.md §12; nodes moved outward by
+    κΔ²/12 with ``preserve_area``)."""
     from scipy.interpolate import CubicSpline
 
     pts = _counter_clockwise(points, "spline points")
@@ -309,7 +334,10 @@ def spline(points, segments: int) -> CrossSection:
     speed = np.hypot(*curve(fine, 1).T)
     s = np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(fine))])
     tn = np.interp(s[-1] * np.arange(n) / n, s, fine)
-    return CrossSection(curve(tn), name=f"spline {len(pts)} points")
+    nodes = curve(tn)
+    if preserve_area:
+        nodes = _sagitta_compensated(nodes, curve(tn, 1), curve(tn, 2), s[-1] / n)
+    return CrossSection(nodes, name=f"spline {len(pts)} points")
 
 
 def load_shape(path, segments: int | None = None) -> CrossSection:

@@ -1,0 +1,162 @@
+"""2.5D boundary element solver for fibers of arbitrary cross section (fiber.md §1–6).
+
+Per (λ, θ_i): assemble the 4N×4N PMCHWT matrix on the OpenCL device
+(:class:`~wavebrdf.solver.fiber.assembly.FiberAssembler`), factor it once on the host
+(``scipy.linalg.lu_factor``, complex128), and solve both polarizations and all φ_i as one
+block of right-hand sides; then far field and cross sections (:mod:`.farfield`).
+
+Units and conventions: µm, vacuum wavelength, e^{+jωt}, index m = n - jκ, θ_i from the plane
+normal to the axis (radians), φ in radians; cross sections per unit length in µm, normalised by
+S₀ cosθ_i (fiber.md §6: C = 2a·Q_BH/cosθ_i for a circle). Polarization axis: 0 = "parallel"
+(BH case I), 1 = "perpendicular" (BH case II).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from wavebrdf.solver.fiber.assembly import (
+    BEMQuadrature,
+    FiberAssembler,
+    fiber_assemble_reference,
+    fiber_pair_moments_reference,
+)
+from wavebrdf.solver.fiber.farfield import (
+    absorption_cross_section,
+    dcs_dphi,
+    extinction_cross_section,
+    far_field_pattern,
+    sample_scattering,
+)
+from wavebrdf.solver.fiber.incidence import FiberMedia, fiber_media, rhs_vectors
+from wavebrdf.solver.fiber.results import ScatteringResult
+from wavebrdf.solver.fiber.shapes import CrossSection
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["FiberBEM", "FiberSolution", "solve_fiber"]
+
+MIN_ELEMENTS_PER_WAVELENGTH = 9.5  # fiber.md §4 asks for about 10 per interior wavelength
+
+
+@dataclass
+class FiberSolution:
+    """The solved system of one (λ, θ_i): solution block and what is needed to post-process it."""
+
+    shape: CrossSection
+    media: FiberMedia
+    phi_i: np.ndarray
+    rhs: np.ndarray  # (4N, 2P), columns (polarization, φ_i)
+    x: np.ndarray  # (4N, 2P)
+    quadrature: BEMQuadrature
+    timings: dict
+
+    def pattern(self, phi_r) -> np.ndarray:
+        """U(φ_r) of every column, shape (R, 3, 2P)."""
+        return far_field_pattern(self.shape, self.media, self.x, phi_r, self.quadrature.farfield_points)
+
+    def scattering(self, phi_r=None, bins: int = 360) -> ScatteringResult:
+        """dC_s/dφ at point samples ``phi_r`` or, if None, box-averaged over ``bins`` bins, and
+        the cross sections (C_sca integrated on the band-limit-resolving grid)."""
+        t0 = time.perf_counter()
+        npol, nphi = 2, self.phi_i.size
+        phi_out, values, c_sca = sample_scattering(
+            lambda phi: dcs_dphi(self.media, self.pattern(phi)), self.shape.r_max,
+            self.media.wavelength_um, phi_r, bins)
+        c_ext = extinction_cross_section(self.media, self.rhs, self.x)
+        c_abs = absorption_cross_section(self.shape, self.media, self.x)
+        timings = dict(self.timings, farfield_s=time.perf_counter() - t0)
+        return ScatteringResult(
+            wavelength_um=self.media.wavelength_um,
+            index=self.media.index,
+            theta_i=self.media.theta_i,
+            phi_i=self.phi_i,
+            phi_r=phi_out,
+            dCs_dphi=values.T.reshape(npol, nphi, -1),
+            C_ext=c_ext.reshape(npol, nphi),
+            C_sca=c_sca.reshape(npol, nphi),
+            C_abs=c_abs.reshape(npol, nphi),
+            binned=phi_r is None,
+            timings=timings,
+        )
+
+
+class FiberBEM:
+    """2.5D PMCHWT solver for one cross section on one OpenCL context.
+
+    ``solve`` assembles on the device (``reference=True``: the NumPy/scipy twin instead),
+    factors once per (λ, θ_i) and solves 2·len(φ_i) right-hand sides as a block.
+    """
+
+    def __init__(self, ctx, shape: CrossSection, quadrature: BEMQuadrature | None = None):
+        self.ctx = ctx
+        self.shape = shape
+        self.quadrature = quadrature or BEMQuadrature()
+        self._assembler = None
+
+    @property
+    def assembler(self) -> FiberAssembler:
+        if self._assembler is None:
+            self._assembler = FiberAssembler(self.ctx, self.shape, self.quadrature)
+        return self._assembler
+
+    def matrix(self, media: FiberMedia, reference: bool = False) -> np.ndarray:
+        """The system matrix (4N×4N complex128) on the device or by the NumPy reference."""
+        if reference:
+            mom_i, mom_k = fiber_pair_moments_reference(self.shape, media, self.quadrature)
+            return fiber_assemble_reference(self.shape, mom_i, mom_k, media)
+        return self.assembler.matrix(media)
+
+    def solve(self, wavelength_um: float, index: complex, theta_i: float, phi_i,
+              reference: bool = False) -> FiberSolution:
+        """Solve for incidence (θ_i, each φ_i) and both polarizations (angles in radians)."""
+        media = fiber_media(wavelength_um, index, theta_i)
+        phi = np.atleast_1d(np.asarray(phi_i, dtype=float))
+        self._check_resolution(media)
+        t0 = time.perf_counter()
+        z = self.matrix(media, reference=reference)
+        t1 = time.perf_counter()
+        lu = scipy.linalg.lu_factor(z, overwrite_a=True, check_finite=True)
+        t2 = time.perf_counter()
+        rhs = rhs_vectors(self.shape, media, phi, self.quadrature.rhs_points)
+        x = scipy.linalg.lu_solve(lu, rhs)
+        t3 = time.perf_counter()
+        timings = {"assembly_s": t1 - t0, "factorization_s": t2 - t1, "solve_s": t3 - t2}
+        logger.debug("fiber BEM N=%d λ=%.4g θ=%.4g: %s", self.shape.segments, wavelength_um, theta_i, timings)
+        return FiberSolution(self.shape, media, phi, rhs, x, self.quadrature, timings)
+
+    @property
+    def r_max(self) -> float:
+        return self.shape.r_max
+
+    def width(self, phi) -> np.ndarray:
+        """Geometric width C_g (µm) for incidence azimuths ``phi``."""
+        return self.shape.width(phi)
+
+    def scattering(self, wavelength_um: float, index: complex, theta_i: float, phi_i=0.0,
+                   phi_r=None, bins: int = 360) -> ScatteringResult:
+        """Solve and post-process: dC_s/dφ (point samples at ``phi_r`` or ``bins`` box averages)
+        and cross sections, both polarizations (the interface shared with :class:`MieFiber`)."""
+        return self.solve(wavelength_um, index, theta_i, phi_i).scattering(phi_r, bins)
+
+    def _check_resolution(self, media: FiberMedia) -> None:
+        """Warn below 10 elements per interior wavelength (fiber.md §4)."""
+        interior_wavelength = media.wavelength_um / abs(media.index)
+        per_wavelength = interior_wavelength / self.shape.lengths.max()
+        if per_wavelength < MIN_ELEMENTS_PER_WAVELENGTH:
+            logger.warning(
+                "fiber mesh is coarse: %.1f elements per interior wavelength (λ/|m| = %.3g µm, "
+                "longest element %.3g µm); use at least 10", per_wavelength, interior_wavelength,
+                self.shape.lengths.max())
+
+
+def solve_fiber(ctx, shape: CrossSection, wavelength_um: float, index: complex, theta_i: float,
+                phi_i=0.0, phi_r=None, bins: int = 360,
+                quadrature: BEMQuadrature | None = None) -> ScatteringResult:
+    """One-call fiber BEM: dC_s/dφ and cross sections for (λ, θ_i, φ_i), both polarizations."""
+    return FiberBEM(ctx, shape, quadrature).scattering(wavelength_um, index, theta_i, phi_i, phi_r, bins)
