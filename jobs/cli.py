@@ -1,4 +1,4 @@
-"""Command line: ``wavebrdf run | inspect | render | devices | bench``.
+"""Command line: ``wavebrdf run | plan | submit | inspect | render | devices | bench``.
 
 Errors in user input (config, surface files, output paths, datasets) are printed as one line
 ``wavebrdf: error: ...`` with exit status 2; nothing is written in that case.
@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -20,31 +22,196 @@ logger = logging.getLogger("wavebrdf")
 
 def _user_errors():
     from wavebrdf.jobs.config import ConfigError
+    from wavebrdf.jobs.plan import PlanError
     from wavebrdf.jobs.scheduler import ResumeError
     from wavebrdf.jobs.store import StoreError
     from wavebrdf.solver.materials import MaterialError
     from wavebrdf.solver.opencl import OpenCLUnavailable
     from wavebrdf.solver.surface import SurfaceError
 
-    return (ConfigError, ResumeError, StoreError, MaterialError, OpenCLUnavailable, SurfaceError, OSError)
+    return (ConfigError, PlanError, ResumeError, StoreError, MaterialError, OpenCLUnavailable, SurfaceError, OSError)
+
+
+@dataclass(frozen=True)
+class MpiLaunch:
+    """What the launcher (mpiexec/srun) tells this process, read before MPI is initialised."""
+
+    size: int
+    rank: int
+    local_size: int
+
+
+def detect_mpi_launch() -> MpiLaunch | None:
+    """Size/rank/ranks-on-this-node from MPICH (hydra), Open MPI or Slurm variables."""
+    env = os.environ
+
+    def first(*names, default=None):
+        for name in names:
+            if env.get(name, "").strip():
+                return env[name]
+        return default
+
+    size = first("PMI_SIZE", "OMPI_COMM_WORLD_SIZE", "PMIX_SIZE")
+    if size is None and "SLURM_PROCID" in env and "SLURM_STEP_ID" in env:
+        size = env.get("SLURM_NTASKS")
+    if size is None or int(size) <= 1:
+        return None
+    rank = int(first("PMI_RANK", "OMPI_COMM_WORLD_RANK", "PMIX_RANK", "SLURM_PROCID", default="0"))
+    local = first("MPI_LOCALNRANKS", "OMPI_COMM_WORLD_LOCAL_SIZE", "SLURM_NTASKS_PER_NODE")
+    local = int(str(local).split("(")[0]) if local else int(size)
+    return MpiLaunch(int(size), rank, local)
+
+
+def _choose_executor(requested: str, launch: MpiLaunch | None) -> str:
+    from wavebrdf.jobs.config import ConfigError
+
+    if requested == "auto":
+        return "mpi" if launch else "serial"
+    if requested == "mpi" and launch is None:
+        raise ConfigError("[run] executor = \"mpi\": start the run with mpiexec -n N (or srun) to use MPI")
+    return requested
 
 
 def cmd_run(args) -> int:
     from wavebrdf.jobs.config import load_config
-    from wavebrdf.jobs.plan import plan_study
+    from wavebrdf.jobs.plan import check_memory, plan_study
+    from wavebrdf.jobs.scheduler import worker_environment
+
+    config = load_config(args.config, output=args.output)
+    study = config.cases[0]
+    launch = detect_mpi_launch()
+    executor = _choose_executor(args.executor or study.run.executor, launch)
+    workers = args.workers or study.run.workers or (os.cpu_count() or 1)
+    comm = None
+    if executor == "mpi":
+        os.environ.update(worker_environment(launch.local_size, launch.rank))
+        from mpi4py import MPI
+
+        comm = MPI.COMM_WORLD
+    plan = plan_study(config)
+    per_node = {"mpi": launch.local_size if launch else 1, "processes": workers}.get(executor, 1)
+    check_memory(plan, per_node, study.run.memory_gb)
+    if comm is None:
+        return _run_and_report(args, plan, executor, workers, None)
+    try:
+        return _run_and_report(args, plan, executor, workers, comm)
+    except BaseException as exc:  # one failing rank must not leave the others waiting forever
+        print(f"wavebrdf: error on rank {comm.Get_rank()}: {type(exc).__name__}: {exc}", file=sys.stderr)
+        comm.Abort(2)
+        raise
+
+
+def _run_and_report(args, plan, executor: str, workers: int, comm) -> int:
     from wavebrdf.jobs.render import render_dataset
     from wavebrdf.jobs.scheduler import run_plan
     from wavebrdf.solver.opencl import create_context
 
-    config = load_config(args.config, output=args.output)
-    plan = plan_study(config)
+    rank = comm.Get_rank() if comm is not None else 0
     ctx = create_context(args.device)
-    print(f"study {config.name!r}: {len(plan.tasks)} task(s) on {ctx.describe()}", file=sys.stderr)
-    path = run_plan(plan, ctx, progress=not args.quiet)
-    print(f"wrote {path}")
+    if rank == 0:
+        how = {"mpi": f"{comm.Get_size() if comm else 1} MPI ranks", "processes": f"{workers} worker processes",
+               "serial": "this process"}[executor]
+        print(f"study {plan.config.name!r}: {len(plan.tasks)} task(s) on {ctx.describe()}, {how}", file=sys.stderr)
+    summary = run_plan(plan, ctx, executor=executor, workers=workers, comm=comm,
+                       progress=not args.quiet and rank == 0)
+    if summary is None:
+        return 0
+    print(f"wrote {summary.path}")
+    if summary.failed:
+        print(f"wavebrdf: {summary.failed} of {summary.tasks} task(s) failed (see 'wavebrdf inspect "
+              f"{summary.path}'); their results are NaN. Re-run the same command to retry them.", file=sys.stderr)
+        return 1
     if not args.no_render:
-        for png in render_dataset(path):
+        for png in render_dataset(summary.path):
             print(f"wrote {png}")
+    return 0
+
+
+def cmd_plan(args) -> int:
+    from wavebrdf.jobs.config import load_config
+    from wavebrdf.jobs.plan import check_memory, plan_study
+
+    config = load_config(args.config)
+    study = config.cases[0]
+    plan = plan_study(config)
+    workers = args.workers or study.run.workers or 1
+    estimates = [plan.estimate(t) for t in plan.tasks]
+    budget = check_memory(plan, workers, args.memory_gb or study.run.memory_gb)
+    print(f"study {config.name!r} -> {config.output}")
+    for case, st in plan.steering.items():
+        layout = st.layout
+        print(f"  steering (case {case}): {layout.counts[0]}x{layout.counts[1]} patches of {layout.patch_size_um:g} µm "
+              f"shifted by {layout.shift_um:g} µm; hexagon radius {st.tiling.radius:.4f}; "
+              f"{len(st.basics_rad)} basic direction(s) for {len(st.basic_of)} requested")
+    print(f"{'id':>6} {'kind':6} {'case':>4} {'λ (µm)':>7} {'θ (°)':>7} {'φ (°)':>7} {'patch':>6} "
+          f"{'memory (GiB)':>12} {'time (s)':>9}  model")
+    rows = list(zip(plan.tasks, estimates))
+    shown = rows if len(rows) <= args.rows else rows[: args.rows - 5] + [None] + rows[-5:]
+    for row in shown:
+        if row is None:
+            print(f"{'...':>6} ({len(rows) - args.rows + 1} more)")
+            continue
+        task, est = row
+        theta, phi = np.rad2deg(plan.direction_rad(task))
+        lam = plan.wavelengths_um[task.wavelength]
+        patch = "x".join(map(str, task.patch)) or "-"
+        model = "steering synthesis" if task.kind == "synth" else plan.model_name(task)
+        print(f"{task.id:6d} {task.kind:6} {task.case:4d} {lam:7.3f} {theta:7.2f} {phi:7.2f} {patch:>6} "
+              f"{est.memory_bytes / 2**30:12.2f} {est.seconds:9.2f}  {model}")
+    total = sum(e.seconds for e in estimates)
+    peak = max(e.memory_bytes for e in estimates)
+    print(f"total: {len(plan.tasks)} tasks, {total:.1f} s of compute ({total / 3600:.2f} h); about "
+          f"{total / workers:.1f} s wall on {workers} worker(s); peak {peak / 2**30:.2f} GiB per worker "
+          f"(node budget {budget / 2**30:.1f} GiB)")
+    return 0
+
+
+SLURM_TEMPLATE = """#!/bin/bash
+# SLURM batch script written by `wavebrdf submit` for study {study!r}.
+# Submit with: sbatch {script}
+# A run that hits the time limit keeps its finished tasks in {parts}/;
+# submitting the same script again completes only what is missing.
+#SBATCH --job-name={job}
+#SBATCH --nodes={nodes}
+#SBATCH --ntasks-per-node={per_node}
+#SBATCH --cpus-per-task={cpus}
+#SBATCH --time={time}
+#SBATCH --output={job}-%j.log
+{extra}
+set -euo pipefail
+cd {cwd}
+export PATH={bindir}:$PATH
+export OMP_NUM_THREADS={cpus} OPENBLAS_NUM_THREADS={cpus}
+# each rank bounds its PoCL threads to its CPUs and uses its own kernel cache (set by wavebrdf)
+srun {srun_options}{wavebrdf} run {config} --quiet
+"""
+
+
+def cmd_submit(args) -> int:
+    import re
+
+    from wavebrdf.jobs.config import ConfigError, load_config
+    from wavebrdf.jobs.plan import check_memory, plan_study
+
+    if not re.fullmatch(r"(\d+-)?\d{1,3}:\d{2}(:\d{2})?", args.time):
+        raise ConfigError(f"--time {args.time!r}: use HH:MM, HH:MM:SS or D-HH:MM")
+    if args.nodes < 1 or args.ntasks_per_node < 1:
+        raise ConfigError("--nodes and --ntasks-per-node must be >= 1")
+    config = load_config(args.config)
+    plan = plan_study(config)
+    check_memory(plan, args.ntasks_per_node, args.memory_gb or config.cases[0].run.memory_gb)
+    script = Path(args.script or f"{config.name}.slurm.sh")
+    extra = "\n".join(f"#SBATCH --{k}={v}" for k, v in (("partition", args.partition), ("account", args.account)) if v)
+    text = SLURM_TEMPLATE.format(
+        study=config.name, script=script, parts=str(config.output) + ".parts", job=re.sub(r"\W", "_", config.name),
+        nodes=args.nodes, per_node=args.ntasks_per_node, cpus=args.cpus_per_task, time=args.time, extra=extra,
+        cwd=Path.cwd(), bindir=Path(sys.executable).parent, srun_options=f"--mpi={args.mpi} " if args.mpi else "",
+        wavebrdf=Path(sys.executable).parent / "wavebrdf", config=Path(args.config).resolve(),
+    )
+    script.write_text(text)
+    script.chmod(0o755)
+    print(f"wrote {script}: {len(plan.tasks)} tasks on {args.nodes} node(s) x {args.ntasks_per_node} rank(s)")
+    print(f"submit with: sbatch {script}")
     return 0
 
 
@@ -132,9 +299,32 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("config", type=Path)
     p.add_argument("--output", "-o", type=Path, help="override [study] output")
     p.add_argument("--device", help="OpenCL device (overrides WAVEBRDF_DEVICE)")
+    p.add_argument("--executor", choices=["auto", "serial", "processes", "mpi"],
+                   help="override [run] executor (auto: MPI under mpiexec/srun, else serial)")
+    p.add_argument("--workers", type=int, help="worker processes for --executor processes")
     p.add_argument("--no-render", action="store_true", help="do not write PNGs")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("plan", help="list a study's tasks with memory/time estimates (runs nothing)")
+    p.add_argument("config", type=Path)
+    p.add_argument("--workers", type=int, help="concurrent tasks per node (default [run] workers or 1)")
+    p.add_argument("--memory-gb", type=float, help="node memory (default: [run] memory_gb or this machine)")
+    p.add_argument("--rows", type=int, default=40, help="maximum task rows to print")
+    p.set_defaults(func=cmd_plan)
+
+    p = sub.add_parser("submit", help="write a SLURM batch script that runs the study with srun")
+    p.add_argument("config", type=Path)
+    p.add_argument("--nodes", type=int, required=True)
+    p.add_argument("--time", required=True, help="wall-clock limit HH:MM")
+    p.add_argument("--ntasks-per-node", type=int, default=os.cpu_count() or 1, help="MPI ranks per node")
+    p.add_argument("--cpus-per-task", type=int, default=1)
+    p.add_argument("--partition")
+    p.add_argument("--account")
+    p.add_argument("--mpi", default="pmi2", help="srun --mpi plugin ('' to omit); pmi2 suits the PyPI mpich")
+    p.add_argument("--memory-gb", type=float, help="node memory for the fit check")
+    p.add_argument("--script", help="output path (default <study>.slurm.sh)")
+    p.set_defaults(func=cmd_submit)
 
     p = sub.add_parser("inspect", help="summarise a dataset")
     p.add_argument("file", type=Path)

@@ -15,6 +15,10 @@ Sections (see configs/*.toml and the README for a full example)::
                    polarization ("unpolarized"|"s"|"p"), beam ("exact"|"paraxial"|"plane")
     [model]        name, method, precision ("double"|"single")
     [output]       resolution, per_polarization
+    [steering]     patches ([mx, my] | "auto"), patch_size_um, shift_um (default: the waist),
+                   hexagon_fill (hexagon radius as a fraction of sin(λ_min/(π w)); > 1 steers
+                   beyond the aliasing limit, with a warning)
+    [run]          executor ("auto"|"serial"|"processes"|"mpi"), workers, memory_gb, retries
     [sweep]        "section.key" = [values...]: one case per combination
 """
 
@@ -50,6 +54,7 @@ NOT_SWEEPABLE = {
     "output.resolution": "every case must share one output grid",
     "study.output": "a study writes one dataset",
     "study.name": "a study has one name",
+    "steering.patches": "the patch layout is shared by all cases",
 }
 
 
@@ -149,6 +154,18 @@ def _directions(section, key, value):
     return tuple(out)
 
 
+def _patches(section, key, value):
+    if value == "auto":
+        return value
+    if (
+        not isinstance(value, list)
+        or len(value) != 2
+        or any(isinstance(v, bool) or not isinstance(v, int) or v < 1 for v in value)
+    ):
+        raise _fail(section, key, value, 'must be "auto" or [mx, my] with integers >= 1')
+    return (int(value[0]), int(value[1]))
+
+
 def _table(section, key, value):
     if not isinstance(value, list) or not value or not all(isinstance(r, list) and len(r) == 3 for r in value):
         raise _fail(section, key, value, "must be a list of [wavelength_um, n, kappa] rows")
@@ -197,6 +214,18 @@ SCHEMA: dict[str, dict[str, Spec]] = {
         "name": Spec(_string, required=True),
         "method": Spec(_string),
         "precision": Spec(_choice(*PRECISION_CHOICES), default="double"),
+    },
+    "steering": {
+        "patches": Spec(_patches, required=True),
+        "patch_size_um": Spec(_positive, required=True),
+        "shift_um": Spec(_positive),  # default: the waist
+        "hexagon_fill": Spec(lambda s, k, v: _number(s, k, v, low=0.05, high=10.0), default=0.97),
+    },
+    "run": {
+        "executor": Spec(_choice("auto", "serial", "processes", "mpi"), default="auto"),
+        "workers": Spec(_integer_at_least(1)),
+        "memory_gb": Spec(_positive),
+        "retries": Spec(_integer_at_least(0), default=1),
     },
     "output": {
         "resolution": Spec(lambda s, k, v: _number(s, k, v, integer=True, low=16, high=8192), default=512),
@@ -269,6 +298,22 @@ class ModelSpec:
 
 
 @dataclass(frozen=True)
+class SteeringSpec:
+    patches: tuple[int, int] | str
+    patch_size_um: float
+    shift_um: float
+    hexagon_fill: float
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    executor: str
+    workers: int | None
+    memory_gb: float | None
+    retries: int
+
+
+@dataclass(frozen=True)
 class OutputSpec:
     resolution: int
     per_polarization: bool
@@ -285,6 +330,8 @@ class Study:
     illumination: IlluminationSpec
     model: ModelSpec
     output_options: OutputSpec
+    steering: SteeringSpec | None
+    run: RunSpec
     sections: dict = field(repr=False)  # validated values of every section (incl. registered ones)
     sweep_values: dict = field(default_factory=dict)  # {"surface.rms_height_um": 0.1, ...}
 
@@ -320,7 +367,8 @@ def _suggest(key: str, options) -> str:
     return f"; did you mean {close[0]!r}?" if close else ""
 
 
-def _validate_section(section: str, raw: Any) -> dict:
+def _validate_section(section: str, raw: Any, present: bool = True) -> dict:
+    """Check and convert one section; an absent optional section gets its defaults."""
     schema = SCHEMA[section]
     if not isinstance(raw, dict):
         raise ConfigError(f"[{section}] must be a table, got {_fmt(raw)}")
@@ -333,7 +381,7 @@ def _validate_section(section: str, raw: Any) -> dict:
     for key, spec in schema.items():
         if key in raw:
             out[key] = spec.check(section, key, raw[key])
-        elif spec.required:
+        elif spec.required and present:
             raise ConfigError(f"[{section}] {key}: missing required key")
         else:
             out[key] = spec.default
@@ -371,7 +419,7 @@ def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: di
     for section in REQUIRED_SECTIONS:
         if section not in data:
             raise ConfigError(f"[{section}]: missing required section")
-    v = {s: _validate_section(s, data.get(s, {})) for s in SCHEMA}
+    v = {s: _validate_section(s, data.get(s, {}), s in data) for s in SCHEMA}
 
     name = v["study"]["name"] or default_name
     output = _check_output_path(v["study"]["output"] or f"{name}.h5")
@@ -406,7 +454,14 @@ def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: di
         raise _fail("model", "name", mod["name"], f"must be one of {', '.join(repr(n) for n in model_names())}")
     model = ModelSpec(mod["name"], mod["method"], mod["precision"])
     out = OutputSpec(v["output"]["resolution"], v["output"]["per_polarization"])
-    study = Study(name, output, surface, material, illumination, model, out, v, dict(sweep_values))
+    steering = None
+    if "steering" in data:
+        st = v["steering"]
+        steering = SteeringSpec(st["patches"], st["patch_size_um"], st["shift_um"] or illumination.waist_um,
+                                st["hexagon_fill"])
+    r = v["run"]
+    run = RunSpec(r["executor"], r["workers"], r["memory_gb"], r["retries"])
+    study = Study(name, output, surface, material, illumination, model, out, steering, run, v, dict(sweep_values))
     _check_physics(study)
     return study
 

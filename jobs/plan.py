@@ -1,45 +1,79 @@
-"""Planning: expand a study into tasks (sweep case × wavelength × incident direction).
+"""Planning: expand a study into tasks, with a memory/time estimate for each.
 
-Each :class:`Task` is one independent simulation that returns a FarField. The :class:`Plan`
-builds the :class:`~wavebrdf.solver.models.SurfaceScene` of a task on demand and carries a
-memory/time estimate per task from the model.
+Without steering, one ``direct`` task per (sweep case, wavelength, incident direction). With
+``[steering]``, the requested directions are mapped to basic directions (hexagon territories,
+jobs/steering.py) and the plan holds one ``patch`` task per (case, wavelength, basic direction,
+sub-area) plus one ``synth`` task per (case, wavelength, requested direction) that depends on
+the patch tasks of its basic direction. Every task's result slot in the dataset is given by
+(case, wavelength, incidence) of the direct/synth tasks.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import logging
+import os
 from dataclasses import dataclass, field
 from functools import cached_property, lru_cache
 
 import numpy as np
 
 from wavebrdf.jobs.config import Study, StudyConfig
+from wavebrdf.jobs.steering import HexagonTiling, PatchLayout
 from wavebrdf.solver.farfield import HemisphereGrid
 from wavebrdf.solver.models import Estimate, SurfaceScene, get_model
 
-__all__ = ["Plan", "Task", "plan_study"]
+logger = logging.getLogger(__name__)
+
+__all__ = ["Plan", "PlanError", "Task", "check_memory", "node_memory_bytes", "plan_study"]
+
+
+class PlanError(ValueError):
+    """The study cannot be planned as configured (e.g. tasks do not fit in memory)."""
 
 
 @dataclass(frozen=True)
 class Task:
-    """One simulation: indices into the study's axes."""
+    """One unit of work. ``kind``: "direct" | "patch" | "synth"."""
 
     id: int
-    case: int  # flat index of the sweep case
-    case_index: tuple[int, ...]  # multi-index along the sweep axes
+    kind: str
+    case: int
+    case_index: tuple[int, ...]
     wavelength: int
-    incidence: int
+    incidence: int = -1  # direct / synth: requested direction
+    basic: int = -1  # patch / synth: basic direction
+    patch: tuple[int, ...] = ()  # patch: (a, b)
+    depends: tuple[int, ...] = ()
 
     @property
     def label(self) -> str:
-        return f"task {self.id} (case {self.case}, wavelength #{self.wavelength}, incidence #{self.incidence})"
+        where = f"case {self.case}, λ#{self.wavelength}"
+        if self.kind == "patch":
+            return f"patch {self.patch} of basic #{self.basic} ({where})"
+        return f"{self.kind} incidence #{self.incidence} ({where})"
+
+    @property
+    def writes_result(self) -> bool:
+        return self.kind in ("direct", "synth")
+
+
+@dataclass
+class CaseSteering:
+    """Steering set-up of one case: layout, basic directions, assignment of each request."""
+
+    layout: PatchLayout
+    basics_rad: np.ndarray  # (K, 2)
+    basic_of: np.ndarray  # (n_incidence,) index into basics
+    tiling: HexagonTiling
 
 
 @dataclass
 class Plan:
     config: StudyConfig
-    tasks: list[Task]
+    tasks: list[Task] = field(default_factory=list)
+    steering: dict[int, CaseSteering] = field(default_factory=dict)
     _surfaces: dict = field(default_factory=dict, repr=False)
 
     @property
@@ -59,6 +93,7 @@ class Plan:
         return np.array(self.study.illumination.directions_deg)
 
     def surface(self, case: int):
+        """The (global) height field of ``case``, built once."""
         if case not in self._surfaces:
             self._surfaces[case] = self.config.cases[case].surface.build()
         return self._surfaces[case]
@@ -67,26 +102,52 @@ class Plan:
         """Material index n − jκ of ``case`` at every wavelength."""
         return _material_index(self.config.cases[case].material, tuple(self.wavelengths_um))
 
-    def scene(self, task: Task) -> SurfaceScene:
+    def direction_rad(self, task: Task) -> tuple[float, float]:
+        """(θ, φ) simulated by ``task``: the basic direction for patches, else the requested one."""
+        if task.kind == "patch":
+            theta, phi = self.steering[task.case].basics_rad[task.basic]
+            return float(theta), float(phi)
+        theta, phi = self.config.cases[task.case].illumination.directions_deg[task.incidence]
+        return float(np.deg2rad(theta)), float(np.deg2rad(phi))
+
+    def scene(self, task: Task, *, basic: int | None = None) -> SurfaceScene:
+        """The scene a task simulates. For synth tasks, ``basic`` gives the patch-beam scene
+        (basic direction, footprint at the patch centre) used for the incident power."""
         study = self.config.cases[task.case]
-        theta, phi = study.illumination.directions_deg[task.incidence]
+        surface = self.surface(task.case)
+        z_reference = None
+        if task.kind == "patch" or basic is not None:
+            st = self.steering[task.case]
+            patch = task.patch if task.kind == "patch" else st.layout.indices[0]
+            z_reference = float(np.mean(surface.z))
+            surface = st.layout.cut(surface, patch)
+            theta, phi = st.basics_rad[task.basic if basic is None else basic]
+        else:
+            theta, phi = self.direction_rad(task)
         return SurfaceScene(
-            surface=self.surface(task.case),
+            surface=surface,
             wavelength_um=study.illumination.wavelengths_um[task.wavelength],
             index=complex(self.index(task.case)[task.wavelength]),
-            theta_i=np.deg2rad(theta),
-            phi_i=np.deg2rad(phi),
+            theta_i=float(theta),
+            phi_i=float(phi),
             waist_um=study.illumination.waist_um,
             grid=self.grid,
             exterior_index=study.material.exterior_index,
             beam=study.illumination.beam,
             precision=study.model.precision,
+            z_reference=z_reference,
         )
 
     def model_name(self, task: Task) -> str:
         return self.config.cases[task.case].model.name
 
     def estimate(self, task: Task) -> Estimate:
+        """Memory/time of ``task`` (synthesis: reading and summing the patch far fields)."""
+        if task.kind == "synth":
+            res = self.grid.resolution
+            n = len(task.depends)
+            field_bytes = 2 * 6 * 16.0 * res * res
+            return Estimate(3 * field_bytes + 100e6, 2e-8 * n * res * res + 0.05 * n, f"sum of {n} patch fields")
         return get_model(self.model_name(task)).estimate(self.scene(task))
 
     @cached_property
@@ -94,14 +155,16 @@ class Plan:
         """Hash of everything that determines the results (not the output path or name)."""
         cases = []
         for study in self.config.cases:
-            sections = {s: dict(v) for s, v in study.sections.items()}
-            sections["study"] = {}
+            sections = {s: dict(v) for s, v in study.sections.items() if s not in ("study", "run")}
             if study.surface.file is not None:
                 sections["surface"]["file"] = _file_digest(str(study.surface.file))
             cases.append(sections)
         blob = json.dumps({"cases": cases, "sweep": {k: list(v) for k, v in self.config.sweep_axes.items()}},
                           sort_keys=True, default=repr)
         return hashlib.sha256(blob.encode()).hexdigest()[:20]
+
+    def result_tasks(self) -> list[Task]:
+        return [t for t in self.tasks if t.writes_result]
 
 
 @lru_cache(maxsize=64)
@@ -115,14 +178,82 @@ def _file_digest(path: str) -> str:
         return hashlib.sha256(fh.read()).hexdigest()[:20]
 
 
+def _case_steering(plan: Plan, case: int) -> CaseSteering:
+    study = plan.config.cases[case]
+    spec = study.steering
+    surface = plan.surface(case)
+    if spec.patches == "auto":
+        layout = PatchLayout.auto(surface.size_um, spec.patch_size_um, spec.shift_um)
+    else:
+        layout = PatchLayout(tuple(spec.patches), spec.patch_size_um, spec.shift_um)
+    try:
+        layout.check(surface)
+    except ValueError as exc:
+        raise PlanError(f"[steering] {exc}") from None
+    tiling = HexagonTiling.for_beam(min(study.illumination.wavelengths_um), study.illumination.waist_um,
+                                    study.material.exterior_index, spec.hexagon_fill)
+    if spec.hexagon_fill > 1.0:
+        logger.warning("[steering] hexagon_fill = %g > 1: derived directions may lie beyond the aliasing limit "
+                       "λ_min/(π w) and show grating-lobe artefacts", spec.hexagon_fill)
+    directions = np.deg2rad(np.array(study.illumination.directions_deg))
+    basic_of, basics = tiling.assign(directions)
+    return CaseSteering(layout, basics, basic_of, tiling)
+
+
 def plan_study(config: StudyConfig) -> Plan:
-    """All tasks of ``config`` in a fixed order (case-major, then wavelength, then incidence)."""
+    """All tasks of ``config``: patch tasks first (case-major), then the result tasks."""
+    plan = Plan(config)
     shape = config.case_shape
     n_wl = len(config.cases[0].illumination.wavelengths_um)
     n_inc = len(config.cases[0].illumination.directions_deg)
-    tasks = []
-    for case, case_index in enumerate(np.ndindex(*shape) if shape else [()]):
+    cases = list(enumerate(np.ndindex(*shape) if shape else [()]))
+    tasks: list[Task] = []
+    patch_ids: dict[tuple, list[int]] = {}
+    for case, case_index in cases:
+        if config.cases[case].steering is None:
+            continue
+        st = plan.steering[case] = _case_steering(plan, case)
+        for wl in range(n_wl):
+            for b in range(len(st.basics_rad)):
+                ids = patch_ids.setdefault((case, wl, b), [])
+                for patch in st.layout.indices:
+                    ids.append(len(tasks))
+                    tasks.append(Task(len(tasks), "patch", case, tuple(map(int, case_index)), wl, basic=b,
+                                      patch=patch))
+    for case, case_index in cases:
+        st = plan.steering.get(case)
         for wl in range(n_wl):
             for inc in range(n_inc):
-                tasks.append(Task(len(tasks), case, tuple(int(i) for i in case_index), wl, inc))
-    return Plan(config, tasks)
+                if st is None:
+                    tasks.append(Task(len(tasks), "direct", case, tuple(map(int, case_index)), wl, inc))
+                else:
+                    b = int(st.basic_of[inc])
+                    tasks.append(Task(len(tasks), "synth", case, tuple(map(int, case_index)), wl, inc, basic=b,
+                                      depends=tuple(patch_ids[(case, wl, b)])))
+    plan.tasks = tasks
+    return plan
+
+
+def node_memory_bytes() -> float:
+    """Physical memory of this machine (bytes), from /proc/meminfo or sysconf."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemTotal:"):
+                    return float(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+
+
+def check_memory(plan: Plan, workers_per_node: int, memory_gb: float | None = None) -> float:
+    """Refuse a plan whose tasks cannot fit in a node's memory; return the node budget (bytes)."""
+    budget = (memory_gb * 2**30) if memory_gb else node_memory_bytes()
+    need, task = max(((plan.estimate(t).memory_bytes, t) for t in plan.tasks), key=lambda e: e[0])
+    if need * workers_per_node > budget:
+        raise PlanError(
+            f"{task.label} needs about {need / 2**30:.1f} GiB; with {workers_per_node} task(s) at once per node "
+            f"that is {need * workers_per_node / 2**30:.1f} GiB, more than the node's {budget / 2**30:.1f} GiB "
+            "([run] memory_gb). Use fewer workers/ranks per node, a coarser grid or smaller patches."
+        )
+    return budget

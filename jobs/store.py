@@ -174,6 +174,24 @@ class DatasetWriter:
         self.h5["ior_n"][case_index] = np.real(index)
         self.h5["ior_kappa"][case_index] = -np.imag(index)
 
+    def write_steering(self, case_index: tuple[int, ...], steering) -> None:
+        """Basic direction of every requested direction (degrees) and the patch layout."""
+        sweep = list(self.sweep_axes)
+        if "theta_basic" not in self.h5:
+            lead = [len(v) for v in self.sweep_axes.values()]
+            n_inc = len(self.directions_deg)
+            for name, long_name in (("theta_basic", "polar angle"), ("phi_basic", "azimuth")):
+                self._variable(name, sweep + ["incidence"], lead + [n_inc], np.float64,
+                               {"units": "degree", "long_name": f"{long_name} of the simulated basic direction"})
+            layout = steering.layout
+            self.h5.attrs.update({"steering_patches": list(layout.counts),
+                                  "steering_patch_size_um": layout.patch_size_um,
+                                  "steering_shift_um": layout.shift_um,
+                                  "steering_hexagon_radius": steering.tiling.radius})
+        basics = np.rad2deg(steering.basics_rad[steering.basic_of])
+        self.h5["theta_basic"][tuple(case_index)] = basics[:, 0]
+        self.h5["phi_basic"][tuple(case_index)] = basics[:, 1]
+
     def write_result(self, case_index: tuple[int, ...], wl: int, inc: int, brdf_sp: np.ndarray,
                      brdf: np.ndarray, albedo_sp: np.ndarray, albedo: float) -> None:
         """One task's slices."""

@@ -54,7 +54,7 @@ void bessel_j_sequence(real_t x, int nmax, real_t *out)
 
 __kernel void kirchhoff_fields(
     __global const real_t *z,        /* (na, nb) heights − mid-height, µm */
-    __global const real_t *window,   /* (na, nb) Δ² W */
+    __global const cplx_t *window,   /* (na, nb) Δ² W (complex footprint) */
     __global const cplx_t *pre_x,    /* (na) chirp-z pre-factors along x */
     __global const cplx_t *pre_y,    /* (nb) */
     const int na, const int nb, const int nmax,
@@ -67,8 +67,7 @@ __kernel void kirchhoff_fields(
     const real_t zz = z[gid];
     real_t jn[NMAX_BUF];
     bessel_j_sequence(R(0.5) * k * zz, nmax, jn);
-    cplx_t base = c_scale(c_mul(c_expj(k * (mu_i + R(0.5)) * zz), c_mul(pre_x[a], pre_y[b])),
-                          window[gid]);
+    cplx_t base = c_mul(c_mul(c_expj(k * (mu_i + R(0.5)) * zz), c_mul(pre_x[a], pre_y[b])), window[gid]);
     const size_t plane = (size_t)na * nb;
     cplx_t jpow = c_new(R(1.0), R(0.0)); /* j^n */
     for (int n = 0; n <= nmax; ++n) {

@@ -66,6 +66,11 @@ class Model(ABC):
     def estimate(self, scene: SurfaceScene) -> Estimate:
         """Memory/time estimate for ``scene`` without running it."""
 
+    def incident_fields(self, scene: SurfaceScene, points):
+        """Incident (E, H), each (2 pol, 3, ...), at ``points`` (..., 3) in patch coordinates,
+        with the normalisation of this model's FarField incident power (used by beam steering)."""
+        raise NotImplementedError(f"model {self.name!r} does not provide incident fields (cannot be steered)")
+
 
 # name -> "module:ClassName" (imported on first use)
 _REGISTRY: dict[str, str] = {

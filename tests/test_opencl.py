@@ -50,7 +50,7 @@ def test_bessel_sequence_kernel_matches_scipy(cl_ctx):
     buf = lambda a: cl.Buffer(cl_ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))
     out = cl.Buffer(cl_ctx.context, mf.WRITE_ONLY, (nmax + 1) * n * 16)
     # k = 2, mu_i = -0.5 and unit window/chirps: g_n = eps_n j^n J_n(x)
-    knl(cl_ctx.queue, (n,), None, buf(x), buf(np.ones(n)), buf(np.ones(n, complex)), buf(np.ones(1, complex)),
+    knl(cl_ctx.queue, (n,), None, buf(x), buf(np.ones(n, complex)), buf(np.ones(n, complex)), buf(np.ones(1, complex)),
         np.int32(n), np.int32(1), np.int32(nmax), np.float64(2.0), np.float64(-0.5), out)
     g = np.empty((nmax + 1, n), complex)
     cl.enqueue_copy(cl_ctx.queue, g, out)

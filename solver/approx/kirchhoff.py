@@ -82,8 +82,8 @@ class KirchhoffSetup:
     eta: complex
     z_mid: np.ndarray  # heights − mid-height (µm)
     dz_ref: float  # mid-height − reference height (µm)
-    window: np.ndarray  # Δ² W
-    weight_sum: float  # Δ² Σ W²  (effective illuminated area, µm²)
+    window: np.ndarray  # Δ² W (complex: footprint amplitude and phase relative to the plane wave)
+    weight_sum: float  # Δ² Σ |W|²  (effective illuminated area, µm²)
     n_max: int
     czt_x: ChirpZAxis
     czt_y: ChirpZAxis
@@ -108,13 +108,15 @@ class KirchhoffSetup:
             raise ValueError(f"incident theta must be in [0°, 90°), got {np.rad2deg(theta_i):g}°")
         if np.imag(index) > 0:
             raise ValueError(f"index must be n - j*kappa with kappa >= 0, got {index!r}")
-        window = np.asarray(window, dtype=float)
+        window = np.asarray(window)
+        window = window.astype(complex if np.iscomplexobj(window) else float)
         if window.shape != surface.z.shape:
             raise ValueError(f"footprint shape {window.shape} != height matrix {surface.z.shape}")
-        edge = max(window[0].max(), window[-1].max(), window[:, 0].max(), window[:, -1].max())
-        if edge > EDGE_AMPLITUDE * window.max():
+        magnitude = np.abs(window)
+        edge = max(magnitude[0].max(), magnitude[-1].max(), magnitude[:, 0].max(), magnitude[:, -1].max())
+        if edge > EDGE_AMPLITUDE * magnitude.max():
             warnings.warn(
-                f"illumination footprint is {edge / window.max():.2g} of its peak at the patch edge "
+                f"illumination footprint is {edge / magnitude.max():.2g} of its peak at the patch edge "
                 f"(patch {surface.size_um:g} µm): edge diffraction will show; use a larger patch or "
                 "a smaller waist (patch >= ~5.3 waists)",
                 FootprintWarning,
@@ -142,8 +144,8 @@ class KirchhoffSetup:
             eta=complex(index) / exterior_index,
             z_mid=z_mid,
             dz_ref=mid - z_ref,
-            window=window * d * d,
-            weight_sum=float(np.sum(window**2) * d * d),
+            window=(window * d * d).astype(complex),
+            weight_sum=float(np.sum(np.abs(window) ** 2) * d * d),
             n_max=n_max,
             czt_x=czt_x,
             czt_y=czt_y,
@@ -196,7 +198,8 @@ def kirchhoff_farfield(
     """Kirchhoff far field of ``surface`` on ``grid`` computed with OpenCL kernels.
 
     Give either ``waist_um`` (Gaussian footprint centred on the patch) or an explicit
-    footprint amplitude ``window`` on the surface nodes. ``z_reference`` is the height of the
+    footprint ``window`` on the surface nodes (real, or complex for a phase relative to the
+    plane wave e^{+jk ω_i·r}, e.g. a sum of phase-stepped beams). ``z_reference`` is the height of the
     phase reference plane (default: the surface mean; patches of a larger surface pass the
     global mean). ``precision`` "single" runs kernels and FFTs in float32/complex64.
     """
@@ -224,7 +227,7 @@ def kirchhoff_farfield(
     fields_dev = cl.Buffer(ctx.context, mf.READ_WRITE, n_orders * na * nb * cplx.itemsize)
     fields_knl(
         queue, (na * nb,), None,
-        to_device(setup.z_mid, real), to_device(setup.window, real),
+        to_device(setup.z_mid, real), to_device(setup.window, cplx),
         to_device(setup.czt_x.pre, cplx), to_device(setup.czt_y.pre, cplx),
         np.int32(na), np.int32(nb), np.int32(setup.n_max),
         real.type(setup.k), real.type(setup.mu_i), fields_dev,
@@ -327,6 +330,25 @@ class KirchhoffModel(Model):
             scene.grid, window=window, exterior_index=scene.exterior_index,
             z_reference=scene.z_reference, precision=scene.precision,
         )
+
+    def incident_fields(self, scene: SurfaceScene, points):
+        """The footprint as a locally plane wave: E = W(r) e^{+jk ω_i·r} ê, H = (n₁/η₀) k̂ × E.
+
+        k̂ = −ω_i; ê_s ⟂ plane of incidence, ê_p = ê_s × k̂ (|E₀| = 1 V/µm as in the FarField).
+        """
+        points = np.asarray(points, dtype=float)
+        k = 2 * np.pi * scene.exterior_index / scene.wavelength_um
+        st, ct = np.sin(scene.theta_i), np.cos(scene.theta_i)
+        omega = np.array([st * np.cos(scene.phi_i), st * np.sin(scene.phi_i), ct])
+        e_s = np.array([-np.sin(scene.phi_i), np.cos(scene.phi_i), 0.0])
+        k_hat = -omega
+        e_p = np.cross(e_s, k_hat)
+        c = scene.footprint_centre_um
+        r2 = (points[..., 0] - c[0]) ** 2 + (points[..., 1] - c[1]) ** 2
+        amplitude = np.exp(-r2 / scene.waist_um**2) * np.exp(1j * k * (points @ omega))
+        E = np.stack([np.multiply.outer(e, amplitude) for e in (e_s, e_p)])
+        H = np.stack([np.multiply.outer(np.cross(k_hat, e), amplitude) for e in (e_s, e_p)])
+        return E, H * (scene.exterior_index / ETA0)
 
     def estimate(self, scene: SurfaceScene) -> Estimate:
         nodes = scene.surface.cells + 1

@@ -1,0 +1,222 @@
+"""Beam steering (bem3d.md §10, VALIDATION.md item 10) with the Kirchhoff model."""
+
+from __future__ import annotations
+
+import logging
+import textwrap
+
+import numpy as np
+import pytest
+from scipy.ndimage import gaussian_filter
+
+import wavebrdf
+from wavebrdf.jobs.cli import main
+from wavebrdf.jobs.config import load_config
+from wavebrdf.jobs.plan import plan_study
+from wavebrdf.jobs.steering import HexagonTiling, PatchLayout, aliasing_limit
+from wavebrdf.solver.approx.kirchhoff import gaussian_footprint, kirchhoff_farfield
+from wavebrdf.solver.farfield import albedo, combine_polarizations
+from wavebrdf.solver.fresnel import fresnel_reflectance
+from wavebrdf.solver.surface import generate
+
+logger = logging.getLogger(__name__)
+
+LAMBDA, WAIST = 0.5, 2.0
+LIMIT = aliasing_limit(LAMBDA, WAIST)  # 0.0796 in direction cosine
+
+
+def test_hexagon_count_matches_reference():
+    """w = 2.5 µm, λ_min = 0.4 µm: R = 0.0495 gives the reference simulator's 499 territories."""
+    assert len(HexagonTiling(0.0495).centres) == 499
+    assert HexagonTiling(0.0495).radius < np.sin(aliasing_limit(0.4, 2.5))
+
+
+def test_assignment_stays_inside_territories():
+    tiling = HexagonTiling.for_beam(0.4, 2.5)
+    rng = np.random.default_rng(1)
+    theta = np.arcsin(np.sqrt(rng.uniform(0, 0.9, 500)))
+    phi = rng.uniform(0, 2 * np.pi, 500)
+    which, basics = tiling.assign(np.stack([theta, phi], axis=1))
+    centres = tiling.centres
+    proj = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi)], axis=1)
+    nearest = np.argmin(np.sum((proj[:, None] - centres[None]) ** 2, axis=2), axis=1)
+    assert np.all(np.linalg.norm(proj - centres[nearest], axis=1) <= tiling.radius * (1 + 1e-9))
+    # basic directions never go beyond the grazing cap
+    assert np.all(np.rad2deg(basics[:, 0]) <= 80.0)
+    assert len(basics) == len(np.unique(nearest))
+
+
+def test_patch_layout_cuts_the_global_surface():
+    surface = generate("gaussian", cells=240, size_um=15.0, rms_height_um=0.05, correlation_um=1.0, seed=1)
+    layout = PatchLayout((3, 3), 11.0, 2.0)
+    layout.check(surface)
+    a, b = layout.cut(surface, (0, 0)), layout.cut(surface, (0, 1))
+    shift = int(round(2.0 / surface.spacing_um))
+    assert a.z.shape == (177, 177) and np.array_equal(b.z[:, :-shift], a.z[:, shift:])
+    assert np.allclose(layout.centre((2, 1)), [2.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="span"):
+        PatchLayout((4, 4), 11.0, 2.0).check(surface)
+    with pytest.raises(ValueError, match="multiple of the surface spacing"):
+        PatchLayout((3, 3), 11.03, 2.0).check(surface)
+
+
+STEER_CONFIG = """
+[study]
+name = "steer"
+output = "{out}"
+
+[surface]
+generator = "{generator}"
+size_um = 15.0
+cells = 240
+{surface_extra}
+
+[material]
+{material}
+
+[illumination]
+wavelengths_um = [{lam}]
+directions_deg = {directions}
+waist_um = {waist}
+polarization = "unpolarized"
+
+[model]
+name = "kirchhoff"
+
+[output]
+resolution = 256
+per_polarization = true
+
+[steering]
+patches = [3, 3]
+patch_size_um = 11.0
+hexagon_fill = {fill}
+"""
+
+
+def run_steering(tmp_path, directions, *, generator="gaussian", material='name = "silver"',
+                 surface_extra="rms_height_um = 0.05\ncorrelation_um = 1.0\nseed = 4", fill=0.97):
+    cfg = tmp_path / "steer.toml"
+    out = tmp_path / "steer.h5"
+    cfg.write_text(textwrap.dedent(STEER_CONFIG.format(
+        out=out, generator=generator, surface_extra=surface_extra, material=material, lam=LAMBDA,
+        directions=directions, waist=WAIST, fill=fill)))
+    assert main(["run", str(cfg), "--quiet", "--no-render"]) == 0
+    config = load_config(cfg)
+    return config, plan_study(config), out
+
+
+def _relative_l2(a, b, mask):
+    return float(np.sqrt(np.nansum((a - b)[mask] ** 2) / np.nansum(b[mask] ** 2)))
+
+
+def _direct(cl_ctx, plan, theta, phi, total_beam):
+    surface = plan.surface(0)
+    ff = kirchhoff_farfield(cl_ctx, surface, LAMBDA, complex(plan.index(0)[0]), theta, phi, plan.grid,
+                            window=total_beam)
+    return combine_polarizations(ff.brdf(), "unpolarized")
+
+
+OFFSETS = np.array([0.0, 0.3, 0.6, 0.9, 1.6, 2.4, 3.2])  # steering offset / aliasing limit
+FILL_BEYOND = 4.0  # hexagons 4x the safe radius: every direction is steered from normal incidence
+
+
+def _offset_directions():
+    return str([[float(np.rad2deg(np.arcsin(f * LIMIT))), 0.0] for f in OFFSETS])
+
+
+@pytest.fixture(scope="module")
+def steered(tmp_path_factory):
+    """Rough silver, requested directions at steering offsets 0 … 3.2 limits from normal incidence."""
+    config, plan, out = run_steering(tmp_path_factory.mktemp("steer"), _offset_directions(), fill=FILL_BEYOND)
+    assert len(plan.steering[0].basics_rad) == 1
+    return OFFSETS, config, plan, out
+
+
+def test_synthesis_equals_direct_simulation_of_the_same_total_beam(cl_ctx, steered):
+    """Sub-area simulations + translation + steering phases + power of the summed beams ==
+    one simulation of the whole surface under the summed beam Σ a_st beam(x − p_st)."""
+    offsets, config, plan, out = steered
+    st = plan.steering[0]
+    surface = plan.surface(0)
+    k = 2 * np.pi / LAMBDA
+    with wavebrdf.open(out) as ds:
+        synthesized = ds.brdf[0].astype(float)
+        theta_b, phi_b = np.deg2rad(ds["theta_basic"]), np.deg2rad(ds["phi_basic"])
+    for inc, f in enumerate(offsets):
+        if f >= 1.0:
+            continue
+        theta, phi = plan.direction_rad(plan.result_tasks()[inc])
+        u_i = np.sin(theta) * np.array([np.cos(phi), np.sin(phi)])
+        u_b = np.sin(theta_b[inc]) * np.array([np.cos(phi_b[inc]), np.sin(phi_b[inc])])
+        beam = sum(gaussian_footprint(surface, WAIST, st.layout.centre(p)[:2])
+                   * np.exp(1j * k * (u_i - u_b) @ st.layout.centre(p)[:2]) for p in st.layout.indices)
+        direct = _direct(cl_ctx, plan, theta_b[inc], phi_b[inc], beam)
+        lobe = direct > 1e-3 * np.nanmax(direct)
+        err = _relative_l2(synthesized[inc], direct, lobe)
+        logger.info("offset %.2f limit: synthesized vs same total beam %.2e", f, err)
+        assert err < 0.05
+
+
+def _blur(brdf, sigma_u, res):
+    """Gaussian smoothing in (u, v) (NaN outside the disk kept out of the average)."""
+    inside = np.isfinite(brdf)
+    s = sigma_u / (2.0 / res)
+    return gaussian_filter(np.where(inside, brdf, 0.0), s) / np.maximum(gaussian_filter(inside * 1.0, s), 1e-12)
+
+
+def test_steering_error_grows_beyond_the_aliasing_limit(cl_ctx, steered):
+    """Against the beam that steering approximates (the flat-top footprint tilted to ω_i), compared
+    at the sub-beam resolution λ/(πw), the error grows with the steering offset."""
+    offsets, config, plan, out = steered
+    st = plan.steering[0]
+    surface = plan.surface(0)
+    flat_top = sum(gaussian_footprint(surface, WAIST, st.layout.centre(p)[:2]) for p in st.layout.indices)
+    with wavebrdf.open(out) as ds:
+        synthesized = ds.brdf[0].astype(float)
+    errors = []
+    res = plan.grid.resolution
+    for inc, f in enumerate(offsets):
+        theta, phi = plan.direction_rad(plan.result_tasks()[inc])
+        direct = _direct(cl_ctx, plan, theta, phi, flat_top)
+        lobe = direct > 1e-3 * np.nanmax(direct)
+        errors.append(_relative_l2(_blur(synthesized[inc], LIMIT, res), _blur(direct, LIMIT, res), lobe))
+    logger.info("offset/limit %s: blurred relative L2 vs the tilted beam %s", offsets, np.round(errors, 4))
+    assert errors[0] < 1e-3
+    assert np.all(np.diff(errors) > 0)
+    assert errors[-1] > 3 * errors[list(offsets).index(0.9)]
+
+
+def test_flat_surface_aliasing_appears_beyond_the_limit(tmp_path):
+    """Flat mirror: all synthesized energy should leave along -u_i; beyond λ/(πw) the patch array's
+    grating lobes (spacing λ/s) carry a visible share of it."""
+    config, plan, out = run_steering(tmp_path, _offset_directions(), generator="flat", material="n = 1.5",
+                                     surface_extra="", fill=FILL_BEYOND)
+    U, V = plan.grid.uv
+    with wavebrdf.open(out) as ds:
+        brdf = ds.brdf[0].astype(float)
+    aliased = []
+    for inc in range(len(OFFSETS)):
+        theta, _ = plan.direction_rad(plan.result_tasks()[inc])
+        outside = np.hypot(U + np.sin(theta), V) > 0.5 * LAMBDA / WAIST
+        aliased.append(np.nansum(np.where(outside, brdf[inc], 0)) / np.nansum(brdf[inc]))
+    aliased = np.array(aliased)
+    logger.info("offset/limit %s: energy fraction in grating lobes %s", OFFSETS, np.round(aliased, 5))
+    assert aliased[OFFSETS < 1].max() < 0.05
+    assert aliased[OFFSETS > 1.5].min() > 10 * aliased[OFFSETS < 1].max()
+
+
+def test_flat_surface_synthesized_albedo_is_fresnel(tmp_path):
+    """Derived directions on a flat glass surface: albedo = |r_s|², |r_p|² within 1 %."""
+    directions = [[40.0, 20.0], [41.5, 20.0], [38.8, 22.0], [40.6, 18.5]]
+    config, plan, out = run_steering(tmp_path, str(directions), generator="flat", material="n = 1.5",
+                                     surface_extra="")
+    with wavebrdf.open(out) as ds:
+        albedo_sp = ds["albedo_sp"][0]  # (incidence, polarization)
+        theta_basic = ds["theta_basic"]
+    assert len(set(np.round(theta_basic, 6))) == 1  # all derived from one basic direction
+    for inc, (theta, _) in enumerate(directions):
+        expected = np.array(fresnel_reflectance(1.5, np.cos(np.deg2rad(theta))))
+        rel = np.abs(albedo_sp[inc] / expected - 1)
+        logger.info("θ=%g: albedo %s vs Fresnel %s", theta, albedo_sp[inc], expected)
+        assert np.all(rel < 0.01)
