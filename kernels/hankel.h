@@ -7,8 +7,8 @@
  *   |z| >= HANKEL_SERIES_MAX        Gauss-Laguerre quadrature of the integral representation
  *       H_nu(z) = sqrt(2/(pi z)) e^{-j(z - nu pi/2 - pi/4)} / Gamma(nu+1/2)
  *                 * int_0^inf e^{-u} u^{nu-1/2} (1 - j u/(2z))^{nu-1/2} du
- *     (20 nodes below HANKEL_LAGUERRE_FINE_MAX, 10 above; one rule with weight u^{-1/2} e^{-u}
- *     serves both orders because u^{1/2} = u * u^{-1/2}).
+ *     (20 nodes below HANKEL_LAGUERRE_FINE_MAX, 10 below HANKEL_LAGUERRE_MID_MAX, 6 above; each
+ *     rule has the weight u^{-1/2} e^{-u} and serves both orders since u^{1/2} = u * u^{-1/2}).
  * The series is used only where J and Y are not exponentially larger than H, so there is no
  * cancellation for complex z; the quadrature is accurate to ~1e-13 for |z| >= 2.5.
  */
@@ -93,12 +93,15 @@ inline void hankel2_01_laguerre(cplx_t z, __constant const real_t *nodes,
 inline void hankel2_01(cplx_t z, cplx_t *h0, cplx_t *h1)
 {
     const real_t r = c_abs(z);
-    if (r < HANKEL_SERIES_MAX)
+    if (r < HANKEL_SERIES_MAX) {
         hankel2_01_series(z, h0, h1);
-    else if (r < HANKEL_LAGUERRE_FINE_MAX)
-        hankel2_01_laguerre(z, HANKEL_LAG_FINE_X, HANKEL_LAG_FINE_W, HANKEL_LAG_FINE_N, h0, h1);
-    else
-        hankel2_01_laguerre(z, HANKEL_LAG_COARSE_X, HANKEL_LAG_COARSE_W, HANKEL_LAG_COARSE_N, h0, h1);
+    } else {
+        /* one quadrature loop with the rule chosen by |z| (less divergent code than three calls) */
+        const int fine = r < HANKEL_LAGUERRE_FINE_MAX, mid = r < HANKEL_LAGUERRE_MID_MAX;
+        hankel2_01_laguerre(z, fine ? HANKEL_LAG_FINE_X : (mid ? HANKEL_LAG_MID_X : HANKEL_LAG_COARSE_X),
+                            fine ? HANKEL_LAG_FINE_W : (mid ? HANKEL_LAG_MID_W : HANKEL_LAG_COARSE_W),
+                            fine ? HANKEL_LAG_FINE_N : (mid ? HANKEL_LAG_MID_N : HANKEL_LAG_COARSE_N), h0, h1);
+    }
 }
 
 #endif

@@ -45,7 +45,7 @@ KERNEL_FILE = "fiber_bem.cl"
 class BEMQuadrature:
     """Quadrature orders of the fiber BEM (defaults validated against Mie, see tests/fiber)."""
 
-    far_points: int = 4  # Gauss–Legendre points per element for well-separated pairs
+    far_points: int = 3  # Gauss–Legendre points per element for well-separated pairs
     near_points: int = 8  # ... for near pairs (with singularity subtraction)
     near_factor: float = 2.5  # near: centre distance < near_factor · max(Δ_a, Δ_b)
     rhs_points: int = 6  # incident-field test integrals

@@ -15,7 +15,7 @@ One algorithm, written twice with matching names — the OpenCL device code in
     the integral representation behind Hankel's asymptotic expansion,
     H_ν^(2)(z) = √(2/(πz)) e^{-j(z-νπ/2-π/4)}/Γ(ν+½) ∫₀^∞ e^{-u} u^{ν-½} (1 - ju/(2z))^{ν-½} du,
     evaluated with generalized Gauss–Laguerre quadrature (weight u^{-½} e^{-u}; 20 nodes below
-    |z| = 6, 10 nodes above). Unlike the truncated asymptotic series it is accurate to ~1e-13
+    |z| = 6, 10 nodes below 12, 6 nodes above). Unlike the truncated asymptotic series it is accurate to ~1e-13
     down to |z| = 2.5, and unlike J - jY from the series it has no cancellation for complex z
     with large |Im z| (where |H^(2)| is exponentially small and |J|, |Y| exponentially large).
 
@@ -38,6 +38,8 @@ __all__ = [
     "LAGUERRE_COARSE_NODES",
     "LAGUERRE_FINE_MAX",
     "LAGUERRE_FINE_NODES",
+    "LAGUERRE_MID_MAX",
+    "LAGUERRE_MID_NODES",
     "SERIES_MAX",
     "SERIES_TERMS",
     "bessel01_series",
@@ -51,9 +53,11 @@ __all__ = [
 EULER_GAMMA = 0.57721566490153286061
 SERIES_MAX = 2.5  # |z| below which the ascending series is used
 LAGUERRE_FINE_MAX = 6.0  # |z| below which the fine Laguerre rule is used
+LAGUERRE_MID_MAX = 12.0  # ... the middle rule; the coarse rule above
 SERIES_TERMS = 16  # enough for |z| < 2.5: the 17th term is below 1e-19
-LAGUERRE_FINE_NODES = 20
-LAGUERRE_COARSE_NODES = 10
+LAGUERRE_FINE_NODES = 20  # 6e-13 at |z| = 2.5
+LAGUERRE_MID_NODES = 10  # 2e-13 at |z| = 6
+LAGUERRE_COARSE_NODES = 6  # 7e-13 at |z| = 12
 HEADER_NAME = "hankel_laguerre.h"
 
 
@@ -76,11 +80,13 @@ def laguerre_header_text() -> str:
         "",
         f"#define HANKEL_SERIES_MAX R({SERIES_MAX!r})",
         f"#define HANKEL_LAGUERRE_FINE_MAX R({LAGUERRE_FINE_MAX!r})",
+        f"#define HANKEL_LAGUERRE_MID_MAX R({LAGUERRE_MID_MAX!r})",
         f"#define HANKEL_SERIES_TERMS {SERIES_TERMS}",
         f"#define HANKEL_LAG_FINE_N {LAGUERRE_FINE_NODES}",
+        f"#define HANKEL_LAG_MID_N {LAGUERRE_MID_NODES}",
         f"#define HANKEL_LAG_COARSE_N {LAGUERRE_COARSE_NODES}",
     ]
-    for label, n in (("FINE", LAGUERRE_FINE_NODES), ("COARSE", LAGUERRE_COARSE_NODES)):
+    for label, n in (("FINE", LAGUERRE_FINE_NODES), ("MID", LAGUERRE_MID_NODES), ("COARSE", LAGUERRE_COARSE_NODES)):
         x, w = laguerre_rule(n)
         for kind, values in (("X", x), ("W", w)):
             body = ",\n    ".join(f"R({float(v)!r})" for v in values)
@@ -151,7 +157,8 @@ def hankel2_01(z):
     for mask, fn in (
         (r < SERIES_MAX, _hankel2_01_series),
         ((r >= SERIES_MAX) & (r < LAGUERRE_FINE_MAX), lambda v: _hankel2_01_laguerre(v, LAGUERRE_FINE_NODES)),
-        (r >= LAGUERRE_FINE_MAX, lambda v: _hankel2_01_laguerre(v, LAGUERRE_COARSE_NODES)),
+        ((r >= LAGUERRE_FINE_MAX) & (r < LAGUERRE_MID_MAX), lambda v: _hankel2_01_laguerre(v, LAGUERRE_MID_NODES)),
+        (r >= LAGUERRE_MID_MAX, lambda v: _hankel2_01_laguerre(v, LAGUERRE_COARSE_NODES)),
     ):
         if np.any(mask):
             h0[mask], h1[mask] = fn(z[mask])

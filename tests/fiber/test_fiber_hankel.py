@@ -13,6 +13,7 @@ from wavebrdf.kernels import KERNEL_DIR
 from wavebrdf.solver.fiber.hankel import (
     HEADER_NAME,
     LAGUERRE_FINE_MAX,
+    LAGUERRE_MID_MAX,
     SERIES_MAX,
     bessel01_series,
     hankel2_01,
@@ -72,8 +73,9 @@ def test_switch_points_and_small_arguments(cl_ctx, angle_deg):
     radii = np.concatenate([
         SERIES_MAX * (1.0 + np.array([-1e-12, -1e-9, 0.0, 1e-9])),
         LAGUERRE_FINE_MAX * (1.0 + np.array([-1e-12, -1e-9, 0.0, 1e-9])),
+        LAGUERRE_MID_MAX * (1.0 + np.array([-1e-12, -1e-9, 0.0, 1e-9])),
         np.geomspace(1e-9, 1e-3, 13),
-        [3.0, 12.0],
+        [3.0, 20.0],
     ])
     z = radii * np.exp(1j * np.radians(angle_deg))
     ref0, ref1 = hankel2_01_scipy(z)
