@@ -553,11 +553,5 @@ def write_dataset(plan: Plan, parts: PartsFolder, device: str) -> Path:
             writer.write_result(task.case_index, task.wavelength, task.incidence, result.brdf_sp, brdf,
                                 result.albedo_sp, float(albedo(brdf, plan.grid)))
             rows.append({**row, "status": "done", **result.diagnostics})
-        writer.write_tasks(_uniform_rows(rows))
+        writer.write_tasks(rows)
     return output
-
-
-def _uniform_rows(rows: list[dict]) -> list[dict]:
-    """Give every row the same keys (missing diagnostics become empty strings)."""
-    keys = list(dict.fromkeys(k for r in rows for k in r))
-    return [{k: r.get(k, "") for k in keys} for r in rows]

@@ -203,19 +203,23 @@ class DatasetWriter:
             self.h5["brdf_sp"][where] = brdf_sp.astype(np.float32)
 
     def write_tasks(self, rows: list[dict]) -> None:
-        """The task table (diagnostics + completion status), one entry per task."""
+        """The task table (diagnostics + completion status), one entry per task.
+
+        Numeric columns become int64/float64 (NaN where a row lacks the value), others strings.
+        """
         grp = self.h5.create_group("tasks")
-        if not rows:
-            return
-        for key in rows[0]:
+        keys = list(dict.fromkeys(k for r in rows for k in r))
+        for key in keys:
             values = [r.get(key) for r in rows]
-            if all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in values):
+            present = [v for v in values if v is not None and v != ""]
+            numeric = present and all(isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+                                      for v in present)
+            if numeric and len(present) == len(values) and all(isinstance(v, (int, np.integer)) for v in present):
                 grp.create_dataset(key, data=np.asarray(values, dtype=np.int64))
-            elif all(isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, bool)
-                     for v in values):
-                grp.create_dataset(key, data=np.asarray(values, dtype=np.float64))
+            elif numeric:
+                grp.create_dataset(key, data=np.array([np.nan if v in (None, "") else v for v in values], dtype=float))
             else:
-                data = [v if isinstance(v, str) else json.dumps(v) for v in values]
+                data = ["" if v is None else v if isinstance(v, str) else json.dumps(v) for v in values]
                 grp.create_dataset(key, data=np.array(data, dtype=object), dtype=STRING)
 
 
