@@ -266,6 +266,7 @@ class TaskBoard:
         self.retries = retries
         self.done = {t.id for t in plan.tasks if parts.done(t)}
         self.failed: dict[int, dict] = {}
+        self.run_info: dict[int, dict] = {}  # per-task scheduling facts (rank, dispatch wait) for the table
         self.attempts: dict[int, int] = {}
         self.running: set[int] = set()
         self.waiting = [t for t in plan.tasks if t.id not in self.done]
@@ -301,6 +302,7 @@ class TaskBoard:
     def finish(self, task: Task, diagnostics: dict) -> None:
         self.running.discard(task.id)
         self.done.add(task.id)
+        self.run_info[task.id] = {k: diagnostics[k] for k in ("rank", "dispatch_wait_s") if k in diagnostics}
         line = (f"[{len(self.done)}/{len(self.plan.tasks)}] {task.label}: {diagnostics.get('model', '')} "
                 f"{diagnostics.get('wall_time_s', 0.0):.2f} s, peak {diagnostics.get('peak_memory_mb', 0):.0f} MB")
         for key in ("iterations", "residual"):
@@ -414,12 +416,12 @@ class Tag(IntEnum):
 
 def _poll_recv(comm, source: int, tag: int, stop: threading.Event | None = None):
     """Receive without MPI busy-waiting (MPICH spins in blocking receives)."""
-    delay = 0.0005
+    delay = 0.0001
     while not comm.Iprobe(source=source, tag=tag):
         if stop is not None and stop.is_set():
             return None
         time.sleep(delay)
-        delay = min(delay * 2, 0.02)
+        delay = min(delay * 2, 0.002)
     return comm.recv(source=source, tag=tag)
 
 
@@ -457,11 +459,15 @@ def _mpi_worker(comm, ctx, plan: Plan, parts: PartsFolder) -> None:
     rank = comm.Get_rank()
     previous = (None, True, {})
     while True:
+        asked = time.perf_counter()
         comm.send((rank,) + previous, dest=0, tag=Tag.REQUEST)
         task_id = _poll_recv(comm, source=0, tag=Tag.TASK)
         if task_id is None:
             return
+        waited = time.perf_counter() - asked  # coordinator round trip: the scheduling overhead
         ok, diag = _run_guarded(ctx, plan, plan.tasks[task_id], parts)
+        diag["dispatch_wait_s"] = waited
+        diag["rank"] = rank
         previous = (task_id, ok, diag)
 
 
@@ -512,13 +518,13 @@ def run_plan(plan: Plan, ctx, *, executor: str = "serial", workers: int | None =
     elapsed = time.perf_counter() - board.started
     logger.info("coordinator dispatch time %.3g s for %d tasks (%.2f%% of the run)", board.dispatch_seconds,
                 len(plan.tasks), 100 * board.dispatch_seconds / max(elapsed, 1e-9))
-    path = write_dataset(plan, parts, device=ctx.describe() if ctx is not None else "")
+    path = write_dataset(plan, parts, device=ctx.describe() if ctx is not None else "", run_info=board.run_info)
     if not board.failed:
         parts.remove()
     return RunSummary(path, len(board.done), len(board.failed), len(plan.tasks))
 
 
-def write_dataset(plan: Plan, parts: PartsFolder, device: str) -> Path:
+def write_dataset(plan: Plan, parts: PartsFolder, device: str, run_info: dict | None = None) -> Path:
     """Assemble the HDF5 dataset from the finished parts (one writer, atomic rename)."""
     study = plan.study
     output = Path(plan.config.output)
@@ -539,7 +545,7 @@ def write_dataset(plan: Plan, parts: PartsFolder, device: str) -> Path:
         for task in plan.tasks:
             row = {"id": task.id, "kind": task.kind, "case": task.case, "wavelength_index": task.wavelength,
                    "incidence_index": task.incidence, "basic_index": task.basic,
-                   "patch": "x".join(map(str, task.patch))}
+                   "patch": "x".join(map(str, task.patch)), **(run_info or {}).get(task.id, {})}
             failure = parts.failure(task)
             if failure is not None or not parts.done(task):
                 rows.append({**row, "status": "failed", **(failure or {"error": "not run"})})
