@@ -1,4 +1,4 @@
-/* 3D Helmholtz Green's function pieces for the BEM element integrals (e^{+jwt}).
+/* 3D Helmholtz Green's function pieces for the BEM element integrals (e^{+jwt}), on vector lanes.
  *
  *   G(R)  = e^{-jkR} / (4 pi R)                       (g)
  *   grad G = gk(R) * Rvec,  gk = -(1 + jkR) e^{-jkR} / (4 pi R^3)
@@ -10,41 +10,40 @@
  */
 #ifndef BEM_GREEN_H
 #define BEM_GREEN_H
-#include "wb_complex.h"
+#include "wb_vcomplex.h"
 
 #define BEM_FULL 0
 #define BEM_REMAINDER 1
 #define BEM_STATIC 2
 
-/* (1 - z) e^z - 1 = -sum_{n>=2} (n-1) z^n / n!  (accurate for all z) */
-inline cplx_t bem_one_minus_z_expz_m1(cplx_t z)
+/* (1 - z) e^z - 1 = -sum_{n>=2} (n-1) z^n / n!  (series for |z| < 1/2, closed form otherwise) */
+inline vcplx_t bem_one_minus_z_expz_m1(vcplx_t z)
 {
-    if (c_abs2(z) < R(0.25)) {
-        cplx_t term = c_scale(c_mul(z, z), R(0.5)); /* z^n / n! at n = 2 */
-        cplx_t sum = c_scale(term, R(-1.0));
-        for (int n = 3; n <= 22; ++n) {
-            term = c_scale(c_mul(term, z), R(1.0) / (real_t)n);
-            sum = c_sub(sum, c_scale(term, (real_t)(n - 1)));
-        }
-        return sum;
+    vcplx_t term = vc_scale(vc_mul(z, z), (vreal_t)(R(0.5))); /* z^n / n! at n = 2 */
+    vcplx_t series = vc_scale(term, (vreal_t)(R(-1.0)));
+    for (int n = 3; n <= 22; ++n) {
+        term = vc_scale(vc_mul(term, z), (vreal_t)(R(1.0) / (real_t)n));
+        series = vc_fma_real(term, (vreal_t)(-(real_t)(n - 1)), series);
     }
-    cplx_t one_minus_z = c_new(R(1.0) - z.x, -z.y);
-    return c_sub(c_mul(one_minus_z, c_exp(z)), c_new(R(1.0), R(0.0)));
+    const vcplx_t one_minus_z = vc_new(R(1.0) - z.re, -z.im);
+    vcplx_t direct = vc_mul(one_minus_z, vc_exp(z));
+    direct.re -= R(1.0);
+    return vc_select(direct, series, z.re * z.re + z.im * z.im < R(0.25));
 }
 
-/* g and gk of one medium for kind BEM_FULL or BEM_REMAINDER; inv_r = 1/R */
-inline void bem_green(int kind, cplx_t k, real_t r, real_t inv_r, cplx_t *g, cplx_t *gk)
+/* g and gk of one medium (scalar k) at distances r (inv_r = 1/r), kind BEM_FULL or BEM_REMAINDER */
+inline void bem_green(int kind, cplx_t k, vreal_t r, vreal_t inv_r, vcplx_t *g, vcplx_t *gk)
 {
-    cplx_t z = c_new(k.y * r, -k.x * r); /* -jkR */
-    real_t s1 = WB_INV_4PI * inv_r;
-    real_t s3 = s1 * inv_r * inv_r;
+    const vcplx_t z = vc_new(k.y * r, -k.x * r); /* -jkR */
+    const vreal_t s1 = WB_INV_4PI * inv_r;
+    const vreal_t s3 = s1 * inv_r * inv_r;
     if (kind == BEM_REMAINDER) {
-        *g = c_scale(c_expm1(z), s1);
-        *gk = c_scale(bem_one_minus_z_expz_m1(z), -s3);
+        *g = vc_scale(vc_expm1(z), s1);
+        *gk = vc_scale(bem_one_minus_z_expz_m1(z), -s3);
     } else {
-        cplx_t e = c_exp(z);
-        *g = c_scale(e, s1);
-        *gk = c_scale(c_mul(c_new(R(1.0) - z.x, -z.y), e), -s3); /* (1 - z) = 1 + jkR */
+        const vcplx_t e = vc_exp(z);
+        *g = vc_scale(e, s1);
+        *gk = vc_scale(vc_mul(vc_new(R(1.0) - z.re, -z.im), e), -s3); /* (1 - z) = 1 + jkR */
     }
 }
 

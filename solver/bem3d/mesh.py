@@ -130,6 +130,17 @@ class BEMMesh:
                 radius = np.maximum(radius, np.linalg.norm(r - centre, axis=1))
         return radius
 
+    @cached_property
+    def half_length(self) -> np.ndarray:
+        """Largest parameter half-length max(|r_u|, |r_v|) over each element's corners (µm)."""
+        g = self.geometry
+        longest = np.zeros(self.n_elements)
+        for cu in (-1.0, 1.0):
+            for cv in (-1.0, 1.0):
+                _, ru, rv = bilinear_frame(g, self.half, np.full(len(g), cu), np.full(len(g), cv))
+                longest = np.maximum(longest, np.maximum(np.linalg.norm(ru, axis=1), np.linalg.norm(rv, axis=1)))
+        return longest
+
     # ---- bases ---------------------------------------------------------------------------
     @property
     def n_horizontal(self) -> int:

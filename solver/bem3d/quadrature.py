@@ -26,6 +26,7 @@ given a 3-bit orientation code (see :func:`orientation_code`).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
@@ -36,6 +37,11 @@ __all__ = [
     "CASE_SELF",
     "CASE_VERTEX",
     "CASE_NAMES",
+    "QuadratureOptions",
+    "pair_case",
+    "medium_weights",
+    "regular_order",
+    "singular_order",
     "gauss_legendre",
     "orient",
     "orientation_code",
@@ -162,8 +168,7 @@ def pair_case(ds, dt):
 
     Returns (case, code_test, code_source) arrays; regular pairs get codes 0.
     """
-    ds = np.asarray(ds)
-    dt = np.asarray(dt)
+    ds, dt = np.broadcast_arrays(np.asarray(ds), np.asarray(dt))
     ads, adt = np.abs(ds), np.abs(dt)
     case = np.full(np.broadcast(ds, dt).shape, CASE_REGULAR, dtype=np.int32)
     case[(ads == 0) & (adt == 0)] = CASE_SELF
@@ -187,3 +192,139 @@ def pair_case(ds, dt):
     code_t[vx] = ((ds[vx] > 0).astype(np.int32) << 1) | ((dt[vx] > 0).astype(np.int32) << 2)
     code_s[vx] = ((ds[vx] < 0).astype(np.int32) << 1) | ((dt[vx] < 0).astype(np.int32) << 2)
     return case, code_t, code_s
+
+
+# ---------------------------------------------------------------------------------------------
+# Order selection. The error models below are a priori estimates of Gauss–Legendre errors; their
+# constants and the defaults of QuadratureOptions are checked against measured convergence
+# tables (benchmarks/bench_bem3d.py --quadrature, docs/bem3d.md).
+
+
+@dataclass(frozen=True)
+class QuadratureOptions:
+    """Quadrature settings of the element integrals, right-hand sides and far field.
+
+    tolerance        target relative error of every element-pair table (each medium separately,
+                     relative to the size of that medium's entries for the pair)
+    static_order     Gauss order per dimension of the singular transforms for the static
+                     1/R and ∇(1/R) parts (computed once per geometry)
+    min_order, max_order   bounds of the distance/decay-adaptive orders (regular pairs and the
+                     per-wavelength singular remainder)
+    rhs_order        tensor Gauss order per element for the right-hand sides
+    farfield_order   tensor Gauss order per element for the far-field sum and surface powers
+    """
+
+    tolerance: float = 1e-6
+    static_order: int = 8
+    min_order: int = 2
+    max_order: int = 12
+    rhs_order: int = 4
+    farfield_order: int = 4
+
+    def __post_init__(self):
+        if not (0 < self.tolerance < 1):
+            raise ValueError(f"quadrature.tolerance must be in (0, 1), got {self.tolerance!r}")
+        for name in ("static_order", "min_order", "max_order", "rhs_order", "farfield_order"):
+            value = getattr(self, name)
+            if int(value) != value or not 1 <= value <= 40:
+                raise ValueError(f"quadrature.{name} must be an integer in [1, 40], got {value!r}")
+        if self.min_order > self.max_order:
+            raise ValueError(
+                f"quadrature.min_order ({self.min_order}) must not exceed max_order ({self.max_order})"
+            )
+
+    @classmethod
+    def from_mapping(cls, values: dict | None) -> "QuadratureOptions":
+        """Build from a config table; unknown keys are an error naming the key."""
+        values = dict(values or {})
+        known = set(cls.__dataclass_fields__)
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ValueError(f"unknown quadrature option(s) {unknown}; known: {sorted(known)}")
+        return cls(**values)
+
+
+def gauss_oscillation_error(order, alpha):
+    """Gauss–Legendre remainder for e^{αx} on [−1, 1] relative to max|f| on the interval.
+
+    |∫ f − G_n f| ≤ max|f^{(2n)}| 2^{2n+1} (n!)⁴ / ((2n+1) ((2n)!)³) with |f^{(2n)}| ≤ |α|^{2n} max|f|.
+    """
+    n = np.asarray(order, dtype=float)
+    a = np.abs(np.asarray(alpha, dtype=float))
+    logc = (2 * n + 1) * np.log(2.0) + 4 * _lgamma(n + 1) - np.log(2 * n + 1) - 3 * _lgamma(2 * n + 1)
+    with np.errstate(divide="ignore"):
+        return np.exp(2 * n * np.log(np.maximum(a, 1e-300)) + logc)
+
+
+def gauss_proximity_error(order, x0):
+    """Gauss–Legendre error for a 1/|x − x₀| singularity at x₀ > 1 (in half-lengths from the centre).
+
+    The integrand is analytic inside the Bernstein ellipse through x₀, ρ = x₀ + √(x₀² − 1), and
+    the error decays as 4ρ^{−2n}.
+    """
+    n = np.asarray(order, dtype=float)
+    x0 = np.maximum(np.asarray(x0, dtype=float), 1.0 + 1e-9)
+    rho = x0 + np.sqrt(x0 * x0 - 1.0)
+    return 4.0 * rho ** (-2.0 * n)
+
+
+def _lgamma(x):
+    from scipy.special import gammaln
+
+    return gammaln(x)
+
+
+def medium_weights(wavenumbers) -> list[float]:
+    """Weight of each medium's tables in the matrix relative to the exterior: max(1, |k_i/k₁|²).
+
+    (Z_MM weights medium i by n_i², so an error in a high-index interior counts that much more.)
+    """
+    k1 = abs(wavenumbers[0])
+    return [max(1.0, (abs(k) / k1) ** 2) for k in wavenumbers]
+
+
+def regular_order(options: QuadratureOptions, distance, radius_test, radius_source, half_length, wavenumbers):
+    """Gauss order per pair of non-touching elements (arrays broadcast).
+
+    distance: centre-to-centre distance (µm); radius_*: centre-to-corner radius of each element;
+    half_length: largest parameter half-length |r_u|, |r_v| of the two elements. The error model
+    of medium i, relative to the exterior scale of the pair's entries, is
+
+        w_i · e^{−|Im k_i| gap} · [proximity(n, x₀) + oscillation(n, |k_i| ℓ)]
+
+    with gap = distance − r_A − r_B (closest approach, lower bound), x₀ = (distance − max(r_A, r_B))/ℓ and
+    w_i = medium_weights; the order is the smallest n ≤ max_order meeting the tolerance for
+    every medium.
+    """
+    distance = np.asarray(distance, dtype=float)
+    ra = np.asarray(radius_test, dtype=float)
+    rb = np.asarray(radius_source, dtype=float)
+    ell = np.asarray(half_length, dtype=float)
+    x0 = (distance - np.maximum(ra, rb)) / ell  # symmetric in the two elements
+    gap = np.maximum(distance - ra - rb, 0.0)
+    weights = medium_weights(wavenumbers)
+    need = np.full(distance.shape, options.max_order, dtype=np.int32)
+    done = np.zeros(distance.shape, dtype=bool)
+    for n in range(options.min_order, options.max_order + 1):
+        ok = np.ones(distance.shape, dtype=bool)
+        prox = gauss_proximity_error(n, x0)
+        for k, w in zip(wavenumbers, weights):
+            err = w * np.exp(-abs(np.imag(k)) * gap) * (prox + gauss_oscillation_error(n, abs(k) * ell))
+            ok &= err <= options.tolerance
+        need[ok & ~done] = n
+        done |= ok
+    return need
+
+
+def singular_order(options: QuadratureOptions, half_length, wavenumbers) -> int:
+    """Gauss order of the singular transforms for the per-wavelength remainder G − G₀.
+
+    After the transform the remainder is analytic with the scale of e^{−jkR}; the order is the
+    smallest n with w_i · oscillation(n, |k_i| ℓ) ≤ tolerance for every medium (n ≥ min_order).
+    """
+    ell = float(np.max(half_length))
+    weights = medium_weights(wavenumbers)
+    for n in range(max(options.min_order, 2), options.max_order + 1):
+        if all(w * gauss_oscillation_error(n, abs(k) * ell) <= options.tolerance for k, w in zip(wavenumbers, weights)):
+            return n
+    return options.max_order

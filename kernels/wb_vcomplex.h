@@ -1,0 +1,84 @@
+/* Complex arithmetic on explicit SIMD vectors: vreal_t = WB_VW lanes of real_t.
+ *
+ * CPU OpenCL runtimes (PoCL) do not vectorize kernels whose work-items run inner loops, so
+ * kernels that need the speed process WB_VW independent items per work-item in vector lanes.
+ * Build option -D WB_VW=1|2|4|8 (default 4; use 1 on GPUs, where lanes are work-items already).
+ * vcplx_t holds WB_VW complex numbers as two vectors (real, imaginary parts).
+ */
+#ifndef WB_VCOMPLEX_H
+#define WB_VCOMPLEX_H
+#include "wb_complex.h"
+
+#ifndef WB_VW
+#define WB_VW 4
+#endif
+#define WB_PASTE_(a, b) a##b
+#define WB_PASTE(a, b) WB_PASTE_(a, b)
+
+#if WB_VW == 1
+typedef real_t vreal_t;
+#if WB_FP64
+typedef long vmask_t;
+#else
+typedef int vmask_t;
+#endif
+#else
+#if WB_FP64
+typedef WB_PASTE(double, WB_VW) vreal_t;
+typedef WB_PASTE(long, WB_VW) vmask_t;
+#else
+typedef WB_PASTE(float, WB_VW) vreal_t;
+typedef WB_PASTE(int, WB_VW) vmask_t;
+#endif
+#endif
+
+/* lane i of a private vector variable */
+#define VLANE(v, i) (((real_t *)&(v))[i])
+
+typedef struct {
+    vreal_t re, im;
+} vcplx_t;
+
+inline vcplx_t vc_new(vreal_t re, vreal_t im)
+{
+    vcplx_t z;
+    z.re = re;
+    z.im = im;
+    return z;
+}
+inline vcplx_t vc_zero(void) { return vc_new((vreal_t)(R(0.0)), (vreal_t)(R(0.0))); }
+inline vcplx_t vc_add(vcplx_t a, vcplx_t b) { return vc_new(a.re + b.re, a.im + b.im); }
+inline vcplx_t vc_sub(vcplx_t a, vcplx_t b) { return vc_new(a.re - b.re, a.im - b.im); }
+inline vcplx_t vc_scale(vcplx_t a, vreal_t s) { return vc_new(a.re * s, a.im * s); }
+inline vcplx_t vc_mul(vcplx_t a, vcplx_t b)
+{
+    return vc_new(a.re * b.re - a.im * b.im, a.re * b.im + a.im * b.re);
+}
+/* a + b*s (s real vector) */
+inline vcplx_t vc_fma_real(vcplx_t b, vreal_t s, vcplx_t a)
+{
+    return vc_new(fma(b.re, s, a.re), fma(b.im, s, a.im));
+}
+/* e^a */
+inline vcplx_t vc_exp(vcplx_t a)
+{
+    vreal_t c, s = sincos(a.im, &c);
+    const vreal_t m = exp(a.re);
+    return vc_new(m * c, m * s);
+}
+/* e^a - 1 without cancellation for small |a| */
+inline vcplx_t vc_expm1(vcplx_t a)
+{
+    vreal_t c, s = sincos(a.im, &c);
+    const vreal_t sh = sin(R(0.5) * a.im);
+    return vc_new(expm1(a.re) * c - R(2.0) * sh * sh, exp(a.re) * s);
+}
+/* lane-wise choice: mask lanes true (all bits set) take b, the others a */
+inline vcplx_t vc_select(vcplx_t a, vcplx_t b, vmask_t mask)
+{
+    return vc_new(select(a.re, b.re, mask), select(a.im, b.im, mask));
+}
+/* lane i as a scalar complex */
+inline cplx_t vc_lane(vcplx_t a, int i) { return c_new(VLANE(a.re, i), VLANE(a.im, i)); }
+
+#endif

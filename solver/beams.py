@@ -1,0 +1,346 @@
+"""Incident fields: Gaussian beams (paraxial and exact) and plane waves, both polarizations.
+
+Conventions (ARCHITECTURE.md): µm, e^{+jωt}, ω_i = (sinθ cosφ, sinθ sinφ, cosθ) points toward the
+light, the beam travels along −ω_i. Polarization index 0 = s (E ⟂ plane of incidence), 1 = p, as
+in :mod:`wavebrdf.solver.farfield`. Beam frame (bem3d.md §8)::
+
+    x_b = (−cosθ cosφ, −cosθ sinφ, sinθ)   (in the plane of incidence)
+    y_b = (−sinφ, cosφ, 0)                 (perpendicular to it)
+    z_b = −ω_i                             (propagation)
+
+Both Gaussian beams derive from a vector potential A = U ŷ_b (s) or U x̂_b (p):
+H = ∇ × A, E = (∇∇·A + k²A)/(jωε₁), so Faraday's law holds exactly; Ampère's law holds exactly
+iff ∇²U + k²U = 0.
+
+* ``"paraxial"`` (:class:`ParaxialGaussianBeam`): U is the astigmatic paraxial Gaussian with
+  waists w·cosθ (along x_b) and w (along y_b), focus at ``focus_um``, so its footprint on the
+  plane z = focus is the circle of radius w. U satisfies the wave equation only to paraxial
+  accuracy (poor when the waist is a few λ or at grazing incidence). Φ_i by quadrature over
+  the patch.
+* ``"exact"`` (:class:`ExactGaussianBeam`, default): U is a superposition of propagating plane
+  waves whose amplitudes are the 2-D Fourier transform of the same footprint
+  exp(−|ρ|²/w²)·e^{−jk_∥·ρ} on the focal plane, sampled on a lattice of pitch 2π/P and truncated
+  to |κ| < k. It is an exact solution of Maxwell's equations (periodic with period P ≫ the patch,
+  so the neighbouring copies do not reach it); its incident power (per period cell) and its
+  flat-interface reflectance follow exactly from the plane-wave amplitudes.
+* ``"plane"`` (:class:`PlaneWave`): unit amplitude plane wave, for tests.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+from wavebrdf.solver.farfield import ETA0, direction
+from wavebrdf.solver.fresnel import fresnel_rs_rp
+
+logger = logging.getLogger(__name__)
+
+__all__ = [
+    "BEAMS",
+    "Beam",
+    "ExactGaussianBeam",
+    "ParaxialGaussianBeam",
+    "PlaneWave",
+    "beam_frame",
+    "make_beam",
+]
+
+BEAMS = ("exact", "paraxial", "plane")
+SPECTRUM_TAIL = 1e-16  # drop plane waves whose Gaussian weight is below this (relative)
+REPLICA_LEVEL = 1e-9  # amplitude of the neighbouring periodic copies on the patch
+
+
+def beam_frame(theta: float, phi: float) -> np.ndarray:
+    """Rows x_b, y_b, z_b (world coordinates) of the beam frame, shape (3, 3)."""
+    ct, st, cp, sp = np.cos(theta), np.sin(theta), np.cos(phi), np.sin(phi)
+    return np.array([[-ct * cp, -ct * sp, st], [-sp, cp, 0.0], [-st * cp, -st * sp, -ct]])
+
+
+def _check_angles(theta_i: float, phi_i: float):
+    if not (np.isfinite(theta_i) and 0.0 <= theta_i < 0.5 * np.pi):
+        raise ValueError(f"theta_i must be in [0, pi/2) radians, got {theta_i!r}")
+    if not np.isfinite(phi_i):
+        raise ValueError(f"phi_i must be finite, got {phi_i!r}")
+
+
+@dataclass
+class Beam:
+    """Common parameters; subclasses implement :meth:`fields` and :meth:`incident_power`."""
+
+    wavelength_um: float
+    theta_i: float
+    phi_i: float
+    exterior_index: float = 1.0
+    focus_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    kind = "abstract"
+
+    def __post_init__(self):
+        _check_angles(self.theta_i, self.phi_i)
+        if not (np.isfinite(self.wavelength_um) and self.wavelength_um > 0):
+            raise ValueError(f"wavelength_um must be > 0, got {self.wavelength_um!r}")
+        self.focus_um = np.asarray(self.focus_um, dtype=float).reshape(3)
+
+    @property
+    def k0(self) -> float:
+        return 2.0 * np.pi / self.wavelength_um
+
+    @property
+    def k(self) -> float:
+        """k₁ = k₀ n₁ (µm⁻¹)."""
+        return self.k0 * self.exterior_index
+
+    @property
+    def frame(self) -> np.ndarray:
+        return beam_frame(self.theta_i, self.phi_i)
+
+    def fields(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """E, H at ``points`` (..., 3) µm; each of shape (2, ..., 3), polarization s, p."""
+        raise NotImplementedError
+
+    def incident_power(self, patch_size_um: float) -> np.ndarray:
+        """Φ_i per polarization (W for the beam's amplitude normalisation), shape (2,)."""
+        raise NotImplementedError
+
+    def plane_flux(self, patch_size_um: float, order: int = 4, cells: int | None = None) -> tuple[float, np.ndarray]:
+        """(flux through the patch, flux through a 3× larger square) of −S_z on z = focus, per pol.
+
+        Gauss quadrature of order ``order`` on ``cells``² cells per patch (default: λ/4 cells).
+        Returns (inside (2,), total (2,)).
+        """
+        L = float(patch_size_um)
+        if cells is None:
+            cells = int(np.ceil(4 * L * self.exterior_index / self.wavelength_um))
+        x, w = np.polynomial.legendre.leggauss(order)
+        d = L / cells
+        centres = -1.5 * L + d * (np.arange(3 * cells) + 0.5)
+        xs = (centres[:, None] + 0.5 * d * x[None, :]).ravel()
+        ws = np.tile(0.5 * d * w, 3 * cells)
+        X, Y = np.meshgrid(xs, xs, indexing="ij")
+        W = np.outer(ws, ws)
+        pts = np.stack([X, Y, np.full_like(X, self.focus_um[2])], axis=-1) + [self.focus_um[0], self.focus_um[1], 0.0]
+        E, H = self.fields(pts)
+        Sz = -0.5 * np.real(np.cross(E, np.conj(H))[..., 2])  # (2, n, n), downward flux
+        inside = (np.abs(X) <= 0.5 * L) & (np.abs(Y) <= 0.5 * L)
+        return np.sum(Sz * W * inside, axis=(1, 2)), np.sum(Sz * W, axis=(1, 2))
+
+    def outside_fraction(self, patch_size_um: float) -> float:
+        """Largest fraction (over polarizations) of the incident flux on z = focus outside the patch."""
+        inside, total = self.plane_flux(patch_size_um)
+        return float(np.max(1.0 - inside / total))
+
+
+def _from_beam_frame(frame: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+    """Beam-frame components (..., 3) → world components."""
+    return vectors @ frame
+
+
+@dataclass
+class PlaneWave(Beam):
+    """E = ê e^{−jk·r} with |E| = 1, ê = ŷ_b (s) or x̂_b (p); H = k × E/(ωμ₀)."""
+
+    kind = "plane"
+
+    def fields(self, points):
+        points = np.asarray(points, dtype=float)
+        f = self.frame
+        kvec = self.k * f[2]
+        phase = np.exp(-1j * ((points - self.focus_um) @ kvec))[..., None]
+        E = np.stack([f[1] * phase, f[0] * phase])
+        H = np.cross(kvec, E) / (ETA0 * self.k0)
+        return E, H
+
+    def incident_power(self, patch_size_um):
+        flux = self.exterior_index / (2 * ETA0) * np.cos(self.theta_i) * patch_size_um**2
+        return np.array([flux, flux])
+
+
+@dataclass
+class ParaxialGaussianBeam(Beam):
+    """Astigmatic paraxial Gaussian beam of bem3d.md §8 (waists w cosθ_i, w; |E| ≈ 1 at the focus)."""
+
+    waist_um: float = 1.0
+    kind = "paraxial"
+
+    def __post_init__(self):
+        super().__post_init__()
+        if not (np.isfinite(self.waist_um) and self.waist_um > 0):
+            raise ValueError(f"waist_um must be > 0, got {self.waist_um!r}")
+
+    @property
+    def rayleigh_ranges(self) -> tuple[float, float]:
+        """(z_Rx, z_Ry) = k w_a²/2 with w_x = w cosθ_i, w_y = w."""
+        wx = self.waist_um * np.cos(self.theta_i)
+        return 0.5 * self.k * wx**2, 0.5 * self.k * self.waist_um**2
+
+    def potential_derivatives(self, xb, yb, zb):
+        """U and its first and second derivatives in beam coordinates (dict of arrays)."""
+        k = self.k
+        zrx, zry = self.rayleigh_ranges
+        qx = zb + 1j * zrx
+        qy = zb + 1j * zry
+        amp = 1j * np.sqrt(zrx * zry) / (np.sqrt(qx) * np.sqrt(qy))  # separate roots: continuous in z
+        U = amp * np.exp(-1j * k * (zb + xb**2 / (2 * qx) + yb**2 / (2 * qy)))
+        Ux = -1j * k * xb / qx * U
+        Uy = -1j * k * yb / qy * U
+        dz = -0.5 / qx - 0.5 / qy + 1j * k * (xb**2 / (2 * qx**2) + yb**2 / (2 * qy**2) - 1.0)
+        Uz = dz * U
+        Uxx = (-1j * k / qx - (k * xb / qx) ** 2) * U
+        Uyy = (-1j * k / qy - (k * yb / qy) ** 2) * U
+        Uxy = -(k**2) * xb * yb / (qx * qy) * U
+        Uxz = -1j * k * xb * (-U / qx**2 + Uz / qx)
+        Uyz = -1j * k * yb * (-U / qy**2 + Uz / qy)
+        return dict(U=U, Ux=Ux, Uy=Uy, Uz=Uz, Uxx=Uxx, Uyy=Uyy, Uxy=Uxy, Uxz=Uxz, Uyz=Uyz)
+
+    @cached_property
+    def _normalisation(self) -> complex:
+        zrx, _ = self.rayleigh_ranges
+        return (self.k**2 - self.k / zrx) * ETA0 / (1j * self.k0 * self.exterior_index**2)
+
+    def fields(self, points):
+        points = np.asarray(points, dtype=float)
+        f = self.frame
+        local = (points - self.focus_um) @ f.T
+        d = self.potential_derivatives(local[..., 0], local[..., 1], local[..., 2])
+        k2 = self.k**2
+        scale = ETA0 / (1j * self.k0 * self.exterior_index**2) / self._normalisation
+        zero = np.zeros_like(d["U"])
+        # s: A = U y_b ; p: A = U x_b   (beam-frame components)
+        E_s = np.stack([d["Uxy"], d["Uyy"] + k2 * d["U"], d["Uyz"]], axis=-1) * scale
+        E_p = np.stack([d["Uxx"] + k2 * d["U"], d["Uxy"], d["Uxz"]], axis=-1) * scale
+        H_s = np.stack([-d["Uz"], zero, d["Ux"]], axis=-1) / self._normalisation
+        H_p = np.stack([zero, d["Uz"], -d["Uy"]], axis=-1) / self._normalisation
+        E = np.stack([_from_beam_frame(f, E_s), _from_beam_frame(f, E_p)])
+        H = np.stack([_from_beam_frame(f, H_s), _from_beam_frame(f, H_p)])
+        return E, H
+
+    def incident_power(self, patch_size_um):
+        inside, _ = self.plane_flux(patch_size_um)
+        return inside
+
+
+@dataclass
+class ExactGaussianBeam(Beam):
+    """Angular-spectrum Gaussian beam: an exact Maxwell solution with the paraxial footprint.
+
+    ``patch_size_um`` sets the lattice period P of the spectrum so that the periodic copies of
+    the beam are below ``REPLICA_LEVEL`` on the patch.
+    """
+
+    waist_um: float = 1.0
+    patch_size_um: float = 1.0
+    kind = "exact"
+
+    def __post_init__(self):
+        super().__post_init__()
+        if not (np.isfinite(self.waist_um) and self.waist_um > 0):
+            raise ValueError(f"waist_um must be > 0, got {self.waist_um!r}")
+        if not (np.isfinite(self.patch_size_um) and self.patch_size_um > 0):
+            raise ValueError(f"patch_size_um must be > 0, got {self.patch_size_um!r}")
+
+    @property
+    def period_um(self) -> float:
+        """Lattice period P: the copies at distance P are at REPLICA_LEVEL on the patch corners."""
+        w = self.waist_um
+        reach = w * np.sqrt(np.log(1.0 / REPLICA_LEVEL))
+        return max(np.sqrt(0.5) * self.patch_size_um + reach, 2.0 * reach)
+
+    @cached_property
+    def plane_waves(self) -> dict:
+        """The plane-wave content: ``kvec`` (M, 3), ``E`` and ``H`` (2, M, 3) amplitudes.
+
+        E(r) = Σ_m E[:, m] e^{−j kvec_m·(r − focus)}, normalised like the paraxial beam.
+        """
+        k, w, P = self.k, self.waist_um, self.period_um
+        f = self.frame
+        k_par = self.k * f[2][:2]
+        dk = 2.0 * np.pi / P
+        reach = 2.0 * np.sqrt(np.log(1.0 / SPECTRUM_TAIL)) / w
+        m = int(np.ceil(reach / dk))
+        i = np.arange(-m, m + 1)
+        KX, KY = np.meshgrid(k_par[0] + dk * i, k_par[1] + dk * i, indexing="ij")
+        gauss = np.exp(-0.25 * w**2 * ((KX - k_par[0]) ** 2 + (KY - k_par[1]) ** 2))
+        kz2 = k**2 - KX**2 - KY**2
+        keep = (gauss >= SPECTRUM_TAIL) & (kz2 > (1e-9 * k) ** 2)
+        a = (w**2 / (4 * np.pi)) * gauss[keep] * dk**2
+        kvec = np.stack([KX[keep], KY[keep], -np.sqrt(kz2[keep])], axis=1)
+        E = np.empty((2, len(a), 3), dtype=complex)
+        H = np.empty((2, len(a), 3), dtype=complex)
+        factor = ETA0 / (1j * self.k0 * self.exterior_index**2)
+        for p, axis in ((0, f[1]), (1, f[0])):  # s: A = U y_b, p: A = U x_b
+            E[p] = factor * a[:, None] * (k**2 * axis[None, :] - kvec * (kvec @ axis)[:, None])
+            H[p] = -1j * a[:, None] * np.cross(kvec, axis[None, :])
+        norm = np.sum(E[1] @ f[0])  # x_b component of the p field at the focus
+        logger.debug("exact beam: %d plane waves, period %.3g µm", len(a), P)
+        return {"kvec": kvec, "E": E / norm, "H": H / norm, "period_um": P}
+
+    def fields(self, points, chunk: int = 4096):
+        points = np.asarray(points, dtype=float)
+        shape = points.shape[:-1]
+        flat = points.reshape(-1, 3) - self.focus_um
+        pw = self.plane_waves
+        m = len(pw["kvec"])
+        # columns: E_s, E_p, H_s, H_p (x, y, z each)
+        amps = np.concatenate([pw["E"].transpose(1, 0, 2).reshape(m, 6), pw["H"].transpose(1, 0, 2).reshape(m, 6)], axis=1)
+        out = np.empty((len(flat), 12), dtype=complex)
+        for s in range(0, len(flat), chunk):
+            phase = np.exp(-1j * (flat[s : s + chunk] @ pw["kvec"].T))
+            out[s : s + chunk] = phase @ amps
+        out = out.reshape(shape + (2, 2, 3))  # (..., E|H, pol, xyz)
+        E = np.moveaxis(out[..., 0, :, :], -2, 0)
+        H = np.moveaxis(out[..., 1, :, :], -2, 0)
+        return E, H
+
+    def _flux_weights(self) -> np.ndarray:
+        """Downward power of each plane wave per period cell, shape (2, M)."""
+        pw = self.plane_waves
+        kz = -pw["kvec"][:, 2]
+        return pw["period_um"] ** 2 * np.sum(np.abs(pw["E"]) ** 2, axis=2) * kz / (2 * ETA0 * self.k0)
+
+    def incident_power(self, patch_size_um=None):
+        """Exact downward power through any plane z = const, per period cell (= one beam)."""
+        return np.sum(self._flux_weights(), axis=1)
+
+    def outside_fraction(self, patch_size_um: float) -> float:
+        """Fraction of the exact incident power (one beam) crossing z = focus outside the patch."""
+        inside, _ = self.plane_flux(patch_size_um)
+        return float(np.max(1.0 - inside / self.incident_power()))
+
+    def reflectance(self, index: complex) -> np.ndarray:
+        """Exact flat-interface reflectance per polarization: Σ_m P_m (|ê·ŝ_m|²|r_s|² + |ê·p̂_m|²|r_p|²)/Σ P_m."""
+        pw = self.plane_waves
+        kvec = pw["kvec"]
+        khat = kvec / np.linalg.norm(kvec, axis=1, keepdims=True)
+        s_hat = np.cross([0.0, 0.0, 1.0], khat)
+        norm = np.linalg.norm(s_hat, axis=1, keepdims=True)
+        s_hat = np.where(norm > 1e-12, s_hat / np.where(norm > 0, norm, 1.0), self.frame[1])
+        p_hat = np.cross(s_hat, khat)
+        r_s, r_p = fresnel_rs_rp(complex(index) / self.exterior_index, -khat[:, 2])
+        E = pw["E"]
+        es = np.abs(np.einsum("pmc,mc->pm", E, s_hat)) ** 2
+        ep = np.abs(np.einsum("pmc,mc->pm", E, p_hat)) ** 2
+        weights = -khat[:, 2]
+        reflected = np.sum(weights * (es * np.abs(r_s) ** 2 + ep * np.abs(r_p) ** 2), axis=1)
+        return reflected / np.sum(weights * (es + ep), axis=1)
+
+
+def make_beam(kind: str, wavelength_um: float, theta_i: float, phi_i: float, waist_um: float | None,
+              *, exterior_index: float = 1.0, focus_um=(0.0, 0.0, 0.0), patch_size_um: float | None = None) -> Beam:
+    """The beam named ``kind`` ("exact" | "paraxial" | "plane")."""
+    common = dict(wavelength_um=wavelength_um, theta_i=theta_i, phi_i=phi_i,
+                  exterior_index=exterior_index, focus_um=focus_um)
+    if kind == "plane":
+        return PlaneWave(**common)
+    if waist_um is None:
+        raise ValueError(f"illumination.waist_um is required for the {kind!r} beam")
+    if kind == "paraxial":
+        return ParaxialGaussianBeam(**common, waist_um=waist_um)
+    if kind == "exact":
+        if patch_size_um is None:
+            raise ValueError("the exact beam needs patch_size_um (sets its spectral lattice)")
+        return ExactGaussianBeam(**common, waist_um=waist_um, patch_size_um=patch_size_um)
+    raise ValueError(f"illumination.beam must be one of {BEAMS}, got {kind!r}")

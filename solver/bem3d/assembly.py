@@ -1,0 +1,379 @@
+"""PMCHWT matrix entries for lists of basis-function pairs, and the dense matrix Z.
+
+Two steps (the same for the dense matrix and for sparse near-field lists):
+
+1. element-pair tables for every element pair the basis pairs touch (elements.py);
+2. the OpenCL gather ``bem_basis_block`` / ``bem_basis_list`` (kernels/bem_assembly.cl) sums the
+   2×2 half-basis contributions of each basis pair and applies the PMCHWT coefficients (media.py),
+   giving the three blocks ee = Z_EE, mm = Z_MM, em = Z_EM = Z_ME of that pair.
+
+The dense matrix in the documented unknown ordering [J_h | J_v | M̃_h | M̃_v] is::
+
+    Z = [[ee, em],
+         [em, mm]]        (each block N_b × N_b, complex-symmetric)
+
+It is assembled in blocks of element columns (memory stays bounded, PoCL's 1 GiB allocation
+limit is respected). Surfaces whose elements repeat exactly (flat or tilted patches) reuse the
+tables of geometrically identical element pairs (exact, no approximation).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from wavebrdf.solver.bem3d.elements import TABLE, ElementIntegrals
+from wavebrdf.solver.bem3d.media import Media
+from wavebrdf.solver.bem3d.mesh import SLOT_SIGN, BEMMesh
+
+logger = logging.getLogger(__name__)
+
+__all__ = [
+    "AssemblyReport",
+    "assemble_dense",
+    "basis_entries_numpy",
+    "basis_entries_opencl",
+    "basis_pair_entries",
+    "dense_blocks",
+    "dense_layout",
+]
+
+SEGMENT = 64  # columns per work-item of the block gather
+TABLE_BUDGET = 192 * 2**20  # bytes of element tables per block
+SHAPE_REUSE_FRACTION = 0.25  # reuse tables when at most this fraction of element shapes are distinct
+
+
+def _coefficients(media: Media) -> np.ndarray:
+    c = media.pmchwt_coefficients()
+    return np.concatenate([c["ee_vec"], c["ee_div"], c["mm_vec"], c["mm_div"], [c["em"]]]).astype(np.complex128)
+
+
+# ---------------------------------------------------------------------------------------------
+# The gather: NumPy twin and OpenCL
+
+
+def basis_entries_numpy(tables, pair_map, row_elem, row_slot, col_elem, col_slot, rows, cols, coef):
+    """ee, mm, em of basis pairs (rows[p], cols[p]); twin of ``bem_basis_list``.
+
+    tables (T, 2, 33); pair_map (n_test, n_source) → table index; row_elem/row_slot (n_rows, 2)
+    local element index and slot of each row basis' two halves (likewise for columns).
+    """
+    rows = np.asarray(rows)
+    cols = np.asarray(cols)
+    lv = np.zeros((len(rows), 2), dtype=complex)
+    ld = np.zeros((len(rows), 2), dtype=complex)
+    kk = np.zeros(len(rows), dtype=complex)
+    for s in range(2):
+        for t in range(2):
+            tab = tables[pair_map[row_elem[rows, s], col_elem[cols, t]]]  # (P, 2, 33)
+            a = row_slot[rows, s]
+            b = col_slot[cols, t]
+            ab = 4 * a + b
+            sign = SLOT_SIGN[a] * SLOT_SIGN[b]
+            idx = np.arange(len(rows))
+            lv += tab[idx, :, ab]
+            ld += tab[:, :, 16] * sign[:, None]
+            kk += tab[idx, 0, 17 + ab] + tab[idx, 1, 17 + ab]
+    ee = lv @ coef[0:2] + ld @ coef[2:4]
+    mm = lv @ coef[4:6] + ld @ coef[6:8]
+    return ee, mm, coef[8] * kk
+
+
+def basis_entries_opencl(ctx, tables, pair_map, row_elem, row_slot, col_elem, col_slot, coef,
+                         rows=None, cols=None):
+    """OpenCL gather: the full block rows × columns (``rows is None``) or a list of pairs.
+
+    Returns ee, mm, em of shape (n_rows, n_cols) or (P,).
+    """
+    import pyopencl as cl
+
+    mf = cl.mem_flags
+
+    def buf(a, dtype):
+        return cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a, dtype))
+
+    n_source = pair_map.shape[1]
+    args = [
+        buf(tables, np.complex128), buf(pair_map, np.int32), np.int32(n_source),
+        buf(row_elem, np.int32), buf(row_slot, np.int32), buf(col_elem, np.int32), buf(col_slot, np.int32),
+    ]
+    coef_buf = buf(coef, np.complex128)
+    if rows is None:
+        shape = (len(row_elem), len(col_elem))
+        knl = ctx.kernel("bem_assembly.cl", "bem_basis_block", {"WB_FP64": 1, "BEM_SEGMENT": SEGMENT})
+        args += [np.int32(shape[0]), np.int32(shape[1])]
+        items = shape[0] * ((shape[1] + SEGMENT - 1) // SEGMENT)
+    else:
+        shape = (len(rows),)
+        knl = ctx.kernel("bem_assembly.cl", "bem_basis_list", {"WB_FP64": 1})
+        args += [buf(rows, np.int32), buf(cols, np.int32), np.int32(shape[0])]
+        items = shape[0]
+    n = int(np.prod(shape))
+    outs = [cl.Buffer(ctx.context, mf.WRITE_ONLY, max(n, 1) * 16) for _ in range(3)]
+    if n:
+        knl(ctx.queue, (items,), None, *args, coef_buf, *outs)
+    result = []
+    for o in outs:
+        host = np.empty(shape, dtype=np.complex128)
+        if n:
+            cl.enqueue_copy(ctx.queue, host, o)
+        result.append(host)
+    ctx.queue.finish()
+    return tuple(result)
+
+
+# ---------------------------------------------------------------------------------------------
+# Element-table sources for blocks
+
+
+class _DirectTables:
+    """Tables computed for every element pair of each block."""
+
+    reuse = False
+
+    def __init__(self, integrals: ElementIntegrals, wavenumbers):
+        self.integrals = integrals
+        self.wavenumbers = wavenumbers
+
+    def block(self, test_elems, source_elems):
+        t = np.repeat(test_elems, len(source_elems))
+        s = np.tile(source_elems, len(test_elems))
+        tables = self.integrals.tables(t, s, self.wavenumbers)
+        pair_map = np.arange(len(t), dtype=np.int32).reshape(len(test_elems), len(source_elems))
+        return tables, pair_map
+
+
+class _ReusedTables:
+    """Tables of geometrically distinct element pairs only (exact reuse).
+
+    Two pairs are identical when their index offset (Δs, Δt), the shapes (z10, z01, z11) of both
+    elements and the height offset Δz00 are equal bit for bit.
+    """
+
+    reuse = True
+
+    def __init__(self, integrals: ElementIntegrals, wavenumbers, shape_ids, n_shapes):
+        mesh = integrals.mesh
+        n = mesh.cells
+        ne = mesh.n_elements
+        st = mesh.element_st
+        z00 = mesh.geometry[:, 2]
+        ds = (st[None, :, 0] - st[:, None, 0] + (n - 1)).astype(np.int64)
+        dt = (st[None, :, 1] - st[:, None, 1] + (n - 1)).astype(np.int64)
+        dz = z00[None, :] - z00[:, None]
+        if np.all(dz == 0.0):
+            dz_id, n_dz = np.zeros((ne, ne), dtype=np.int64), 1
+        else:
+            values, inverse = np.unique(dz.ravel(), return_inverse=True)
+            dz_id, n_dz = inverse.reshape(ne, ne).astype(np.int64), len(values)
+        key = ds * (2 * n - 1) + dt
+        key = (key * n_shapes + shape_ids[:, None]) * n_shapes + shape_ids[None, :]
+        key = key * n_dz + dz_id
+        unique, first, inverse = np.unique(key.ravel(), return_index=True, return_inverse=True)
+        self.map = inverse.reshape(ne, ne).astype(np.int32)
+        test, source = np.divmod(first, ne)
+        logger.info("table reuse: %d distinct element pairs of %d", len(unique), ne * ne)
+        self.tables = integrals.tables(test, source, wavenumbers)
+
+    def block(self, test_elems, source_elems):
+        return self.tables, self.map[np.ix_(test_elems, source_elems)]
+
+
+def _table_source(integrals: ElementIntegrals, wavenumbers, allow_reuse: bool):
+    shapes = integrals.mesh.geometry[:, 3:6]
+    unique, shape_ids = np.unique(shapes, axis=0, return_inverse=True)
+    n_shapes = len(unique)
+    ne = integrals.mesh.n_elements
+    if allow_reuse and n_shapes <= max(1, SHAPE_REUSE_FRACTION * ne) and ne * ne <= 2**28:
+        return _ReusedTables(integrals, wavenumbers, shape_ids.ravel().astype(np.int64), n_shapes)
+    return _DirectTables(integrals, wavenumbers)
+
+
+# ---------------------------------------------------------------------------------------------
+# Dense assembly
+
+
+GATHER_ROWS = 1024  # rows of one gather block when the element tables are reused
+
+
+@dataclass
+class AssemblyReport:
+    """What the dense assembly did (goes into FarField.diagnostics)."""
+
+    unknowns: int
+    seconds: float = 0.0
+    table_reuse: bool = False
+    blocks: int = 0
+    element_pairs: int = 0
+    unknown_order: np.ndarray | None = None
+    timings: dict = field(default_factory=dict)
+    counts: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class DenseLayout:
+    """Partition of the rooftops into chunks, and the *blocked* unknown ordering it implies.
+
+    ``chunks[i]`` = (bases, elements): documented basis indices of chunk i (in blocked order) and
+    the elements their supports touch. Blocked ordering: [J of order | M̃ of order] with
+    ``order`` = the chunks' bases concatenated; Z_blocked = Z[np.ix_(unknown_order, unknown_order)].
+    """
+
+    chunks: tuple
+    offsets: np.ndarray
+    n_bases: int
+
+    @property
+    def order(self) -> np.ndarray:
+        return np.concatenate([c[0] for c in self.chunks])
+
+    @property
+    def unknown_order(self) -> np.ndarray:
+        order = self.order
+        return np.concatenate([order, self.n_bases + order])
+
+    @property
+    def is_identity(self) -> bool:
+        return bool(np.array_equal(self.order, np.arange(self.n_bases)))
+
+
+def dense_layout(mesh: BEMMesh, reuse: bool) -> DenseLayout:
+    """Chunks of element columns (fresh tables per block) or contiguous ranges (reused tables)."""
+    n = mesh.cells
+    chunks = []
+    if reuse:
+        for g0 in range(0, mesh.n_bases, GATHER_ROWS):
+            bases = np.arange(g0, min(mesh.n_bases, g0 + GATHER_ROWS))
+            chunks.append((bases, np.unique(mesh.basis_elements[bases])))
+    else:
+        per_column = n * 2 * TABLE * 16  # table bytes of one element column against one column
+        width = int(np.clip(int(np.sqrt(TABLE_BUDGET / (per_column * n))) - 1, 1, n))
+        owner = mesh.basis_elements[:, 0] % n  # element column t of each basis' plus half
+        t_of_e = mesh.element_st[:, 1]
+        for c0 in range(0, n, width):
+            c1 = min(n, c0 + width)
+            bases = np.flatnonzero((owner >= c0) & (owner < c1))
+            elements = np.flatnonzero((t_of_e >= c0) & (t_of_e <= min(c1, n - 1)))
+            chunks.append((bases, elements))
+    sizes = [len(c[0]) for c in chunks]
+    return DenseLayout(tuple(chunks), np.concatenate([[0], np.cumsum(sizes)]), mesh.n_bases)
+
+
+def _local(elements_loaded: np.ndarray, ne: int) -> np.ndarray:
+    lookup = np.full(ne, -1, dtype=np.int64)
+    lookup[elements_loaded] = np.arange(len(elements_loaded))
+    return lookup
+
+
+def dense_blocks(ctx, mesh: BEMMesh, media: Media, integrals: ElementIntegrals, *,
+                 exploit_symmetry: bool = True, allow_reuse: bool = True, report=None):
+    """Yield (layout, i, j, ee, mm, em): the basis-pair blocks chunk i × chunk j of the layout.
+
+    With ``exploit_symmetry`` only j ≥ i is yielded; the consumer mirrors (Z is complex-symmetric).
+    The first item yielded is the layout itself (``(layout, None, None, None, None, None)``).
+    """
+    ne = mesh.n_elements
+    coef = _coefficients(media)
+    source = _table_source(integrals, media.wavenumbers, allow_reuse)
+    layout = dense_layout(mesh, source.reuse)
+    if report is not None:
+        report.table_reuse = source.reuse
+    yield layout, None, None, None, None, None
+    for i, (rows, test_elems) in enumerate(layout.chunks):
+        lt = _local(test_elems, ne)
+        for j, (cols, source_elems) in enumerate(layout.chunks):
+            if exploit_symmetry and j < i:
+                continue
+            ls = _local(source_elems, ne)
+            tables, pair_map = source.block(test_elems, source_elems)
+            row_elem, col_elem = lt[mesh.basis_elements[rows]], ls[mesh.basis_elements[cols]]
+            row_slot, col_slot = mesh.basis_slots[rows], mesh.basis_slots[cols]
+            if ctx is None:
+                R, C = np.meshgrid(np.arange(len(rows)), np.arange(len(cols)), indexing="ij")
+                ee, mm, em = (x.reshape(R.shape) for x in basis_entries_numpy(
+                    tables, pair_map, row_elem, row_slot, col_elem, col_slot, R.ravel(), C.ravel(), coef))
+            else:
+                ee, mm, em = basis_entries_opencl(ctx, tables, pair_map, row_elem, row_slot,
+                                                  col_elem, col_slot, coef)
+            if report is not None:
+                report.blocks += 1
+                report.element_pairs += pair_map.size
+            yield layout, i, j, ee, mm, em
+
+
+def assemble_dense(ctx, mesh: BEMMesh, media: Media, integrals: ElementIntegrals | None = None, *,
+                   exploit_symmetry: bool = True, allow_reuse: bool = True, ordering: str = "documented"):
+    """The dense 2N_b × 2N_b PMCHWT matrix Z (complex128) and an :class:`AssemblyReport`.
+
+    ``ordering`` "documented" ([J_h | J_v | M̃_h | M̃_v], mesh.py) or "blocked" (the layout's
+    order, cheaper to build: ``report.unknown_order`` maps blocked to documented indices).
+    ``ctx`` None uses the NumPy twins throughout (slow; for tests on tiny meshes).
+    """
+    if ordering not in ("documented", "blocked"):
+        raise ValueError(f"ordering must be 'documented' or 'blocked', got {ordering!r}")
+    t0 = time.perf_counter()
+    integrals = integrals or ElementIntegrals(mesh, ctx=ctx)
+    nb = mesh.n_bases
+    Z = np.empty((2 * nb, 2 * nb), dtype=np.complex128)
+    report = AssemblyReport(unknowns=2 * nb)
+    blocks = dense_blocks(ctx, mesh, media, integrals, exploit_symmetry=exploit_symmetry,
+                          allow_reuse=allow_reuse, report=report)
+    layout = next(blocks)[0]
+    off = layout.offsets
+    for _, i, j, ee, mm, em in blocks:
+        placements = [(slice(off[i], off[i + 1]), slice(off[j], off[j + 1]), False)]
+        if exploit_symmetry and i != j:
+            placements.append((placements[0][1], placements[0][0], True))
+        for r, c, transpose in placements:
+            for block, (ro, co) in ((ee, (0, 0)), (em, (0, nb)), (em, (nb, 0)), (mm, (nb, nb))):
+                Z[r.start + ro : r.stop + ro, c.start + co : c.stop + co] = block.T if transpose else block
+    report.unknown_order = layout.unknown_order
+    if ordering == "documented" and not layout.is_identity:
+        inverse = np.argsort(report.unknown_order)
+        Z = Z[np.ix_(inverse, inverse)]
+        report.unknown_order = np.arange(2 * nb)
+    report.seconds = time.perf_counter() - t0
+    report.timings = dict(integrals.timings)
+    report.counts = dict(integrals.counts)
+    logger.info("dense Z (%d unknowns) assembled in %.2f s (%d blocks, reuse=%s)",
+                2 * nb, report.seconds, report.blocks, report.table_reuse)
+    return Z, report
+
+
+# ---------------------------------------------------------------------------------------------
+# Arbitrary basis-pair lists (the entry point the AIM near-field correction uses)
+
+
+def basis_pair_entries(ctx, mesh: BEMMesh, media: Media, rows, cols,
+                       integrals: ElementIntegrals | None = None):
+    """ee, mm, em (each (P,)) of the basis pairs (rows[p], cols[p]) (geometric basis indices).
+
+    Computes the tables of exactly the element pairs these basis pairs touch.
+    """
+    rows = np.asarray(rows, dtype=np.int64)
+    cols = np.asarray(cols, dtype=np.int64)
+    integrals = integrals or ElementIntegrals(mesh, ctx=ctx)
+    ne = mesh.n_elements
+    ub_r, inv_r = np.unique(rows, return_inverse=True)
+    ub_c, inv_c = np.unique(cols, return_inverse=True)
+    test_elems = np.unique(mesh.basis_elements[ub_r])
+    source_elems = np.unique(mesh.basis_elements[ub_c])
+    lt, ls = _local(test_elems, ne), _local(source_elems, ne)
+    row_elem, col_elem = lt[mesh.basis_elements[ub_r]], ls[mesh.basis_elements[ub_c]]
+    # the element pairs actually needed
+    pairs = np.unique(
+        (row_elem[inv_r][:, :, None] * len(source_elems) + col_elem[inv_c][:, None, :]).ravel()
+    )
+    pair_map = np.full((len(test_elems), len(source_elems)), -1, dtype=np.int32)
+    pair_map.ravel()[pairs] = np.arange(len(pairs), dtype=np.int32)
+    lt_idx, ls_idx = np.divmod(pairs, len(source_elems))
+    tables = integrals.tables(test_elems[lt_idx], source_elems[ls_idx], media.wavenumbers)
+    coef = _coefficients(media)
+    row_slot, col_slot = mesh.basis_slots[ub_r], mesh.basis_slots[ub_c]
+    if ctx is None:
+        return basis_entries_numpy(tables, pair_map, row_elem, row_slot, col_elem, col_slot, inv_r, inv_c, coef)
+    return basis_entries_opencl(ctx, tables, pair_map, row_elem, row_slot, col_elem, col_slot, coef,
+                                rows=inv_r, cols=inv_c)

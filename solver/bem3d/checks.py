@@ -1,0 +1,121 @@
+"""Warnings of the 3D BEM: situations that give a result of doubtful accuracy, said out loud.
+
+Every check emits a :class:`BEMWarning` subclass through :func:`warnings.warn` and records the
+message in the run's diagnostics, so a batch run keeps it next to the result.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from wavebrdf.solver.bem3d.media import Media
+
+__all__ = [
+    "BEMWarning",
+    "FootprintWarning",
+    "MaterialWarning",
+    "ResolutionWarning",
+    "SolverWarning",
+    "check_footprint",
+    "check_material",
+    "check_resolution",
+    "emit",
+]
+
+OUTSIDE_FRACTION = 1e-3  # incident power falling outside the patch above which we warn
+EXTERIOR_CELLS_PER_WAVELENGTH = 6.0  # d ≤ λ₁/6
+INTERIOR_KD = 4.0  # |k₂| d above which the interior field (wavelength, skin depth) is under-resolved
+HIGH_CONTRAST = 10.0  # |n₂/n₁| at and above which PMCHWT conditioning degrades
+RESIDUAL = 1e-8  # relative residual of the direct solve above which we warn
+
+
+class BEMWarning(UserWarning):
+    """Base class of the 3D BEM warnings."""
+
+
+class FootprintWarning(BEMWarning):
+    """The incident beam is not contained in the patch (edge truncation, e.g. grazing incidence)."""
+
+
+class MaterialWarning(BEMWarning):
+    """The material is at an extreme (very weak absorber, very high contrast)."""
+
+
+class ResolutionWarning(BEMWarning):
+    """The mesh is too coarse for the exterior or the interior wavelength / skin depth."""
+
+
+class SolverWarning(BEMWarning):
+    """The linear solve did not reach the expected residual."""
+
+
+def emit(diagnostics: dict | None, category: type[BEMWarning], message: str, stacklevel: int = 3) -> None:
+    """warnings.warn the message and append it to ``diagnostics["warnings"]``."""
+    if diagnostics is not None:
+        diagnostics.setdefault("warnings", []).append(f"{category.__name__}: {message}")
+    warnings.warn(message, category, stacklevel=stacklevel)
+
+
+def check_footprint(outside_fraction: float, theta_i: float, patch_um: float, beam: str, diagnostics=None):
+    """Warn when more than OUTSIDE_FRACTION of the incident power crosses z = 0 outside the patch."""
+    if diagnostics is not None:
+        diagnostics["incident_outside_fraction"] = float(outside_fraction)
+    if not np.isfinite(outside_fraction) or outside_fraction > OUTSIDE_FRACTION:
+        emit(
+            diagnostics,
+            FootprintWarning,
+            f"{outside_fraction:.3g} of the incident power of the {beam} beam at θ_i = "
+            f"{np.rad2deg(theta_i):.4g}° falls outside the {patch_um:g} µm patch (limit {OUTSIDE_FRACTION:g}): "
+            "the currents are truncated at the patch edge, so edge diffraction and a wrong Φ_i enter "
+            "the BRDF; use a larger patch or a smaller waist (grazing incidence spreads the footprint)",
+        )
+
+
+def check_material(media: Media, patch_um: float, diagnostics=None):
+    """Warn for weak absorbers (absorption length > patch) and high-contrast materials."""
+    n2 = media.index
+    kappa = media.kappa
+    if kappa > 0:
+        absorption_length = media.wavelength_um / (4 * np.pi * kappa)
+        if absorption_length > patch_um:
+            emit(
+                diagnostics,
+                MaterialWarning,
+                f"weakly absorbing material n₂ = {n2:.6g}: the absorption length λ/(4πκ) = "
+                f"{absorption_length:.3g} µm exceeds the patch ({patch_um:g} µm), so the material acts as "
+                "transparent here; the interior is an unbounded half-space (full interior operator, no "
+                "truncation) and light transmitted into it is not returned",
+            )
+    contrast = abs(n2) / media.exterior_index
+    if contrast >= HIGH_CONTRAST:
+        emit(
+            diagnostics,
+            MaterialWarning,
+            f"high-contrast material |n₂/n₁| = {contrast:.3g} (n₂ = {n2:.6g}): PMCHWT conditioning degrades "
+            "and the skin depth λ/(2πκ) = "
+            f"{media.wavelength_um / (2 * np.pi * max(kappa, 1e-300)):.3g} µm is tiny; check the residual and "
+            "the convergence in the mesh size",
+        )
+
+
+def check_resolution(media: Media, spacing_um: float, diagnostics=None):
+    """Warn when d exceeds λ₁/6 or |k₂| d exceeds INTERIOR_KD."""
+    lam1 = media.wavelength_um / media.exterior_index
+    if spacing_um > lam1 / EXTERIOR_CELLS_PER_WAVELENGTH * (1 + 1e-9):
+        emit(
+            diagnostics,
+            ResolutionWarning,
+            f"mesh size d = {spacing_um:g} µm exceeds λ₁/{EXTERIOR_CELLS_PER_WAVELENGTH:g} = "
+            f"{lam1 / EXTERIOR_CELLS_PER_WAVELENGTH:.4g} µm: the currents are under-resolved",
+        )
+    k2 = abs(media.wavenumbers[1])
+    if k2 * spacing_um > INTERIOR_KD:
+        emit(
+            diagnostics,
+            ResolutionWarning,
+            f"d is too coarse for the interior field: |k₂| d = {k2 * spacing_um:.3g} > {INTERIOR_KD:g} "
+            f"(interior wavelength λ/|n₂| = {media.wavelength_um / abs(media.index):.3g} µm, d = {spacing_um:g} µm); "
+            f"use d ≤ {INTERIOR_KD / k2:.3g} µm",
+        )

@@ -1,0 +1,365 @@
+"""Element-pair integrals of the PMCHWT operators: OpenCL kernels, NumPy twins, orchestration.
+
+For a test element A and a source element B (mesh.py for the slots a, b and weights c, t)::
+
+    L_vec[a][b] = ∫∫ c_a c'_b (t_a·t'_b) G          (du dv du' dv')
+    L_div       = ∫∫ G                               (L_div(a,b) = s_a s_b L_div)
+    K[a][b]     = ∫∫ c_a c'_b ∇G·(t'_b × t_a),      ∇G = ∇_r G(r − r')
+
+One *table* holds 33 complex numbers per medium, [L_vec (4a+b) | L_div | K (4a+b)]; a list of
+element pairs gives an array of shape (P, 2, 33) (media 1, 2).
+
+Quadrature (quadrature.py):
+
+* pairs that share a point (self, edge-adjacent, vertex-adjacent): the static parts
+  G₀ = 1/(4πR), ∇G₀ are integrated once per geometry with the singular transforms at
+  ``static_order``; the per-wavelength remainder G − G₀ with the same transforms at an order
+  chosen from |k|·size (it is smooth but, for metals, varies on the scale of the skin depth);
+* all other pairs: tensor Gauss–Legendre with a distance- and decay-adaptive order.
+
+Both kernels run for any list of element pairs (the dense matrix uses all of them; the AIM
+near-field correction uses a sparse list). The static tables are cached per geometry.
+Kernels: kernels/bem_elements.cl (``bem_regular_pairs``, ``bem_singular_pairs``); NumPy twins
+:func:`regular_pairs_numpy`, :func:`singular_pairs_numpy`.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+
+from wavebrdf.solver.bem3d.mesh import SLOT_TANGENT, BEMMesh, slot_weight
+from wavebrdf.solver.bem3d.quadrature import (
+    CASE_NAMES,
+    CASE_REGULAR,
+    QuadratureOptions,
+    orient,
+    pair_case,
+    regular_order,
+    singular_order,
+    singular_rule,
+    tensor_rule,
+)
+
+logger = logging.getLogger(__name__)
+
+__all__ = [
+    "ElementIntegrals",
+    "KIND_FULL",
+    "KIND_REMAINDER",
+    "KIND_STATIC",
+    "TABLE",
+    "green_terms",
+    "regular_pairs_numpy",
+    "regular_pairs_opencl",
+    "singular_pairs_numpy",
+    "singular_pairs_opencl",
+]
+
+TABLE = 33  # complex numbers per medium and pair
+KIND_FULL, KIND_REMAINDER, KIND_STATIC = 0, 1, 2  # = BEM_FULL, BEM_REMAINDER, BEM_STATIC
+INV_4PI = 1.0 / (4.0 * np.pi)
+OUTPUT_BUDGET = 128 * 2**20  # bytes of kernel output per launch
+
+
+# ---------------------------------------------------------------------------------------------
+# NumPy twins
+
+
+def one_minus_z_expz_minus_one(z):
+    """(1 − z) e^z − 1 without cancellation (series for |z| < 1/2), like bem_green.h."""
+    z = np.asarray(z, dtype=complex)
+    small = np.abs(z) ** 2 < 0.25
+    out = (1.0 - z) * np.exp(z) - 1.0
+    zs = z[small]
+    term = 0.5 * zs * zs
+    total = -term
+    for n in range(3, 23):
+        term = term * zs / n
+        total = total - (n - 1) * term
+    out[small] = total
+    return out
+
+
+def green_terms(kind: int, k: complex, r: np.ndarray):
+    """(g, gk) with G = g and ∇G = gk·(r − r'), for KIND_FULL or KIND_REMAINDER (see bem_green.h)."""
+    r = np.asarray(r, dtype=float)
+    z = -1j * k * r
+    s1 = INV_4PI / r
+    s3 = s1 / (r * r)
+    if kind == KIND_REMAINDER:
+        return np.expm1(z) * s1, -one_minus_z_expz_minus_one(z) * s3
+    if kind == KIND_FULL:
+        e = np.exp(z)
+        return e * s1, -(1.0 - z) * e * s3
+    raise ValueError(f"kind must be KIND_FULL or KIND_REMAINDER, got {kind!r}")
+
+
+def _point_sums(gA, gB, h, uA, vA, uB, vB, w, wavenumbers, kind):
+    """Σ_q over point pairs (axis 1) of the table integrands; returns (P, media, 33)."""
+    from wavebrdf.solver.bem3d.mesh import bilinear_frame
+
+    rA, ruA, rvA = bilinear_frame(gA[:, None, :], h, uA, vA)
+    rB, ruB, rvB = bilinear_frame(gB[:, None, :], h, uB, vB)
+    R = rA - rB
+    r = np.linalg.norm(R, axis=-1)
+    tA = np.stack([ruA, rvA], axis=-2)  # (P, Q, 2, 3)
+    tB = np.stack([ruB, rvB], axis=-2)
+    T = np.einsum("pqic,pqjc->pqij", tA, tB)
+    Qx = np.einsum("pqc,pqijc->pqij", R, np.cross(tB[:, :, None, :, :], tA[:, :, :, None, :]))
+    T16 = T[:, :, SLOT_TANGENT][:, :, :, SLOT_TANGENT]
+    Q16 = Qx[:, :, SLOT_TANGENT][:, :, :, SLOT_TANGENT]
+    cA = slot_weight(*np.broadcast_arrays(uA, vA, r)[:2])
+    cB = slot_weight(*np.broadcast_arrays(uB, vB, r)[:2])
+    cc = np.einsum("apq,bpq->pqab", cA, cB)
+    w = np.broadcast_to(w, r.shape)
+    if kind == KIND_STATIC:
+        kernels = [(INV_4PI / r, -INV_4PI / r**3)]
+    else:
+        kernels = [green_terms(kind, k, r) for k in wavenumbers]
+    out = np.empty((r.shape[0], len(kernels), TABLE), dtype=complex)
+    for m, (g, gk) in enumerate(kernels):
+        out[:, m, :16] = np.einsum("pqab,pq->pab", cc * T16, w * g).reshape(-1, 16)
+        out[:, m, 16] = np.sum(w * g, axis=1)
+        out[:, m, 17:] = np.einsum("pqab,pq->pab", cc * Q16, w * gk).reshape(-1, 16)
+    return out
+
+
+def _chunks(n_pairs: int, points: int, budget: int = 40_000):
+    step = max(1, budget // max(points, 1))
+    for start in range(0, n_pairs, step):
+        yield slice(start, min(n_pairs, start + step))
+
+
+def regular_pairs_numpy(geometry, h, test, source, order, wavenumbers):
+    """Tables (P, 2, 33) of element pairs by tensor Gauss of ``order`` (full kernel)."""
+    u, v, w = tensor_rule(order)
+    n2 = len(u)
+    uA, uB = np.repeat(u, n2), np.tile(u, n2)
+    vA, vB = np.repeat(v, n2), np.tile(v, n2)
+    wq = np.repeat(w, n2) * np.tile(w, n2)
+    test = np.asarray(test)
+    source = np.asarray(source)
+    out = np.empty((len(test), 2, TABLE), dtype=complex)
+    for sl in _chunks(len(test), len(wq)):
+        out[sl] = _point_sums(
+            geometry[test[sl]], geometry[source[sl]], h, uA, vA, uB, vB, wq, wavenumbers, KIND_FULL
+        )
+    return out
+
+
+def singular_pairs_numpy(geometry, h, test, source, code_test, code_source, rule, wavenumbers, kind):
+    """Tables of touching pairs with a singular ``rule`` (P, 5); (P, 2, 33), or (P, 33) real for
+    KIND_STATIC."""
+    test = np.asarray(test)
+    source = np.asarray(source)
+    nmed = 1 if kind == KIND_STATIC else 2
+    out = np.empty((len(test), nmed, TABLE), dtype=complex)
+    for sl in _chunks(len(test), len(rule)):
+        ct = np.asarray(code_test)[sl][:, None]
+        cs = np.asarray(code_source)[sl][:, None]
+        uA, vA = orient(ct, rule[None, :, 0], rule[None, :, 1])
+        uB, vB = orient(cs, rule[None, :, 2], rule[None, :, 3])
+        out[sl] = _point_sums(
+            geometry[test[sl]], geometry[source[sl]], h, uA, vA, uB, vB, 16.0 * rule[None, :, 4],
+            wavenumbers, kind,
+        )
+    return out[:, 0, :].real.copy() if kind == KIND_STATIC else out
+
+
+# ---------------------------------------------------------------------------------------------
+# OpenCL
+
+
+def _cplx(value) -> np.ndarray:
+    return np.array([complex(value).real, complex(value).imag], dtype=np.float64).view(np.complex128)[0]
+
+
+def vector_lanes(ctx) -> int:
+    """Pairs per work-item (WB_VW): 4 SIMD lanes on CPUs, 1 on GPUs (work-items are lanes there)."""
+    return 1 if "GPU" in ctx.info.kind else 4
+
+
+WORK_GROUP = 8  # explicit small work-groups: PoCL keeps the large private tables of a whole
+# work-group on a worker thread's stack, and its automatic (large) sizes overflow it
+
+
+def _launch_size(ctx, n: int) -> tuple[tuple[int], tuple[int]]:
+    """(global, local) sizes for n pairs, WB_VW pairs per work-item, padded to WORK_GROUP."""
+    lanes = vector_lanes(ctx)
+    items = (n + lanes - 1) // lanes
+    items = (items + WORK_GROUP - 1) // WORK_GROUP * WORK_GROUP
+    return (items,), (WORK_GROUP,)
+
+
+def _launch_chunks(n_pairs: int, bytes_per_pair: int):
+    step = max(1, OUTPUT_BUDGET // bytes_per_pair)
+    for start in range(0, n_pairs, step):
+        yield slice(start, min(n_pairs, start + step))
+
+
+def regular_pairs_opencl(ctx, geometry, h, test, source, order, wavenumbers):
+    """OpenCL twin of :func:`regular_pairs_numpy` (kernel ``bem_regular_pairs``)."""
+    import pyopencl as cl
+
+    knl = ctx.kernel("bem_elements.cl", "bem_regular_pairs", {"WB_FP64": 1, "WB_VW": vector_lanes(ctx)})
+    mf = cl.mem_flags
+    geom = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(geometry, np.float64))
+    x, w = np.polynomial.legendre.leggauss(int(order))
+    nodes = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
+    weights = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=w)
+    test = np.ascontiguousarray(test, np.int32)
+    source = np.ascontiguousarray(source, np.int32)
+    out = np.empty((len(test), 2, TABLE), dtype=np.complex128)
+    for sl in _launch_chunks(len(test), 2 * TABLE * 16):
+        n = sl.stop - sl.start
+        t_buf = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=test[sl])
+        s_buf = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=source[sl])
+        o_buf = cl.Buffer(ctx.context, mf.WRITE_ONLY, n * 2 * TABLE * 16)
+        knl(ctx.queue, *_launch_size(ctx, n), geom, np.float64(h), t_buf, s_buf, np.int32(n), nodes, weights,
+            np.int32(order), _cplx(wavenumbers[0]), _cplx(wavenumbers[1]), o_buf)
+        cl.enqueue_copy(ctx.queue, out[sl], o_buf)
+    ctx.queue.finish()
+    return out
+
+
+def singular_pairs_opencl(ctx, geometry, h, test, source, code_test, code_source, rule, wavenumbers, kind):
+    """OpenCL twin of :func:`singular_pairs_numpy` (kernel ``bem_singular_pairs``)."""
+    import pyopencl as cl
+
+    knl = ctx.kernel("bem_elements.cl", "bem_singular_pairs",
+                     {"WB_FP64": 1, "WB_VW": vector_lanes(ctx), "BEM_KIND": int(kind)})
+    mf = cl.mem_flags
+    geom = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(geometry, np.float64))
+    rule_buf = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(rule, np.float64))
+    arrays = [np.ascontiguousarray(a, np.int32) for a in (test, source, code_test, code_source)]
+    static = kind == KIND_STATIC
+    per_pair = TABLE * (8 if static else 32)
+    out = np.empty((len(arrays[0]), TABLE) if static else (len(arrays[0]), 2, TABLE),
+                   dtype=np.float64 if static else np.complex128)
+    k1, k2 = (wavenumbers if not static else (0.0, 0.0))
+    for sl in _launch_chunks(len(arrays[0]), per_pair):
+        n = sl.stop - sl.start
+        bufs = [cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a[sl]) for a in arrays]
+        o_buf = cl.Buffer(ctx.context, mf.WRITE_ONLY, n * per_pair)
+        knl(ctx.queue, *_launch_size(ctx, n), geom, np.float64(h), *bufs, np.int32(n), rule_buf,
+            np.int32(len(rule)), _cplx(k1), _cplx(k2), o_buf)
+        cl.enqueue_copy(ctx.queue, out[sl], o_buf)
+    ctx.queue.finish()
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# Orchestration
+
+
+class ElementIntegrals:
+    """Tables of arbitrary element-pair lists of one mesh, with cached static singular parts.
+
+    ``ctx`` None runs the NumPy twins (reference path); otherwise the OpenCL kernels.
+    """
+
+    def __init__(self, mesh: BEMMesh, options: QuadratureOptions | None = None, ctx=None):
+        self.mesh = mesh
+        self.options = options or QuadratureOptions()
+        self.ctx = ctx
+        self._static_keys = np.zeros(0, dtype=np.int64)
+        self._static_values = np.zeros((0, TABLE))
+        self.timings = {"static_s": 0.0, "singular_s": 0.0, "regular_s": 0.0}
+        self.counts = {"static": 0, "singular": 0, "regular": 0, "regular_points": 0}
+
+    # -- backends ---------------------------------------------------------------------------
+    def _regular(self, test, source, order, wavenumbers):
+        g, h = self.mesh.geometry, self.mesh.half
+        if self.ctx is None:
+            return regular_pairs_numpy(g, h, test, source, order, wavenumbers)
+        return regular_pairs_opencl(self.ctx, g, h, test, source, order, wavenumbers)
+
+    def _singular(self, test, source, ct, cs, rule, wavenumbers, kind):
+        g, h = self.mesh.geometry, self.mesh.half
+        if self.ctx is None:
+            return singular_pairs_numpy(g, h, test, source, ct, cs, rule, wavenumbers, kind)
+        return singular_pairs_opencl(self.ctx, g, h, test, source, ct, cs, rule, wavenumbers, kind)
+
+    # -- classification ---------------------------------------------------------------------
+    def classify(self, test, source):
+        """(case, code_test, code_source) of each pair (quadrature.pair_case)."""
+        st = self.mesh.element_st
+        d = st[source] - st[test]
+        return pair_case(d[:, 0], d[:, 1])
+
+    def orders(self, test, source, wavenumbers) -> np.ndarray:
+        """Adaptive Gauss order of each (non-touching) pair."""
+        g = self.mesh.geometry
+        centre_t = np.stack([g[test, 0], g[test, 1], g[test, 2]], axis=1)
+        centre_s = np.stack([g[source, 0], g[source, 1], g[source, 2]], axis=1)
+        distance = np.linalg.norm(centre_t - centre_s, axis=1)
+        rad = self.mesh.element_radius
+        ell = np.maximum(self.mesh.half_length[test], self.mesh.half_length[source])
+        return regular_order(self.options, distance, rad[test], rad[source], ell, wavenumbers)
+
+    # -- static singular parts --------------------------------------------------------------
+    def static_tables(self, test, source, case, code_t, code_s) -> np.ndarray:
+        """Real (P, 33) static tables of touching pairs, computed once per pair and cached."""
+        ne = self.mesh.n_elements
+        keys = test.astype(np.int64) * ne + source
+        if len(self._static_keys):
+            pos = np.minimum(np.searchsorted(self._static_keys, keys), len(self._static_keys) - 1)
+            known = self._static_keys[pos] == keys
+        else:
+            known = np.zeros(len(keys), dtype=bool)
+        missing = np.flatnonzero(~known)
+        if len(missing):
+            t0 = time.perf_counter()
+            values = np.empty((len(missing), TABLE))
+            for c in np.unique(case[missing]):
+                sel = missing[case[missing] == c]
+                rule = singular_rule(int(c), self.options.static_order)
+                values[np.searchsorted(missing, sel)] = self._singular(
+                    test[sel], source[sel], code_t[sel], code_s[sel], rule, (0.0, 0.0), KIND_STATIC
+                )
+            all_keys = np.concatenate([self._static_keys, keys[missing]])
+            all_values = np.concatenate([self._static_values, values])
+            order = np.argsort(all_keys, kind="stable")
+            all_keys, first = np.unique(all_keys[order], return_index=True)
+            self._static_keys = all_keys
+            self._static_values = all_values[order][first]
+            self.timings["static_s"] += time.perf_counter() - t0
+            self.counts["static"] += len(missing)
+        return self._static_values[np.searchsorted(self._static_keys, keys)]
+
+    # -- tables -----------------------------------------------------------------------------
+    def tables(self, test, source, wavenumbers) -> np.ndarray:
+        """Complex (P, 2, 33) tables of element pairs (test[p], source[p]) for media k₁, k₂."""
+        test = np.asarray(test, dtype=np.int64)
+        source = np.asarray(source, dtype=np.int64)
+        out = np.empty((len(test), 2, TABLE), dtype=complex)
+        case, code_t, code_s = self.classify(test, source)
+        touching = np.flatnonzero(case != CASE_REGULAR)
+        if len(touching):
+            static = self.static_tables(test[touching], source[touching], case[touching],
+                                        code_t[touching], code_s[touching])
+            t0 = time.perf_counter()
+            order = singular_order(self.options, self.mesh.half_length.max(), wavenumbers)
+            for c in np.unique(case[touching]):
+                sel = touching[case[touching] == c]
+                rule = singular_rule(int(c), order)
+                out[sel] = self._singular(test[sel], source[sel], code_t[sel], code_s[sel], rule,
+                                          wavenumbers, KIND_REMAINDER)
+                logger.debug("%d %s pairs, remainder order %d", len(sel), CASE_NAMES[int(c)], order)
+            out[touching] += static[:, None, :]
+            self.timings["singular_s"] += time.perf_counter() - t0
+            self.counts["singular"] += len(touching)
+        regular = np.flatnonzero(case == CASE_REGULAR)
+        if len(regular):
+            t0 = time.perf_counter()
+            orders = self.orders(test[regular], source[regular], wavenumbers)
+            for n in np.unique(orders):
+                sel = regular[orders == n]
+                out[sel] = self._regular(test[sel], source[sel], int(n), wavenumbers)
+                self.counts["regular_points"] += len(sel) * int(n) ** 4
+            self.timings["regular_s"] += time.perf_counter() - t0
+            self.counts["regular"] += len(regular)
+        return out
