@@ -57,7 +57,7 @@ class FiberSolution:
     timings: dict
 
     def pattern(self, phi_r) -> np.ndarray:
-        """U(φ_r) of every column, shape (R, 3, 2P)."""
+        """U(φ_r) of every column in the transverse basis (φ̂, p̂ × φ̂), shape (R, 2, 2P)."""
         return far_field_pattern(self.shape, self.media, self.x, phi_r, self.quadrature.farfield_points)
 
     def scattering(self, phi_r=None, bins: int = 360) -> ScatteringResult:

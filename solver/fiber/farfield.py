@@ -3,7 +3,8 @@
 Given the solution block x (4N × columns; rows [η₀J_t, η₀J_z, M_t, M_z] hat coefficients):
 
 - pattern U(φ) = A_⊥ - p̂ × F with A = ∫ η₀J e^{jk_ρ φ̂·ρ'} ds', F = ∫ M e^{jk_ρ φ̂·ρ'} ds',
-  p̂ = (cosθ_i φ̂, -sinθ_i) the scattered direction on the cone;
+  p̂ = (cosθ_i φ̂, -sinθ_i) the scattered direction on the cone; U ⟂ p̂, so it is stored by its
+  two transverse components (φ̂ and p̂ × φ̂), each a matrix product with the solution;
 - dC_s/dφ = k₀|U|²/(8π cosθ_i) (µm/rad, |E₀| = 1), i.e. scattered power per radian per unit
   length divided by S₀ cosθ_i, the power the fiber intercepts per unit width;
 - C_ext = Re(Vᴴx)/cosθ_i (the flux of the cross terms, §6), C_abs from the tangential fields
@@ -21,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wavebrdf.solver.fiber.incidence import FiberMedia, gauss_legendre_unit
+from wavebrdf.solver.fiber.incidence import FiberMedia, hat_phase_moments
 from wavebrdf.solver.fiber.shapes import CrossSection
 
 __all__ = [
@@ -88,47 +89,42 @@ def sample_scattering(dcs, r_max_um: float, wavelength_um: float, phi_r=None, bi
     return phi_out, dcs(phi_out), c_sca
 
 
-def _element_hat_phases(shape: CrossSection, k: float, phi: np.ndarray, points: int):
-    """∫ over element e of Λ_start e^{jk φ̂·ρ} and Λ_end e^{jk φ̂·ρ}, each shape (Nφ, N)."""
-    s, w = gauss_legendre_unit(points)
-    pts = shape.nodes[:, None, :] + s[None, :, None] * shape.edges[:, None, :]  # (N, Q, 2)
-    dirs = np.stack([np.cos(phi), np.sin(phi)], axis=1)  # (Nφ, 2)
-    phase = np.exp(1j * k * np.einsum("fc,nqc->fnq", dirs, pts))
-    dl = shape.lengths[:, None] * w[None, :]
-    return (np.einsum("fnq,nq->fn", phase, dl * (1.0 - s)), np.einsum("fnq,nq->fn", phase, dl * s))
+def radiation_matrices(shape: CrossSection, media: FiberMedia, phi, points: int = 6) -> np.ndarray:
+    """Matrices R (2, Nφ, 4N) with U_k(φ) = R[k] @ x: the far-field pattern in the transverse
+    basis u₁ = φ̂ = (-sinφ, cosφ, 0), u₂ = p̂ × φ̂ = (sinθ cosφ, sinθ sinφ, cosθ).
 
-
-def radiation_matrices(shape: CrossSection, media: FiberMedia, phi, points: int = 6):
-    """Matrices mapping hat coefficients to radiation integrals at azimuths ``phi``.
-
-    Returns (rt, rz): rt (Nφ, N, 2) = ∫ Λ_n t̂ e^{jk_ρ φ̂·ρ} ds (in-plane vector), rz (Nφ, N) =
-    ∫ Λ_n e^{jk_ρ φ̂·ρ} ds, with k_ρ the exterior transverse wavenumber.
+    With A·u₁ + F·u₂ and A·u₂ - F·u₁ (U = A_⊥ - p̂ × F) and the radiation integrals of the hats
+    r_t = ∫ Λ_n t̂ e^{jk_ρ φ̂·ρ} ds (split into φ̂ and ρ̂ = (cosφ, sinφ) parts) and
+    r_z = ∫ Λ_n e^{jk_ρ φ̂·ρ} ds:  R₁ = [r_φ, 0, sinθ r_ρ, cosθ r_z], R₂ = [sinθ r_ρ, cosθ r_z, -r_φ, 0].
     """
     phi = np.atleast_1d(np.asarray(phi, dtype=float))
-    start, end = _element_hat_phases(shape, float(media.krho[0].real), phi, points)
+    cp, sp_ = np.cos(phi)[:, None], np.sin(phi)[:, None]
+    k = float(media.krho[0].real)
+    start, end = hat_phase_moments(shape, k * np.stack([np.cos(phi), np.sin(phi)], axis=1), points)
     end_prev = np.roll(end, 1, axis=1)  # element n-1 ends at node n
     t, t_prev = shape.tangents, np.roll(shape.tangents, 1, axis=0)
-    rt = start[..., None] * t[None] + end_prev[..., None] * t_prev[None]
-    return rt, start + end_prev
+    r_x = start * t[None, :, 0] + end_prev * t_prev[None, :, 0]
+    r_y = start * t[None, :, 1] + end_prev * t_prev[None, :, 1]
+    r_phi = -sp_ * r_x + cp * r_y
+    r_rho = cp * r_x + sp_ * r_y
+    r_z = start + end_prev
+    ct, st = np.cos(media.theta_i), np.sin(media.theta_i)
+    zero = np.zeros_like(r_z)
+    return np.stack([
+        np.concatenate([r_phi, zero, st * r_rho, ct * r_z], axis=1),
+        np.concatenate([st * r_rho, ct * r_z, -r_phi, zero], axis=1),
+    ])
 
 
 def far_field_pattern(shape: CrossSection, media: FiberMedia, x: np.ndarray, phi,
                       points: int = 6) -> np.ndarray:
-    """U(φ) of the solutions ``x`` (4N, C), shape (Nφ, 3, C)."""
-    n = shape.segments
-    phi = np.atleast_1d(np.asarray(phi, dtype=float))
-    rt, rz = radiation_matrices(shape, media, phi, points)
-    jt, jz, mt, mz = (x[i * n : (i + 1) * n] for i in range(4))
-    a = np.stack([rt[..., 0] @ jt, rt[..., 1] @ jt, rz @ jz], axis=1)  # (Nφ, 3, C)
-    f = np.stack([rt[..., 0] @ mt, rt[..., 1] @ mt, rz @ mz], axis=1)
-    ct, st = np.cos(media.theta_i), np.sin(media.theta_i)
-    p = np.stack([ct * np.cos(phi), ct * np.sin(phi), np.full_like(phi, -st)], axis=1)[:, :, None]
-    a_perp = a - p * np.sum(p * a, axis=1, keepdims=True)
-    return a_perp - np.cross(p, f, axis=1)
+    """U(φ) of the solutions ``x`` (4N, C) in the transverse basis (φ̂, p̂ × φ̂): (Nφ, 2, C)."""
+    r = radiation_matrices(shape, media, phi, points)
+    return np.stack([r[0] @ x, r[1] @ x], axis=1)
 
 
 def dcs_dphi(media: FiberMedia, pattern: np.ndarray) -> np.ndarray:
-    """dC_s/dφ = k₀|U|²/(8π cosθ_i) (µm/rad) from U of shape (Nφ, 3, C); returns (Nφ, C)."""
+    """dC_s/dφ = k₀|U|²/(8π cosθ_i) (µm/rad) from U of shape (Nφ, 2 or 3, C); returns (Nφ, C)."""
     return media.k0 * np.sum(np.abs(pattern) ** 2, axis=1) / (8.0 * np.pi * np.cos(media.theta_i))
 
 

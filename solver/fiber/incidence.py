@@ -22,6 +22,8 @@ __all__ = [
     "FiberMedia",
     "fiber_media",
     "gauss_legendre_unit",
+    "hat_phase_moments",
+    "incident_amplitudes",
     "incident_fields",
     "polarization_vectors",
     "rhs_vectors",
@@ -91,33 +93,47 @@ def polarization_vectors(theta_i: float, phi_i) -> tuple[np.ndarray, np.ndarray,
     return omega, e_par, e_perp
 
 
-def incident_fields(media: FiberMedia, phi_i, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """E_i and η₀H_i at ``points`` (M, 2) in the z = 0 plane, shape (2 pol, P, M, 3)."""
+def incident_amplitudes(media: FiberMedia, phi_i) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(ω_i (P, 3), E₀ (2, P, 3), η₀H₀ (2, P, 3)) of the unit-amplitude plane waves."""
     omega, e_par, e_perp = polarization_vectors(media.theta_i, phi_i)
     e0 = np.stack([e_par, e_perp])  # (2, P, 3)
-    h0 = -np.cross(omega[None], e0)  # η₀H₀ = -ω_i × E₀
+    return omega, e0, -np.cross(omega[None], e0)  # η₀H₀ = -ω_i × E₀
+
+
+def incident_fields(media: FiberMedia, phi_i, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """E_i and η₀H_i at ``points`` (M, 2) in the z = 0 plane, shape (2 pol, P, M, 3)."""
+    omega, e0, h0 = incident_amplitudes(media, phi_i)
     phase = np.exp(1j * media.k0 * (points @ omega[:, :2].T)).T  # (P, M)
     return e0[:, :, None, :] * phase[None, :, :, None], h0[:, :, None, :] * phase[None, :, :, None]
 
 
-def rhs_vectors(shape: CrossSection, media: FiberMedia, phi_i, points: int = 6) -> np.ndarray:
-    """Right-hand sides, shape (4N, 2·P): rows [⟨Λ t̂,E_i⟩, ⟨Λ ẑ,E_i⟩, ⟨Λ t̂,η₀H_i⟩, ⟨Λ ẑ,η₀H_i⟩],
-    columns (polarization, φ_i) flattened with polarization first."""
-    n = shape.segments
+def hat_phase_moments(shape: CrossSection, wavevector: np.ndarray, points: int = 6):
+    """∫ over each element of Λ_start e^{j k·ρ} and Λ_end e^{j k·ρ} for in-plane wavevectors
+    ``wavevector`` (K, 2); returns (start, end), each (K, N)."""
     s, w = gauss_legendre_unit(points)
     pts = shape.nodes[:, None, :] + s[None, :, None] * shape.edges[:, None, :]  # (N, Q, 2)
-    e, h = incident_fields(media, phi_i, pts.reshape(-1, 2))
-    npol, nphi = e.shape[0], e.shape[1]
-    out = np.zeros((4 * n, npol * nphi), dtype=complex)
-    t = np.concatenate([shape.tangents, np.zeros((n, 1))], axis=1)  # (N, 3)
-    dl = shape.lengths[:, None] * w[None, :]  # (N, Q)
-    for block, field in enumerate((e, h)):
-        f = field.reshape(npol * nphi, n, len(s), 3)
-        ft = np.einsum("pnqc,nc->pnq", f, t)
-        fz = f[..., 2]
-        for comp, val in enumerate((ft, fz)):
-            start = np.einsum("pnq,nq->np", val, dl * (1.0 - s)[None, :])  # hat of the start node
-            end = np.einsum("pnq,nq->np", val, dl * s[None, :])  # hat of the end node
-            row = (2 * block + comp) * n
-            out[row : row + n] = start + np.roll(end, 1, axis=0)
-    return out
+    phase = np.exp(1j * np.einsum("kc,nqc->knq", wavevector, pts))
+    dl = shape.lengths[:, None] * w[None, :]
+    return np.einsum("knq,nq->kn", phase, dl * (1.0 - s)), np.einsum("knq,nq->kn", phase, dl * s)
+
+
+def rhs_vectors(shape: CrossSection, media: FiberMedia, phi_i, points: int = 6) -> np.ndarray:
+    """Right-hand sides, shape (4N, 2·P): rows [⟨Λ t̂,E_i⟩, ⟨Λ ẑ,E_i⟩, ⟨Λ t̂,η₀H_i⟩, ⟨Λ ẑ,η₀H_i⟩],
+    columns (polarization, φ_i) flattened with polarization first.
+
+    The plane-wave amplitude is constant, so each test integral is (t̂_e·E₀ or E₀z) times a
+    hat-weighted phase integral over element e; hat m collects the start of element m and the
+    end of element m-1.
+    """
+    omega, e0, h0 = incident_amplitudes(media, phi_i)
+    start, end = hat_phase_moments(shape, media.k0 * omega[:, :2], points)  # (P, N)
+    end_prev = np.roll(end, 1, axis=1)
+    t, t_prev = shape.tangents, np.roll(shape.tangents, 1, axis=0)
+    blocks = []
+    for amp in (e0, h0):  # (2, P, 3)
+        tangential = (np.einsum("kpc,nc->kpn", amp[..., :2], t) * start[None]
+                      + np.einsum("kpc,nc->kpn", amp[..., :2], t_prev) * end_prev[None])
+        axial = amp[..., 2:3] * (start + end_prev)[None]
+        blocks += [tangential, axial]
+    npol, nphi = e0.shape[:2]
+    return np.concatenate([b.reshape(npol * nphi, -1).T for b in blocks], axis=0)
