@@ -113,6 +113,45 @@ inline real2_t static_moments(real2_t x, element_t el)
     return (real2_t)(j0 - j1 / el.len, j1 / el.len);
 }
 
+/* Tensor Gauss rule (q points per element) over elements a and b, accumulating for both media
+ *   I^{ab}  += L_alpha L_beta g,   Kz^{ab} += L_alpha L_beta h z.(R^ x t_b),
+ *   Kz^{ba} += L_beta L_alpha h z.(-R^ x t_a)   (R = rho_a - rho_b),
+ * with (g, h) = (G, dG/dR) for far pairs or their smooth parts (G_s, h_s) for near pairs. */
+inline void accumulate_tensor(element_t ea, element_t eb, __constant real2_t *rule, const int q,
+                              const int smooth, const int self, __constant cplx_t *krho,
+                              cplx_t ii[2][4], cplx_t kab[2][4], cplx_t kba[2][4])
+{
+    for (int i = 0; i < q; ++i) {
+        const real2_t qa = rule[i];
+        const real2_t ra = ea.p + (qa.x * ea.len) * ea.t;
+        const real_t la[2] = {R(1.0) - qa.x, qa.x};
+        for (int j = 0; j < q; ++j) {
+            const real2_t qb = rule[j];
+            const real2_t rvec = ra - (eb.p + (qb.x * eb.len) * eb.t);
+            const real_t dist = hypot(rvec.x, rvec.y);
+            const real_t lb[2] = {R(1.0) - qb.x, qb.x};
+            const real_t w = qa.y * qb.y * ea.len * eb.len;
+            const int use_k = !self && dist > R(0.0);   /* K vanishes on the self element */
+            const real_t cb = use_k ? cross_z(rvec, eb.t) / dist : R(0.0);
+            const real_t ca = use_k ? -cross_z(rvec, ea.t) / dist : R(0.0);
+            for (int p = 0; p < 2; ++p) {
+                cplx_t g, h;
+                if (smooth)
+                    green_smooth(krho[p], dist, &g, &h);
+                else
+                    green_and_gradient(krho[p], dist, &g, &h);
+                for (int al = 0; al < 2; ++al)
+                    for (int be = 0; be < 2; ++be) {
+                        const real_t ww = w * la[al] * lb[be];
+                        ii[p][2 * al + be] = c_fma(g, c_new(ww, R(0.0)), ii[p][2 * al + be]);
+                        kab[p][2 * al + be] = c_fma(h, c_new(ww * cb, R(0.0)), kab[p][2 * al + be]);
+                        kba[p][2 * be + al] = c_fma(h, c_new(ww * ca, R(0.0)), kba[p][2 * be + al]);
+                    }
+            }
+        }
+    }
+}
+
 #define MOM_INDEX(p, a, b, n) ((((p) * (n) + (a)) * (n) + (b)) * 4)
 
 __kernel void fiber_pair_moments(__global const real2_t *nodes, __constant cplx_t *krho,
@@ -137,30 +176,7 @@ __kernel void fiber_pair_moments(__global const real2_t *nodes, __constant cplx_
         }
 
     if (!near) {
-        for (int i = 0; i < Q_FAR; ++i) {
-            const real2_t qa = gl_far[i];
-            const real2_t ra = ea.p + (qa.x * ea.len) * ea.t;
-            const real_t la[2] = {R(1.0) - qa.x, qa.x};
-            for (int j = 0; j < Q_FAR; ++j) {
-                const real2_t qb = gl_far[j];
-                const real2_t rvec = ra - (eb.p + (qb.x * eb.len) * eb.t);
-                const real_t dist = hypot(rvec.x, rvec.y);
-                const real_t lb[2] = {R(1.0) - qb.x, qb.x};
-                const real_t w = qa.y * qb.y * ea.len * eb.len;
-                const real_t cb_ = cross_z(rvec, eb.t) / dist, ca_ = -cross_z(rvec, ea.t) / dist;
-                for (int p = 0; p < 2; ++p) {
-                    cplx_t g, h;
-                    green_and_gradient(krho[p], dist, &g, &h);
-                    for (int al = 0; al < 2; ++al)
-                        for (int be = 0; be < 2; ++be) {
-                            const real_t ww = w * la[al] * lb[be];
-                            ii[p][2 * al + be] = c_fma(g, c_new(ww, R(0.0)), ii[p][2 * al + be]);
-                            kab[p][2 * al + be] = c_fma(h, c_new(ww * cb_, R(0.0)), kab[p][2 * al + be]);
-                            kba[p][2 * be + al] = c_fma(h, c_new(ww * ca_, R(0.0)), kba[p][2 * be + al]);
-                        }
-                }
-            }
-        }
+        accumulate_tensor(ea, eb, gl_far, Q_FAR, 0, self, krho, ii, kab, kba);
     } else {
         /* singular parts (medium independent): -ln R/(2 pi) and -d/(2 pi R^2) */
         real_t ilog[4] = {R(0.0), R(0.0), R(0.0), R(0.0)};
@@ -196,32 +212,7 @@ __kernel void fiber_pair_moments(__global const real2_t *nodes, __constant cplx_
                 kba[p][q] = c_new(-WB_INV_2PI * sba[q], R(0.0));
             }
         /* smooth parts */
-        for (int i = 0; i < Q_NEAR; ++i) {
-            const real2_t qa = gl_near[i];
-            const real2_t ra = ea.p + (qa.x * ea.len) * ea.t;
-            const real_t la[2] = {R(1.0) - qa.x, qa.x};
-            for (int j = 0; j < Q_NEAR; ++j) {
-                const real2_t qb = gl_near[j];
-                const real2_t rvec = ra - (eb.p + (qb.x * eb.len) * eb.t);
-                const real_t dist = hypot(rvec.x, rvec.y);
-                const real_t lb[2] = {R(1.0) - qb.x, qb.x};
-                const real_t w = qa.y * qb.y * ea.len * eb.len;
-                const int use_k = !self && dist > R(0.0);
-                const real_t cb_ = use_k ? cross_z(rvec, eb.t) / dist : R(0.0);
-                const real_t ca_ = use_k ? -cross_z(rvec, ea.t) / dist : R(0.0);
-                for (int p = 0; p < 2; ++p) {
-                    cplx_t gs, hs;
-                    green_smooth(krho[p], dist, &gs, &hs);
-                    for (int al = 0; al < 2; ++al)
-                        for (int be = 0; be < 2; ++be) {
-                            const real_t ww = w * la[al] * lb[be];
-                            ii[p][2 * al + be] = c_fma(gs, c_new(ww, R(0.0)), ii[p][2 * al + be]);
-                            kab[p][2 * al + be] = c_fma(hs, c_new(ww * cb_, R(0.0)), kab[p][2 * al + be]);
-                            kba[p][2 * be + al] = c_fma(hs, c_new(ww * ca_, R(0.0)), kba[p][2 * be + al]);
-                        }
-                }
-            }
-        }
+        accumulate_tensor(ea, eb, gl_near, Q_NEAR, 1, self, krho, ii, kab, kba);
     }
 
     for (int p = 0; p < 2; ++p) {
