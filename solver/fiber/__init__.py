@@ -32,6 +32,7 @@ from wavebrdf.solver.fiber.shapes import (
     ellipse,
     load_shape,
     polygon,
+    recommended_segments,
     save_shape,
     spline,
 )
@@ -63,6 +64,7 @@ __all__ = [
     "mie_cylinder",
     "mie_scattering",
     "polygon",
+    "recommended_segments",
     "save_shape",
     "solve_fiber",
     "spline",

@@ -42,6 +42,7 @@ logger = logging.getLogger(__name__)
 __all__ = ["FiberBEM", "FiberSolution", "solve_fiber"]
 
 MIN_ELEMENTS_PER_WAVELENGTH = 9.5  # fiber.md §4 asks for about 10 per interior wavelength
+POWER_BALANCE_WARNING = 1e-2  # |C_ext - C_sca - C_abs|/C_ext above this: mesh too coarse
 
 
 @dataclass
@@ -71,6 +72,10 @@ class FiberSolution:
         c_ext = extinction_cross_section(self.media, self.rhs, self.x)
         c_abs = absorption_cross_section(self.shape, self.media, self.x)
         timings = dict(self.timings, farfield_s=time.perf_counter() - t0)
+        balance = np.max(np.abs(c_ext - c_sca - c_abs) / np.abs(c_ext))
+        if balance > POWER_BALANCE_WARNING:  # the runtime error estimate of fiber.md §6
+            logger.warning("fiber BEM power balance error %.1e at λ=%.4g µm, θ_i=%.4g rad: refine the mesh",
+                           balance, self.media.wavelength_um, self.media.theta_i)
         return ScatteringResult(
             wavelength_um=self.media.wavelength_um,
             index=self.media.index,

@@ -26,7 +26,7 @@ The node tables live in ``kernels/hankel_laguerre.h``, generated from this modul
 from __future__ import annotations
 
 import logging
-from math import gamma, pi, sqrt
+from math import gamma, pi
 
 import numpy as np
 import scipy.special as sp

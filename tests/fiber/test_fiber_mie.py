@@ -121,3 +121,21 @@ def test_against_treams_t_matrix(lam, radius, m, theta):
     mie = mie_cylinder(lam, radius, m, th)
     np.testing.assert_allclose(mie.C_ext, ext, rtol=1e-8)
     np.testing.assert_allclose(mie.C_sca, sca, rtol=1e-8)
+
+
+def _first_forward_minimum(mie, lam, diameter):
+    theta = np.linspace(1e-4, 2.5 * lam / diameter, 4001)  # angle from the forward direction
+    unpolarized = mie.dCs_dphi(np.pi + theta).mean(axis=0)
+    first = np.argmax(np.diff(np.sign(np.diff(unpolarized))) > 0) + 1
+    return theta[first]
+
+
+def test_t12_babinet_forward_minimum():
+    """fiber.md T12/§11: an absorbing fiber (m = 1.55 + 2i BH, D = 13.1 µm, λ = 0.65 µm) has its
+    first forward minimum within 5% of λ/D (0.96 λ/D); a refractive one (m = 1.55) does not
+    (0.041 rad instead of λ/D = 0.050)."""
+    lam, diameter = 0.65, 13.1
+    absorbing = _first_forward_minimum(mie_cylinder(lam, diameter / 2, 1.55 - 2j, 0.0), lam, diameter)
+    assert absorbing / (lam / diameter) == pytest.approx(0.96, abs=0.01)
+    refractive = _first_forward_minimum(mie_cylinder(lam, diameter / 2, 1.55, 0.0), lam, diameter)
+    assert refractive == pytest.approx(0.041, abs=1e-3)

@@ -5,7 +5,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wavebrdf.solver.fiber import CrossSection, ShapeError, circle, ellipse, load_shape, polygon, save_shape, spline
+from wavebrdf.solver.fiber import (
+    CrossSection,
+    ShapeError,
+    circle,
+    ellipse,
+    load_shape,
+    polygon,
+    recommended_segments,
+    save_shape,
+    spline,
+)
 
 SQUARE = [[0.0, 0.0], [0.6, 0.0], [0.6, 0.6], [0.0, 0.6]]
 
@@ -113,3 +123,10 @@ def test_shape_file_errors_name_line(tmp_path):
     spl.write_text("# interpolation = spline\n0 0\n1 0\n0 1\n")
     with pytest.raises(ShapeError, match="segments"):
         load_shape(spl)
+
+
+def test_recommended_segments_follows_the_papers_mesh():
+    """[P]: 300 segments for a 1 µm circle at 0.4 µm with m = 1.55 (about 12 per interior λ)."""
+    n = recommended_segments(circle(1.0, 64), 0.4, 1.55)
+    assert 280 <= n <= 300
+    assert recommended_segments(circle(1.0, 64), 0.4, 1.55 - 3j) > 2 * n  # absorbing: shorter λ/|m|
