@@ -220,10 +220,10 @@ def cmd_inspect(args) -> int:
 
     with Dataset(args.file) as ds:
         attrs = ds.attrs
-        print(f"{ds.path}: study {attrs.get('study')!r}, wavebrdf {attrs.get('software_version')}, "
+        print(f"{ds.path}: {ds.kind} study {attrs.get('study')!r}, wavebrdf {attrs.get('software_version')}, "
               f"format v{attrs.get('format_version')}, created {attrs.get('created')}")
         print(f"device: {attrs.get('device')}")
-        for name in ("brdf", "albedo", "albedo_sp", "brdf_sp"):
+        for name in ("brdf", "albedo", "albedo_sp", "brdf_sp", "bcsdf", "dCs_dphi", "C_ext"):
             if name in ds.h5:
                 dims = [d.label or (d[0].name.lstrip('/') if len(d) else '?') for d in ds.h5[name].dims]
                 print(f"  {name:10s} {dict(zip(dims, ds.h5[name].shape))}")
@@ -231,25 +231,51 @@ def cmd_inspect(args) -> int:
         for key in ds.sweep_keys:
             print(f"  sweep {key}: {list(coords[key])}")
         print(f"  wavelengths (µm): {np.round(coords['wavelength_um'], 6).tolist()}")
-        albedo = ds.albedo
-        lead = albedo.shape[: len(ds.sweep_keys)]
-        print("albedo (rows: incidence θi/φi in degrees; columns: wavelengths):")
-        for case_index in np.ndindex(*lead) if lead else [()]:
-            if case_index:
-                print("  case " + ", ".join(f"{k}={coords[k][i]}" for k, i in zip(ds.sweep_keys, case_index)))
-            for inc in range(albedo.shape[-1]):
-                values = " ".join(f"{a:9.5f}" for a in albedo[case_index + (slice(None), inc)])
-                print(f"  {coords['theta_i'][inc]:6.2f} {coords['phi_i'][inc]:7.2f} | {values}")
+        _print_summary_table(ds, coords)
         tasks = ds.tasks
         if tasks:
             wall = np.asarray(tasks.get("wall_time_s", []), dtype=float)
-            print(f"tasks: {len(wall)} done, wall time total {wall.sum():.2f} s, max {wall.max():.2f} s")
+            status = [x.decode() if isinstance(x, bytes) else str(x) for x in tasks.get("status", [])]
+            print(f"tasks: {status.count('done')} done, {status.count('failed')} failed, wall time total "
+                  f"{np.nansum(wall):.2f} s, max {np.nanmax(wall):.2f} s")
+            errors = [x.decode() if isinstance(x, bytes) else str(x) for x in tasks.get("error", [])]
+            for i, (st, err) in enumerate(zip(status, errors)):
+                if st == "failed":
+                    print(f"  failed task {tasks['id'][i]}: {err}")
             warns = [w.decode() if isinstance(w, bytes) else w for w in tasks.get("warnings", [])]
             for w in sorted({w for w in warns if w}):
                 print(f"  warning: {w}")
         if args.config:
             print("config:\n" + ds.config)
     return 0
+
+
+def _print_summary_table(ds, coords) -> None:
+    """Albedo (surfaces) or unpolarized C_ext / albedo C_sca/C_ext (fibers) per case."""
+    keys = ds.sweep_keys
+    if ds.kind == "fiber":
+        c_ext = ds["C_ext"].mean(axis=-2).mean(axis=-1)  # over polarization, then φ_i
+        c_sca = ds["C_sca"].mean(axis=-2).mean(axis=-1)
+        rows, label = coords["theta_i"], "θi (deg)"
+        values = lambda ci, r: c_ext[ci + (slice(None), r)]  # noqa: E731
+        print("C_ext (µm, unpolarized, mean over φ_i) [albedo C_sca/C_ext]; rows θi, columns wavelengths:")
+        albedo = lambda ci, r: c_sca[ci + (slice(None), r)] / c_ext[ci + (slice(None), r)]  # noqa: E731
+    else:
+        a = ds.albedo
+        rows, label = [f"{t:6.2f} {p:7.2f}" for t, p in zip(coords["theta_i"], coords["phi_i"])], "θi/φi (deg)"
+        values = lambda ci, r: a[ci + (slice(None), r)]  # noqa: E731
+        albedo = None
+        print(f"albedo (rows: incidence {label}; columns: wavelengths):")
+    lead = ds.h5[ds.main_variable].shape[: len(keys)]
+    for case_index in np.ndindex(*lead) if lead else [()]:
+        if case_index:
+            print("  case " + ", ".join(f"{k}={coords[k][i]}" for k, i in zip(keys, case_index)))
+        for r, row in enumerate(rows):
+            text = " ".join(f"{x:9.5f}" for x in values(case_index, r)[:12])
+            if albedo is not None:
+                text += "  [" + " ".join(f"{x:.3f}" for x in albedo(case_index, r)[:12]) + "]"
+            more = " ..." if len(coords["wavelength_um"]) > 12 else ""
+            print(f"  {row if isinstance(row, str) else f'{row:8.2f}'} | {text}{more}")
 
 
 def cmd_render(args) -> int:

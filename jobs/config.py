@@ -19,6 +19,12 @@ Sections (see configs/*.toml and the README for a full example)::
                    hexagon_fill (hexagon radius as a fraction of sin(λ_min/(π w)); > 1 steers
                    beyond the aliasing limit, with a warning)
     [run]          executor ("auto"|"serial"|"processes"|"mpi"), workers, memory_gb, retries
+    [fiber]        shape ("circle"|"ellipse"|"polygon"), radius_um, semi_axes_um, points_file
+                   (polygon/spline shape file, see solver/fiber/shapes.py), segments, rotation_deg
+                   — instead of [surface];
+                   then [illumination] takes theta_i_deg (+ phi_i_deg) instead of
+                   directions_deg/waist_um, [model] name is "fiber-bem" or "mie", and [output]
+                   phi_r_bins / phi_i_bins set the BCSDF table's azimuth bins
     [sweep]        "section.key" = [values...]: one case per combination
 """
 
@@ -51,6 +57,10 @@ PRECISION_CHOICES = ("double", "single")
 NOT_SWEEPABLE = {
     "illumination.wavelengths_um": "it is already a dataset axis; list the values there",
     "illumination.directions_deg": "it is already a dataset axis; list the directions there",
+    "illumination.theta_i_deg": "it is already a dataset axis; list the angles there",
+    "illumination.phi_i_deg": "it is already a dataset axis; list the angles there",
+    "output.phi_r_bins": "every case must share one output grid",
+    "output.phi_i_bins": "every case must share one output grid",
     "output.resolution": "every case must share one output grid",
     "study.output": "a study writes one dataset",
     "study.name": "a study has one name",
@@ -154,6 +164,34 @@ def _directions(section, key, value):
     return tuple(out)
 
 
+def _angle_list(low: float, high: float) -> Callable:
+    """A non-empty list of distinct angles (degrees) in the open interval (low, high)."""
+
+    def check(section, key, value):
+        if not isinstance(value, list) or not value:
+            raise _fail(section, key, value, "must be a non-empty list of angles in degrees")
+        out = []
+        for item in value:
+            if isinstance(item, bool) or not isinstance(item, (int, float)) or not math.isfinite(item):
+                raise _fail(section, key, value, f"values must be finite numbers (bad: {_fmt(item)})")
+            if not low < item < high:
+                raise _fail(section, key, value, f"values must lie in ({low:g}, {high:g}) degrees (bad: {item:g})")
+            out.append(float(item))
+        if len(set(out)) != len(out):
+            raise _fail(section, key, value, "values must be distinct")
+        return tuple(out)
+
+    return check
+
+
+def _positive_pair(section, key, value):
+    if (not isinstance(value, list) or len(value) != 2
+            or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0
+                   for v in value)):
+        raise _fail(section, key, value, "must be [a, b] with two numbers > 0")
+    return (float(value[0]), float(value[1]))
+
+
 def _patches(section, key, value):
     if value == "auto":
         return value
@@ -205,8 +243,10 @@ SCHEMA: dict[str, dict[str, Spec]] = {
     },
     "illumination": {
         "wavelengths_um": Spec(_positive_list, required=True),
-        "directions_deg": Spec(_directions, required=True),
-        "waist_um": Spec(_positive, required=True),
+        "directions_deg": Spec(_directions),  # surfaces
+        "waist_um": Spec(_positive),  # surfaces
+        "theta_i_deg": Spec(_angle_list(-90.0, 90.0)),  # fibers: from the plane normal to the axis
+        "phi_i_deg": Spec(_angle_list(-360.0, 360.0)),  # fibers: incidence azimuths (else bins)
         "polarization": Spec(_choice(*POLARIZATION_CHOICES), default="unpolarized"),
         "beam": Spec(_choice(*BEAM_CHOICES), default="exact"),
     },
@@ -227,12 +267,25 @@ SCHEMA: dict[str, dict[str, Spec]] = {
         "memory_gb": Spec(_positive),
         "retries": Spec(_integer_at_least(0), default=1),
     },
+    "fiber": {
+        "shape": Spec(_choice("circle", "ellipse", "polygon"), required=True),
+        "radius_um": Spec(_positive),
+        "semi_axes_um": Spec(_positive_pair),
+        "points_file": Spec(_string),
+        "segments": Spec(_integer_at_least(8)),
+        "rotation_deg": Spec(lambda s, k, v: _number(s, k, v), default=0.0),
+    },
     "output": {
+        "phi_r_bins": Spec(_integer_at_least(8), default=360),
+        "phi_i_bins": Spec(_integer_at_least(1)),
         "resolution": Spec(lambda s, k, v: _number(s, k, v, integer=True, low=16, high=8192), default=512),
         "per_polarization": Spec(_boolean, default=False),
     },
 }
-REQUIRED_SECTIONS = ("surface", "material", "illumination", "model")
+REQUIRED_SECTIONS = ("material", "illumination", "model")  # + exactly one of [surface] / [fiber]
+FIBER_MODELS = ("fiber-bem", "mie")
+SURFACE_ONLY_KEYS = ("directions_deg", "waist_um", "beam")
+FIBER_ONLY_KEYS = ("theta_i_deg", "phi_i_deg")
 GENERATOR_KEYS = ("rms_height_um", "correlation_um", "amplitude_um", "period_um", "angle_deg")
 
 
@@ -284,10 +337,39 @@ class MaterialSpec:
 @dataclass(frozen=True)
 class IlluminationSpec:
     wavelengths_um: tuple[float, ...]
-    directions_deg: tuple[tuple[float, float], ...]
-    waist_um: float
+    directions_deg: tuple[tuple[float, float], ...]  # surfaces (empty for fibers)
+    waist_um: float | None
     polarization: str
     beam: str
+    theta_i_deg: tuple[float, ...] = ()  # fibers
+    phi_i_deg: tuple[float, ...] | None = None  # fibers: explicit azimuths (None: bins)
+
+
+@dataclass(frozen=True)
+class FiberSpec:
+    """Cross section of a fiber study ([fiber]); lengths in µm."""
+
+    shape: str
+    radius_um: float | None
+    semi_axes_um: tuple[float, float] | None
+    points_file: Path | None
+    segments: int | None
+    rotation_deg: float
+
+    def build(self):
+        """The :class:`~wavebrdf.solver.fiber.CrossSection`."""
+        from wavebrdf.solver import fiber
+
+        rotation = np.deg2rad(self.rotation_deg)
+        if self.shape == "circle":  # the Mie model needs no mesh: 360 nodes describe its outline
+            return fiber.circle(self.radius_um, self.segments or 360, rotation=rotation)
+        if self.shape == "ellipse":
+            return fiber.ellipse(*self.semi_axes_um, self.segments, rotation=rotation)
+        section = fiber.load_shape(self.points_file, segments=self.segments)
+        if self.rotation_deg:
+            c, s = np.cos(rotation), np.sin(rotation)
+            section = fiber.CrossSection(section.nodes @ np.array([[c, s], [-s, c]]), name=section.name)
+        return section
 
 
 @dataclass(frozen=True)
@@ -317,6 +399,8 @@ class RunSpec:
 class OutputSpec:
     resolution: int
     per_polarization: bool
+    phi_r_bins: int = 360  # fibers
+    phi_i_bins: int | None = None  # fibers (None: 1 for circles, 72 otherwise)
 
 
 @dataclass(frozen=True)
@@ -325,15 +409,20 @@ class Study:
 
     name: str
     output: Path
-    surface: SurfaceSpec
+    surface: SurfaceSpec | None
     material: MaterialSpec
     illumination: IlluminationSpec
     model: ModelSpec
     output_options: OutputSpec
     steering: SteeringSpec | None
     run: RunSpec
+    fiber: FiberSpec | None
     sections: dict = field(repr=False)  # validated values of every section (incl. registered ones)
     sweep_values: dict = field(default_factory=dict)  # {"surface.rms_height_um": 0.1, ...}
+
+    @property
+    def is_fiber(self) -> bool:
+        return self.fiber is not None
 
 
 @dataclass(frozen=True)
@@ -423,8 +512,50 @@ def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: di
 
     name = v["study"]["name"] or default_name
     output = _check_output_path(v["study"]["output"] or f"{name}.h5")
+    if ("surface" in data) == ("fiber" in data):
+        raise ConfigError("give exactly one of [surface] (a height field) or [fiber] (a fiber cross section)")
+    surface = _surface_spec(v["surface"], base_dir) if "surface" in data else None
+    fiber = _fiber_spec(v["fiber"], base_dir) if "fiber" in data else None
 
-    s = v["surface"]
+    m = v["material"]
+    _exactly_one("material", m, ("name", "table", "n"))
+    material = MaterialSpec(
+        m["name"], None if m["table"] is None else tuple(map(tuple, m["table"])), m["n"], m["kappa"],
+        m["exterior_index"],
+    )
+    illumination = _illumination_spec(v["illumination"], data.get("illumination", {}), fiber is not None)
+    mod = v["model"]
+    from wavebrdf.solver.models import model_names
+
+    allowed = FIBER_MODELS if fiber is not None else model_names()
+    if mod["name"] not in allowed:
+        kind = "fiber" if fiber is not None else "surface"
+        raise _fail("model", "name", mod["name"], f"a {kind} study needs one of {', '.join(repr(n) for n in allowed)}")
+    if fiber is not None and mod["name"] == "fiber-bem" and fiber.shape != "polygon" and fiber.segments is None:
+        raise ConfigError(f"[fiber] segments: required by the fiber-bem model for shape = \"{fiber.shape}\" "
+                          "(e.g. 300 for a 1 µm radius at 0.4 µm: >= 10 elements per interior wavelength)")
+    if mod["name"] == "mie" and fiber.shape != "circle":
+        raise _fail("model", "name", "mie", f"the Mie series solves circular fibers only, not fiber.shape = "
+                    f"{fiber.shape!r}; use \"fiber-bem\"")
+    model = ModelSpec(mod["name"], mod["method"], mod["precision"])
+    o = v["output"]
+    out = OutputSpec(o["resolution"], o["per_polarization"], o["phi_r_bins"], o["phi_i_bins"])
+    steering = None
+    if "steering" in data and fiber is not None:
+        raise ConfigError("[steering] applies to height fields, not to fibers")
+    if "steering" in data:
+        st = v["steering"]
+        steering = SteeringSpec(st["patches"], st["patch_size_um"], st["shift_um"] or illumination.waist_um,
+                                st["hexagon_fill"])
+    r = v["run"]
+    run = RunSpec(r["executor"], r["workers"], r["memory_gb"], r["retries"])
+    study = Study(name, output, surface, material, illumination, model, out, steering, run, fiber, v,
+                  dict(sweep_values))
+    _check_physics(study)
+    return study
+
+
+def _surface_spec(s: dict, base_dir: Path) -> SurfaceSpec:
     _exactly_one("surface", s, ("file", "generator"))
     file = None
     if s["file"] is not None:
@@ -435,35 +566,40 @@ def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: di
         if extra:
             raise ConfigError(f"[surface] {extra[0]}: only used with a generator, not with surface.file")
     params = {k: s[k] for k in GENERATOR_KEYS if s[k] is not None}
-    surface = SurfaceSpec(s["size_um"], file, s["generator"], s["cells"], s["seed"], params)
+    return SurfaceSpec(s["size_um"], file, s["generator"], s["cells"], s["seed"], params)
 
-    m = v["material"]
-    _exactly_one("material", m, ("name", "table", "n"))
-    material = MaterialSpec(
-        m["name"], None if m["table"] is None else tuple(map(tuple, m["table"])), m["n"], m["kappa"],
-        m["exterior_index"],
-    )
-    ill = v["illumination"]
-    illumination = IlluminationSpec(
-        ill["wavelengths_um"], ill["directions_deg"], ill["waist_um"], ill["polarization"], ill["beam"]
-    )
-    mod = v["model"]
-    from wavebrdf.solver.models import model_names
 
-    if mod["name"] not in model_names():
-        raise _fail("model", "name", mod["name"], f"must be one of {', '.join(repr(n) for n in model_names())}")
-    model = ModelSpec(mod["name"], mod["method"], mod["precision"])
-    out = OutputSpec(v["output"]["resolution"], v["output"]["per_polarization"])
-    steering = None
-    if "steering" in data:
-        st = v["steering"]
-        steering = SteeringSpec(st["patches"], st["patch_size_um"], st["shift_um"] or illumination.waist_um,
-                                st["hexagon_fill"])
-    r = v["run"]
-    run = RunSpec(r["executor"], r["workers"], r["memory_gb"], r["retries"])
-    study = Study(name, output, surface, material, illumination, model, out, steering, run, v, dict(sweep_values))
-    _check_physics(study)
-    return study
+FIBER_SHAPE_KEYS = {"circle": "radius_um", "ellipse": "semi_axes_um", "polygon": "points_file"}
+
+
+def _fiber_spec(f: dict, base_dir: Path) -> FiberSpec:
+    needed = FIBER_SHAPE_KEYS[f["shape"]]
+    for key in set(FIBER_SHAPE_KEYS.values()):
+        if key == needed and f[key] is None:
+            raise ConfigError(f"[fiber] {key}: required for shape = \"{f['shape']}\"")
+        if key != needed and f[key] is not None:
+            raise ConfigError(f"[fiber] {key}: not used with shape = \"{f['shape']}\" (it needs {needed})")
+    points = None
+    if f["points_file"] is not None:
+        points = Path(f["points_file"]).expanduser()
+        points = points if points.is_absolute() else base_dir / points
+    return FiberSpec(f["shape"], f["radius_um"], f["semi_axes_um"], points, f["segments"], f["rotation_deg"])
+
+
+def _illumination_spec(ill: dict, given: dict, is_fiber: bool) -> IlluminationSpec:
+    wrong = FIBER_ONLY_KEYS if not is_fiber else SURFACE_ONLY_KEYS
+    for key in wrong:
+        if key in given:
+            kind = "surface" if not is_fiber else "fiber"
+            raise ConfigError(f"[illumination] {key}: not used in a {kind} study")
+    needed = ("theta_i_deg",) if is_fiber else ("directions_deg", "waist_um")
+    for key in needed:
+        if ill[key] is None:
+            raise ConfigError(f"[illumination] {key}: missing required key")
+    return IlluminationSpec(
+        ill["wavelengths_um"], ill["directions_deg"] or (), ill["waist_um"], ill["polarization"], ill["beam"],
+        ill["theta_i_deg"] or (), ill["phi_i_deg"],
+    )
 
 
 def _check_physics(study: Study) -> None:
@@ -478,10 +614,18 @@ def _check_physics(study: Study) -> None:
         raise ConfigError(f"[material] {exc}") from None
     if np.any(np.imag(index) > 0):  # pragma: no cover - Material guarantees κ >= 0
         raise ConfigError("[material]: negative kappa (gain medium)")
-    try:
-        study.surface.build()
-    except SurfaceError as exc:
-        raise ConfigError(f"[surface] {exc}") from None
+    if study.surface is not None:
+        try:
+            study.surface.build()
+        except SurfaceError as exc:
+            raise ConfigError(f"[surface] {exc}") from None
+    if study.fiber is not None:
+        from wavebrdf.solver.fiber import ShapeError
+
+        try:
+            study.fiber.build()
+        except (ShapeError, OSError) as exc:
+            raise ConfigError(f"[fiber] {exc}") from None
 
 
 def _set_dotted(data: dict, dotted: str, value: Any) -> None:

@@ -5,7 +5,8 @@ Without steering, one ``direct`` task per (sweep case, wavelength, incident dire
 jobs/steering.py) and the plan holds one ``patch`` task per (case, wavelength, basic direction,
 sub-area) plus one ``synth`` task per (case, wavelength, requested direction) that depends on
 the patch tasks of its basic direction. Every task's result slot in the dataset is given by
-(case, wavelength, incidence) of the direct/synth tasks.
+(case, wavelength, incidence) of the direct/synth tasks. Fiber studies have one ``fiber`` task
+per (case, wavelength, θ_i) that solves every φ_i and both polarizations at once.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ class PlanError(ValueError):
 
 @dataclass(frozen=True)
 class Task:
-    """One unit of work. ``kind``: "direct" | "patch" | "synth"."""
+    """One unit of work. ``kind``: "direct" | "patch" | "synth" | "fiber" (``incidence`` = θ_i index)."""
 
     id: int
     kind: str
@@ -56,7 +57,7 @@ class Task:
 
     @property
     def writes_result(self) -> bool:
-        return self.kind in ("direct", "synth")
+        return self.kind in ("direct", "synth", "fiber")
 
 
 @dataclass
@@ -92,6 +93,17 @@ class Plan:
     def directions_deg(self) -> np.ndarray:
         return np.array(self.study.illumination.directions_deg)
 
+    @property
+    def is_fiber(self) -> bool:
+        return self.study.is_fiber
+
+    def cross_section(self, case: int):
+        """The fiber cross section of ``case``, built once."""
+        key = ("fiber", case)
+        if key not in self._surfaces:
+            self._surfaces[key] = self.config.cases[case].fiber.build()
+        return self._surfaces[key]
+
     def surface(self, case: int):
         """The (global) height field of ``case``, built once."""
         if case not in self._surfaces:
@@ -103,7 +115,10 @@ class Plan:
         return _material_index(self.config.cases[case].material, tuple(self.wavelengths_um))
 
     def direction_rad(self, task: Task) -> tuple[float, float]:
-        """(θ, φ) simulated by ``task``: the basic direction for patches, else the requested one."""
+        """(θ, φ) simulated by ``task``: the basic direction for patches, else the requested one
+        (fibers: θ_i from the plane normal to the axis, φ = 0)."""
+        if task.kind == "fiber":
+            return float(np.deg2rad(self.config.cases[task.case].illumination.theta_i_deg[task.incidence])), 0.0
         if task.kind == "patch":
             theta, phi = self.steering[task.case].basics_rad[task.basic]
             return float(theta), float(phi)
@@ -143,6 +158,10 @@ class Plan:
 
     def estimate(self, task: Task) -> Estimate:
         """Memory/time of ``task`` (synthesis: reading and summing the patch far fields)."""
+        if task.kind == "fiber":
+            from wavebrdf.jobs.fibers import estimate_fiber_task
+
+            return estimate_fiber_task(self, task)
         if task.kind == "synth":
             res = self.grid.resolution
             n = len(task.depends)
@@ -156,8 +175,10 @@ class Plan:
         cases = []
         for study in self.config.cases:
             sections = {s: dict(v) for s, v in study.sections.items() if s not in ("study", "run")}
-            if study.surface.file is not None:
-                sections["surface"]["file"] = _file_digest(str(study.surface.file))
+            for section, key, path in (("surface", "file", study.surface and study.surface.file),
+                                       ("fiber", "points_file", study.fiber and study.fiber.points_file)):
+                if path is not None:
+                    sections[section][key] = _file_digest(str(path))
             cases.append(sections)
         blob = json.dumps({"cases": cases, "sweep": {k: list(v) for k, v in self.config.sweep_axes.items()}},
                           sort_keys=True, default=repr)
@@ -209,6 +230,12 @@ def plan_study(config: StudyConfig) -> Plan:
     cases = list(enumerate(np.ndindex(*shape) if shape else [()]))
     tasks: list[Task] = []
     patch_ids: dict[tuple, list[int]] = {}
+    if config.cases[0].is_fiber:
+        n_theta = len(config.cases[0].illumination.theta_i_deg)
+        plan.tasks = [Task(i, "fiber", case, tuple(map(int, case_index)), wl, th)
+                      for i, (case, case_index, wl, th) in enumerate(
+                          (c, ci, wl, th) for c, ci in cases for wl in range(n_wl) for th in range(n_theta))]
+        return plan
     for case, case_index in cases:
         if config.cases[case].steering is None:
             continue

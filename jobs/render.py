@@ -1,10 +1,12 @@
-"""PNG pictures of BRDF datasets (``wavebrdf render``).
+"""PNG pictures of datasets (``wavebrdf render``).
 
-One picture per (sweep case, incident direction): with several wavelengths the spectral BRDF is
-converted to colour (CIE XYZ → sRGB, solver/spectrum.py) with a logarithmic tone map that keeps
-chromaticity (the dynamic range of a BRDF spans many decades); with one wavelength a false-colour
-log₁₀ map with a colour bar. Axes are the projected-hemisphere direction cosines u (x, vertical)
-and v (y, horizontal); the white circle is the horizon.
+Surfaces: one picture per (sweep case, incident direction); axes are the projected-hemisphere
+direction cosines u (x, vertical) and v (y, horizontal); the white circle is the horizon.
+Fibers: one φ_i–φ_r map of the azimuthal scattering function N_wave per (sweep case, θ_i);
+circular fibers (one φ_i) are drawn over all φ_i by their rotation invariance.
+With several wavelengths the spectrum is converted to colour (CIE XYZ → sRGB,
+solver/spectrum.py) with a logarithmic tone map that keeps chromaticity (these functions span many
+decades); with one wavelength a false-colour log₁₀ map with a colour bar.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ def log_tone_map(rgb_linear: np.ndarray, luminance: np.ndarray, decades: float =
     return rgb / max(1.0, rgb.max())
 
 
-def _figure(title: str):
+def _figure(title: str, hemisphere: bool = True):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -41,14 +43,40 @@ def _figure(title: str):
 
     fig, ax = plt.subplots(figsize=(5.6, 4.8), dpi=120)
     ax.set_title(title, fontsize=9)
-    ax.set_xlabel("v (y direction cosine)")
-    ax.set_ylabel("u (x direction cosine)")
-    t = np.linspace(0, 2 * np.pi, 361)
-    ax.plot(np.cos(t), np.sin(t), color="white", lw=0.6)
-    ax.set_xlim(-1, 1)
-    ax.set_ylim(-1, 1)
-    ax.set_aspect("equal")
+    if hemisphere:
+        ax.set_xlabel("v (y direction cosine)")
+        ax.set_ylabel("u (x direction cosine)")
+        t = np.linspace(0, 2 * np.pi, 361)
+        ax.plot(np.cos(t), np.sin(t), color="white", lw=0.6)
+        ax.set_xlim(-1, 1)
+        ax.set_ylim(-1, 1)
+        ax.set_aspect("equal")
+    else:
+        ax.set_xlabel("φ_r (degrees)")
+        ax.set_ylabel("φ_i (degrees)")
     return fig, ax, plt
+
+
+def _draw(fig, ax, cube: np.ndarray, wavelengths: np.ndarray, extent, unit: str) -> None:
+    """Spectral cube (n_wl, rows, cols) as sRGB (several λ) or false-colour log₁₀ (one λ)."""
+    ax.set_facecolor("black")
+    if len(wavelengths) > 1:
+        xyz = np.einsum("kw,wij->ijk", spectral_weights(wavelengths), np.nan_to_num(cube))
+        rgb = log_tone_map(xyz_to_linear_srgb(xyz), xyz[..., 1])
+        ax.imshow(srgb_encode(rgb), origin="lower", extent=extent, interpolation="nearest", aspect="auto")
+        return
+    with np.errstate(divide="ignore", invalid="ignore"):
+        logf = np.log10(cube[0])
+    top = np.nanmax(logf[np.isfinite(logf)]) if np.any(np.isfinite(logf)) else 0.0
+    im = ax.imshow(logf, origin="lower", extent=extent, cmap="magma", vmin=top - DECADES, vmax=top,
+                   interpolation="nearest", aspect="auto")
+    fig.colorbar(im, ax=ax, label=f"log₁₀ {unit}")
+
+
+def _spectral_note(wavelengths: np.ndarray) -> str:
+    if len(wavelengths) > 1:
+        return f"{wavelengths.min():g}–{wavelengths.max():g} µm, sRGB, log tone map ({DECADES:g} decades)"
+    return f"λ = {wavelengths[0]:g} µm"
 
 
 def _case_label(keys: list[str], coords: dict, case_index: tuple) -> str:
@@ -60,45 +88,60 @@ def render_dataset(path: str | Path, out_dir: str | Path | None = None, *, max_i
     path = Path(path)
     out_dir = Path(out_dir) if out_dir else path.with_name(path.stem + "_png")
     out_dir.mkdir(parents=True, exist_ok=True)
-    written: list[Path] = []
     with Dataset(path) as ds:
-        coords = ds.coords
-        keys = ds.sweep_keys
-        brdf = ds.h5["brdf"]
-        wl = coords["wavelength_um"]
-        lead_shape = brdf.shape[: len(keys)]
-        pol = ds.h5["brdf"].attrs.get("polarization", "")
-        extent = (-1, 1, -1, 1)
-        for case_index in np.ndindex(*lead_shape) if lead_shape else [()]:
-            case_txt = _case_label(keys, coords, case_index)
-            suffix = "".join(f"_c{i}" for i in case_index)
-            for inc in range(brdf.shape[len(keys) + 1]):
-                if len(written) >= max_images:
-                    return written
-                head = f"θi={coords['theta_i'][inc]:g}°, φi={coords['phi_i'][inc]:g}°, {pol}"
-                if case_txt:
-                    head += f"\n{case_txt}"
-                cube = np.asarray(brdf[case_index + (slice(None), inc)], dtype=float)  # (n_wl, res, res)
-                target = out_dir / f"{path.stem}{suffix}_inc{inc}.png"
-                if len(wl) > 1:
-                    xyz = np.einsum("kw,wij->ijk", spectral_weights(wl), np.nan_to_num(cube))
-                    rgb = log_tone_map(xyz_to_linear_srgb(xyz), xyz[..., 1])
-                    fig, ax, plt = _figure(f"{head}\n{wl.min():g}–{wl.max():g} µm, sRGB, log tone map "
-                                           f"({DECADES:g} decades)")
-                    ax.set_facecolor("black")
-                    ax.imshow(srgb_encode(rgb), origin="lower", extent=extent, interpolation="nearest")
-                else:
-                    data = cube[0]
-                    with np.errstate(divide="ignore", invalid="ignore"):
-                        logf = np.log10(data)
-                    top = np.nanmax(logf[np.isfinite(logf)]) if np.any(np.isfinite(logf)) else 0.0
-                    fig, ax, plt = _figure(f"{head}\nλ = {wl[0]:g} µm")
-                    ax.set_facecolor("black")
-                    im = ax.imshow(logf, origin="lower", extent=extent, cmap="magma", vmin=top - DECADES,
-                                   vmax=top, interpolation="nearest")
-                    fig.colorbar(im, ax=ax, label="log₁₀ BRDF (1/sr)")
-                fig.tight_layout()
-                fig.savefig(target)
-                plt.close(fig)
-                written.append(target)
+        pictures = _fiber_pictures(ds) if ds.kind == "fiber" else _surface_pictures(ds)
+        written = []
+        for suffix, title, cube, extent, unit, hemisphere in pictures:
+            if len(written) >= max_images:
+                break
+            wl = ds.coords["wavelength_um"]
+            fig, ax, plt = _figure(f"{title}\n{_spectral_note(wl)}", hemisphere)
+            _draw(fig, ax, cube, wl, extent, unit)
+            fig.tight_layout()
+            target = out_dir / f"{path.stem}{suffix}.png"
+            fig.savefig(target)
+            plt.close(fig)
+            written.append(target)
     return written
+
+
+def _cases(ds: Dataset, variable: str):
+    keys = ds.sweep_keys
+    coords = ds.coords
+    lead = ds.h5[variable].shape[: len(keys)]
+    for case_index in np.ndindex(*lead) if lead else [()]:
+        yield case_index, _case_label(keys, coords, case_index), "".join(f"_c{i}" for i in case_index)
+
+
+def _surface_pictures(ds: Dataset):
+    coords = ds.coords
+    brdf = ds.h5["brdf"]
+    pol = brdf.attrs.get("polarization", "")
+    n_lead = len(ds.sweep_keys)
+    for case_index, case_txt, suffix in _cases(ds, "brdf"):
+        for inc in range(brdf.shape[n_lead + 1]):
+            title = f"θi={coords['theta_i'][inc]:g}°, φi={coords['phi_i'][inc]:g}°, {pol}"
+            if case_txt:
+                title += f"\n{case_txt}"
+            cube = np.asarray(brdf[case_index + (slice(None), inc)], dtype=float)  # (n_wl, res, res)
+            yield f"{suffix}_inc{inc}", title, cube, (-1, 1, -1, 1), "BRDF (1/sr)", True
+
+
+def _fiber_pictures(ds: Dataset):
+    coords = ds.coords
+    bcsdf = ds.h5["bcsdf"]
+    n_lead = len(ds.sweep_keys)
+    phi_r = coords["phi_r"]
+    for case_index, case_txt, suffix in _cases(ds, "bcsdf"):
+        for ti in range(bcsdf.shape[n_lead + 1]):
+            cube = np.asarray(bcsdf[case_index + (slice(None), ti)], dtype=float)  # (n_wl, P, R)
+            if cube.shape[1] == 1:  # circle: N(φ_i, φ_r) = N(0, φ_r − φ_i)
+                cube = np.stack([np.stack([np.roll(c[0], i) for i in range(len(phi_r))]) for c in cube])
+            title = f"fiber N_wave, θi={coords['theta_i'][ti]:g}° (unpolarized)"
+            if case_txt:
+                title += f"\n{case_txt}"
+            step = 360.0 / len(phi_r)
+            phi_i = coords["phi_i"] if bcsdf.shape[n_lead + 2] > 1 else phi_r
+            extent = (phi_r[0] - step / 2, phi_r[-1] + step / 2, phi_i[0], phi_i[-1] + (phi_i[1] - phi_i[0]
+                                                                                          if len(phi_i) > 1 else 1))
+            yield f"{suffix}_theta{ti}", title, cube, extent, "N_wave (1/rad)", False

@@ -43,7 +43,7 @@ import numpy as np
 from wavebrdf import __version__
 from wavebrdf.jobs.plan import Plan, Task
 from wavebrdf.jobs.steering import synthesize, synthesized_incident_power
-from wavebrdf.jobs.store import DatasetWriter, atomic_h5
+from wavebrdf.jobs.store import SurfaceDatasetWriter, atomic_h5
 from wavebrdf.solver.farfield import FarField, albedo, combine_polarizations
 from wavebrdf.solver.models import get_model
 
@@ -124,6 +124,10 @@ def _reduce(plan: Plan, task: Task, ff: FarField) -> TaskResult:
 
 def execute_task(ctx, plan: Plan, task: Task, parts: "PartsFolder") -> dict:
     """Run ``task`` and save its output in ``parts``; return its diagnostics."""
+    if task.kind == "fiber":
+        from wavebrdf.jobs.fibers import run_fiber_task
+
+        return run_fiber_task(ctx, plan, task, parts)
     t0 = time.perf_counter()
     model = get_model(plan.model_name(task))
     with warnings.catch_warnings(record=True) as caught:
@@ -209,34 +213,39 @@ class PartsFolder:
     def done(self, task: Task) -> bool:
         return self._file(task).exists()
 
+    def save_arrays(self, task: Task, diagnostics: dict, **arrays: np.ndarray) -> None:
+        """Store a task's arrays and diagnostics (atomic)."""
+        payload = {**arrays, "diagnostics": np.array(json.dumps(diagnostics))}
+        _atomic_write(self._file(task), lambda fh: np.savez(fh, **payload))
+
+    def load_arrays(self, task: Task) -> tuple[dict, dict]:
+        with np.load(self._file(task)) as data:
+            arrays = {k: data[k] for k in data.files if k != "diagnostics"}
+            return arrays, json.loads(str(data["diagnostics"]))
+
     def save_result(self, task: Task, result: TaskResult) -> None:
-        _atomic_write(self._file(task), lambda fh: np.savez(
-            fh, brdf_sp=result.brdf_sp, albedo_sp=result.albedo_sp,
-            diagnostics=np.array(json.dumps(result.diagnostics))))
+        self.save_arrays(task, result.diagnostics, brdf_sp=result.brdf_sp, albedo_sp=result.albedo_sp)
 
     def load_result(self, task: Task) -> TaskResult:
-        with np.load(self._file(task)) as data:
-            return TaskResult(data["brdf_sp"], data["albedo_sp"], json.loads(str(data["diagnostics"])))
+        arrays, diagnostics = self.load_arrays(task)
+        return TaskResult(arrays["brdf_sp"], arrays["albedo_sp"], diagnostics)
 
     def save_patch(self, task: Task, ff: FarField) -> None:
         arrays = {"E": ff.E, "incident_power": ff.incident_power,
-                  "scalars": np.array([ff.wavelength_um, ff.exterior_index, ff.theta_i, ff.phi_i]),
-                  "diagnostics": np.array(json.dumps(_farfield_diagnostics(ff)))}
+                  "scalars": np.array([ff.wavelength_um, ff.exterior_index, ff.theta_i, ff.phi_i])}
         if ff.H is not None:
             arrays["H"] = ff.H
-        _atomic_write(self._file(task), lambda fh: np.savez(fh, **arrays))
+        self.save_arrays(task, _farfield_diagnostics(ff), **arrays)
 
     def load_patch(self, task: Task) -> FarField:
-        with np.load(self._file(task)) as data:
-            lam, n1, theta, phi = data["scalars"]
-            return FarField(grid=self.plan.grid, wavelength_um=float(lam), exterior_index=float(n1),
-                            theta_i=float(theta), phi_i=float(phi), E=data["E"],
-                            H=data["H"] if "H" in data else None, incident_power=data["incident_power"],
-                            diagnostics=json.loads(str(data["diagnostics"])))
+        arrays, diagnostics = self.load_arrays(task)
+        lam, n1, theta, phi = arrays["scalars"]
+        return FarField(grid=self.plan.grid, wavelength_um=float(lam), exterior_index=float(n1),
+                        theta_i=float(theta), phi_i=float(phi), E=arrays["E"], H=arrays.get("H"),
+                        incident_power=arrays["incident_power"], diagnostics=diagnostics)
 
     def load_diagnostics(self, task: Task) -> dict:
-        with np.load(self._file(task)) as data:
-            return json.loads(str(data["diagnostics"]))
+        return self.load_arrays(task)[1]
 
     def save_failure(self, task: Task, diagnostics: dict) -> None:
         payload = json.dumps(diagnostics).encode()
@@ -526,10 +535,14 @@ def run_plan(plan: Plan, ctx, *, executor: str = "serial", workers: int | None =
 
 def write_dataset(plan: Plan, parts: PartsFolder, device: str, run_info: dict | None = None) -> Path:
     """Assemble the HDF5 dataset from the finished parts (one writer, atomic rename)."""
+    if plan.is_fiber:
+        from wavebrdf.jobs.fibers import write_fiber_dataset
+
+        return write_fiber_dataset(plan, parts, device, run_info)
     study = plan.study
     output = Path(plan.config.output)
     with atomic_h5(output) as h5:
-        writer = DatasetWriter(
+        writer = SurfaceDatasetWriter(
             h5, plan.config.sweep_axes, plan.wavelengths_um, plan.directions_deg, plan.grid.resolution,
             study.illumination.polarization, study.output_options.per_polarization,
         )

@@ -1,6 +1,9 @@
 """HDF5 dataset schema v1: writer (atomic), reader (:func:`open_dataset`, ``wavebrdf.open``).
 
-Layout (every coordinate is a 1-D dataset registered as an HDF5 dimension scale, so
+Two layouts, told apart by the root attribute ``kind``: "surface" (BRDFs of height fields,
+below) and "fiber" (BCSDF tables: ``bcsdf``, ``dCs_dphi``, ``C_ext``/``C_sca``/``C_abs`` over
+wavelength, θ_i, polarization, φ_i, φ_r; see docs/dataset.md). Surface layout (every coordinate
+is a 1-D dataset registered as an HDF5 dimension scale, so
 ``xarray.open_dataset(path, engine="h5netcdf")`` reads it with no custom code)::
 
     /                         attrs: format="wavebrdf", format_version=1, software_version,
@@ -37,7 +40,16 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-__all__ = ["FORMAT", "FORMAT_VERSION", "Dataset", "DatasetWriter", "StoreError", "atomic_h5", "open_dataset"]
+__all__ = [
+    "FORMAT",
+    "FORMAT_VERSION",
+    "Dataset",
+    "FiberDatasetWriter",
+    "StoreError",
+    "SurfaceDatasetWriter",
+    "atomic_h5",
+    "open_dataset",
+]
 
 FORMAT = "wavebrdf"
 FORMAT_VERSION = 1
@@ -87,17 +99,24 @@ def _attach(var: h5py.Dataset, dims: list[str], h5: h5py.File) -> None:
         var.dims[axis].attach_scale(h5[dim])
 
 
-@dataclass
-class DatasetWriter:
-    """Creates the schema-v1 layout in an open h5py file and fills it task by task."""
+class _Writer:
+    """What every layout shares: root attributes, sweep and wavelength coordinates, the material
+    index per case, the task table. Subclasses add their own coordinates and variables."""
 
-    h5: h5py.File
-    sweep_axes: dict  # {"section.key": values}
-    wavelengths_um: np.ndarray
-    directions_deg: np.ndarray  # (n, 2): theta, phi
-    resolution: int
-    polarization: str
-    per_polarization: bool
+    kind = ""
+
+    def __init__(self, h5: h5py.File, sweep_axes: dict, wavelengths_um: np.ndarray):
+        self.h5 = h5
+        self.sweep_axes = sweep_axes  # {"section.key": values}
+        self.wavelengths_um = np.asarray(wavelengths_um, dtype=float)
+
+    @property
+    def sweep(self) -> list[str]:
+        return list(self.sweep_axes)
+
+    @property
+    def lead(self) -> list[int]:
+        return [len(v) for v in self.sweep_axes.values()]
 
     def create(self, *, config_text: str, study: str, software_version: str, device: str) -> None:
         h5 = self.h5
@@ -105,6 +124,7 @@ class DatasetWriter:
             {
                 "format": FORMAT,
                 "format_version": FORMAT_VERSION,
+                "kind": self.kind,
                 "software_version": software_version,
                 "config": config_text,
                 "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
@@ -116,6 +136,63 @@ class DatasetWriter:
         for key, values in self.sweep_axes.items():
             _coordinate(h5, key, list(values), {"long_name": f"swept config key {key}"})
         _coordinate(h5, "wavelength_um", self.wavelengths_um, {"units": "um", "long_name": "vacuum wavelength"})
+        self.create_layout()
+        for name, long_name in (("ior_n", "real part n of the index n - j kappa"),
+                                ("ior_kappa", "extinction coefficient kappa (>= 0 is loss)")):
+            self._variable(name, self.sweep + ["wavelength_um"], self.lead + [len(self.wavelengths_um)], np.float64,
+                           {"long_name": long_name})
+
+    def create_layout(self) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def write_index(self, case_index: tuple[int, ...], index: np.ndarray) -> None:
+        self.h5["ior_n"][tuple(case_index)] = np.real(index)
+        self.h5["ior_kappa"][tuple(case_index)] = -np.imag(index)
+
+    def _variable(self, name, dims, shape, dtype, attrs, chunks=None):
+        fill = np.nan
+        kwargs = {"chunks": chunks, "compression": "gzip", "compression_opts": 4, "shuffle": True} if chunks else {}
+        ds = self.h5.create_dataset(name, shape=tuple(shape), dtype=dtype, fillvalue=fill, **kwargs)
+        ds.attrs.update(attrs)
+        _attach(ds, dims, self.h5)
+        return ds
+
+    def write_tasks(self, rows: list[dict]) -> None:
+        """The task table (diagnostics + completion status), one entry per task.
+
+        Numeric columns become int64/float64 (NaN where a row lacks the value), others strings.
+        """
+        grp = self.h5.create_group("tasks")
+        keys = list(dict.fromkeys(k for r in rows for k in r))
+        for key in keys:
+            values = [r.get(key) for r in rows]
+            present = [v for v in values if v is not None and v != ""]
+            numeric = present and all(isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+                                      for v in present)
+            if numeric and len(present) == len(values) and all(isinstance(v, (int, np.integer)) for v in present):
+                grp.create_dataset(key, data=np.asarray(values, dtype=np.int64))
+            elif numeric:
+                grp.create_dataset(key, data=np.array([np.nan if v in (None, "") else v for v in values], dtype=float))
+            else:
+                data = ["" if v is None else v if isinstance(v, str) else json.dumps(v) for v in values]
+                grp.create_dataset(key, data=np.array(data, dtype=object), dtype=STRING)
+
+
+class SurfaceDatasetWriter(_Writer):
+    """BRDF layout: brdf[sweep..., wavelength_um, incidence, u, v] and friends."""
+
+    kind = "surface"
+
+    def __init__(self, h5, sweep_axes, wavelengths_um, directions_deg, resolution: int, polarization: str,
+                 per_polarization: bool):
+        super().__init__(h5, sweep_axes, wavelengths_um)
+        self.directions_deg = np.asarray(directions_deg, dtype=float)  # (n, 2): theta, phi
+        self.resolution = resolution
+        self.polarization = polarization
+        self.per_polarization = per_polarization
+
+    def create_layout(self) -> None:
+        h5 = self.h5
         n_inc = len(self.directions_deg)
         _coordinate(h5, "incidence", np.arange(n_inc), {"long_name": "incident direction index"})
         _coordinate(h5, "polarization", np.array(["s", "p"], dtype=object))
@@ -123,12 +200,10 @@ class DatasetWriter:
         _coordinate(h5, "u", u, {"long_name": "x direction cosine of the outgoing direction"})
         _coordinate(h5, "v", u, {"long_name": "y direction cosine of the outgoing direction"})
         for name, column, long_name in (("theta_i", 0, "incident polar angle"), ("phi_i", 1, "incident azimuth")):
-            ds = h5.create_dataset(name, data=np.asarray(self.directions_deg, dtype=float)[:, column])
+            ds = h5.create_dataset(name, data=self.directions_deg[:, column])
             ds.attrs.update({"units": "degree", "long_name": f"{long_name} (toward the light)"})
             _attach(ds, ["incidence"], h5)
-
-        sweep = list(self.sweep_axes)
-        lead = [len(v) for v in self.sweep_axes.values()]
+        sweep, lead = self.sweep, self.lead
         n_wl = len(self.wavelengths_um)
         res = self.resolution
         coords = "theta_i phi_i"
@@ -152,18 +227,7 @@ class DatasetWriter:
                 lead + [n_wl, n_inc, 2, res, res], np.float32, {"units": "1/sr", "coordinates": coords},
                 chunks=tuple([1] * (len(lead) + 3) + [res, res]),
             )
-        for name, long_name in (("ior_n", "real part n of the index n - j kappa"),
-                                ("ior_kappa", "extinction coefficient kappa (>= 0 is loss)")):
-            self._variable(name, sweep + ["wavelength_um"], lead + [n_wl], np.float64, {"long_name": long_name})
         h5.create_group("surface")
-
-    def _variable(self, name, dims, shape, dtype, attrs, chunks=None):
-        fill = np.nan
-        kwargs = {"chunks": chunks, "compression": "gzip", "compression_opts": 4, "shuffle": True} if chunks else {}
-        ds = self.h5.create_dataset(name, shape=tuple(shape), dtype=dtype, fillvalue=fill, **kwargs)
-        ds.attrs.update(attrs)
-        _attach(ds, dims, self.h5)
-        return ds
 
     def write_case(self, case_index: tuple[int, ...], case_id: str, heights: np.ndarray, size_um: float,
                    stats: dict, index: np.ndarray) -> None:
@@ -171,8 +235,7 @@ class DatasetWriter:
         ds = self.h5["surface"].create_dataset(case_id, data=heights, compression="gzip", shuffle=True)
         ds.attrs.update({"size_um": size_um, "spacing_um": size_um / (heights.shape[0] - 1), "units": "um",
                          "case_index": list(case_index), **stats})
-        self.h5["ior_n"][case_index] = np.real(index)
-        self.h5["ior_kappa"][case_index] = -np.imag(index)
+        self.write_index(case_index, index)
 
     def write_steering(self, case_index: tuple[int, ...], steering) -> None:
         """Basic direction of every requested direction (degrees) and the patch layout."""
@@ -202,25 +265,67 @@ class DatasetWriter:
         if self.per_polarization:
             self.h5["brdf_sp"][where] = brdf_sp.astype(np.float32)
 
-    def write_tasks(self, rows: list[dict]) -> None:
-        """The task table (diagnostics + completion status), one entry per task.
 
-        Numeric columns become int64/float64 (NaN where a row lacks the value), others strings.
-        """
-        grp = self.h5.create_group("tasks")
-        keys = list(dict.fromkeys(k for r in rows for k in r))
-        for key in keys:
-            values = [r.get(key) for r in rows]
-            present = [v for v in values if v is not None and v != ""]
-            numeric = present and all(isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
-                                      for v in present)
-            if numeric and len(present) == len(values) and all(isinstance(v, (int, np.integer)) for v in present):
-                grp.create_dataset(key, data=np.asarray(values, dtype=np.int64))
-            elif numeric:
-                grp.create_dataset(key, data=np.array([np.nan if v in (None, "") else v for v in values], dtype=float))
-            else:
-                data = ["" if v is None else v if isinstance(v, str) else json.dumps(v) for v in values]
-                grp.create_dataset(key, data=np.array(data, dtype=object), dtype=STRING)
+
+class FiberDatasetWriter(_Writer):
+    """BCSDF layout of fiber studies (see docs/dataset.md, "Fiber datasets")."""
+
+    kind = "fiber"
+
+    def __init__(self, h5, sweep_axes, wavelengths_um, theta_i_deg, phi_i_deg, phi_r_deg, phi_i_binned: bool):
+        super().__init__(h5, sweep_axes, wavelengths_um)
+        self.theta_i_deg = np.asarray(theta_i_deg, dtype=float)
+        self.phi_i_deg = np.asarray(phi_i_deg, dtype=float)
+        self.phi_r_deg = np.asarray(phi_r_deg, dtype=float)
+        self.phi_i_binned = phi_i_binned
+
+    def create_layout(self) -> None:
+        h5 = self.h5
+        _coordinate(h5, "theta_i", self.theta_i_deg,
+                    {"units": "degree", "long_name": "incident angle from the plane normal to the fiber axis"})
+        _coordinate(h5, "phi_i", self.phi_i_deg, {
+            "units": "degree", "long_name": "incident azimuth around the axis",
+            "sampling": f"bin centres, bins of {360 / len(self.phi_i_deg):g} degrees (box averages)"
+            if self.phi_i_binned else "point samples"})
+        _coordinate(h5, "phi_r", self.phi_r_deg, {
+            "units": "degree", "long_name": "outgoing azimuth around the axis",
+            "sampling": f"bin centres, bins of {360 / len(self.phi_r_deg):g} degrees (box averages)"})
+        _coordinate(h5, "polarization", np.array(["parallel", "perpendicular"], dtype=object),
+                    {"long_name": "parallel: incident E in the plane of the axis and the incident direction "
+                                  "(Bohren-Huffman case I); perpendicular: case II"})
+        sweep, lead = self.sweep, self.lead
+        L, T, P, R = len(self.wavelengths_um), len(self.theta_i_deg), len(self.phi_i_deg), len(self.phi_r_deg)
+        base = sweep + ["wavelength_um", "theta_i"]
+        self._variable("bcsdf", base + ["phi_i", "phi_r"], lead + [L, T, P, R], np.float32, {
+            "units": "1/rad", "long_name": "azimuthal scattering function N_wave = (dC_s/dphi)/C_ext, unpolarized "
+            "(the BCSDF is S = M0(theta_i, theta_r) * N_wave with d'Eon's longitudinal M0)"},
+            chunks=tuple([1] * (len(lead) + 2) + [P, R]))
+        self._variable("dCs_dphi", base + ["polarization", "phi_i", "phi_r"], lead + [L, T, 2, P, R], np.float32,
+                       {"units": "um/rad", "long_name": "differential scattering width per unit length"},
+                       chunks=tuple([1] * (len(lead) + 3) + [P, R]))
+        for name, long_name in (("C_ext", "extinction"), ("C_sca", "scattering"), ("C_abs", "absorption")):
+            self._variable(name, base + ["polarization", "phi_i"], lead + [L, T, 2, P], np.float64, {
+                "units": "um", "long_name": f"{long_name} cross section per unit length, normalised by S0 cos(theta_i)"})
+        self._variable("power_balance_error", base + ["polarization", "phi_i"], lead + [L, T, 2, P], np.float64,
+                       {"long_name": "|C_ext - C_sca - C_abs| / C_ext"})
+        self._variable("C_geom", sweep + ["phi_i"], lead + [P], np.float64,
+                       {"units": "um", "long_name": "geometric width of the cross section seen from phi_i"})
+        h5.create_group("fiber")
+
+    def write_case(self, case_index: tuple[int, ...], case_id: str, nodes: np.ndarray, width: np.ndarray,
+                   index: np.ndarray) -> None:
+        ds = self.h5["fiber"].create_dataset(case_id, data=nodes)
+        ds.attrs.update({"units": "um", "long_name": "cross-section polygon nodes (x, y), counter-clockwise",
+                         "case_index": list(case_index)})
+        self.h5["C_geom"][tuple(case_index)] = width
+        self.write_index(case_index, index)
+
+    def write_slice(self, case_index, wl: int, theta: int, *, dCs_dphi, C_ext, C_sca, C_abs) -> None:
+        where = tuple(case_index) + (wl, theta)
+        self.h5["dCs_dphi"][where] = dCs_dphi.astype(np.float32)
+        self.h5["C_ext"][where], self.h5["C_sca"][where], self.h5["C_abs"][where] = C_ext, C_sca, C_abs
+        self.h5["power_balance_error"][where] = np.abs(C_ext - C_sca - C_abs) / np.abs(C_ext)
+        self.h5["bcsdf"][where] = (dCs_dphi.mean(axis=0) / C_ext.mean(axis=0)[:, None]).astype(np.float32)
 
 
 class Dataset:
@@ -265,8 +370,17 @@ class Dataset:
         return self.attrs["config"]
 
     @property
+    def kind(self) -> str:
+        """ "surface" (BRDF layout) or "fiber" (BCSDF layout)."""
+        return self.attrs.get("kind", "surface")
+
+    @property
+    def main_variable(self) -> str:
+        return "bcsdf" if self.kind == "fiber" else "brdf"
+
+    @property
     def sweep_keys(self) -> list[str]:
-        dims = self._dims("albedo")
+        dims = self._dims(self.main_variable)
         return dims[: dims.index("wavelength_um")]
 
     def _dims(self, name: str) -> list[str]:
@@ -278,7 +392,10 @@ class Dataset:
 
     @property
     def coords(self) -> dict[str, np.ndarray]:
-        names = self.sweep_keys + ["wavelength_um", "incidence", "theta_i", "phi_i", "polarization", "u", "v"]
+        if self.kind == "fiber":
+            names = self.sweep_keys + ["wavelength_um", "theta_i", "phi_i", "phi_r", "polarization"]
+        else:
+            names = self.sweep_keys + ["wavelength_um", "incidence", "theta_i", "phi_i", "polarization", "u", "v"]
         out = {}
         for name in names:
             data = self._h5[name][()]
@@ -312,8 +429,9 @@ class Dataset:
         return xr.open_dataset(self.path, engine="h5netcdf")
 
     def __repr__(self) -> str:
-        shape = dict(zip(self._dims("brdf"), self._h5["brdf"].shape))
-        return f"<wavebrdf.Dataset {self.path.name} study={self.attrs.get('study')!r} brdf{shape}>"
+        name = self.main_variable
+        shape = dict(zip(self._dims(name), self._h5[name].shape))
+        return f"<wavebrdf.Dataset {self.path.name} study={self.attrs.get('study')!r} {name}{shape}>"
 
 
 def open_dataset(path: str | Path) -> Dataset:
