@@ -16,15 +16,18 @@
 #define BEM_REMAINDER 1
 #define BEM_STATIC 2
 
-/* (1 - z) e^z - 1 = -sum_{n>=2} (n-1) z^n / n!  (series for |z| < 1/2, closed form otherwise) */
+/* (1 - z) e^z - 1 = -z^2 sum_{m>=0} (m+1) z^m / (m+2)!  (Horner to m = 13 for |z| < 1/2, where
+ * the tail is below 1e-16; closed form otherwise, where it has no cancellation) */
 inline vcplx_t bem_one_minus_z_expz_m1(vcplx_t z)
 {
-    vcplx_t term = vc_scale(vc_mul(z, z), (vreal_t)(R(0.5))); /* z^n / n! at n = 2 */
-    vcplx_t series = vc_scale(term, (vreal_t)(R(-1.0)));
-    for (int n = 3; n <= 22; ++n) {
-        term = vc_scale(vc_mul(term, z), (vreal_t)(R(1.0) / (real_t)n));
-        series = vc_fma_real(term, (vreal_t)(-(real_t)(n - 1)), series);
+    vcplx_t p = vc_new((vreal_t)(R(14.0) / R(1307674368000.0)), (vreal_t)(R(0.0))); /* 14/15! */
+    real_t factorial = R(1307674368000.0); /* (m+2)! at m = 13 */
+    for (int m = 12; m >= 0; --m) {
+        factorial /= (real_t)(m + 3);
+        p = vc_mul(p, z);
+        p.re += (real_t)(m + 1) / factorial;
     }
+    const vcplx_t series = vc_scale(vc_mul(vc_mul(z, z), p), (vreal_t)(R(-1.0)));
     const vcplx_t one_minus_z = vc_new(R(1.0) - z.re, -z.im);
     vcplx_t direct = vc_mul(one_minus_z, vc_exp(z));
     direct.re -= R(1.0);

@@ -106,20 +106,21 @@ class Beam:
         """Φ_i per polarization (W for the beam's amplitude normalisation), shape (2,)."""
         raise NotImplementedError
 
-    def plane_flux(self, patch_size_um: float, order: int = 4, cells: int | None = None) -> tuple[float, np.ndarray]:
-        """(flux through the patch, flux through a 3× larger square) of −S_z on z = focus, per pol.
+    def plane_flux(self, patch_size_um: float, order: int = 4, cells: int | None = None,
+                   extent: int = 3) -> tuple[np.ndarray, np.ndarray]:
+        """Flux −S_z through z = focus: (inside the patch, inside an ``extent``× larger square).
 
         Gauss quadrature of order ``order`` on ``cells``² cells per patch (default: λ/4 cells).
-        Returns (inside (2,), total (2,)).
+        Returns two arrays of shape (2,) (polarizations).
         """
         L = float(patch_size_um)
         if cells is None:
             cells = int(np.ceil(4 * L * self.exterior_index / self.wavelength_um))
         x, w = np.polynomial.legendre.leggauss(order)
         d = L / cells
-        centres = -1.5 * L + d * (np.arange(3 * cells) + 0.5)
+        centres = -0.5 * extent * L + d * (np.arange(extent * cells) + 0.5)
         xs = (centres[:, None] + 0.5 * d * x[None, :]).ravel()
-        ws = np.tile(0.5 * d * w, 3 * cells)
+        ws = np.tile(0.5 * d * w, extent * cells)
         X, Y = np.meshgrid(xs, xs, indexing="ij")
         W = np.outer(ws, ws)
         pts = np.stack([X, Y, np.full_like(X, self.focus_um[2])], axis=-1) + [self.focus_um[0], self.focus_um[1], 0.0]
@@ -219,7 +220,7 @@ class ParaxialGaussianBeam(Beam):
         return E, H
 
     def incident_power(self, patch_size_um):
-        inside, _ = self.plane_flux(patch_size_um)
+        inside, _ = self.plane_flux(patch_size_um, extent=1)
         return inside
 
 
@@ -307,7 +308,7 @@ class ExactGaussianBeam(Beam):
 
     def outside_fraction(self, patch_size_um: float) -> float:
         """Fraction of the exact incident power (one beam) crossing z = focus outside the patch."""
-        inside, _ = self.plane_flux(patch_size_um)
+        inside, _ = self.plane_flux(patch_size_um, extent=1)
         return float(np.max(1.0 - inside / self.incident_power()))
 
     def reflectance(self, index: complex) -> np.ndarray:

@@ -26,6 +26,7 @@ given a 3-bit orientation code (see :func:`orientation_code`).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -249,9 +250,9 @@ def gauss_oscillation_error(order, alpha):
 
     |∫ f − G_n f| ≤ max|f^{(2n)}| 2^{2n+1} (n!)⁴ / ((2n+1) ((2n)!)³) with |f^{(2n)}| ≤ |α|^{2n} max|f|.
     """
-    n = np.asarray(order, dtype=float)
+    n = int(order)
     a = np.abs(np.asarray(alpha, dtype=float))
-    logc = (2 * n + 1) * np.log(2.0) + 4 * _lgamma(n + 1) - np.log(2 * n + 1) - 3 * _lgamma(2 * n + 1)
+    logc = (2 * n + 1) * math.log(2.0) + 4 * math.lgamma(n + 1) - math.log(2 * n + 1) - 3 * math.lgamma(2 * n + 1)
     with np.errstate(divide="ignore"):
         return np.exp(2 * n * np.log(np.maximum(a, 1e-300)) + logc)
 
@@ -266,12 +267,6 @@ def gauss_proximity_error(order, x0):
     x0 = np.maximum(np.asarray(x0, dtype=float), 1.0 + 1e-9)
     rho = x0 + np.sqrt(x0 * x0 - 1.0)
     return 4.0 * rho ** (-2.0 * n)
-
-
-def _lgamma(x):
-    from scipy.special import gammaln
-
-    return gammaln(x)
 
 
 def medium_weights(wavenumbers) -> list[float]:

@@ -1,0 +1,328 @@
+"""The AIM base matrix B = Λᵀ G Λ applied by FFT convolution on the grid (bem3d.md §6.5).
+
+For every group of grid media that share one projection (moment matching: both media in one
+group; far-field matching: one group per medium, since Λ depends on k):
+
+1. scatter: charges q = Λ x on the compact grid, 8 components per right-hand side
+   [J_x, J_y, J_z, J_div, M_x, M_y, M_z, M_div] (kernel ``aim_scatter``);
+2. forward FFT of each component onto the padded grid (pruned: the zero padding is never
+   transformed);
+3. multiplication by the kernel spectra with the PMCHWT coefficients, giving the grid fields
+   [E_x, E_y, E_z, E_div, H_x, H_y, H_z, H_div] (kernel ``aim_fourier``, formulas in aim.cl);
+4. inverse FFT (pruned: only the unpadded block is kept);
+5. gather: y += Λᵀ F per rooftop (kernel ``aim_gather``).
+
+That is 8 forward and 8 inverse FFTs per group and right-hand side (the reference plan 0 used
+22 per medium). FFT backend: ``"host"`` (scipy.fft on host memory that the OpenCL buffers
+share, zero-copy on CPU devices) or ``"vkfft"`` (pyvkfft on the device, for GPUs). ``"auto"``
+picks the host FFT on CPU devices, where it was measured faster (docs/aim.md), and VkFFT on GPUs
+when pyvkfft is installed.
+
+NumPy twins: :func:`scatter_numpy`, :func:`fourier_numpy`, :func:`gather_numpy` and
+:meth:`BaseOperator.apply_numpy`.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.fft
+import scipy.sparse
+
+from wavebrdf.solver.bem3d.aim_green import KernelSpectra
+from wavebrdf.solver.bem3d.media import Media
+from wavebrdf.solver.bem3d.projection import Projection
+from wavebrdf.solver.farfield import ETA0
+
+logger = logging.getLogger(__name__)
+
+__all__ = [
+    "FFT_BACKENDS",
+    "BaseOperator",
+    "GridGroup",
+    "fft_workers",
+    "forward_pruned",
+    "fourier_coefficients",
+    "fourier_numpy",
+    "gather_numpy",
+    "inverse_pruned",
+    "projection_matrices",
+    "scatter_numpy",
+]
+
+FFT_BACKENDS = ("auto", "host", "vkfft")
+
+
+def fft_workers() -> int:
+    """Threads for scipy.fft: the CPUs this process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - non-Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def forward_pruned(q: np.ndarray, padded, workers: int | None = None) -> np.ndarray:
+    """FFT of compact arrays (…, n_x, n_y, n_z) zero-padded to ``padded``, never transforming zeros."""
+    a = scipy.fft.fft(q, n=padded[2], axis=-1, workers=workers)
+    a = scipy.fft.fft(a, n=padded[1], axis=-2, workers=workers)
+    return scipy.fft.fft(a, n=padded[0], axis=-3, workers=workers)
+
+
+def inverse_pruned(Q: np.ndarray, shape, workers: int | None = None) -> np.ndarray:
+    """Inverse FFT of padded spectra, keeping only the compact block [0, n) of every axis."""
+    a = scipy.fft.ifft(Q, axis=-3, workers=workers)[..., : shape[0], :, :]
+    a = scipy.fft.ifft(a, axis=-2, workers=workers)[..., :, : shape[1], :]
+    return np.ascontiguousarray(scipy.fft.ifft(a, axis=-1, workers=workers)[..., : shape[2]])
+
+
+def fourier_coefficients(media: Media, grid_media) -> np.ndarray:
+    """(4, n) coefficients (ee_vec, mm_vec, ee_div, mm_div) of the grid media (media.py)."""
+    c = media.pmchwt_coefficients()
+    idx = list(grid_media)
+    return np.stack([c["ee_vec"][idx], c["mm_vec"][idx], c["ee_div"][idx], c["mm_div"][idx]])
+
+
+@dataclass
+class GridGroup:
+    """One projection and the grid media it serves, with their spectra (host arrays)."""
+
+    projection: Projection
+    media: tuple[int, ...]
+    green: np.ndarray  # (n_media, P…) FFT of g_i
+    gradient: np.ndarray  # (3, P…) η₀ Σ_i FFT(∂_a g_i)
+    coefficients: np.ndarray  # (4, n_media)
+
+    @classmethod
+    def build(cls, projection: Projection, spectra: KernelSpectra, media: Media, indices, dtype):
+        pos = [spectra.media.index(i) for i in indices]
+        green = np.stack([spectra.green[p] for p in pos]).astype(dtype)
+        gradient = (ETA0 * sum(spectra.gradient[p] for p in pos)).astype(dtype)
+        return cls(projection, tuple(indices), green, gradient, fourier_coefficients(media, indices))
+
+
+# ---------------------------------------------------------------------------------------------
+# NumPy twins
+
+
+def projection_matrices(projection: Projection, n_horizontal: int) -> list[scipy.sparse.csr_matrix]:
+    """Sparse (n_points × N_b) matrices Λ of the charge components (x, y, z, div)."""
+    grid = projection.grid
+    n_b = projection.weights.shape[1]
+    rows = grid.linear_index(grid.stencil_points()).ravel()
+    cols = np.repeat(np.arange(n_b), grid.stencil_size)
+    horizontal = np.repeat(np.arange(n_b) < n_horizontal, grid.stencil_size)
+    shape = (grid.points, n_b)
+    wt, wz, wd = (w.ravel() for w in projection.weights)
+    mats = [
+        scipy.sparse.csr_matrix((np.where(horizontal, wt, 0), (rows, cols)), shape=shape),
+        scipy.sparse.csr_matrix((np.where(horizontal, 0, wt), (rows, cols)), shape=shape),
+        scipy.sparse.csr_matrix((wz, (rows, cols)), shape=shape),
+        scipy.sparse.csr_matrix((wd, (rows, cols)), shape=shape),
+    ]
+    return mats
+
+
+def scatter_numpy(mats, x: np.ndarray, n_b: int, shape) -> np.ndarray:
+    """Charges (P, 8, n_x, n_y, n_z) of solutions x (P, 2N_b); twin of ``aim_scatter``."""
+    x = np.atleast_2d(x)
+    out = np.empty((len(x), 8) + tuple(shape), dtype=np.result_type(x, mats[0].dtype))
+    for part, xs in enumerate((x[:, :n_b], x[:, n_b:])):
+        for c, m in enumerate(mats):
+            out[:, 4 * part + c] = (m @ xs.T).T.reshape((len(x),) + tuple(shape))
+    return out
+
+
+def fourier_numpy(green, gradient, coefficients, Q: np.ndarray) -> np.ndarray:
+    """Grid-field spectra from charge spectra Q (P, 8, …); twin of ``aim_fourier``."""
+    A, Ap, D, Dp = (np.tensordot(coefficients[r], green, axes=1) for r in range(4))
+    B = gradient
+
+    def curl(q):
+        return [B[1] * q[2] - B[2] * q[1], B[2] * q[0] - B[0] * q[2], B[0] * q[1] - B[1] * q[0]]
+
+    out = np.empty_like(Q)
+    for p in range(len(Q)):
+        qj, qm = Q[p, :3], Q[p, 4:7]
+        cj, cm = curl(qj), curl(qm)
+        for a in range(3):
+            out[p, a] = A * qj[a] + cm[a]
+            out[p, 4 + a] = Ap * qm[a] + cj[a]
+        out[p, 3] = D * Q[p, 3]
+        out[p, 7] = Dp * Q[p, 7]
+    return out
+
+
+def gather_numpy(mats, F: np.ndarray) -> np.ndarray:
+    """y = Λᵀ F (P, 2N_b) from grid fields F (P, 8, …); twin of ``aim_gather``."""
+    P = len(F)
+    flat = F.reshape(P, 8, -1)
+    e = sum(m.T @ flat[:, c].T for c, m in enumerate(mats)).T
+    h = sum(m.T @ flat[:, 4 + c].T for c, m in enumerate(mats)).T
+    return np.concatenate([e, h], axis=1)
+
+
+# ---------------------------------------------------------------------------------------------
+# The operator
+
+
+class BaseOperator:
+    """y = B x on the device (see the module docstring); ``apply_numpy`` is the reference."""
+
+    def __init__(self, ctx, mesh, groups: list[GridGroup], *, precision: str = "double", fft: str = "auto",
+                 workers: int | None = None):
+        if fft not in FFT_BACKENDS:
+            raise ValueError(f"aim fft must be one of {FFT_BACKENDS}, got {fft!r}")
+        self.ctx = ctx
+        self.mesh = mesh
+        self.groups = groups
+        self.grid = groups[0].projection.grid
+        self.precision = precision
+        self.workers = workers or fft_workers()
+        self.n_b = mesh.n_bases
+        self.n_h = mesh.n_horizontal
+        self.real = np.dtype(np.float64 if precision == "double" else np.float32)
+        self.complex = np.result_type(self.real, np.complex64)
+        if ctx is not None:
+            self.real = ctx.real_dtype(precision)
+            self.complex = np.result_type(self.real, np.complex64)
+        self.fft = self._choose_fft(fft)
+        self.timings = {"scatter_s": 0.0, "fft_s": 0.0, "fourier_s": 0.0, "gather_s": 0.0, "calls": 0}
+        self._mats = None
+        if ctx is not None:
+            self._upload()
+
+    # -- set-up -----------------------------------------------------------------------------
+    def _choose_fft(self, fft: str) -> str:
+        if fft != "auto":
+            return fft
+        if self.ctx is not None and "GPU" in self.ctx.info.kind:
+            try:
+                import pyvkfft.opencl  # noqa: F401
+
+                return "vkfft"
+            except ImportError:
+                logger.warning("pyvkfft is not installed: AIM FFTs run on the host (pip install 'wavebrdf[fft]')")
+        return "host"
+
+    def _upload(self):
+        import pyopencl as cl
+
+        mf = cl.mem_flags
+        ctx = self.ctx
+        pointer, entries = self.grid.inverse_map()
+        self._map = [cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a) for a in (pointer, entries)]
+        self._origins = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
+                                  hostbuf=np.ascontiguousarray(self.grid.origins, np.int32))
+        self._device_groups = []
+        for group in self.groups:
+            w = group.projection.weights
+            wdtype = self.real if not np.iscomplexobj(w) else self.complex
+            weights = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(w, wdtype))
+            green = cl.Buffer(ctx.context, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=group.green)
+            gradient = cl.Buffer(ctx.context, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=group.gradient)
+            coef = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
+                             hostbuf=np.ascontiguousarray(group.coefficients, self.complex))
+            self._device_groups.append((weights, green, gradient, coef, np.iscomplexobj(w)))
+
+    def _defines(self, batch: int, complex_weights: bool, n_media: int) -> dict:
+        return {"WB_FP64": int(self.real == np.float64), "AIM_BATCH": batch,
+                "AIM_COMPLEX_W": int(complex_weights), "AIM_NMED": n_media}
+
+    # -- application ------------------------------------------------------------------------
+    def apply(self, x: np.ndarray, y_buffer=None):
+        """B x for x (P, 2N_b); adds into the device buffer ``y_buffer`` if given, else returns y."""
+        import pyopencl as cl
+
+        ctx, queue = self.ctx, self.ctx.queue
+        mf = cl.mem_flags
+        x = np.ascontiguousarray(np.atleast_2d(x), dtype=self.complex)
+        P = len(x)
+        shape = self.grid.shape
+        n_points = self.grid.points
+        x_buf = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
+        own_y = y_buffer is None
+        if own_y:
+            y_host = np.zeros_like(x)
+            y_buffer = cl.Buffer(ctx.context, mf.READ_WRITE | mf.USE_HOST_PTR, hostbuf=y_host)
+        for (weights, green, gradient, coef, cw), group in zip(self._device_groups, self.groups):
+            defines = self._defines(P, cw, len(group.media))
+            t0 = time.perf_counter()
+            q = np.empty((P, 8) + tuple(shape), dtype=self.complex)
+            q_buf = cl.Buffer(ctx.context, mf.WRITE_ONLY | mf.USE_HOST_PTR, hostbuf=q)
+            knl = ctx.kernel("aim.cl", "aim_scatter", defines)
+            knl(queue, (n_points,), None, *self._map, np.int32(n_points), np.int32(self.grid.stencil_size),
+                np.int32(self.n_b), np.int32(self.n_h), weights, x_buf, q_buf)
+            _sync(queue, q_buf, q)
+            t1 = time.perf_counter()
+            Q = forward_pruned(q, self.grid.padded, self.workers).astype(self.complex, copy=False)
+            t2 = time.perf_counter()
+            Q_buf = cl.Buffer(ctx.context, mf.READ_WRITE | mf.USE_HOST_PTR, hostbuf=Q)
+            nfreq = self.grid.padded_points
+            knl = ctx.kernel("aim.cl", "aim_fourier", defines)
+            knl(queue, (nfreq,), None, green, gradient, np.int64(nfreq), coef, Q_buf)
+            _sync(queue, Q_buf, Q)
+            t3 = time.perf_counter()
+            F = inverse_pruned(Q, shape, self.workers).astype(self.complex, copy=False)
+            del Q, Q_buf
+            t4 = time.perf_counter()
+            F_buf = cl.Buffer(ctx.context, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=F)
+            nx, ny, nz = shape
+            sx, sy, sz = self.grid.stencil
+            knl = ctx.kernel("aim.cl", "aim_gather", defines)
+            knl(queue, (self.n_b,), None, self._origins, np.int32(nx), np.int32(ny), np.int32(nz),
+                np.int32(sx), np.int32(sy), np.int32(sz), np.int32(self.n_b), np.int32(self.n_h),
+                weights, F_buf, y_buffer)
+            queue.finish()
+            t5 = time.perf_counter()
+            self.timings["scatter_s"] += t1 - t0
+            self.timings["fft_s"] += (t2 - t1) + (t4 - t3)
+            self.timings["fourier_s"] += t3 - t2
+            self.timings["gather_s"] += t5 - t4
+        self.timings["calls"] += 1
+        if own_y:
+            _sync(queue, y_buffer, y_host)
+            return y_host
+        return y_buffer
+
+    def apply_numpy(self, x: np.ndarray) -> np.ndarray:
+        """NumPy reference of :meth:`apply` (double precision, full FFTs)."""
+        x = np.atleast_2d(x).astype(complex)
+        if self._mats is None:
+            self._mats = [projection_matrices(g.projection, self.n_h) for g in self.groups]
+        y = np.zeros_like(x)
+        padded = self.grid.padded
+        for mats, group in zip(self._mats, self.groups):
+            q = scatter_numpy(mats, x, self.n_b, self.grid.shape)
+            Q = np.fft.fftn(q, s=padded, axes=(-3, -2, -1))
+            F = np.fft.ifftn(fourier_numpy(group.green.astype(complex), group.gradient.astype(complex),
+                                           group.coefficients, Q), axes=(-3, -2, -1))
+            nx, ny, nz = self.grid.shape
+            y += gather_numpy(mats, F[..., :nx, :ny, :nz])
+        return y
+
+    @property
+    def ffts_per_apply(self) -> int:
+        """Forward + inverse 3-D FFTs per right-hand side and application."""
+        return 16 * len(self.groups)
+
+    def bytes(self) -> int:
+        """Device/host memory held by the operator (spectra, weights, maps)."""
+        total = sum(g.green.nbytes + g.gradient.nbytes for g in self.groups)
+        total += sum(g.projection.weights.size * (self.real.itemsize * (2 if not g.projection.is_real else 1))
+                     for g in self.groups)
+        total += 4 * (self.grid.points + 1 + self.n_b * self.grid.stencil_size) + 12 * self.n_b
+        return int(total)
+
+
+def _sync(queue, buf, host: np.ndarray):
+    """Make the host array see the device writes to a USE_HOST_PTR buffer (map + unmap)."""
+    import pyopencl as cl
+
+    queue.finish()
+    mapped, _ = cl.enqueue_map_buffer(queue, buf, cl.map_flags.READ, 0, host.shape, host.dtype)
+    mapped.base.release(queue)
+    queue.finish()
