@@ -9,7 +9,8 @@ and the raw quantities it is made of (dC_s/dφ, C_ext, C_sca, C_abs), never reno
 Sampling (§14.8): φ_r and φ_i are grouped into bins centred on i·2π/n (bin i covers
 [(i-½), (i+½))·2π/n); each bin is the box average of ``s`` equally spaced samples with
 n·s >= max(360, 4(k₀ r_max + 10)). A single φ_i bin (``n_phi_i = 1``, for circles) means the
-one incidence azimuth φ_i = 0 without averaging.
+one incidence azimuth φ_i = 0 without averaging; explicit ``phi_i`` values (a config's
+``phi_i_deg``) are point samples, not bins.
 
 Effective cross section for renderers ([P] §5.1, §6): C_e = C_ext, clamped to C_e <= 6 C_g with
 C_g the geometric width seen from φ_i (``C_eff``, ``C_eff_clamped``). Near grazing incidence
@@ -83,7 +84,9 @@ class BCSDFSlice:
     timings: dict = field(default_factory=dict)
 
 
-def _phi_i_samples(n_phi_i: int, r_max: float, wavelength_um: float) -> tuple[np.ndarray, int]:
+def _phi_i_samples(n_phi_i: int, r_max: float, wavelength_um: float, explicit=None) -> tuple[np.ndarray, int]:
+    if explicit is not None:
+        return np.atleast_1d(np.asarray(explicit, dtype=float)), 1
     if n_phi_i == 1:
         return np.zeros(1), 1
     per_bin = angular_oversampling(n_phi_i, r_max, wavelength_um)
@@ -91,11 +94,12 @@ def _phi_i_samples(n_phi_i: int, r_max: float, wavelength_um: float) -> tuple[np
 
 
 def bcsdf_slices(model, wavelengths_um, index, theta_i, n_phi_i: int = 360,
-                 n_phi_r: int = 360) -> Iterator[BCSDFSlice]:
+                 n_phi_r: int = 360, phi_i=None) -> Iterator[BCSDFSlice]:
     """Solve every (λ, θ_i) in turn and yield its slice (λ-major order).
 
     ``model`` is a :class:`~wavebrdf.solver.fiber.bem.FiberBEM` or a
-    :class:`~wavebrdf.solver.fiber.mie.MieFiber`; angles in radians.
+    :class:`~wavebrdf.solver.fiber.mie.MieFiber`; angles in radians; ``phi_i`` (optional)
+    replaces the ``n_phi_i`` bins by explicit incidence azimuths.
     """
     lams = np.atleast_1d(np.asarray(wavelengths_um, dtype=float))
     thetas = np.atleast_1d(np.asarray(theta_i, dtype=float))
@@ -106,11 +110,11 @@ def bcsdf_slices(model, wavelengths_um, index, theta_i, n_phi_i: int = 360,
         raise ValueError("theta_i must stay below 90° (grazing incidence is never sampled, fiber.md §12)")
     index_of = _as_index_function(index)
     for li, lam in enumerate(lams):
-        phi_i, per_bin_i = _phi_i_samples(n_phi_i, model.r_max, lam)
+        samples, per_bin_i = _phi_i_samples(n_phi_i, model.r_max, lam, phi_i)
         for ti, theta in enumerate(thetas):
             t0 = time.perf_counter()
             m = index_of(lam, li)
-            res = model.scattering(lam, m, theta, phi_i, phi_r=None, bins=n_phi_r)
+            res = model.scattering(lam, m, theta, samples, phi_r=None, bins=n_phi_r)
             yield BCSDFSlice(
                 wavelength_index=li,
                 theta_index=ti,
@@ -134,7 +138,7 @@ class BCSDFTable:
 
     wavelength_um: np.ndarray  # (L,)
     theta_i: np.ndarray  # (T,)
-    phi_i: np.ndarray  # (P,) bin centres
+    phi_i: np.ndarray  # (P,) bin centres, or explicit point samples (phi_i_binned False)
     phi_r: np.ndarray  # (R,) bin centres
     index: np.ndarray  # (L,) complex, n - jκ
     dCs_dphi: np.ndarray  # (L, T, 2, P, R) float32, µm/rad, bin averages
@@ -144,10 +148,12 @@ class BCSDFTable:
     C_geom: np.ndarray  # (P,) geometric width seen from φ_i
     model: str = ""
     seconds: float = 0.0
+    phi_i_binned: bool = True
     polarizations: tuple = ("parallel", "perpendicular")
 
     @property
     def phi_i_width(self) -> float:
+        """Width of a φ_i bin (radians; meaningful when ``phi_i_binned``)."""
         return 2.0 * np.pi / self.phi_i.size
 
     @property
@@ -178,16 +184,23 @@ class BCSDFTable:
 
 def bcsdf_table(model, wavelengths_um, index, theta_i, n_phi_i: int = 360, n_phi_r: int = 360,
                 progress: Callable[[int, int, BCSDFSlice], None] | None = None,
-                model_name: str = "") -> BCSDFTable:
+                model_name: str = "", phi_i=None) -> BCSDFTable:
     """Compute a full BCSDF table in memory; ``progress(done, total, slice)`` after each solve.
 
     ``model``: FiberBEM (any cross section) or MieFiber (circles); ``index``: complex, array over
-    wavelengths or callable λ -> m; ``theta_i``: radians, |θ_i| < π/2.
+    wavelengths or callable λ -> m; ``theta_i``: radians, |θ_i| < π/2; ``phi_i``: explicit
+    incidence azimuths (radians) instead of ``n_phi_i`` bins.
     """
     lams = np.atleast_1d(np.asarray(wavelengths_um, dtype=float))
     thetas = np.atleast_1d(np.asarray(theta_i, dtype=float))
+    explicit = None if phi_i is None else np.atleast_1d(np.asarray(phi_i, dtype=float))
+    if explicit is not None:
+        n_phi_i = explicit.size
     L, T, P, R = lams.size, thetas.size, int(n_phi_i), int(n_phi_r)
-    phi_i = np.zeros(1) if P == 1 else bin_centres(P)
+    if explicit is not None:
+        phi_i = explicit
+    else:
+        phi_i = np.zeros(1) if P == 1 else bin_centres(P)
     table = BCSDFTable(
         wavelength_um=lams,
         theta_i=thetas,
@@ -200,9 +213,10 @@ def bcsdf_table(model, wavelengths_um, index, theta_i, n_phi_i: int = 360, n_phi
         C_abs=np.zeros((L, T, 2, P)),
         C_geom=np.asarray(model.width(phi_i), dtype=float),
         model=model_name or type(model).__name__,
+        phi_i_binned=explicit is None and P > 1,
     )
     t0 = time.perf_counter()
-    for done, sl in enumerate(bcsdf_slices(model, lams, index, thetas, P, R), start=1):
+    for done, sl in enumerate(bcsdf_slices(model, lams, index, thetas, P, R, phi_i=explicit), start=1):
         li, ti = sl.wavelength_index, sl.theta_index
         table.index[li] = sl.index
         table.dCs_dphi[li, ti] = sl.dCs_dphi

@@ -86,3 +86,14 @@ def test_table_rejects_grazing_and_bad_bins():
         bcsdf_table(MieFiber(0.3), [0.5], 1.55, [np.pi / 2], n_phi_i=1)
     with pytest.raises(ValueError, match="n_phi_r"):
         bcsdf_table(MieFiber(0.3), [0.5], 1.55, [0.0], n_phi_i=1, n_phi_r=0)
+
+
+def test_table_with_explicit_incidence_azimuths(cl_ctx):
+    """A config's phi_i_deg list: point samples, identical to single solves."""
+    model = FiberBEM(cl_ctx, ellipse(0.4, 0.25, 48))
+    phi = np.radians([0.0, 30.0, 75.0])
+    table = bcsdf_table(model, [0.5], 1.55, [20 * DEG], n_phi_r=36, phi_i=phi)
+    np.testing.assert_allclose(table.phi_i, phi)
+    single = model.scattering(0.5, 1.55, 20 * DEG, phi[1], bins=36)
+    np.testing.assert_allclose(table.C_ext[0, 0, :, 1], single.C_ext[:, 0], rtol=1e-12)
+    np.testing.assert_allclose(table.dCs_dphi[0, 0, :, 1], single.dCs_dphi[:, 0], rtol=1e-5)
