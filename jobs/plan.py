@@ -151,6 +151,7 @@ class Plan:
             beam=study.illumination.beam,
             precision=study.model.precision,
             z_reference=z_reference,
+            options={"method": study.model.method},
         )
 
     def model_name(self, task: Task) -> str:
@@ -241,10 +242,9 @@ def plan_study(config: StudyConfig) -> Plan:
             continue
         st = plan.steering[case] = _case_steering(plan, case)
         for wl in range(n_wl):
-            for b in range(len(st.basics_rad)):
-                ids = patch_ids.setdefault((case, wl, b), [])
-                for patch in st.layout.indices:
-                    ids.append(len(tasks))
+            for patch in st.layout.indices:  # patch-major: one operator serves all basic directions
+                for b in range(len(st.basics_rad)):
+                    patch_ids.setdefault((case, wl, b), []).append(len(tasks))
                     tasks.append(Task(len(tasks), "patch", case, tuple(map(int, case_index)), wl, basic=b,
                                       patch=patch))
     for case, case_index in cases:

@@ -75,6 +75,7 @@ class Model(ABC):
 # name -> "module:ClassName" (imported on first use)
 _REGISTRY: dict[str, str] = {
     "kirchhoff": "wavebrdf.solver.approx.kirchhoff:KirchhoffModel",
+    "bem": "wavebrdf.solver.bem3d.model:BEMModel",
 }
 
 
