@@ -537,6 +537,13 @@ def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: di
     if mod["name"] == "mie" and fiber.shape != "circle":
         raise _fail("model", "name", "mie", f"the Mie series solves circular fibers only, not fiber.shape = "
                     f"{fiber.shape!r}; use \"fiber-bem\"")
+    if fiber is None and mod["method"] is not None:
+        from wavebrdf.solver.models import get_model
+
+        methods = get_model(mod["name"]).methods
+        if mod["method"] not in methods:
+            offered = ", ".join(repr(m) for m in methods) or "no methods"
+            raise _fail("model", "method", mod["method"], f"model {mod['name']!r} offers {offered}")
     model = ModelSpec(mod["name"], mod["method"], mod["precision"])
     o = v["output"]
     out = OutputSpec(o["resolution"], o["per_polarization"], o["phi_r_bins"], o["phi_i_bins"])

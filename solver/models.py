@@ -57,6 +57,7 @@ class Model(ABC):
 
     name: ClassVar[str]
     steerable: ClassVar[bool] = True  # returns coherent fields (beam steering can use them)
+    methods: ClassVar[tuple[str, ...]] = ()  # allowed values of [model] method (first = default)
 
     @abstractmethod
     def farfield(self, ctx, scene: SurfaceScene) -> FarField:

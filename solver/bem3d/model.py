@@ -35,6 +35,7 @@ class BEMModel(Model):
     """PMCHWT boundary elements on the height field (solver/bem3d)."""
 
     name = "bem"
+    methods = ("dense",)
 
     def _dense(self, ctx, scene: SurfaceScene):
         from wavebrdf.solver.bem3d.dense import DenseBEM
@@ -49,9 +50,9 @@ class BEMModel(Model):
         return _cache["solver"]
 
     def farfield(self, ctx, scene: SurfaceScene) -> FarField:
-        method = scene.options.get("method") or "dense"
-        if method != "dense":
-            raise ValueError(f"[model] method = {method!r}: the bem model offers 'dense'")
+        method = scene.options.get("method") or self.methods[0]
+        if method not in self.methods:
+            raise ValueError(f"[model] method = {method!r}: the bem model offers {self.methods}")
         solver = self._dense(ctx, scene)
         return solver.farfield(scene.theta_i, scene.phi_i, scene.grid, waist_um=scene.waist_um, beam=scene.beam,
                                focus_um=scene.footprint_centre_um)
