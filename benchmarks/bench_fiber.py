@@ -13,10 +13,10 @@ times are noisy: compare the ratios taken within one run.
 from __future__ import annotations
 
 import argparse
-import time
 import warnings
 
 import numpy as np
+from timing import best_of
 import scipy.linalg
 
 from wavebrdf.solver.fiber import FiberBEM, MieFiber, circle, fiber_media
@@ -24,14 +24,6 @@ from wavebrdf.solver.opencl import create_context
 
 CASES = [("lossless, theta_i = 0", 1.55, 0.0), ("lossy, theta_i = 60 deg", 1.55 - 0.05j, np.radians(60.0))]
 
-
-def best_of(repeat, fn):
-    times, result = [], None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        result = fn()
-        times.append(time.perf_counter() - t0)
-    return min(times), result
 
 
 def main() -> None:

@@ -13,24 +13,16 @@ from __future__ import annotations
 
 import argparse
 import os
-import time
 import warnings
 
 import numpy as np
+from timing import best_of
 
 from wavebrdf.solver.approx.kirchhoff import kirchhoff_farfield, kirchhoff_farfield_numpy
 from wavebrdf.solver.farfield import HemisphereGrid
 from wavebrdf.solver.opencl import create_context
 from wavebrdf.solver.surface import generate
 
-
-def best_of(repeat, fn):
-    times, result = [], None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        result = fn()
-        times.append(time.perf_counter() - t0)
-    return min(times), result
 
 
 def main() -> None:

@@ -309,6 +309,7 @@ def cmd_bench(args) -> int:
         available = sorted(p.stem[6:] for p in script.parent.glob("bench_*.py"))
         raise SystemExit(f"wavebrdf: error: no benchmark {args.name!r}; available: {', '.join(available)}")
     sys.argv = [str(script)] + list(args.rest)
+    sys.path.insert(0, str(script.parent))  # benchmarks import their sibling helpers
     runpy.run_path(str(script), run_name="__main__")
     return 0
 
