@@ -17,6 +17,7 @@ import numpy as np
 
 from wavebrdf.jobs.plan import Plan, Task
 from wavebrdf.solver.models import Estimate
+from wavebrdf.solver.resources import peak_memory_mb
 
 __all__ = ["estimate_fiber_task", "fiber_model", "phi_i_axis_deg", "run_fiber_task", "write_fiber_dataset"]
 
@@ -81,8 +82,6 @@ def run_fiber_task(ctx, plan: Plan, task: Task, parts) -> dict:
         "power_balance_error": float(balance.max()), "device": ctx.describe() if ctx is not None else "",
         **{f"time_{k}": float(v) for k, v in timings.items()},
     }
-    from wavebrdf.jobs.scheduler import peak_memory_mb
-
     diagnostics["peak_memory_mb"] = peak_memory_mb()
     parts.save_arrays(task, diagnostics, **{k: np.asarray(v) for k, v in arrays.items()})
     return diagnostics

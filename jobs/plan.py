@@ -14,7 +14,6 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import os
 from dataclasses import dataclass, field
 from functools import cached_property, lru_cache
 
@@ -24,6 +23,7 @@ from wavebrdf.jobs.config import Study, StudyConfig
 from wavebrdf.jobs.steering import HexagonTiling, PatchLayout
 from wavebrdf.solver.farfield import HemisphereGrid
 from wavebrdf.solver.models import Estimate, SurfaceScene, get_model
+from wavebrdf.solver.resources import meminfo_bytes
 
 logger = logging.getLogger(__name__)
 
@@ -262,15 +262,8 @@ def plan_study(config: StudyConfig) -> Plan:
 
 
 def node_memory_bytes() -> float:
-    """Physical memory of this machine (bytes), from /proc/meminfo or sysconf."""
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemTotal:"):
-                    return float(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    """Physical memory of this machine (bytes)."""
+    return float(meminfo_bytes("MemTotal"))
 
 
 def check_memory(plan: Plan, workers_per_node: int, memory_gb: float | None = None) -> float:

@@ -27,7 +27,6 @@ import json
 import logging
 import os
 import queue
-import resource
 import shutil
 import sys
 import threading
@@ -46,6 +45,7 @@ from wavebrdf.jobs.steering import synthesize, synthesized_incident_power
 from wavebrdf.jobs.store import SurfaceDatasetWriter, atomic_h5
 from wavebrdf.solver.farfield import FarField, albedo, combine_polarizations
 from wavebrdf.solver.models import get_model
+from wavebrdf.solver.resources import peak_memory_mb
 
 logger = logging.getLogger(__name__)
 
@@ -81,11 +81,6 @@ class RunSummary:
     done: int
     failed: int
     tasks: int
-
-
-def peak_memory_mb() -> float:
-    """Peak resident memory of this process (MB)."""
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def worker_environment(workers_on_node: int, rank: int, cores: int | None = None) -> dict[str, str]:

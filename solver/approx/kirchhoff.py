@@ -98,16 +98,20 @@ class KirchhoffSetup:
         theta_i: float,
         phi_i: float,
         grid: HemisphereGrid,
-        window: np.ndarray,
+        window: np.ndarray | None,
         exterior_index: float = 1.0,
         z_reference: float | None = None,
+        waist_um: float | None = None,
     ) -> "KirchhoffSetup":
+        """``window``: footprint on the nodes, or None for the Gaussian of ``waist_um``."""
         if not (np.isfinite(wavelength_um) and wavelength_um > 0):
             raise ValueError(f"wavelength must be > 0 µm, got {wavelength_um!r}")
         if not 0.0 <= theta_i < 0.5 * np.pi:
             raise ValueError(f"incident theta must be in [0°, 90°), got {np.rad2deg(theta_i):g}°")
         if np.imag(index) > 0:
             raise ValueError(f"index must be n - j*kappa with kappa >= 0, got {index!r}")
+        if window is None:
+            window = gaussian_footprint(surface, waist_um)
         window = np.asarray(window)
         window = window.astype(complex if np.iscomplexobj(window) else float)
         if window.shape != surface.z.shape:
@@ -206,10 +210,8 @@ def kirchhoff_farfield(
     import pyopencl as cl
 
     t0 = time.perf_counter()
-    if window is None:
-        window = gaussian_footprint(surface, waist_um)
     setup = KirchhoffSetup.build(
-        surface, wavelength_um, index, theta_i, phi_i, grid, window, exterior_index, z_reference
+        surface, wavelength_um, index, theta_i, phi_i, grid, window, exterior_index, z_reference, waist_um
     )
     real = ctx.real_dtype(precision)
     cplx = np.dtype(np.complex128 if real == np.float64 else np.complex64)
@@ -286,10 +288,8 @@ def kirchhoff_farfield_numpy(
 ) -> FarField:
     """The same model in plain NumPy/SciPy (double precision, numpy.fft, one thread)."""
     t0 = time.perf_counter()
-    if window is None:
-        window = gaussian_footprint(surface, waist_um)
     s = KirchhoffSetup.build(
-        surface, wavelength_um, index, theta_i, phi_i, grid, window, exterior_index, z_reference
+        surface, wavelength_um, index, theta_i, phi_i, grid, window, exterior_index, z_reference, waist_um
     )
     n = np.arange(s.n_max + 1)
     eps_jn = np.where(n == 0, 1.0, 2.0) * (1j**n)
