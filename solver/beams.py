@@ -250,34 +250,50 @@ class ExactGaussianBeam(Beam):
         reach = w * np.sqrt(np.log(1.0 / REPLICA_LEVEL))
         return max(np.sqrt(0.5) * self.patch_size_um + reach, 2.0 * reach)
 
+    def _densities(self, kx: np.ndarray, ky: np.ndarray):
+        """Unnormalised spectral densities (per unit κ area) of E and H at propagating (κx, κy)."""
+        k, w = self.k, self.waist_um
+        f = self.frame
+        k_par = self.k * f[2][:2]
+        a = (w**2 / (4 * np.pi)) * np.exp(-0.25 * w**2 * ((kx - k_par[0]) ** 2 + (ky - k_par[1]) ** 2))
+        kvec = np.stack([kx, ky, -np.sqrt(np.clip(k**2 - kx**2 - ky**2, 0.0, None))], axis=-1)
+        factor = ETA0 / (1j * self.k0 * self.exterior_index**2)
+        E = np.empty((2,) + kvec.shape, dtype=complex)
+        H = np.empty((2,) + kvec.shape, dtype=complex)
+        for p, axis in ((0, f[1]), (1, f[0])):  # s: A = U y_b, p: A = U x_b
+            E[p] = factor * a[..., None] * (k**2 * axis - kvec * (kvec @ axis)[..., None])
+            H[p] = -1j * a[..., None] * np.cross(kvec, axis)
+        return kvec, E, H
+
     @cached_property
     def plane_waves(self) -> dict:
         """The plane-wave content: ``kvec`` (M, 3), ``E`` and ``H`` (2, M, 3) amplitudes.
 
-        E(r) = Σ_m E[:, m] e^{−j kvec_m·(r − focus)}, normalised like the paraxial beam.
+        E(r) = Σ_m E[:, m] e^{−j kvec_m·(r − focus)}, normalised like the paraxial beam (the x_b
+        component of the p field at the focus is 1).
         """
         k, w, P = self.k, self.waist_um, self.period_um
-        f = self.frame
-        k_par = self.k * f[2][:2]
+        k_par = self.k * self.frame[2][:2]
         dk = 2.0 * np.pi / P
         reach = 2.0 * np.sqrt(np.log(1.0 / SPECTRUM_TAIL)) / w
         m = int(np.ceil(reach / dk))
         i = np.arange(-m, m + 1)
         KX, KY = np.meshgrid(k_par[0] + dk * i, k_par[1] + dk * i, indexing="ij")
         gauss = np.exp(-0.25 * w**2 * ((KX - k_par[0]) ** 2 + (KY - k_par[1]) ** 2))
-        kz2 = k**2 - KX**2 - KY**2
-        keep = (gauss >= SPECTRUM_TAIL) & (kz2 > (1e-9 * k) ** 2)
-        a = (w**2 / (4 * np.pi)) * gauss[keep] * dk**2
-        kvec = np.stack([KX[keep], KY[keep], -np.sqrt(kz2[keep])], axis=1)
-        E = np.empty((2, len(a), 3), dtype=complex)
-        H = np.empty((2, len(a), 3), dtype=complex)
-        factor = ETA0 / (1j * self.k0 * self.exterior_index**2)
-        for p, axis in ((0, f[1]), (1, f[0])):  # s: A = U y_b, p: A = U x_b
-            E[p] = factor * a[:, None] * (k**2 * axis[None, :] - kvec * (kvec @ axis)[:, None])
-            H[p] = -1j * a[:, None] * np.cross(kvec, axis[None, :])
-        norm = np.sum(E[1] @ f[0])  # x_b component of the p field at the focus
-        logger.debug("exact beam: %d plane waves, period %.3g µm", len(a), P)
-        return {"kvec": kvec, "E": E / norm, "H": H / norm, "period_um": P}
+        keep = (gauss >= SPECTRUM_TAIL) & (KX**2 + KY**2 < k**2)
+        kvec, E, H = self._densities(KX[keep], KY[keep])
+        E, H = E * dk**2, H * dk**2
+        norm = np.sum(E[1] @ self.frame[0])  # x_b component of the p field at the focus
+        logger.debug("exact beam: %d plane waves, period %.3g µm", len(kvec), P)
+        return {"kvec": kvec, "E": E / norm, "H": H / norm, "period_um": P, "norm": norm}
+
+    def spectrum(self, kx, ky) -> tuple[np.ndarray, np.ndarray]:
+        """Continuous angular spectrum (E, H densities per unit κ area, shape (2, ..., 3)) at
+        propagating transverse wavevectors (κx, κy): E(r) = ∫ Ê(κ) e^{−jk(κ)·(r − focus)} d²κ."""
+        kx, ky = np.broadcast_arrays(np.asarray(kx, dtype=float), np.asarray(ky, dtype=float))
+        _, E, H = self._densities(kx, ky)
+        norm = self.plane_waves["norm"]
+        return E / norm, H / norm
 
     def fields(self, points, chunk: int = 4096):
         points = np.asarray(points, dtype=float)

@@ -52,6 +52,7 @@ __all__ = [
     "inverse_pruned",
     "projection_matrices",
     "scatter_numpy",
+    "shared_buffer",
 ]
 
 FFT_BACKENDS = ("auto", "host", "vkfft")
@@ -222,8 +223,8 @@ class BaseOperator:
             w = group.projection.weights
             wdtype = self.real if not np.iscomplexobj(w) else self.complex
             weights = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(w, wdtype))
-            green = cl.Buffer(ctx.context, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=group.green)
-            gradient = cl.Buffer(ctx.context, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=group.gradient)
+            green = shared_buffer(ctx, group.green)
+            gradient = shared_buffer(ctx, group.gradient)
             coef = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
                              hostbuf=np.ascontiguousarray(group.coefficients, self.complex))
             self._device_groups.append((weights, green, gradient, coef, np.iscomplexobj(w)))
@@ -316,6 +317,18 @@ class BaseOperator:
                      for g in self.groups)
         total += 4 * (self.grid.points + 1 + self.n_b * self.grid.stencil_size) + 12 * self.n_b
         return int(total)
+
+
+def shared_buffer(ctx, array: np.ndarray, writable: bool = False):
+    """Device buffer of a contiguous host array: shares the host memory on CPU devices (no copy,
+    the array must outlive the buffer), copies it on other devices."""
+    import pyopencl as cl
+
+    mf = cl.mem_flags
+    access = mf.READ_WRITE if writable else mf.READ_ONLY
+    if "CPU" in ctx.info.kind:
+        return cl.Buffer(ctx.context, access | mf.USE_HOST_PTR, hostbuf=array)
+    return cl.Buffer(ctx.context, access | mf.COPY_HOST_PTR, hostbuf=array)
 
 
 def _sync(queue, buf, host: np.ndarray):

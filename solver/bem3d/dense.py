@@ -32,7 +32,7 @@ from wavebrdf.solver.bem3d.checks import (
 )
 from wavebrdf.solver.bem3d.elements import ElementIntegrals
 from wavebrdf.solver.bem3d.excitation import SurfaceRule, power_into_material, right_hand_side
-from wavebrdf.solver.bem3d.farfield import farfield_on_grid
+from wavebrdf.solver.bem3d.farfield import farfield_on_grid, radiated_fields, radiated_power
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.bem3d.quadrature import QuadratureOptions
@@ -221,6 +221,7 @@ class DenseBEM:
         ff = farfield_on_grid(self.ctx, self.mesh, self.media, x, grid, ff_rule,
                               theta_i=theta_i, phi_i=phi_i, incident_power=power, diagnostics=diag)
         into = power_into_material(self.mesh, x, ff_rule)
+        reflected = radiated_power(self.ctx, self.mesh, self.media, x, ff_rule)
         if not (np.all(np.isfinite(ff.E)) and np.all(np.isfinite(ff.H))):
             raise FloatingPointError("BEM far field contains NaN/inf")
         ff.diagnostics.update(
@@ -230,12 +231,24 @@ class DenseBEM:
             solve_s=t_solve - t0,
             farfield_s=time.perf_counter() - t_solve,
             into_material_fraction=into / power,
+            reflected_fraction=reflected / power,
             peak_memory_bytes=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
         )
         if beam == "exact":
             ff.diagnostics["beam_reflectance"] = inc.reflectance(self.media.index)
             ff.diagnostics["beam_plane_waves"] = len(inc.plane_waves["kvec"])
         return ff
+
+    def brdf_at(self, theta_i: float, phi_i: float, directions: np.ndarray, *, waist_um: float | None,
+                beam: str = "exact", focus_um=(0.0, 0.0)) -> np.ndarray:
+        """BRDF (sr⁻¹) per polarization (s, p) at arbitrary outgoing unit ``directions`` (M, 3)."""
+        inc, x, _ = self.solution(theta_i, phi_i, waist_um=waist_um, beam=beam, focus_um=focus_um)
+        directions = np.atleast_2d(np.asarray(directions, dtype=float))
+        rule = SurfaceRule.build(self.mesh, self.options.farfield_order)
+        E, H = radiated_fields(self.ctx, self.mesh, self.media, x, directions, rule)
+        intensity = np.linalg.norm(0.5 * np.real(np.cross(E, np.conj(H))), axis=-1)
+        power = inc.incident_power(self.mesh.surface.size_um)
+        return intensity / (power[:, None] * directions[None, :, 2])
 
     def solution(self, theta_i: float, phi_i: float, *, waist_um: float | None, beam: str = "exact",
                  focus_um=(0.0, 0.0)):

@@ -186,8 +186,8 @@ WORK_GROUP = 8  # explicit small work-groups: PoCL keeps the large private table
 # work-group on a worker thread's stack, and its automatic (large) sizes overflow it
 
 
-def _launch_size(ctx, n: int) -> tuple[tuple[int], tuple[int]]:
-    """(global, local) sizes for n pairs, WB_VW pairs per work-item, padded to WORK_GROUP."""
+def launch_size(ctx, n: int) -> tuple[tuple[int], tuple[int]]:
+    """(global, local) sizes for n items, WB_VW items per work-item, padded to WORK_GROUP."""
     lanes = vector_lanes(ctx)
     items = (n + lanes - 1) // lanes
     items = (items + WORK_GROUP - 1) // WORK_GROUP * WORK_GROUP
@@ -218,7 +218,7 @@ def regular_pairs_opencl(ctx, geometry, h, test, source, order, wavenumbers):
         t_buf = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=test[sl])
         s_buf = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=source[sl])
         o_buf = cl.Buffer(ctx.context, mf.WRITE_ONLY, n * 2 * TABLE * 16)
-        knl(ctx.queue, *_launch_size(ctx, n), geom, np.float64(h), t_buf, s_buf, np.int32(n), nodes, weights,
+        knl(ctx.queue, *launch_size(ctx, n), geom, np.float64(h), t_buf, s_buf, np.int32(n), nodes, weights,
             np.int32(order), _cplx(wavenumbers[0]), _cplx(wavenumbers[1]), o_buf)
         cl.enqueue_copy(ctx.queue, out[sl], o_buf)
     ctx.queue.finish()
@@ -244,7 +244,7 @@ def singular_pairs_opencl(ctx, geometry, h, test, source, code_test, code_source
         n = sl.stop - sl.start
         bufs = [cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a[sl]) for a in arrays]
         o_buf = cl.Buffer(ctx.context, mf.WRITE_ONLY, n * per_pair)
-        knl(ctx.queue, *_launch_size(ctx, n), geom, np.float64(h), *bufs, np.int32(n), rule_buf,
+        knl(ctx.queue, *launch_size(ctx, n), geom, np.float64(h), *bufs, np.int32(n), rule_buf,
             np.int32(len(rule)), _cplx(k1), _cplx(k2), o_buf)
         cl.enqueue_copy(ctx.queue, out[sl], o_buf)
     ctx.queue.finish()

@@ -61,22 +61,18 @@ CHUNK = 4096  # bases per vectorized block
 class Projection:
     """Λ of all bases: ``weights`` (3, N_b, S) for components (t, z, d); real or complex.
 
-    ``method`` "moments" | "farfield"; ``wavenumber`` the k of far-field matching (None for
+    ``method`` "moments" | "farfield"; ``wavenumber`` the k(s) of far-field matching (None for
     moments); ``grid`` the AIM grid whose stencils the weights refer to.
     """
 
     grid: AIMGrid
     weights: np.ndarray
     method: str
-    wavenumber: float | None = None
+    wavenumber: tuple[float, ...] | None = None
 
     @property
     def is_real(self) -> bool:
         return not np.iscomplexobj(self.weights)
-
-    def serves(self, k: complex) -> bool:
-        """Whether this projection is valid for a medium of wavenumber k."""
-        return self.method == "moments" or np.isclose(self.wavenumber, np.real(k), rtol=1e-12)
 
 
 def fibonacci_directions(count: int, hemisphere: bool = False) -> np.ndarray:
@@ -121,10 +117,10 @@ def lagrange_weights(xi: np.ndarray, size: int) -> np.ndarray:
     return out
 
 
-def matching_operator(grid: AIMGrid, k: float, directions: np.ndarray, regularization: float) -> np.ndarray:
-    """P (S, L) = (AᴴA + τ²I)⁻¹Aᴴ with A_ℓp = e^{jk d̂_ℓ·(p − o)}, τ = regularization·σ_max(A)."""
+def matching_operator(grid: AIMGrid, wavevectors: np.ndarray, regularization: float) -> np.ndarray:
+    """P (S, L) = (AᴴA + τ²I)⁻¹Aᴴ with A_ℓp = e^{j k_ℓ·(p − o)}, τ = regularization·σ_max(A)."""
     offsets = grid.stencil_offsets * np.asarray(grid.spacing)  # (S, 3) µm
-    A = np.exp(1j * k * directions @ offsets.T)  # (L, S)
+    A = np.exp(1j * wavevectors @ offsets.T)  # (L, S)
     s_max = np.linalg.norm(A, 2)
     tau = regularization * s_max
     gram = A.conj().T @ A + tau**2 * np.eye(A.shape[1])
@@ -137,25 +133,28 @@ def _local_coordinates(grid: AIMGrid, r: np.ndarray, bases: np.ndarray) -> np.nd
     return (r - origin[:, None, :]) / np.asarray(grid.spacing)
 
 
-def project(mesh: BEMMesh, grid: AIMGrid, method: str = "moments", *, k: float | None = None,
+def project(mesh: BEMMesh, grid: AIMGrid, method: str = "moments", *, k=None,
             directions: int | np.ndarray | None = None, hemisphere: bool = False,
             regularization: float = 1e-3, order: int = 4, dtype=np.float64) -> Projection:
     """Λ of every basis of ``mesh`` on ``grid`` (see the module docstring).
 
-    ``k`` (µm⁻¹, real) and ``directions`` (a count or an (L, 3) array; default 3S) are used by
-    far-field matching only. ``dtype`` float32/float64 sets the storage precision (complex for
-    far-field matching).
+    ``k`` (µm⁻¹, real, or a sequence of them: the plane waves of every k are matched at once)
+    and ``directions`` (a count per k or an (L, 3) array; default 3S) are used by far-field
+    matching only. ``dtype`` float32/float64 sets the storage precision (complex for far-field
+    matching).
     """
     if method not in PROJECTIONS:
         raise ValueError(f"aim projection must be one of {PROJECTIONS}, got {method!r}")
     n_b, S = mesh.n_bases, grid.stencil_size
     if method == "farfield":
-        if k is None or not np.isfinite(k) or np.iscomplexobj(k) or k <= 0:
-            raise ValueError(f"far-field matching needs a real wavenumber k > 0, got {k!r}")
+        ks = np.atleast_1d(np.asarray(k if k is not None else np.nan))
+        if np.iscomplexobj(ks) or not np.all(np.isfinite(ks)) or np.any(ks <= 0):
+            raise ValueError(f"far-field matching needs real wavenumbers k > 0, got {k!r}")
         if directions is None or np.isscalar(directions):
             directions = fibonacci_directions(int(directions or 3 * S), hemisphere)
         directions = np.asarray(directions, dtype=float)
-        P = matching_operator(grid, k, directions, regularization)
+        wavevectors = np.concatenate([kk * directions for kk in ks])
+        P = matching_operator(grid, wavevectors, regularization)
         out = np.empty((3, n_b, S), dtype=np.result_type(dtype, np.complex64))
     else:
         out = np.empty((3, n_b, S), dtype=dtype)
@@ -171,8 +170,9 @@ def project(mesh: BEMMesh, grid: AIMGrid, method: str = "moments", *, k: float |
             ).reshape(len(bases), -1, S)
             out[:, bases] = np.einsum("cbq,bqs->cbs", psi, W)
         else:
-            phase = np.exp(1j * k * (xi * np.asarray(grid.spacing)) @ directions.T)  # (B, Q, L)
+            phase = np.exp(1j * (xi * np.asarray(grid.spacing)) @ wavevectors.T)  # (B, Q, L)
             moments = np.einsum("cbq,bql->cbl", psi, phase)
             out[:, bases] = moments @ P.T
     logger.debug("projection %s: %d bases x %d stencil points", method, n_b, S)
-    return Projection(grid=grid, weights=out, method=method, wavenumber=None if method == "moments" else float(k))
+    wavenumber = None if method == "moments" else tuple(float(kk) for kk in ks)
+    return Projection(grid=grid, weights=out, method=method, wavenumber=wavenumber)

@@ -132,16 +132,23 @@ def test_dense_solver_reuses_the_factorization(cl_ctx, small_grid):
 @pytest.mark.slow
 @pytest.mark.parametrize("index", [1.5, AL])
 def test_acceptance_flat_patch(cl_ctx, index):
-    """6λ × 6λ patch, d = λ/8, waist L/5, exact beam, θ_i = 0° and 45°: albedo within 1% of the
-    beam's exact reflectance per polarization (the paraxial beam is reported, not asserted)."""
+    """8λ × 8λ patch (the largest dense problem that runs in minutes here: 16128 unknowns), d = λ/8,
+    waist L/5, exact beam, θ_i = 0° and 45°: albedo within 1% of the beam's exact reflectance per
+    polarization, both from the output grid and from the hemisphere quadrature (the paraxial beam
+    is reported, not asserted). On 6λ patches (waist 1.2λ) the 45° case misses 1% for the weak
+    p reflection of glass: the beam's grazing plane waves leak past the patch (docs/bem3d.md)."""
     grid = HemisphereGrid(128)
-    surface = _flat(48, 6 * LAMBDA)
+    surface = _flat(64, 8 * LAMBDA)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BEMWarning)
         solver = DenseBEM(cl_ctx, surface, LAMBDA, index)
         for theta in (0.0, 45.0):
             ff = solver.farfield(np.deg2rad(theta), 0.0, grid, waist_um=surface.size_um / 5)
             _check_albedo(ff, grid, 0.01, f"n = {index}, θ = {theta}°, exact beam:")
+            hemisphere = ff.diagnostics["reflected_fraction"] / ff.diagnostics["beam_reflectance"] - 1
+            print(f"   hemisphere-quadrature albedo / exact reflectance − 1 = {hemisphere}")
+            assert np.all(np.abs(hemisphere) < 0.01)
             par = solver.farfield(np.deg2rad(theta), 0.0, grid, waist_um=surface.size_um / 5, beam="paraxial")
-            print(f"n = {index}, θ = {theta}°, paraxial beam: albedo {albedo(par.brdf(), grid)} "
-                  f"(exact beam's reflectance {ff.diagnostics['beam_reflectance']})")
+            print(f"n = {index}, θ = {theta}°, paraxial beam: albedo {albedo(par.brdf(), grid)}, hemisphere "
+                  f"{par.diagnostics['reflected_fraction']} (exact beam's reflectance "
+                  f"{ff.diagnostics['beam_reflectance']})")
