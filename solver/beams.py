@@ -161,16 +161,22 @@ class PlaneWave(Beam):
 
 
 @dataclass
-class ParaxialGaussianBeam(Beam):
-    """Astigmatic paraxial Gaussian beam of bem3d.md §8 (waists w cosθ_i, w; |E| ≈ 1 at the focus)."""
+class _GaussianBeam(Beam):
+    """A beam with a waist w (µm): footprint exp(−ρ²/w²) on the focal plane."""
 
     waist_um: float = 1.0
-    kind = "paraxial"
 
     def __post_init__(self):
         super().__post_init__()
         if not (np.isfinite(self.waist_um) and self.waist_um > 0):
             raise ValueError(f"waist_um must be > 0, got {self.waist_um!r}")
+
+
+@dataclass
+class ParaxialGaussianBeam(_GaussianBeam):
+    """Astigmatic paraxial Gaussian beam of bem3d.md §8 (waists w cosθ_i, w; |E| ≈ 1 at the focus)."""
+
+    kind = "paraxial"
 
     @property
     def rayleigh_ranges(self) -> tuple[float, float]:
@@ -225,21 +231,18 @@ class ParaxialGaussianBeam(Beam):
 
 
 @dataclass
-class ExactGaussianBeam(Beam):
+class ExactGaussianBeam(_GaussianBeam):
     """Angular-spectrum Gaussian beam: an exact Maxwell solution with the paraxial footprint.
 
     ``patch_size_um`` sets the lattice period P of the spectrum so that the periodic copies of
     the beam are below ``REPLICA_LEVEL`` on the patch.
     """
 
-    waist_um: float = 1.0
     patch_size_um: float = 1.0
     kind = "exact"
 
     def __post_init__(self):
         super().__post_init__()
-        if not (np.isfinite(self.waist_um) and self.waist_um > 0):
-            raise ValueError(f"waist_um must be > 0, got {self.waist_um!r}")
         if not (np.isfinite(self.patch_size_um) and self.patch_size_um > 0):
             raise ValueError(f"patch_size_um must be > 0, got {self.patch_size_um!r}")
 
