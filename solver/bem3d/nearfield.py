@@ -119,6 +119,13 @@ class NearPattern:
     def offsets(self, block: str) -> np.ndarray:
         return self.same if BLOCKS[block][2] == "same" else self.cross
 
+    def within(self, block: str, radius_cells: float) -> np.ndarray:
+        """Indices of the block's offsets whose centre distance is ≤ ``radius_cells``."""
+        off = self.offsets(block).astype(float)
+        if BLOCKS[block][2] == "cross":
+            off = off + [-0.5, 0.5]
+        return np.flatnonzero(np.sum(off**2, axis=1) <= radius_cells**2 * (1 + 1e-12))
+
     @property
     def rows(self) -> int:
         """Rows per block: N(N−1) rooftops of each orientation."""
@@ -247,13 +254,47 @@ def near_base_numpy(projection: Projection, k: complex, coefficients: np.ndarray
 # The matrix
 
 
+def offset_matrix(pattern: NearPattern, values: dict, offset_index: dict | None = None, dtype=complex,
+                  fmt: str = "csr") -> scipy.sparse.spmatrix:
+    """Sparse 2N_b × 2N_b matrix (both triangles) of offset-format ``values``.
+
+    ``offset_index[block]`` maps the rows of ``values[block]`` to pattern offsets (default all).
+    """
+    nb = 2 * pattern.rows
+    rows_all = np.arange(pattern.rows)
+    r_list, c_list, v_list = [], [], []
+    for block in BLOCKS:
+        row_id, col_id, j, pos = pattern.pairs(block, rows_all)
+        if offset_index is not None:
+            lookup = np.full(len(pattern.offsets(block)), -1)
+            lookup[offset_index[block]] = np.arange(len(offset_index[block]))
+            keep = lookup[j] >= 0
+            row_id, col_id, j, pos = row_id[keep], col_id[keep], lookup[j[keep]], pos[keep]
+        v = values[block][j, pos]  # (P, 3)
+        mirror = row_id != col_id
+        for (ro, co, comp) in ((0, 0, 0), (0, nb, 1), (nb, 0, 1), (nb, nb, 2)):
+            r_list += [row_id + ro, col_id[mirror] + ro]
+            c_list += [col_id + co, row_id[mirror] + co]
+            v_list += [v[:, comp], v[mirror, comp]]
+    rows = np.concatenate(r_list)
+    cols = np.concatenate(c_list)
+    vals = np.concatenate(v_list).astype(dtype)
+    return scipy.sparse.coo_matrix((vals, (rows, cols)), shape=(2 * nb, 2 * nb)).asformat(fmt)
+
+
 @dataclass
 class NearMatrix:
-    """C in the offset format: ``values[block]`` (n_offsets, N(N−1), 3) [ee, em, mm]."""
+    """C in the offset format: ``values[block]`` (n_offsets, N(N−1), 3) [ee, em, mm].
+
+    ``exact[block]`` (optional) keeps the exact entries A of the offsets ``exact_offsets[block]``
+    (the pairs within the preconditioner radius).
+    """
 
     pattern: NearPattern
     values: dict
     timings: dict = field(default_factory=dict)
+    exact: dict | None = None
+    exact_offsets: dict | None = None
     _device: dict | None = field(default=None, repr=False)
 
     @property
@@ -265,21 +306,13 @@ class NearMatrix:
 
     def to_sparse(self) -> scipy.sparse.csr_matrix:
         """The full 2N_b × 2N_b correction matrix (both triangles) as scipy CSR (for tests)."""
-        nb = self.n_bases
-        rows_all = np.arange(self.pattern.rows)
-        r_list, c_list, v_list = [], [], []
-        for block in BLOCKS:
-            row_id, col_id, j, pos = self.pattern.pairs(block, rows_all)
-            v = self.values[block][j, pos]  # (P, 3)
-            mirror = row_id != col_id
-            for (ro, co, comp) in ((0, 0, 0), (0, nb, 1), (nb, 0, 1), (nb, nb, 2)):
-                r_list += [row_id + ro, col_id[mirror] + ro]
-                c_list += [col_id + co, row_id[mirror] + co]
-                v_list += [v[:, comp], v[mirror, comp]]
-        rows = np.concatenate(r_list)
-        cols = np.concatenate(c_list)
-        vals = np.concatenate(v_list).astype(complex)
-        return scipy.sparse.csr_matrix((vals, (rows, cols)), shape=(2 * nb, 2 * nb))
+        return offset_matrix(self.pattern, self.values)
+
+    def exact_sparse(self, dtype=complex) -> scipy.sparse.csc_matrix:
+        """The exact near entries kept by the assembly (``exact_cells``), CSC."""
+        if self.exact is None:
+            raise ValueError("the near field was assembled without exact_cells: no exact entries kept")
+        return offset_matrix(self.pattern, self.exact, self.exact_offsets, dtype, "csc")
 
     def apply_numpy(self, x: np.ndarray) -> np.ndarray:
         """C x for x (P, 2N_b) (NumPy twin of the sparse.cl kernels)."""
@@ -430,10 +463,12 @@ def _strips(pattern: NearPattern):
 
 
 def assemble_near(ctx, mesh: BEMMesh, media: Media, pattern: NearPattern, groups, *,
-                  integrals: ElementIntegrals | None = None, storage: str = "single", progress=None) -> NearMatrix:
+                  integrals: ElementIntegrals | None = None, storage: str = "single",
+                  exact_cells: float | None = None, progress=None) -> NearMatrix:
     """C = A − B of all near pairs. ``groups``: list of (Projection, grid-media indices).
 
-    ``ctx`` None runs the NumPy twins (tiny meshes only).
+    ``exact_cells``: also keep the exact entries A of pairs within this radius (for the
+    near-field preconditioner). ``ctx`` None runs the NumPy twins (tiny meshes only).
     """
     if storage not in STORAGE:
         raise ValueError(f"aim near_storage must be one of {tuple(STORAGE)}, got {storage!r}")
@@ -443,6 +478,10 @@ def assemble_near(ctx, mesh: BEMMesh, media: Media, pattern: NearPattern, groups
     coef_all = media.pmchwt_coefficients()
     nrows = pattern.rows
     values = {b: np.zeros((len(pattern.offsets(b)), nrows, 3), dtype=STORAGE[storage]) for b in BLOCKS}
+    exact_offsets = exact = None
+    if exact_cells is not None:
+        exact_offsets = {b: pattern.within(b, min(exact_cells, pattern.radius_cells)) for b in BLOCKS}
+        exact = {b: np.zeros((len(exact_offsets[b]), nrows, 3), dtype=STORAGE[storage]) for b in BLOCKS}
     device = _NearBaseOpenCL(ctx, [p for p, _ in groups]) if ctx is not None else None
     timings = {"exact_s": 0.0, "base_s": 0.0}
     strips = list(_strips(pattern))
@@ -459,6 +498,8 @@ def assemble_near(ctx, mesh: BEMMesh, media: Media, pattern: NearPattern, groups
             s[j, pos, 0], s[j, pos, 1], s[j, pos, 2] = ee[sl], em[sl], mm[sl]
             staged[b] = s
             start += len(row_id)
+            if exact is not None:
+                exact[b][:, rows_by_block[b]] = s[exact_offsets[b]]
         t1 = time.perf_counter()
         windows = _windows(groups[0][0].grid, pattern, rows_by_block) if device is not None else None
         for projection, medium_indices in groups:
@@ -488,4 +529,4 @@ def assemble_near(ctx, mesh: BEMMesh, media: Media, pattern: NearPattern, groups
                      len(all_rows), t1 - t0, t2 - t1)
     timings["total_s"] = time.perf_counter() - t_start
     timings.update({f"element_{k}": v for k, v in integrals.timings.items()})
-    return NearMatrix(pattern, values, timings)
+    return NearMatrix(pattern, values, timings, exact, exact_offsets)

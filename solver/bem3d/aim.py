@@ -1,0 +1,437 @@
+"""The Adaptive Integral Method: Z x = (B + C) x without the dense matrix (bem3d.md §6–§9).
+
+* B (aim_base.py): far interactions through grid point sources, FFT convolution on the AIM grid
+  (aim_grid.py), projections Λ (projection.py), sampled kernels (aim_green.py);
+* C (nearfield.py): exact minus grid entries of near pairs, sparse offset format;
+* a Krylov solve (solver/krylov.py) for both polarizations at once, right-preconditioned by the
+  sparse LU of the exact near entries within ``preconditioner_cells`` (:class:`NearPreconditioner`);
+  without a preconditioner, on the rescaled system S Z S y = S b with S = diag(I, jI)
+  (complex-symmetric like Z, but with its spectrum in the right half-plane, which roughly halves
+  the GMRES iterations). Both measured in docs/aim.md;
+* the far field from grid point sources with chirp-z transforms (fft_farfield.py).
+
+Public entry points: :func:`aim_farfield` (the signature of ``bem_farfield`` plus AIM options),
+:class:`AIMBEM` (operator kept for several incident directions), :func:`estimate_aim` (memory
+and time before a run), :class:`AIMOptions`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import resource
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import scipy.sparse.linalg
+
+from wavebrdf.solver.beams import BEAMS, make_beam
+from wavebrdf.solver.bem3d.aim_base import BaseOperator, GridGroup
+from wavebrdf.solver.bem3d.aim_grid import GridOptions, build_grid
+from wavebrdf.solver.bem3d.aim_green import grid_media, interior_decay, kernel_spectra
+from wavebrdf.solver.bem3d.checks import check_footprint, check_material, check_resolution
+from wavebrdf.solver.bem3d.elements import ElementIntegrals
+from wavebrdf.solver.bem3d.excitation import SurfaceRule, power_into_material, right_hand_side
+from wavebrdf.solver.bem3d.fft_farfield import GridFarField
+from wavebrdf.solver.bem3d.media import Media
+from wavebrdf.solver.bem3d.mesh import BEMMesh
+from wavebrdf.solver.bem3d.nearfield import NearPattern, assemble_near
+from wavebrdf.solver.bem3d.projection import PROJECTIONS, project
+from wavebrdf.solver.bem3d.quadrature import QuadratureOptions
+from wavebrdf.solver.farfield import FarField, HemisphereGrid
+from wavebrdf.solver.krylov import KRYLOV_METHODS, solve
+from wavebrdf.solver.surface import HeightField
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["AIMBEM", "AIMOperator", "AIMOptions", "NearPreconditioner", "aim_farfield", "estimate_aim"]
+
+PRECONDITIONERS = ("near", "none")
+
+
+@dataclass(frozen=True)
+class AIMOptions:
+    """Settings of the AIM solver (config table ``[model.aim]``; defaults measured, docs/aim.md).
+
+    near_cells          near-pair radius in cells d (rooftop centres, x-y distance)
+    spacing_cells       largest grid spacing Δx = Δy in cells
+    max_k_spacing       upper bound on |k_i| Δ of every grid medium (shrinks Δ for dense media)
+    z_spacing_ratio     Δz / Δx
+    stencil             stencil points (s_x, s_y, s_z); s_z = 0: 1 on flat patches, else 3
+    projection          "farfield" (plane-wave matching, one Λ per grid medium) | "moments"
+    directions          matching directions (0: 3S on the sphere)
+    regularization      Tikhonov weight relative to σ_max of the matching matrix
+    interior_decay_tolerance   the interior of a lossy material leaves the grid when
+                        max(1, |n₂/n₁|²)·e^{−|Im k₂| r_near} ≤ this
+    precision           "double" | "single": kernels and FFTs (near entries are computed in double)
+    near_storage        "single" | "double": storage of the near-field correction
+    fft                 "auto" | "host" | "vkfft"
+    solver              "gmres" | "csym" | "bicgstab"
+    tolerance           ‖r‖/‖b‖ of the Krylov solve (checked on the true residual)
+    max_iterations      operator products per polarization
+    restart             GMRES restart length
+    preconditioner      "near" (sparse LU of the exact entries within preconditioner_cells) | "none"
+    preconditioner_cells   radius of the preconditioner's pairs (cells)
+    farfield_directions, farfield_regularization   far-field projection (upper hemisphere)
+    """
+
+    near_cells: float = 6.0
+    spacing_cells: float = 1.6
+    max_k_spacing: float = 1.35
+    z_spacing_ratio: float = 4.0 / 3.0
+    stencil: tuple[int, int, int] = (4, 4, 0)
+    projection: str = "farfield"
+    directions: int = 0
+    regularization: float = 1e-4
+    interior_decay_tolerance: float = 1e-5
+    precision: str = "double"
+    near_storage: str = "single"
+    fft: str = "auto"
+    solver: str = "gmres"
+    tolerance: float = 1e-4
+    max_iterations: int = 3000
+    restart: int = 60
+    preconditioner: str = "near"
+    preconditioner_cells: float = 2.3
+    farfield_directions: int = 0
+    farfield_regularization: float = 1e-5
+
+    def __post_init__(self):
+        if self.projection not in PROJECTIONS:
+            raise ValueError(f"aim.projection must be one of {PROJECTIONS}, got {self.projection!r}")
+        if self.solver not in KRYLOV_METHODS:
+            raise ValueError(f"aim.solver must be one of {KRYLOV_METHODS}, got {self.solver!r}")
+        if self.preconditioner not in PRECONDITIONERS:
+            raise ValueError(f"aim.preconditioner must be one of {PRECONDITIONERS}, got {self.preconditioner!r}")
+        if self.preconditioner == "near" and self.solver == "csym":
+            raise ValueError("aim.solver 'csym' cannot use the near preconditioner; set preconditioner = 'none'")
+        if self.precision not in ("double", "single"):
+            raise ValueError(f"aim.precision must be 'double' or 'single', got {self.precision!r}")
+        if not (np.isfinite(self.max_k_spacing) and self.max_k_spacing > 0):
+            raise ValueError(f"aim.max_k_spacing must be > 0, got {self.max_k_spacing!r}")
+        if not (0.5 <= self.z_spacing_ratio <= 4.0):
+            raise ValueError(f"aim.z_spacing_ratio must be in [0.5, 4], got {self.z_spacing_ratio!r}")
+        if not (0 < self.regularization < 1) or not (0 < self.farfield_regularization < 1):
+            raise ValueError("aim.regularization and aim.farfield_regularization must be in (0, 1)")
+        object.__setattr__(self, "stencil", tuple(int(s) for s in self.stencil))
+        GridOptions(self.spacing_cells, self.spacing_cells * self.z_spacing_ratio, self.stencil)  # validates
+
+    @classmethod
+    def from_mapping(cls, values: dict | None) -> "AIMOptions":
+        """Build from a config table; unknown keys are an error naming them."""
+        values = dict(values or {})
+        unknown = sorted(set(values) - set(cls.__dataclass_fields__))
+        if unknown:
+            raise ValueError(f"unknown aim option(s) {unknown}; known: {sorted(cls.__dataclass_fields__)}")
+        return cls(**values)
+
+    def grid_spacing_cells(self, media: Media, spacing_um: float, medium_indices) -> float:
+        """Δx in cells: spacing_cells, reduced so that |k_i| Δ ≤ max_k_spacing for the grid media."""
+        k_max = max(abs(media.wavenumbers[i].real) for i in medium_indices)
+        return min(self.spacing_cells, self.max_k_spacing / (k_max * spacing_um))
+
+    def grid_options(self, media: Media, spacing_um: float, medium_indices) -> GridOptions:
+        dx = self.grid_spacing_cells(media, spacing_um, medium_indices)
+        return GridOptions(dx, dx * self.z_spacing_ratio, self.stencil)
+
+
+def _symmetric_scaling(n_b: int, dtype) -> np.ndarray:
+    """S = diag(I, jI): S Z S keeps Z's symmetry and moves its spectrum into Re λ > 0."""
+    s = np.ones(2 * n_b, dtype=dtype)
+    s[n_b:] = 1j
+    return s
+
+
+class NearPreconditioner:
+    """M(X) ≈ Z⁻¹X from the exact entries A_near of the pairs within the preconditioner radius.
+
+    The sparse LU (SuperLU) is taken of S A_near S, S = diag(I, jI): its diagonal blocks have
+    the same sign, so nearly diagonal pivots are stable, which allows the minimum-degree
+    ordering of A + Aᵀ (half the fill of COLAMD, measured) with a pivot threshold of 0.1. Kept in
+    complex64: it only steers the iteration. M = S (S A S)⁻¹ S.
+    """
+
+    def __init__(self, near):
+        t0 = time.perf_counter()
+        n_b = near.n_bases
+        self.scale = _symmetric_scaling(n_b, np.complex64)
+        S = scipy.sparse.diags(self.scale)
+        A = (S @ near.exact_sparse(np.complex64) @ S).tocsc()
+        self.nnz = A.nnz
+        self.lu = scipy.sparse.linalg.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.1)
+        self.factor_nnz = self.lu.L.nnz + self.lu.U.nnz
+        self.seconds = time.perf_counter() - t0
+        self.apply_s = 0.0
+
+    def bytes(self) -> int:
+        return int(self.factor_nnz * 12)  # complex64 values + int32 indices
+
+    def __call__(self, X: np.ndarray) -> np.ndarray:
+        t0 = time.perf_counter()
+        X = np.atleast_2d(X)
+        Y = self.scale * self.lu.solve(np.ascontiguousarray((self.scale * X).T, dtype=np.complex64)).T
+        self.apply_s += time.perf_counter() - t0
+        return Y.astype(X.dtype, copy=False)
+
+
+class AIMOperator:
+    """Z x ≈ (B + C) x for one mesh, wavelength and material (see the module docstring)."""
+
+    def __init__(self, ctx, mesh: BEMMesh, media: Media, options: AIMOptions | None = None, *,
+                 quadrature: QuadratureOptions | None = None, integrals: ElementIntegrals | None = None,
+                 progress=None):
+        t0 = time.perf_counter()
+        self.ctx = ctx
+        self.mesh = mesh
+        self.media = media
+        self.options = options = options or AIMOptions()
+        near_um = options.near_cells * mesh.spacing_um
+        self.grid_media = grid_media(media, near_um, options.interior_decay_tolerance)
+        self.grid = build_grid(mesh, options.grid_options(media, mesh.spacing_um, self.grid_media))
+        self.precision = options.precision
+        cdtype = np.complex128 if options.precision == "double" else np.complex64
+        self.dtype = cdtype
+        if options.projection == "moments":
+            groups = [(project(mesh, self.grid, "moments"), self.grid_media)]
+        else:
+            groups = [(project(mesh, self.grid, "farfield", k=media.wavenumbers[i].real,
+                               directions=options.directions or None, regularization=options.regularization), (i,))
+                      for i in self.grid_media]
+        t1 = time.perf_counter()
+        spectra = kernel_spectra(self.grid, media, self.grid_media, dtype=cdtype)
+        self.base = BaseOperator(ctx, mesh, [GridGroup.build(p, spectra, media, m, cdtype) for p, m in groups],
+                                 precision=options.precision, fft=options.fft)
+        t2 = time.perf_counter()
+        self.pattern = NearPattern.build(mesh.cells, options.near_cells)
+        self.integrals = integrals or ElementIntegrals(mesh, quadrature or QuadratureOptions(), ctx)
+        precondition = options.preconditioner == "near"
+        self.near = assemble_near(ctx, mesh, media, self.pattern, groups, integrals=self.integrals,
+                                  storage=options.near_storage, progress=progress,
+                                  exact_cells=options.preconditioner_cells if precondition else None)
+        if ctx is not None:
+            self.near.upload(ctx)
+        t3 = time.perf_counter()
+        self.preconditioner = NearPreconditioner(self.near) if precondition else None
+        self.setup = {
+            "projection_s": t1 - t0, "spectra_s": t2 - t1, "near_s": t3 - t2,
+            "near_detail": dict(self.near.timings), "grid": self.grid.describe(),
+            "grid_media": list(self.grid_media), "interior_decay": interior_decay(media, near_um),
+            "preconditioner_s": 0.0 if self.preconditioner is None else self.preconditioner.seconds,
+            "preconditioner_fill": 0.0 if self.preconditioner is None else
+            self.preconditioner.factor_nnz / self.preconditioner.nnz,
+        }
+        logger.info("AIM operator: %s; near %d offsets, %.1f MB; set-up %.1f s", self.grid.describe(),
+                    len(self.pattern.same) * 2 + len(self.pattern.cross), self.near.bytes() / 2**20, t3 - t0)
+
+    @property
+    def unknowns(self) -> int:
+        return self.mesh.n_unknowns
+
+    def matvec(self, x: np.ndarray) -> np.ndarray:
+        """Z x for x (P, 2N_b) or (2N_b,) on the device."""
+        import pyopencl as cl
+
+        single = np.ndim(x) == 1
+        x = np.ascontiguousarray(np.atleast_2d(x), dtype=self.dtype)
+        ctx = self.ctx
+        mf = cl.mem_flags
+        y = np.zeros_like(x)
+        x_buf = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
+        y_buf = cl.Buffer(ctx.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=y)
+        t0 = time.perf_counter()
+        self.near.apply(ctx, x_buf, y_buf, len(x), self.precision == "double")
+        ctx.queue.finish()
+        self.base.timings["near_s"] = self.base.timings.get("near_s", 0.0) + time.perf_counter() - t0
+        self.base.apply(x, y_buf)
+        cl.enqueue_copy(ctx.queue, y, y_buf)
+        ctx.queue.finish()
+        return y[0] if single else y
+
+    def matvec_numpy(self, x: np.ndarray) -> np.ndarray:
+        """NumPy reference of :meth:`matvec`."""
+        return self.near.apply_numpy(x) + self.base.apply_numpy(x)
+
+    def solve(self, rhs: np.ndarray, x0: np.ndarray | None = None):
+        """Krylov solve of Z x = b for right-hand sides (P, 2N_b); returns a KrylovResult (x unscaled)."""
+        o = self.options
+        apply = self.matvec if self.ctx is not None else self.matvec_numpy
+        if self.preconditioner is not None:
+            return solve(apply, rhs, method=o.solver, tol=o.tolerance, max_iterations=o.max_iterations,
+                         restart=o.restart, preconditioner=self.preconditioner)
+        s = _symmetric_scaling(self.mesh.n_bases, self.dtype)
+        result = solve(lambda Y: s * apply(s * Y), s * rhs, method=o.solver, tol=o.tolerance,
+                       max_iterations=o.max_iterations, restart=o.restart,
+                       x0=None if x0 is None else x0 / s)
+        result.x = s * result.x
+        return result
+
+    def bytes(self) -> int:
+        extra = 0 if self.preconditioner is None else self.preconditioner.bytes()
+        return self.near.bytes() + self.base.bytes() + extra
+
+
+class AIMBEM:
+    """AIM operator of one surface, wavelength and material; far fields for any incidence.
+
+    The parameters are those of ``DenseBEM`` (bem3d/dense.py) plus ``aim`` (AIMOptions or a
+    mapping).
+    """
+
+    def __init__(self, ctx, surface: HeightField, wavelength_um: float, index: complex, *,
+                 exterior_index: float = 1.0, quadrature=None, z_reference: float | None = None,
+                 aim=None, progress=None):
+        if ctx is None:
+            raise ValueError("the AIM solver needs an OpenCL context (ctx)")
+        self.ctx = ctx
+        self.media = Media(wavelength_um, index, exterior_index)
+        self.mesh = BEMMesh(surface, z_reference)
+        if not isinstance(quadrature, QuadratureOptions):
+            quadrature = QuadratureOptions.from_mapping(quadrature)
+        self.quadrature = quadrature
+        self.options = aim if isinstance(aim, AIMOptions) else AIMOptions.from_mapping(aim)
+        self.progress = progress or (lambda stage, fraction: None)
+        self.diagnostics: dict = {"model": "bem", "method": "aim", "warnings": []}
+        check_material(self.media, surface.size_um, self.diagnostics)
+        check_resolution(self.media, surface.spacing_um, self.diagnostics)
+        t0 = time.perf_counter()
+        self.operator = AIMOperator(ctx, self.mesh, self.media, self.options, quadrature=quadrature,
+                                    progress=self.progress)
+        self.diagnostics.update(
+            unknowns=self.mesh.n_unknowns, cells=self.mesh.cells, spacing_um=self.mesh.spacing_um,
+            setup_s=time.perf_counter() - t0, aim_setup=self.operator.setup,
+            near_bytes=self.operator.near.bytes(), near_bytes_per_unknown=self.operator.near.bytes() / self.mesh.n_unknowns,
+            operator_bytes=self.operator.bytes(), aim_options=asdict(self.options),
+            quadrature=self.quadrature.__dict__.copy(), device=ctx.describe(), index=complex(self.media.index),
+        )
+        self._farfields: dict = {}
+
+    def _grid_farfield(self, grid: HemisphereGrid) -> GridFarField:
+        key = grid.resolution
+        if key not in self._farfields:
+            o = self.options
+            self._farfields[key] = GridFarField(
+                self.mesh, self.media, grid,
+                grid_options=o.grid_options(self.media, self.mesh.spacing_um, (0,)),
+                directions=o.farfield_directions or None, regularization=o.farfield_regularization)
+        return self._farfields[key]
+
+    def farfield(self, theta_i: float, phi_i: float, grid: HemisphereGrid, *, waist_um: float | None,
+                 beam: str = "exact", focus_um=(0.0, 0.0)) -> FarField:
+        """Far field for incidence (θ_i, φ_i) (toward the light) with the named beam."""
+        if beam not in BEAMS:
+            raise ValueError(f"illumination.beam must be one of {BEAMS}, got {beam!r}")
+        t0 = time.perf_counter()
+        diag = {k: v for k, v in self.diagnostics.items() if k != "warnings"}
+        diag["warnings"] = list(self.diagnostics["warnings"])
+        L = self.mesh.surface.size_um
+        inc = make_beam(beam, self.media.wavelength_um, theta_i, phi_i, waist_um,
+                        exterior_index=self.media.exterior_index, focus_um=(focus_um[0], focus_um[1], 0.0),
+                        patch_size_um=L)
+        if beam != "plane":
+            check_footprint(inc.outside_fraction(L), theta_i, L, beam, diag)
+        rule = SurfaceRule.build(self.mesh, self.quadrature.rhs_order)
+        b = right_hand_side(self.mesh, inc.fields(rule.r), rule)
+        self.progress("solve", 0.0)
+        try:
+            result = self.operator.solve(b)
+        except Exception as exc:  # keep the set-up diagnostics with the failure
+            extra = getattr(exc, "diagnostics", None)
+            if isinstance(extra, dict):
+                extra.update({k: v for k, v in diag.items() if k not in extra and k != "aim_options"})
+            raise
+        t_solve = time.perf_counter()
+        self.progress("far field", 0.0)
+        power = inc.incident_power(L)
+        ff = self._grid_farfield(grid).farfield(result.x, theta_i=theta_i, phi_i=phi_i, incident_power=power,
+                                                diagnostics=diag)
+        ff_rule = SurfaceRule.build(self.mesh, self.quadrature.farfield_order)
+        into = power_into_material(self.mesh, result.x, ff_rule)
+        if not (np.all(np.isfinite(ff.E)) and np.all(np.isfinite(ff.H))):
+            raise FloatingPointError("AIM far field contains NaN/inf")
+        ff.diagnostics.update(
+            beam=beam, waist_um=waist_um, **result.diagnostics(),
+            matvec_timings=dict(self.operator.base.timings),
+            farfield_s=time.perf_counter() - t_solve, total_direction_s=time.perf_counter() - t0,
+            into_material_fraction=into / power,
+            peak_memory_bytes=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+        )
+        if beam == "exact":
+            ff.diagnostics["beam_reflectance"] = inc.reflectance(self.media.index)
+        return ff
+
+
+def aim_farfield(ctx, surface: HeightField, wavelength_um: float, index: complex, theta_i: float, phi_i: float,
+                 waist_um: float | None, grid: HemisphereGrid, *, exterior_index: float = 1.0, beam: str = "exact",
+                 method: str = "aim", quadrature=None, z_reference: float | None = None, focus_um=(0.0, 0.0),
+                 aim=None, progress=None, **ignored) -> FarField:
+    """Full-wave BEM far field of ``surface`` by AIM (model "bem", method "aim").
+
+    Same arguments as ``bem_farfield``; ``aim``: AIMOptions or a mapping of them. Raises
+    :class:`~wavebrdf.solver.krylov.KrylovNotConverged` (with ``diagnostics``) when the solve
+    misses its tolerance: such a result is never returned.
+    """
+    if method != "aim":
+        raise ValueError(f"aim_farfield serves method 'aim', got {method!r}")
+    unused = sorted(k for k in ignored if k not in ("residual", "memory_limit_bytes"))
+    if unused:
+        raise TypeError(f"aim_farfield got unexpected argument(s) {unused}")
+    solver = AIMBEM(ctx, surface, wavelength_um, index, exterior_index=exterior_index, quadrature=quadrature,
+                    z_reference=z_reference, aim=aim, progress=progress)
+    return solver.farfield(theta_i, phi_i, grid, waist_um=waist_um, beam=beam, focus_um=focus_um)
+
+
+# ---------------------------------------------------------------------------------------------
+# Planning
+
+
+def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, exterior_index: float = 1.0,
+                 aim=None, resolution: int = 256, directions: int = 1) -> dict:
+    """Memory and time of an AIM run before it starts (for ``wavebrdf plan``).
+
+    Returns ``unknowns``, ``near_nnz`` (stored near pairs), ``bytes`` (peak estimate) with its
+    parts, ``seconds`` (set-up + ``directions`` × both polarizations) and the grid sizes. The
+    time model uses throughputs measured on the 2-core development machine (docs/aim.md) and an
+    iteration count growing like the square root of the patch size in wavelengths.
+    """
+    options = aim if isinstance(aim, AIMOptions) else AIMOptions.from_mapping(aim)
+    media = Media(wavelength_um, index, exterior_index)
+    mesh = BEMMesh(surface)
+    d = mesh.spacing_um
+    gm = grid_media(media, options.near_cells * d, options.interior_decay_tolerance)
+    grid = build_grid(mesh, options.grid_options(media, d, gm))
+    pattern = NearPattern.build(mesh.cells, options.near_cells)
+    n = mesh.n_unknowns
+    groups = len(gm) if options.projection == "farfield" else 1
+    real = 8 if options.precision == "double" else 4
+    cplx = 2 * real
+    near_entry = 24 if options.near_storage == "single" else 48
+    near_bytes = pattern.stored_entries() * near_entry
+    spectra = cplx * grid.padded_points * (len(gm) + 3) * groups
+    weights = cplx * 3 * grid.stencil_size * mesh.n_bases * groups
+    work = cplx * grid.padded_points * 8 * 2 * 2  # 8 components, 2 right-hand sides, FFT temporaries
+    krylov = cplx * n * 2 * (options.restart + 3 if options.solver == "gmres" else 6)
+    stored_pairs = int(pattern.stored_entries())
+    element_pairs = mesh.n_elements * math.pi * (options.near_cells + 1.5) ** 2
+    assembly_temp = 600_000 * 1100 * 2  # element tables + staging of one strip
+    total = near_bytes + spectra + weights + work + krylov + assembly_temp + 300 * 2**20
+    # time model (seconds), constants from benchmarks/bench_aim.py on the 2-core machine
+    fft_points = grid.padded_points * 16 * groups
+    matvec_s = 2.5e-8 * fft_points * math.log2(max(grid.padded_points, 2)) / 20 + 4e-9 * stored_pairs * 2
+    size_waves = surface.size_um * exterior_index / wavelength_um
+    iterations = 60 + 25 * math.sqrt(size_waves) * (1 + abs(media.index) / 4)
+    setup_s = 2e-5 * element_pairs + 3e-6 * stored_pairs
+    seconds = setup_s + directions * iterations * matvec_s * 1.1
+    return {
+        "unknowns": n,
+        "near_nnz": stored_pairs,
+        "bytes": int(total),
+        "near_bytes": int(near_bytes),
+        "spectra_bytes": int(spectra),
+        "work_bytes": int(work + krylov),
+        "seconds": float(seconds),
+        "iterations_guess": int(iterations),
+        "grid": grid.shape,
+        "fft": grid.padded,
+        "grid_media": gm,
+    }

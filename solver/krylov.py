@@ -1,0 +1,315 @@
+"""Krylov solvers for A x = b with several right-hand sides solved side by side.
+
+All solvers take ``matvec(X) -> A X`` on blocks X of shape (P, n) (one row per right-hand side),
+so the operator is applied to both polarizations in one call (the AIM FFTs and the sparse
+near-field pass then serve both). Right-hand sides that converge drop out of later products.
+
+Methods (``method``):
+
+``"gmres"``
+    restarted GMRES(m) with modified Gram–Schmidt (Saad & Schultz 1986); minimal residual over
+    the Krylov space, m + 1 stored vectors per right-hand side.
+``"csym"``
+    complex-symmetric MINRES (A = Aᵀ, not Hermitian): the Saunders–Simon–Yip tridiagonalization
+    A V̄_k = V_{k+1} T_k with a minimal-residual QR of T_k (Bunse-Gerstner & Stöver 1999; the
+    solver of the reference code, bem3d.md §7). Short recurrences, 4 stored vectors.
+``"bicgstab"``
+    BiCGStab (van der Vorst 1992), two products per iteration.
+
+Preconditioning (``preconditioner``, a callable M(X) ≈ A⁻¹X on blocks): right preconditioning,
+A M u = b, x = M u, so the residual is that of the original system ("gmres", "bicgstab").
+
+Stopping: the recurrence estimate of ‖r‖/‖b‖ ≤ ``tol``; the true residual ‖b − A x‖/‖b‖ is then
+computed and must also be ≤ ``tol`` (otherwise the solver restarts from x, up to ``max_iterations``
+products in all). A solve that does not reach it raises :class:`KrylovNotConverged`, which
+carries a ``diagnostics`` dict (the scheduler records it and marks the task failed).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["KRYLOV_METHODS", "KrylovNotConverged", "KrylovResult", "solve"]
+
+KRYLOV_METHODS = ("gmres", "csym", "bicgstab")
+
+
+class KrylovNotConverged(RuntimeError):
+    """The iterative solve missed its tolerance; ``diagnostics`` holds iterations and residuals."""
+
+    def __init__(self, message: str, diagnostics: dict):
+        super().__init__(message)
+        self.diagnostics = diagnostics
+
+
+@dataclass
+class KrylovResult:
+    """Solutions x (P, n), products per right-hand side, recurrence and true residuals, history."""
+
+    x: np.ndarray
+    method: str
+    iterations: np.ndarray
+    residual: np.ndarray
+    true_residual: np.ndarray
+    converged: np.ndarray
+    seconds: float
+    history: list = field(default_factory=list)
+
+    def diagnostics(self) -> dict:
+        return {
+            "krylov_method": self.method,
+            "iterations": [int(i) for i in self.iterations],
+            "residual": [float(r) for r in self.true_residual],
+            "recurrence_residual": [float(r) for r in self.residual],
+            "converged": bool(np.all(self.converged)),
+            "solve_s": self.seconds,
+        }
+
+
+def _norms(X: np.ndarray) -> np.ndarray:
+    return np.sqrt(np.sum(np.abs(X) ** 2, axis=-1))
+
+
+class _Counter:
+    """Wraps matvec, counting products per right-hand side and recording residual history."""
+
+    def __init__(self, matvec, P: int):
+        self.matvec = matvec
+        self.products = np.zeros(P, dtype=np.int64)
+        self.history: list[list[float]] = [[] for _ in range(P)]
+
+    def __call__(self, X: np.ndarray, which: np.ndarray) -> np.ndarray:
+        self.products[which] += 1
+        return self.matvec(X)
+
+    def record(self, which, residuals):
+        for i, r in zip(np.atleast_1d(which), np.atleast_1d(residuals)):
+            self.history[int(i)].append(float(r))
+
+
+def _givens(a: np.ndarray, b: np.ndarray):
+    """Complex Givens (c real, s complex) with [c s; −s̄ c][a; b] = [ρ; 0], vectorized."""
+    abs_a = np.abs(a)
+    rho = np.sqrt(abs_a**2 + np.abs(b) ** 2)
+    safe = np.where(abs_a > 0, abs_a, 1.0)
+    phase = np.where(abs_a > 0, a / safe, 1.0)
+    rho_safe = np.where(rho > 0, rho, 1.0)
+    c = np.where(rho > 0, abs_a / rho_safe, 1.0)
+    s = np.where(rho > 0, phase * np.conj(b) / rho_safe, 0.0)
+    return c, s, phase * rho
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+def _gmres_cycle(A: _Counter, x, r, bnorm, which, tol, m, budget):
+    """One GMRES(m) cycle for the right-hand sides ``which``; updates x in place."""
+    P, n = len(which), x.shape[1]
+    beta = _norms(r)
+    V = np.zeros((P, m + 1, n), dtype=x.dtype)
+    V[:, 0] = r / beta[:, None]
+    H = np.zeros((P, m + 1, m), dtype=x.dtype)
+    cs = np.zeros((P, m))
+    sn = np.zeros((P, m), dtype=x.dtype)
+    g = np.zeros((P, m + 1), dtype=x.dtype)
+    g[:, 0] = beta
+    steps = np.zeros(P, dtype=np.int64)  # Krylov dimension reached by each right-hand side
+    live = np.ones(P, dtype=bool)
+    for j in range(m):
+        idx = np.flatnonzero(live & (A.products[which] < budget))
+        if len(idx) == 0:
+            break
+        w = A(V[idx, j], which[idx])
+        for i in range(j + 1):  # modified Gram–Schmidt
+            h = np.sum(np.conj(V[idx, i]) * w, axis=1)
+            H[idx, i, j] = h
+            w -= h[:, None] * V[idx, i]
+        hn = _norms(w)
+        H[idx, j + 1, j] = hn
+        V[idx, j + 1] = w / np.where(hn > 0, hn, 1.0)[:, None]
+        for i in range(j):  # previous rotations on column j
+            a, b = H[idx, i, j], H[idx, i + 1, j]
+            H[idx, i, j] = cs[idx, i] * a + sn[idx, i] * b
+            H[idx, i + 1, j] = -np.conj(sn[idx, i]) * a + cs[idx, i] * b
+        c, s, rho = _givens(H[idx, j, j], H[idx, j + 1, j])
+        cs[idx, j], sn[idx, j] = c, s
+        H[idx, j, j], H[idx, j + 1, j] = rho, 0.0
+        g[idx, j + 1] = -np.conj(s) * g[idx, j]
+        g[idx, j] = c * g[idx, j]
+        steps[idx] = j + 1
+        res = np.abs(g[idx, j + 1]) / bnorm[idx]
+        A.record(which[idx], res)
+        live[idx[(res <= tol) | (hn == 0)]] = False
+    for p in range(P):
+        k = steps[p]
+        if k == 0:
+            continue
+        y = np.linalg.solve(np.triu(H[p, :k, :k]), g[p, :k])
+        x[p] += y @ V[p, :k]
+    return np.abs(g[np.arange(P), steps]) / bnorm
+
+
+def _gmres(A, b, x, tol, max_iterations, restart):
+    P = len(b)
+    bnorm = _norms(b)
+    everyone = np.arange(P)
+    r = b - A(x, everyone) if np.any(x) else b.copy()
+    true = _norms(r) / bnorm
+    estimate = true.copy()
+    active = true > tol
+    while np.any(active) and np.any(A.products[active] < max_iterations):
+        which = np.flatnonzero(active & (A.products < max_iterations))
+        x_w = x[which]  # a copy (fancy indexing): the cycle updates it, then it is written back
+        estimate[which] = _gmres_cycle(A, x_w, r[which], bnorm[which], which, tol, restart, max_iterations)
+        x[which] = x_w
+        r[which] = b[which] - A(x[which], which)
+        true[which] = _norms(r[which]) / bnorm[which]
+        active = true > tol
+    return x, estimate, true
+
+
+def _csym(A, b, x, tol, max_iterations):
+    """Complex-symmetric MINRES on the SSY tridiagonalization (one right-hand side at a time)."""
+    P, n = b.shape
+    estimate = np.zeros(P)
+    true = np.zeros(P)
+    for p in range(P):
+        which = np.array([p])
+        bnorm = np.linalg.norm(b[p])
+        while True:  # restarts from the current x when the true residual misses tol
+            r0 = b[p] - A(x[p : p + 1], which)[0] if np.any(x[p]) else b[p].copy()
+            beta1 = np.linalg.norm(r0)
+            true[p] = beta1 / bnorm
+            if true[p] <= tol or A.products[p] >= max_iterations:
+                break
+            v_prev = np.zeros(n, dtype=b.dtype)
+            v = r0 / beta1
+            beta = 0.0
+            # QR state: rotations k−1, k−2; directions d_{k−1}, d_{k−2}; rotated rhs
+            c1, s1, c2, s2 = 1.0, 0.0, 1.0, 0.0
+            d1 = np.zeros(n, dtype=b.dtype)
+            d2 = np.zeros(n, dtype=b.dtype)
+            phi = beta1
+            while A.products[p] < max_iterations:
+                q = A(np.conj(v)[None], which)[0]
+                alpha = np.vdot(v, q)
+                q = q - alpha * v - beta * v_prev
+                beta_next = np.linalg.norm(q)
+                # column k of T: (β_k, α_k, β_{k+1}) on rows (k−1, k, k+1)
+                e2 = s2 * beta  # row k−2 after rotation k−2 (row k−2 entry starts at 0)
+                t = c2 * beta
+                e1 = c1 * t + s1 * alpha
+                diag = -np.conj(s1) * t + c1 * alpha
+                c, s, rho = _givens(np.asarray(diag), np.asarray(beta_next))
+                c, s, rho = float(c), complex(s), complex(rho)
+                d = (np.conj(v) - e1 * d1 - e2 * d2) / rho
+                tau = c * phi
+                phi = -np.conj(s) * phi
+                x[p] += tau * d
+                d2, d1 = d1, d
+                c2, s2, c1, s1 = c1, s1, c, s
+                v_prev, v = v, q / (beta_next if beta_next > 0 else 1.0)
+                beta = beta_next
+                estimate[p] = abs(phi) / bnorm
+                A.record(p, estimate[p])
+                if estimate[p] <= tol or beta_next == 0:
+                    break
+    return x, estimate, true
+
+
+def _bicgstab(A, b, x, tol, max_iterations):
+    P = len(b)
+    bnorm = _norms(b)
+    everyone = np.arange(P)
+    estimate = np.zeros(P)
+    while True:
+        r = b - A(x, everyone) if np.any(x) else b.copy()
+        true = _norms(r) / bnorm
+        active = np.flatnonzero((true > tol) & (A.products < max_iterations))
+        if len(active) == 0:
+            return x, np.where(estimate > 0, estimate, true), true
+        r_hat = r.copy()
+        rho, alpha, omega = (np.ones(P, dtype=b.dtype) for _ in range(3))
+        v = np.zeros_like(b)
+        p_dir = np.zeros_like(b)
+        live = np.zeros(P, dtype=bool)
+        live[active] = True
+        while True:
+            idx = np.flatnonzero(live & (A.products < max_iterations))
+            if len(idx) == 0:
+                break
+            rho_new = np.sum(np.conj(r_hat[idx]) * r[idx], axis=1)
+            beta = (rho_new / rho[idx]) * (alpha[idx] / omega[idx])
+            p_dir[idx] = r[idx] + beta[:, None] * (p_dir[idx] - omega[idx, None] * v[idx])
+            v[idx] = A(p_dir[idx], idx)
+            alpha[idx] = rho_new / np.sum(np.conj(r_hat[idx]) * v[idx], axis=1)
+            s = r[idx] - alpha[idx, None] * v[idx]
+            t = A(s, idx)
+            omega[idx] = np.sum(np.conj(t) * s, axis=1) / np.sum(np.abs(t) ** 2, axis=1)
+            x[idx] += alpha[idx, None] * p_dir[idx] + omega[idx, None] * s
+            r[idx] = s - omega[idx, None] * t
+            rho[idx] = rho_new
+            res = _norms(r[idx]) / bnorm[idx]
+            estimate[idx] = res
+            A.record(idx, res)
+            live[idx[res <= tol]] = False
+        # loop back: true residual check and restart if needed
+
+
+def solve(matvec, b: np.ndarray, *, method: str = "gmres", tol: float = 1e-4, max_iterations: int = 1000,
+          restart: int = 60, x0: np.ndarray | None = None, preconditioner=None) -> KrylovResult:
+    """Solve A x = b for right-hand sides b (P, n); see the module docstring.
+
+    ``max_iterations`` bounds the operator products per right-hand side. Raises
+    :class:`KrylovNotConverged` (with ``diagnostics``) if the true residual misses ``tol``.
+    """
+    if method not in KRYLOV_METHODS:
+        raise ValueError(f"krylov method must be one of {KRYLOV_METHODS}, got {method!r}")
+    if preconditioner is not None and method == "csym":
+        raise ValueError("krylov method 'csym' takes no preconditioner (it needs a symmetric one); use 'gmres'")
+    if preconditioner is not None and x0 is not None:
+        raise ValueError("krylov: x0 cannot be combined with a preconditioner")
+    if not (0 < tol < 1):
+        raise ValueError(f"krylov tolerance must be in (0, 1), got {tol!r}")
+    if int(max_iterations) != max_iterations or max_iterations < 1:
+        raise ValueError(f"krylov max_iterations must be a positive integer, got {max_iterations!r}")
+    if int(restart) != restart or restart < 1:
+        raise ValueError(f"krylov restart must be a positive integer, got {restart!r}")
+    b = np.atleast_2d(np.asarray(b))
+    dtype = np.result_type(b, np.complex64)
+    b = b.astype(dtype, copy=False)
+    if np.any(_norms(b) == 0):
+        raise ValueError("krylov: a right-hand side is zero")
+    x = np.zeros_like(b) if x0 is None else np.array(np.atleast_2d(x0), dtype=dtype)
+    if preconditioner is None:
+        A = _Counter(lambda X: np.asarray(matvec(X)).astype(dtype, copy=False), len(b))
+    else:
+        A = _Counter(lambda X: np.asarray(matvec(preconditioner(X))).astype(dtype, copy=False), len(b))
+    t0 = time.perf_counter()
+    if method == "gmres":
+        x, estimate, true = _gmres(A, b, x, tol, max_iterations, int(restart))
+    elif method == "csym":
+        x, estimate, true = _csym(A, b, x, tol, max_iterations)
+    else:
+        x, estimate, true = _bicgstab(A, b, x, tol, max_iterations)
+    if preconditioner is not None:
+        x = np.asarray(preconditioner(x)).astype(dtype, copy=False)
+    result = KrylovResult(x=x, method=method, iterations=A.products.copy(), residual=estimate, true_residual=true,
+                          converged=true <= tol, seconds=time.perf_counter() - t0, history=A.history)
+    logger.info("%s: %s products, true residual %s (tol %g) in %.2f s", method, result.iterations.tolist(),
+                np.array2string(true, precision=2), tol, result.seconds)
+    if not np.all(result.converged):
+        diag = result.diagnostics()
+        diag.update(tolerance=tol, max_iterations=int(max_iterations))
+        raise KrylovNotConverged(
+            f"{method} did not converge: relative residual {np.array2string(true, precision=3)} > {tol:g} after "
+            f"{result.iterations.tolist()} operator products (limit {max_iterations})",
+            diag,
+        )
+    return result
