@@ -5,6 +5,7 @@
     .venv/bin/python benchmarks/bench_bem3d.py tolerance     # BRDF change, default vs tight quadrature
     .venv/bin/python benchmarks/bench_bem3d.py beams         # paraxial vs exact beam, flat patch
     .venv/bin/python benchmarks/bench_bem3d.py convergence   # d = λ/8, λ/12, λ/16 on a rough patch
+    .venv/bin/python benchmarks/bench_bem3d.py flat --cells 48   # flat-patch albedo vs exact reflectance
     .venv/bin/python benchmarks/bench_bem3d.py solve [--cells N]   # dense solve of the largest patch
 
 Timings on a shared 2-core machine are noisy: compare ratios measured within one run.
@@ -35,16 +36,21 @@ AL = 0.46582 - 4.7119j
 
 def smooth_random_surface(cells: int, size_um: float, rms_height: float, correlation: float, seed: int = 7):
     """A band-limited random surface defined by fixed Fourier modes, sampled at any resolution
-    (the same geometry for every mesh size, for convergence studies)."""
+    (the same continuous geometry for every mesh size, for convergence studies). The rms height
+    and the mean are set on a fine reference grid, independent of ``cells``."""
     rng = np.random.default_rng(seed)
     n_modes = 60
     k = rng.normal(0.0, np.sqrt(2.0) / correlation, (n_modes, 2))
     phase = rng.uniform(0, 2 * np.pi, n_modes)
-    x = -0.5 * size_um + size_um / cells * np.arange(cells + 1)
-    X, Y = np.meshgrid(x, x, indexing="ij")
-    z = np.sum(np.cos(k[:, 0, None, None] * X + k[:, 1, None, None] * Y + phase[:, None, None]), axis=0)
-    z *= rms_height / np.sqrt(n_modes / 2.0)
-    return HeightField(z, size_um)
+
+    def heights(n):
+        x = -0.5 * size_um + size_um / n * np.arange(n + 1)
+        X, Y = np.meshgrid(x, x, indexing="ij")
+        return np.sum(np.cos(k[:, 0, None, None] * X + k[:, 1, None, None] * Y + phase[:, None, None]), axis=0)
+
+    fine = heights(256)
+    mean, rms = fine.mean(), (fine - fine.mean()).std()
+    return HeightField((heights(cells) - mean) * (rms_height / rms), size_um)
 
 
 def lobe_difference(f, g, weight_mask):
@@ -134,10 +140,13 @@ def _rough_solver(ctx, surface, index, quadrature=None):
 
 def bench_tolerance(ctx, cells: int = 24):
     """BRDF change when the quadrature is tightened from the defaults (justifies the defaults)."""
-    surface = smooth_random_surface(cells, cells * LAMBDA / 8, 0.04, 0.4)
+    surface = smooth_random_surface(cells, cells * LAMBDA / 8, LAMBDA / 10, 0.3)
     grid = HemisphereGrid(96)
     theta = np.deg2rad(20.0)
-    print(f"quadrature tolerance study: rough Al patch {cells}x{cells} (d = λ/8), θ_i = 20°, exact beam")
+    stats = surface.statistics()
+    print(f"quadrature tolerance study: rough Al patch {cells}x{cells} (d = λ/8, rms height "
+          f"{stats['rms_height_um']:.3f} µm, rms slope {stats['rms_slope']:.2f}, max slope {stats['max_slope']:.2f}), "
+          "θ_i = 20°, exact beam")
     results = {}
     for label, q in (("tol 1e-4", {"tolerance": 1e-4, "static_order": 5}), ("default", None),
                      ("tol 1e-9", {"tolerance": 1e-9, "static_order": 10})):
@@ -172,17 +181,36 @@ def bench_beams(ctx, cells: int = 32):
                   f"{lobe_difference(pa.brdf()[0], ex.brdf()[0], mask):.3f} (s)")
 
 
+def bench_flat(ctx, cells: int = 48):
+    """Flat patch (d = λ/8, waist L/5): albedo vs the exact beam's reflectance at 0° and 45°."""
+    surface = generate("flat", cells=cells, size_um=cells * LAMBDA / 8)
+    grid = HemisphereGrid(128)
+    print(f"flat patch {cells * LAMBDA / 8 / LAMBDA:g}λ ({cells} cells, d = λ/8), waist L/5 = "
+          f"{surface.size_um / 5 / LAMBDA:.2f}λ: albedo / exact beam reflectance − 1 (s, p)")
+    for index in (1.5, AL):
+        solver = _rough_solver(ctx, surface, index)
+        for theta in (0.0, 45.0):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", BEMWarning)
+                ff = solver.farfield(np.deg2rad(theta), 0.0, grid, waist_um=surface.size_um / 5)
+            ref = ff.diagnostics["beam_reflectance"]
+            print(f"  n = {index}, θ = {theta:4.0f}°: grid {albedo(ff.brdf(), grid) / ref - 1}, hemisphere "
+                  f"{ff.diagnostics['reflected_fraction'] / ref - 1}, reflectance {ref}, incident power outside "
+                  f"the patch {ff.diagnostics['incident_outside_fraction']:.1e}")
+
+
 def bench_convergence(ctx, size_wavelengths: float = 4.0, divisions=(8, 12, 16)):
     """BRDF of one rough Al patch at d = λ/8, λ/12, λ/16; observed order of convergence."""
     size = size_wavelengths * LAMBDA
     grid = HemisphereGrid(96)
     theta = np.deg2rad(30.0)
     brdfs, albedos = [], []
-    print(f"convergence in d: rough Al patch {size:g} µm (rms height λ/10, correlation 1 µm), θ_i = 30°, "
-          "exact beam, waist L/5")
+    stats = smooth_random_surface(128, size, LAMBDA / 10, 0.4).statistics()
+    print(f"convergence in d: rough Al patch {size:g} µm (rms height {stats['rms_height_um']:.3f} µm, rms slope "
+          f"{stats['rms_slope']:.2f}, max slope {stats['max_slope']:.2f}), θ_i = 30°, exact beam, waist L/5")
     for div in divisions:
         cells = int(round(size_wavelengths * div))
-        surface = smooth_random_surface(cells, size, LAMBDA / 10, 1.0)
+        surface = smooth_random_surface(cells, size, LAMBDA / 10, 0.4)
         t0 = time.perf_counter()
         solver = _rough_solver(ctx, surface, AL)
         with warnings.catch_warnings():
@@ -220,7 +248,7 @@ def bench_solve(ctx, cells: int | None = None):
           f"{est['bytes'] / 2**30:.1f} GiB (limit {est['limit_bytes'] / 2**30:.1f} GiB), "
           f"LU {est['lu_flops'] / 1e12:.1f} Tflop")
     cells = cells or n_fit
-    surface = smooth_random_surface(cells, cells * LAMBDA / 8, LAMBDA / 10, 1.0)
+    surface = smooth_random_surface(cells, cells * LAMBDA / 8, LAMBDA / 10, 0.4)
     t0 = time.perf_counter()
     solver = _rough_solver(ctx, surface, AL)
     grid = HemisphereGrid(128)
@@ -242,14 +270,16 @@ def bench_solve(ctx, cells: int | None = None):
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("sections", nargs="*", default=["assembly", "quadrature", "tolerance", "beams", "convergence"],
-                        choices=["assembly", "quadrature", "tolerance", "beams", "convergence", "solve"])
-    parser.add_argument("--cells", type=int, default=None, help="cells per side for 'solve'")
+                        choices=["assembly", "quadrature", "tolerance", "beams", "convergence", "flat", "solve"])
+    parser.add_argument("--cells", type=int, default=None, help="cells per side for 'solve' and 'flat'")
     args = parser.parse_args(argv)
     ctx = create_context()
     for section in args.sections:
         t0 = time.perf_counter()
         if section == "solve":
             bench_solve(ctx, args.cells)
+        elif section == "flat":
+            bench_flat(ctx, args.cells or 48)
         else:
             globals()[f"bench_{section}"](ctx)
         print(f"[{section}: {time.perf_counter() - t0:.0f} s]\n", flush=True)

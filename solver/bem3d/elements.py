@@ -30,7 +30,7 @@ import time
 
 import numpy as np
 
-from wavebrdf.solver.bem3d.mesh import SLOT_TANGENT, BEMMesh, slot_weight
+from wavebrdf.solver.bem3d.mesh import SLOT_TANGENT, BEMMesh, bilinear_frame, slot_weight
 from wavebrdf.solver.bem3d.quadrature import (
     CASE_NAMES,
     CASE_REGULAR,
@@ -99,8 +99,6 @@ def green_terms(kind: int, k: complex, r: np.ndarray):
 
 def _point_sums(gA, gB, h, uA, vA, uB, vB, w, wavenumbers, kind):
     """Σ_q over point pairs (axis 1) of the table integrands; returns (P, media, 33)."""
-    from wavebrdf.solver.bem3d.mesh import bilinear_frame
-
     rA, ruA, rvA = bilinear_frame(gA[:, None, :], h, uA, vA)
     rB, ruB, rvB = bilinear_frame(gB[:, None, :], h, uB, vB)
     R = rA - rB
