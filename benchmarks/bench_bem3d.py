@@ -53,6 +53,11 @@ def smooth_random_surface(cells: int, size_um: float, rms_height: float, correla
     return HeightField((heights(cells) - mean) * (rms_height / rms), size_um)
 
 
+def lobe_mask(brdf, level=1e-3):
+    """Pixels inside the disk where ``brdf`` exceeds ``level`` times its peak."""
+    return np.isfinite(brdf) & (np.nan_to_num(brdf) > level * np.nanmax(brdf))
+
+
 def lobe_difference(f, g, weight_mask):
     """Relative L2 difference of two BRDF images over the pixels of ``weight_mask``."""
     return float(np.linalg.norm((f - g)[weight_mask]) / np.linalg.norm(g[weight_mask]))
@@ -132,10 +137,17 @@ def bench_quadrature(ctx):
           f"{singular_order(opts, meshes['flat'].half_length.max(), (k0, 1.5 * k0))} for n = 1.5 (flat)")
 
 
-def _rough_solver(ctx, surface, index, quadrature=None):
+def _solver(ctx, surface, index, quadrature=None):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BEMWarning)
         return DenseBEM(ctx, surface, LAMBDA, index, quadrature=quadrature)
+
+
+def _flat_solvers(ctx, cells: int):
+    """(surface, index, solver) of a flat λ/8 patch for glass and aluminium."""
+    surface = generate("flat", cells=cells, size_um=cells * LAMBDA / 8)
+    for index in (1.5, AL):
+        yield surface, index, _solver(ctx, surface, index)
 
 
 def bench_tolerance(ctx, cells: int = 24):
@@ -151,11 +163,11 @@ def bench_tolerance(ctx, cells: int = 24):
     for label, q in (("tol 1e-4", {"tolerance": 1e-4, "static_order": 5}), ("default", None),
                      ("tol 1e-9", {"tolerance": 1e-9, "static_order": 10})):
         t0 = time.perf_counter()
-        solver = _rough_solver(ctx, surface, AL, q)
+        solver = _solver(ctx, surface, AL, q)
         ff = solver.farfield(theta, 0.0, grid, waist_um=surface.size_um / 5)
         results[label] = (ff.brdf(), albedo(ff.brdf(), grid), time.perf_counter() - t0)
     ref = results["tol 1e-9"][0]
-    mask = np.isfinite(ref[0]) & (np.nan_to_num(ref[0]) > 1e-3 * np.nanmax(ref[0]))
+    mask = lobe_mask(ref[0])
     for label, (brdf, alb, secs) in results.items():
         print(f"  {label:9s} albedo {alb}  rel. L2 BRDF change vs tol 1e-9: "
               f"{lobe_difference(brdf[0], ref[0], mask):.2e} (s), {lobe_difference(brdf[1], ref[1], mask):.2e} (p)"
@@ -164,18 +176,16 @@ def bench_tolerance(ctx, cells: int = 24):
 
 def bench_beams(ctx, cells: int = 32):
     """Paraxial vs exact beam on a flat patch (albedo and BRDF)."""
-    surface = generate("flat", cells=cells, size_um=cells * LAMBDA / 8)
     grid = HemisphereGrid(96)
-    print(f"paraxial vs exact beam: flat {surface.size_um:g} µm patch ({cells} cells, d = λ/8), waist L/5")
-    for index in (1.5, AL):
-        solver = _rough_solver(ctx, surface, index)
+    print(f"paraxial vs exact beam: flat {cells * LAMBDA / 8:g} µm patch ({cells} cells, d = λ/8), waist L/5")
+    for surface, index, solver in _flat_solvers(ctx, cells):
         for theta in (0.0, 45.0, 70.0):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", BEMWarning)
                 ex = solver.farfield(np.deg2rad(theta), 0.0, grid, waist_um=surface.size_um / 5, beam="exact")
                 pa = solver.farfield(np.deg2rad(theta), 0.0, grid, waist_um=surface.size_um / 5, beam="paraxial")
             a_ex, a_pa = albedo(ex.brdf(), grid), albedo(pa.brdf(), grid)
-            mask = np.isfinite(ex.brdf()[0]) & (np.nan_to_num(ex.brdf()[0]) > 1e-3 * np.nanmax(ex.brdf()[0]))
+            mask = lobe_mask(ex.brdf()[0])
             print(f"  n = {index}, θ = {theta:4.0f}°: exact albedo {a_ex} (beam reflectance "
                   f"{ex.diagnostics['beam_reflectance']}); paraxial albedo {a_pa}; BRDF rel. L2 difference "
                   f"{lobe_difference(pa.brdf()[0], ex.brdf()[0], mask):.3f} (s)")
@@ -183,12 +193,10 @@ def bench_beams(ctx, cells: int = 32):
 
 def bench_flat(ctx, cells: int = 48):
     """Flat patch (d = λ/8, waist L/5): albedo vs the exact beam's reflectance at 0° and 45°."""
-    surface = generate("flat", cells=cells, size_um=cells * LAMBDA / 8)
     grid = HemisphereGrid(128)
-    print(f"flat patch {cells * LAMBDA / 8 / LAMBDA:g}λ ({cells} cells, d = λ/8), waist L/5 = "
-          f"{surface.size_um / 5 / LAMBDA:.2f}λ: albedo / exact beam reflectance − 1 (s, p)")
-    for index in (1.5, AL):
-        solver = _rough_solver(ctx, surface, index)
+    print(f"flat patch {cells / 8:g}λ ({cells} cells, d = λ/8), waist L/5 = {cells / 40:.2f}λ: "
+          "albedo / exact beam reflectance − 1 (s, p)")
+    for surface, index, solver in _flat_solvers(ctx, cells):
         for theta in (0.0, 45.0):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", BEMWarning)
@@ -212,7 +220,7 @@ def bench_convergence(ctx, size_wavelengths: float = 4.0, divisions=(8, 12, 16))
         cells = int(round(size_wavelengths * div))
         surface = smooth_random_surface(cells, size, LAMBDA / 10, 0.4)
         t0 = time.perf_counter()
-        solver = _rough_solver(ctx, surface, AL)
+        solver = _solver(ctx, surface, AL)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", BEMWarning)
             ff = solver.farfield(theta, 0.0, grid, waist_um=size / 5)
@@ -223,7 +231,7 @@ def bench_convergence(ctx, size_wavelengths: float = 4.0, divisions=(8, 12, 16))
               f"total {time.perf_counter() - t0:.1f} s")
         del solver
     ref = brdfs[-1]
-    mask = np.isfinite(ref) & (np.nan_to_num(ref) > 1e-3 * np.nanmax(ref))
+    mask = lobe_mask(ref)
     diffs = [lobe_difference(brdfs[i], brdfs[i + 1], mask) for i in range(len(brdfs) - 1)]
     for i, dd in enumerate(diffs):
         print(f"  BRDF change λ/{divisions[i]} → λ/{divisions[i + 1]}: rel. L2 {dd:.3e}; albedo change "
@@ -250,7 +258,7 @@ def bench_solve(ctx, cells: int | None = None):
     cells = cells or n_fit
     surface = smooth_random_surface(cells, cells * LAMBDA / 8, LAMBDA / 10, 0.4)
     t0 = time.perf_counter()
-    solver = _rough_solver(ctx, surface, AL)
+    solver = _solver(ctx, surface, AL)
     grid = HemisphereGrid(128)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BEMWarning)
