@@ -217,6 +217,13 @@ class DenseBEM:
         if np.any(residual > RESIDUAL):
             emit(diag, SolverWarning, f"relative residual {residual} of the LU solve exceeds {RESIDUAL:g}")
         power = inc.incident_power(L)
+        if not np.all(np.isfinite(power) & (power > 0)):
+            raise FloatingPointError(
+                f"the {beam} beam's incident power through the patch is {power} (not positive): at "
+                f"θ_i = {np.rad2deg(theta_i):.4g}° with waist {waist_um} µm on a {L:g} µm patch the beam is not "
+                "a beam there (paraxial breakdown or footprint far beyond the patch); use beam = 'exact', a "
+                "larger waist or a larger patch"
+            )
         ff_rule = SurfaceRule.build(self.mesh, self.options.farfield_order)
         ff = farfield_on_grid(self.ctx, self.mesh, self.media, x, grid, ff_rule,
                               theta_i=theta_i, phi_i=phi_i, incident_power=power, diagnostics=diag)

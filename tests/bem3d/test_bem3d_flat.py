@@ -152,3 +152,12 @@ def test_acceptance_flat_patch(cl_ctx, index):
             print(f"n = {index}, θ = {theta}°, paraxial beam: albedo {albedo(par.brdf(), grid)}, hemisphere "
                   f"{par.diagnostics['reflected_fraction']} (exact beam's reflectance "
                   f"{ff.diagnostics['beam_reflectance']})")
+
+
+def test_a_beam_without_positive_power_is_an_error_not_a_result(cl_ctx, small_grid):
+    """A paraxial 'beam' of waist λ/5 at 45° on a λ patch has no positive flux through it: refused."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", BEMWarning)
+        with pytest.raises(FloatingPointError, match="not positive"):
+            bem_farfield(cl_ctx, _flat(8, 0.4), LAMBDA, 1.5, np.deg2rad(45.0), 0.0, 0.08, small_grid,
+                         beam="paraxial")
