@@ -13,8 +13,6 @@ of Z when memory allows, otherwise by re-assembling Z block by block (``residual
 from __future__ import annotations
 
 import logging
-import os
-import resource
 import time
 
 import numpy as np
@@ -37,6 +35,7 @@ from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.bem3d.quadrature import QuadratureOptions
 from wavebrdf.solver.farfield import FarField, HemisphereGrid
+from wavebrdf.solver.resources import meminfo_bytes, peak_memory_mb
 from wavebrdf.solver.surface import HeightField
 
 logger = logging.getLogger(__name__)
@@ -50,18 +49,6 @@ RESIDUAL_MODES = ("auto", "copy", "reassemble", "none")
 
 class DenseTooLarge(MemoryError):
     """The dense matrix does not fit; the message names the unknowns and the memory needed."""
-
-
-def available_memory_bytes() -> int:
-    """MemAvailable from /proc/meminfo (bytes), or physical memory if unavailable."""
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
 
 
 def _cells(surface_or_cells) -> int:
@@ -85,7 +72,7 @@ def estimate_dense(surface_or_cells, *, residual: str = "auto", memory_limit_byt
     n = _cells(surface_or_cells)
     unknowns = 4 * n * (n - 1)
     matrix = 16.0 * unknowns**2
-    limit = float(memory_limit_bytes) if memory_limit_bytes is not None else MEMORY_FRACTION * available_memory_bytes()
+    limit = float(memory_limit_bytes) if memory_limit_bytes is not None else MEMORY_FRACTION * meminfo_bytes("MemAvailable")
     with_copy = 2 * matrix + WORKSPACE_BYTES
     copy = residual == "copy" or (residual == "auto" and with_copy <= limit)
     peak = (2 * matrix if copy else matrix) + WORKSPACE_BYTES
@@ -239,7 +226,7 @@ class DenseBEM:
             farfield_s=time.perf_counter() - t_solve,
             into_material_fraction=into / power,
             reflected_fraction=reflected / power,
-            peak_memory_bytes=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+            peak_memory_bytes=peak_memory_mb() * 2**20,
         )
         if beam == "exact":
             ff.diagnostics["beam_reflectance"] = inc.reflectance(self.media.index)
