@@ -33,7 +33,7 @@ from wavebrdf.solver.bem3d.aim_green import grid_media, interior_decay, kernel_s
 from wavebrdf.solver.bem3d.checks import check_footprint, check_material, check_resolution
 from wavebrdf.solver.bem3d.elements import ElementIntegrals
 from wavebrdf.solver.bem3d.excitation import SurfaceRule, power_into_material, right_hand_side
-from wavebrdf.solver.bem3d.fft_farfield import GridFarField
+from wavebrdf.solver.bem3d.fft_farfield import FARFIELD_STENCIL, GridFarField
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.bem3d.nearfield import NearPattern, assemble_near
@@ -73,7 +73,8 @@ class AIMOptions:
     restart             GMRES restart length
     preconditioner      "near" (sparse LU of the exact entries within preconditioner_cells) | "none"
     preconditioner_cells   radius of the preconditioner's pairs (cells)
-    farfield_directions, farfield_regularization   far-field projection (upper hemisphere)
+    farfield_stencil, farfield_directions, farfield_regularization   far-field projection
+                        (upper hemisphere, its own grid with Δ = 1.6 d)
     """
 
     near_cells: float = 6.0
@@ -94,6 +95,7 @@ class AIMOptions:
     restart: int = 60
     preconditioner: str = "near"
     preconditioner_cells: float = 2.3
+    farfield_stencil: tuple[int, int, int] = FARFIELD_STENCIL
     farfield_directions: int = 0
     farfield_regularization: float = 1e-5
 
@@ -115,6 +117,8 @@ class AIMOptions:
         if not (0 < self.regularization < 1) or not (0 < self.farfield_regularization < 1):
             raise ValueError("aim.regularization and aim.farfield_regularization must be in (0, 1)")
         object.__setattr__(self, "stencil", tuple(int(s) for s in self.stencil))
+        object.__setattr__(self, "farfield_stencil", tuple(int(s) for s in self.farfield_stencil))
+        GridOptions(stencil=self.farfield_stencil)  # validates
         GridOptions(self.spacing_cells, self.spacing_cells * self.z_spacing_ratio, self.stencil)  # validates
 
     @classmethod
@@ -311,8 +315,7 @@ class AIMBEM:
         if key not in self._farfields:
             o = self.options
             self._farfields[key] = GridFarField(
-                self.mesh, self.media, grid,
-                grid_options=o.grid_options(self.media, self.mesh.spacing_um, (0,)),
+                self.mesh, self.media, grid, grid_options=GridOptions(stencil=o.farfield_stencil),
                 directions=o.farfield_directions or None, regularization=o.farfield_regularization)
         return self._farfields[key]
 

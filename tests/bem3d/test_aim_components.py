@@ -1,0 +1,243 @@
+"""AIM building blocks: grid, projections, sampled Green's function, decay criterion, and every
+OpenCL kernel against its NumPy twin (scatter / Fourier / gather, near-field SpMV, near B)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from wavebrdf.solver.bem3d.aim_base import BaseOperator, GridGroup, forward_pruned, inverse_pruned
+from wavebrdf.solver.bem3d.aim_green import grid_media, interior_decay, kernel_spectra, lattice_green
+from wavebrdf.solver.bem3d.aim_grid import GridOptions, build_grid
+from wavebrdf.solver.bem3d.assembly import basis_pair_entries
+from wavebrdf.solver.bem3d.media import Media
+from wavebrdf.solver.bem3d.mesh import BEMMesh
+from wavebrdf.solver.bem3d.nearfield import BLOCKS, NearPattern, assemble_near, near_base_numpy
+from wavebrdf.solver.bem3d.projection import basis_quadrature, fibonacci_directions, project
+from wavebrdf.solver.surface import HeightField, generate
+
+LAMBDA = 0.5
+
+
+@pytest.fixture(scope="module")
+def rough_mesh():
+    """8×8 cells at d = λ/10, Gaussian roughness (several z planes)."""
+    d = LAMBDA / 10
+    return BEMMesh(generate("gaussian", cells=8, size_um=8 * d, seed=5, rms_height_um=0.06, correlation_um=0.2))
+
+
+def test_grid_contains_every_stencil_and_fft_sizes_are_smooth(rough_mesh):
+    grid = build_grid(rough_mesh)
+    pts = grid.stencil_points()
+    assert pts.min() >= 0
+    assert np.all(pts.max(axis=(0, 1)) < np.asarray(grid.shape))
+    for n, p in zip(grid.shape, grid.padded):
+        assert p >= 2 * n - 1
+        m = p
+        for f in (2, 3, 5, 7, 11):
+            while m % f == 0:
+                m //= f
+        assert m == 1
+    # stencil surrounds the rooftop centre in x and y (even stencil: centre in the middle cell)
+    centre = rough_mesh.basis_centres / np.asarray(grid.spacing) - np.asarray(grid.lattice_start)
+    rel = centre - grid.origins
+    assert np.all((rel[:, :2] >= 1.0) & (rel[:, :2] < 2.0))
+    assert np.all(np.abs(rel[:, 2] - 1.0) <= 0.5)
+
+
+def test_flat_patch_gets_a_one_plane_stencil():
+    mesh = BEMMesh(generate("flat", cells=6, size_um=0.3))
+    grid = build_grid(mesh)
+    assert grid.stencil == (4, 4, 1) and grid.shape[2] == 1
+    assert build_grid(mesh, GridOptions(stencil=(4, 4, 3))).stencil == (4, 4, 3)
+
+
+def test_inverse_map_lists_every_stencil_entry_once(rough_mesh):
+    grid = build_grid(rough_mesh)
+    pointer, entries = grid.inverse_map()
+    assert pointer[-1] == rough_mesh.n_bases * grid.stencil_size
+    assert np.array_equal(np.sort(entries), np.arange(pointer[-1]))
+    flat = grid.linear_index(grid.stencil_points()).ravel()
+    for p in (0, len(pointer) // 2, len(pointer) - 2):
+        assert np.all(flat[entries[pointer[p] : pointer[p + 1]]] == p)
+
+
+def test_moment_matching_reproduces_the_basis_moments(rough_mesh):
+    """Σ_p Λ_p (p − o)^α = ∫ψ (r − o)^α dA for every α in the stencil's tensor set."""
+    grid = build_grid(rough_mesh)
+    proj = project(rough_mesh, grid, "moments")
+    r, psi = basis_quadrature(rough_mesh, 6)
+    pos = grid.stencil_positions()
+    origin = pos[:, :1, :]
+    sx, sy, sz = grid.stencil
+    worst = 0.0
+    for a in range(sx):
+        for b in range(sy):
+            for c in range(sz):
+                mono_q = np.prod((r - origin) ** [a, b, c], axis=-1)
+                mono_p = np.prod((pos - origin) ** [a, b, c], axis=-1)
+                exact = np.einsum("cbq,bq->cb", psi, mono_q)
+                approx = np.einsum("cbs,bs->cb", proj.weights, mono_p)
+                scale = np.einsum("cbq,bq->cb", np.abs(psi), np.abs(mono_q)) + 1e-300
+                worst = max(worst, np.max(np.abs(approx - exact) / scale))
+    assert worst < 1e-10
+
+
+def test_farfield_matching_reproduces_plane_waves(rough_mesh):
+    """Σ_p Λ_p e^{jk d̂·p} vs ∫ψ e^{jk d̂·r} dA at directions not in the matching set."""
+    grid = build_grid(rough_mesh)
+    k = 2 * np.pi / LAMBDA
+    proj = project(rough_mesh, grid, "farfield", k=k, regularization=1e-4)
+    dirs = fibonacci_directions(77)  # different from the 3S = 144 matching directions
+    r, psi = basis_quadrature(rough_mesh, 6)
+    exact = np.einsum("cbq,bql->cbl", psi, np.exp(1j * k * r @ dirs.T))
+    approx = np.einsum("cbs,bsl->cbl", proj.weights, np.exp(1j * k * grid.stencil_positions() @ dirs.T))
+    err = np.linalg.norm(approx - exact, axis=-1) / np.linalg.norm(exact, axis=-1)
+    print("far-field matching: max relative error", err.max())
+    assert err.max() < 5e-3
+
+
+def test_lattice_green_matches_the_formula_and_is_odd():
+    k = 2 * np.pi / LAMBDA * (1.5 - 0.01j)
+    spacing = (0.07, 0.07, 0.09)
+    offsets = np.array([[1, 2, -1], [-3, 0, 2], [0, 0, 0]])
+    g, grad = lattice_green(k, spacing, offsets)
+    R = offsets[0] * spacing
+    r = np.linalg.norm(R)
+    assert np.isclose(g[0], np.exp(-1j * k * r) / (4 * np.pi * r), rtol=1e-14)
+    assert np.allclose(grad[0], -R * (1 + 1j * k * r) * np.exp(-1j * k * r) / (4 * np.pi * r**3), rtol=1e-13)
+    assert g[2] == 0 and np.all(grad[2] == 0)
+    g2, grad2 = lattice_green(k, spacing, -offsets)
+    assert np.allclose(g2, g) and np.allclose(grad2, -grad)
+
+
+def test_pruned_fft_convolution_is_the_linear_convolution(rough_mesh, rng):
+    """Spectra × pruned FFTs = direct linear convolution with the sampled kernel."""
+    grid = build_grid(rough_mesh)
+    media = Media(LAMBDA, 1.5)
+    spectra = kernel_spectra(grid, media, (0,))
+    q = rng.standard_normal(grid.shape) + 1j * rng.standard_normal(grid.shape)
+    conv = inverse_pruned(forward_pruned(q, grid.padded) * spectra.green[0], grid.shape)
+    ix = np.stack(np.meshgrid(*(np.arange(n) for n in grid.shape), indexing="ij"), axis=-1).reshape(-1, 3)
+    for p in (0, 17, len(ix) - 1):
+        g, _ = lattice_green(media.wavenumbers[0], grid.spacing, ix[p] - ix)
+        assert np.isclose(conv.ravel()[p], np.sum(g * q.ravel()), rtol=1e-10)
+
+
+def test_interior_leaves_the_grid_only_when_it_has_decayed():
+    """Decay criterion, not κ ≠ 0: a weak absorber keeps its interior on the grid; continuity in κ."""
+    r = 0.2
+    assert grid_media(Media(0.4, 0.46582 - 4.7119j), r) == (0,)  # aluminium: e^{−74·0.2}·22 ≈ 8e-6
+    assert grid_media(Media(0.4, 1.5 - 1e-4j), r) == (0, 1)  # weak absorber: not truncated
+    assert grid_media(Media(0.4, 1.5), r) == (0, 1)
+    kappas = np.linspace(0.0, 6.0, 61)
+    decay = [interior_decay(Media(0.4, 1.5 - 1j * k), r) for k in kappas]
+    assert np.all(np.diff(np.log(decay[1:])) < 0)  # monotone: one switch point, no jumps back
+
+
+@pytest.mark.parametrize("projection", ["farfield", "moments"])
+@pytest.mark.parametrize("precision", ["double", "single"])
+def test_base_operator_kernels_match_numpy(cl_ctx, rough_mesh, rng, projection, precision):
+    media = Media(LAMBDA, 1.5)
+    grid = build_grid(rough_mesh)
+    spectra = kernel_spectra(grid, media, (0, 1))
+    dtype = np.complex128 if precision == "double" else np.complex64
+    if projection == "moments":
+        groups = [GridGroup.build(project(rough_mesh, grid, "moments"), spectra, media, (0, 1), dtype)]
+    else:
+        groups = [GridGroup.build(project(rough_mesh, grid, "farfield", k=media.wavenumbers[i].real), spectra,
+                                  media, (i,), dtype) for i in (0, 1)]
+    op = BaseOperator(cl_ctx, rough_mesh, groups, precision=precision)
+    x = rng.standard_normal((2, rough_mesh.n_unknowns)) + 1j * rng.standard_normal((2, rough_mesh.n_unknowns))
+    y = op.apply(x)
+    ref = op.apply_numpy(x)
+    err = np.linalg.norm(y - ref) / np.linalg.norm(ref)
+    print(projection, precision, "OpenCL vs NumPy", err)
+    assert err < (1e-12 if precision == "double" else 2e-5)
+
+
+@pytest.fixture(scope="module")
+def near_setup(cl_ctx, rough_mesh):
+    media = Media(LAMBDA, 1.5)
+    grid = build_grid(rough_mesh)
+    groups = [(project(rough_mesh, grid, "farfield", k=media.wavenumbers[i].real), (i,)) for i in (0, 1)]
+    pattern = NearPattern.build(rough_mesh.cells, 3.5)
+    near = assemble_near(cl_ctx, rough_mesh, media, pattern, groups, storage="double", exact_cells=2.3)
+    return media, groups, pattern, near
+
+
+def test_near_correction_is_exact_minus_grid_entries(cl_ctx, rough_mesh, near_setup):
+    """C from the OpenCL potentials kernels = A (part-1 entries) − B (explicit S×S double sum)."""
+    media, groups, pattern, near = near_setup
+    coef = media.pmchwt_coefficients()
+    rows = np.arange(pattern.rows)
+    for block in BLOCKS:
+        row_id, col_id, j, pos = pattern.pairs(block, rows)
+        ee, mm, em = basis_pair_entries(cl_ctx, rough_mesh, media, row_id, col_id)
+        expected = np.stack([ee, em, mm])
+        for projection, (i,) in groups:
+            c = [coef["ee_vec"][i], coef["ee_div"][i], coef["mm_vec"][i], coef["mm_div"][i]]
+            expected = expected - near_base_numpy(projection, media.wavenumbers[i], c, rough_mesh.n_horizontal,
+                                                  row_id, col_id)
+        got = near.values[block][j, pos].T
+        err = np.linalg.norm(got - expected) / np.linalg.norm(expected)
+        print(block, "C: OpenCL vs A − B(NumPy)", err)
+        assert err < 1e-11
+        # exact entries kept for the preconditioner
+        keep = np.isin(j, near.exact_offsets[block])
+        lookup = np.full(len(pattern.offsets(block)), -1)
+        lookup[near.exact_offsets[block]] = np.arange(len(near.exact_offsets[block]))
+        kept = near.exact[block][lookup[j[keep]], pos[keep]].T
+        assert np.allclose(kept, np.stack([ee, em, mm])[:, keep], rtol=1e-12, atol=0)
+
+
+@pytest.mark.parametrize("batch", [1, 2])
+def test_near_spmv_kernels_match_scipy(cl_ctx, rough_mesh, near_setup, rng, batch):
+    import pyopencl as cl
+
+    _, _, _, near = near_setup
+    n = rough_mesh.n_unknowns
+    x = rng.standard_normal((batch, n)) + 1j * rng.standard_normal((batch, n))
+    y = np.zeros_like(x)
+    mf = cl.mem_flags
+    xb = cl.Buffer(cl_ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
+    yb = cl.Buffer(cl_ctx.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=y)
+    near.apply(cl_ctx, xb, yb, batch, True)
+    cl.enqueue_copy(cl_ctx.queue, y, yb)
+    ref = near.apply_numpy(x)
+    assert np.linalg.norm(y - ref) / np.linalg.norm(ref) < 1e-13
+    # the stored pattern is symmetric: C = Cᵀ
+    C = near.to_sparse()
+    assert abs(C - C.T).max() == 0
+
+
+def test_near_pattern_counts_and_symmetry():
+    pattern = NearPattern.build(10, 2.5)
+    # same-orientation upper half + mirror + diagonal = all integer offsets within the radius
+    full = {(a, b) for a in range(-3, 4) for b in range(-3, 4) if a * a + b * b <= 6.25}
+    upper = {tuple(o) for o in pattern.same}
+    assert upper | {(-a, -b) for a, b in upper} == full and len(upper) == (len(full) + 1) // 2
+    assert all((a - 0.5) ** 2 + (b + 0.5) ** 2 <= 6.25 for a, b in pattern.cross)
+    with pytest.raises(ValueError, match="near_cells"):
+        NearPattern.build(10, 0.5)
+
+
+def test_options_errors_name_the_parameter():
+    from wavebrdf.solver.bem3d.aim import AIMOptions
+
+    with pytest.raises(ValueError, match="aim.projection"):
+        AIMOptions(projection="multipole")
+    with pytest.raises(ValueError, match="aim.solver"):
+        AIMOptions(solver="cg")
+    with pytest.raises(ValueError, match="unknown aim option"):
+        AIMOptions.from_mapping({"near_radius": 3})
+    with pytest.raises(ValueError, match="csym"):
+        AIMOptions(solver="csym")  # the near preconditioner needs gmres/bicgstab
+    with pytest.raises(ValueError, match="stencil"):
+        GridOptions(stencil=(0, 4, 3))
+
+
+def test_flat_surface_has_no_vertical_projection():
+    mesh = BEMMesh(HeightField(np.zeros((9, 9)), 0.4))
+    proj = project(mesh, build_grid(mesh), "farfield", k=2 * np.pi / LAMBDA)
+    assert np.abs(proj.weights[1]).max() == 0.0

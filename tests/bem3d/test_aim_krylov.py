@@ -1,0 +1,59 @@
+"""Krylov solvers (solver/krylov.py) on complex-symmetric systems against a direct solve."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from wavebrdf.solver.krylov import KRYLOV_METHODS, KrylovNotConverged, solve
+
+
+@pytest.fixture(scope="module")
+def system():
+    """A complex-symmetric, indefinite, non-Hermitian matrix (like scaled PMCHWT) and 2 RHS."""
+    rng = np.random.default_rng(7)
+    n = 300
+    B = rng.standard_normal((n, n)) + 1j * rng.standard_normal((n, n))
+    A = (B + B.T) / np.sqrt(n) + np.diag(np.where(np.arange(n) % 2, 4.0, -4.0) + 1j)
+    b = rng.standard_normal((2, n)) + 1j * rng.standard_normal((2, n))
+    return A, b, np.linalg.solve(A, b.T).T
+
+
+@pytest.mark.parametrize("method", KRYLOV_METHODS)
+def test_solvers_reach_the_direct_solution(system, method):
+    A, b, exact = system
+    result = solve(lambda X: X @ A.T, b, method=method, tol=1e-10, max_iterations=5000, restart=100)
+    err = np.linalg.norm(result.x - exact, axis=1) / np.linalg.norm(exact, axis=1)
+    true = np.linalg.norm(b - result.x @ A.T, axis=1) / np.linalg.norm(b, axis=1)
+    print(method, result.iterations, err)
+    assert np.all(true <= 1e-10) and np.allclose(true, result.true_residual)
+    assert np.all(err < 1e-7)
+    assert len(result.history[0]) > 0 and result.diagnostics()["converged"]
+
+
+def test_right_preconditioning_keeps_the_residual_of_the_original_system(system):
+    A, b, exact = system
+    M = np.linalg.inv(A + 0.3 * np.diag(np.diag(A)))  # a rough approximate inverse
+    plain = solve(lambda X: X @ A.T, b, tol=1e-9, max_iterations=2000, restart=300)
+    pre = solve(lambda X: X @ A.T, b, tol=1e-9, max_iterations=2000, restart=300, preconditioner=lambda X: X @ M.T)
+    assert np.all(pre.iterations < plain.iterations)
+    assert np.allclose(pre.x, exact, rtol=0, atol=1e-6 * np.abs(exact).max())
+
+
+def test_non_convergence_raises_with_diagnostics(system):
+    A, b, _ = system
+    with pytest.raises(KrylovNotConverged) as info:
+        solve(lambda X: X @ A.T, b, method="gmres", tol=1e-12, max_iterations=5, restart=3)
+    diag = info.value.diagnostics
+    assert diag["converged"] is False and diag["max_iterations"] == 5
+    assert len(diag["iterations"]) == 2 and all(r > 1e-12 for r in diag["residual"])
+
+
+def test_bad_arguments_are_named():
+    A = np.eye(3)
+    with pytest.raises(ValueError, match="krylov method"):
+        solve(lambda X: X, np.ones((1, 3)), method="cg")
+    with pytest.raises(ValueError, match="tolerance"):
+        solve(lambda X: X, np.ones((1, 3)), tol=0)
+    with pytest.raises(ValueError, match="zero"):
+        solve(lambda X: X @ A, np.zeros((1, 3)))
