@@ -1,7 +1,8 @@
 /* The AIM base matrix B = Lambda^T G Lambda applied on the grid (solver/bem3d/aim_base.py).
  *
  * Unknowns x = [J (nb) | M~ (nb)] per right-hand side (AIM_BATCH of them, build define).
- * Grid arrays: 8 components per right-hand side, compact (nx, ny, nz) row-major, n_points each:
+ * Grid arrays: 8 components per right-hand side, row-major with layout dims (Lx, Ly, Lz) >= (nx, ny, nz):
+ * compact (L = n) for host FFTs, the zero-padded FFT size for device FFTs; "points" = Lx Ly Lz:
  *   charges  q = [Jx, Jy, Jz, Jd, Mx, My, Mz, Md]   (x from horizontal, y from vertical rooftops)
  *   fields   F = [Ex, Ey, Ez, Ed, Hx, Hy, Hz, Hd]   (after the convolution, tested the same way)
  * Projection weights W: (3, nb, S) for components (t, z, d); real (AIM_COMPLEX_W = 0,
@@ -26,12 +27,17 @@
 #define AIM_NMED 1
 #endif
 
-__kernel void aim_scatter(__global const int *pointer, __global const int *entries, const int npoints,
-                          const int S, const int nb, const int nh, __global const weight_t *W,
+__kernel void aim_scatter(__global const int *pointer, __global const int *entries, const int4 grid,
+                          const int4 layout, const int S, const int nb, const int nh, __global const weight_t *W,
                           __global const cplx_t *x, __global cplx_t *q)
 {
+    /* grid = (nx, ny, nz): the compact grid the inverse map refers to; q in layout dims */
+    const int npoints = grid.x * grid.y * grid.z;
     const int p = get_global_id(0);
     if (p >= npoints) return;
+    const int iz = p % grid.z, iy = (p / grid.z) % grid.y, ix = p / (grid.z * grid.y);
+    const size_t lp = ((size_t)ix * layout.y + iy) * layout.z + iz;
+    const size_t lpoints = (size_t)layout.x * layout.y * layout.z;
     cplx_t acc[AIM_BATCH][8];
     for (int b = 0; b < AIM_BATCH; ++b)
         for (int c = 0; c < 8; ++c) acc[b][c] = c_new(R(0.0), R(0.0));
@@ -52,17 +58,18 @@ __kernel void aim_scatter(__global const int *pointer, __global const int *entri
         }
     }
     for (int b = 0; b < AIM_BATCH; ++b)
-        for (int c = 0; c < 8; ++c) q[((size_t)b * 8 + c) * npoints + p] = acc[b][c];
+        for (int c = 0; c < 8; ++c) q[((size_t)b * 8 + c) * lpoints + lp] = acc[b][c];
 }
 
-__kernel void aim_gather(__global const int *origins, const int nx, const int ny, const int nz,
-                         const int sx, const int sy, const int sz, const int nb, const int nh,
-                         __global const weight_t *W, __global const cplx_t *F, __global cplx_t *y)
+__kernel void aim_gather(__global const int *origins, const int4 layout, const int sx, const int sy,
+                         const int sz, const int nb, const int nh, __global const weight_t *W,
+                         __global const cplx_t *F, __global cplx_t *y)
 {
     const int g = get_global_id(0);
     if (g >= nb) return;
     const int S = sx * sy * sz;
-    const size_t npoints = (size_t)nx * ny * nz;
+    const int ny = layout.y, nz = layout.z;
+    const size_t npoints = (size_t)layout.x * ny * nz;
     const size_t wstride = (size_t)nb * S;
     const int ct = g < nh ? 0 : 1;
     const int ox = origins[3 * g], oy = origins[3 * g + 1], oz = origins[3 * g + 2];

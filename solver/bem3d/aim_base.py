@@ -52,6 +52,7 @@ __all__ = [
     "inverse_pruned",
     "projection_matrices",
     "scatter_numpy",
+    "int4_arg",
     "shared_buffer",
 ]
 
@@ -193,6 +194,7 @@ class BaseOperator:
         self.fft = self._choose_fft(fft)
         self.timings = {"scatter_s": 0.0, "fft_s": 0.0, "fourier_s": 0.0, "gather_s": 0.0, "calls": 0}
         self._mats = None
+        self._vkfft: dict = {}
         if ctx is not None:
             self._upload()
 
@@ -238,56 +240,113 @@ class BaseOperator:
         """B x for x (P, 2N_b); adds into the device buffer ``y_buffer`` if given, else returns y."""
         import pyopencl as cl
 
-        ctx, queue = self.ctx, self.ctx.queue
+        ctx = self.ctx
         mf = cl.mem_flags
         x = np.ascontiguousarray(np.atleast_2d(x), dtype=self.complex)
-        P = len(x)
-        shape = self.grid.shape
-        n_points = self.grid.points
         x_buf = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
         own_y = y_buffer is None
         if own_y:
             y_host = np.zeros_like(x)
             y_buffer = cl.Buffer(ctx.context, mf.READ_WRITE | mf.USE_HOST_PTR, hostbuf=y_host)
-        for (weights, green, gradient, coef, cw), group in zip(self._device_groups, self.groups):
-            defines = self._defines(P, cw, len(group.media))
-            t0 = time.perf_counter()
-            q = np.empty((P, 8) + tuple(shape), dtype=self.complex)
-            q_buf = cl.Buffer(ctx.context, mf.WRITE_ONLY | mf.USE_HOST_PTR, hostbuf=q)
-            knl = ctx.kernel("aim.cl", "aim_scatter", defines)
-            knl(queue, (n_points,), None, *self._map, np.int32(n_points), np.int32(self.grid.stencil_size),
-                np.int32(self.n_b), np.int32(self.n_h), weights, x_buf, q_buf)
-            _sync(queue, q_buf, q)
-            t1 = time.perf_counter()
-            Q = forward_pruned(q, self.grid.padded, self.workers).astype(self.complex, copy=False)
-            t2 = time.perf_counter()
-            Q_buf = cl.Buffer(ctx.context, mf.READ_WRITE | mf.USE_HOST_PTR, hostbuf=Q)
-            nfreq = self.grid.padded_points
-            knl = ctx.kernel("aim.cl", "aim_fourier", defines)
-            knl(queue, (nfreq,), None, green, gradient, np.int64(nfreq), coef, Q_buf)
-            _sync(queue, Q_buf, Q)
-            t3 = time.perf_counter()
-            F = inverse_pruned(Q, shape, self.workers).astype(self.complex, copy=False)
-            del Q, Q_buf
-            t4 = time.perf_counter()
-            F_buf = cl.Buffer(ctx.context, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=F)
-            nx, ny, nz = shape
-            sx, sy, sz = self.grid.stencil
-            knl = ctx.kernel("aim.cl", "aim_gather", defines)
-            knl(queue, (self.n_b,), None, self._origins, np.int32(nx), np.int32(ny), np.int32(nz),
-                np.int32(sx), np.int32(sy), np.int32(sz), np.int32(self.n_b), np.int32(self.n_h),
-                weights, F_buf, y_buffer)
-            queue.finish()
-            t5 = time.perf_counter()
-            self.timings["scatter_s"] += t1 - t0
-            self.timings["fft_s"] += (t2 - t1) + (t4 - t3)
-            self.timings["fourier_s"] += t3 - t2
-            self.timings["gather_s"] += t5 - t4
+        for device_group, group in zip(self._device_groups, self.groups):
+            if self.fft == "host":
+                self._apply_host(len(x), x_buf, y_buffer, device_group, group)
+            else:
+                self._apply_device(len(x), x_buf, y_buffer, device_group, group)
         self.timings["calls"] += 1
         if own_y:
-            _sync(queue, y_buffer, y_host)
+            _sync(ctx.queue, y_buffer, y_host)
             return y_host
         return y_buffer
+
+    def _scatter(self, P, x_buf, q_buf, weights, defines, layout):
+        knl = self.ctx.kernel("aim.cl", "aim_scatter", defines)
+        knl(self.ctx.queue, (self.grid.points,), None, *self._map, int4_arg(self.grid.shape), int4_arg(layout),
+            np.int32(self.grid.stencil_size), np.int32(self.n_b), np.int32(self.n_h), weights, x_buf, q_buf)
+
+    def _fourier(self, Q_buf, green, gradient, coef, defines):
+        nfreq = self.grid.padded_points
+        knl = self.ctx.kernel("aim.cl", "aim_fourier", defines)
+        knl(self.ctx.queue, (nfreq,), None, green, gradient, np.int64(nfreq), coef, Q_buf)
+
+    def _gather(self, F_buf, y_buffer, weights, defines, layout):
+        sx, sy, sz = self.grid.stencil
+        knl = self.ctx.kernel("aim.cl", "aim_gather", defines)
+        knl(self.ctx.queue, (self.n_b,), None, self._origins, int4_arg(layout), np.int32(sx), np.int32(sy),
+            np.int32(sz), np.int32(self.n_b), np.int32(self.n_h), weights, F_buf, y_buffer)
+
+    def _apply_host(self, P, x_buf, y_buffer, device_group, group):
+        """Charges and fields on compact host arrays; pruned scipy FFTs on the host."""
+        import pyopencl as cl
+
+        ctx, queue = self.ctx, self.ctx.queue
+        mf = cl.mem_flags
+        weights, green, gradient, coef, cw = device_group
+        defines = self._defines(P, cw, len(group.media))
+        shape = self.grid.shape
+        t0 = time.perf_counter()
+        q = np.empty((P, 8) + tuple(shape), dtype=self.complex)
+        q_buf = cl.Buffer(ctx.context, mf.WRITE_ONLY | mf.USE_HOST_PTR, hostbuf=q)
+        self._scatter(P, x_buf, q_buf, weights, defines, shape)
+        _sync(queue, q_buf, q)
+        t1 = time.perf_counter()
+        Q = forward_pruned(q, self.grid.padded, self.workers).astype(self.complex, copy=False)
+        t2 = time.perf_counter()
+        Q_buf = cl.Buffer(ctx.context, mf.READ_WRITE | mf.USE_HOST_PTR, hostbuf=Q)
+        self._fourier(Q_buf, green, gradient, coef, defines)
+        _sync(queue, Q_buf, Q)
+        t3 = time.perf_counter()
+        F = inverse_pruned(Q, shape, self.workers).astype(self.complex, copy=False)
+        del Q, Q_buf
+        t4 = time.perf_counter()
+        F_buf = cl.Buffer(ctx.context, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=F)
+        self._gather(F_buf, y_buffer, weights, defines, shape)
+        queue.finish()
+        t5 = time.perf_counter()
+        self._record(t1 - t0, (t2 - t1) + (t4 - t3), t3 - t2, t5 - t4)
+
+    def _apply_device(self, P, x_buf, y_buffer, device_group, group):
+        """Charges and fields on zero-padded device arrays; VkFFT on the device (GPUs)."""
+        queue = self.ctx.queue
+        weights, green, gradient, coef, cw = device_group
+        defines = self._defines(P, cw, len(group.media))
+        Q, app = self._device_work(P)
+        t0 = time.perf_counter()
+        Q.fill(0)
+        self._scatter(P, x_buf, Q.data, weights, defines, self.grid.padded)
+        queue.finish()
+        t1 = time.perf_counter()
+        app.fft(Q)
+        queue.finish()
+        t2 = time.perf_counter()
+        self._fourier(Q.data, green, gradient, coef, defines)
+        queue.finish()
+        t3 = time.perf_counter()
+        app.ifft(Q)
+        queue.finish()
+        t4 = time.perf_counter()
+        self._gather(Q.data, y_buffer, weights, defines, self.grid.padded)
+        queue.finish()
+        t5 = time.perf_counter()
+        self._record(t1 - t0, (t2 - t1) + (t4 - t3), t3 - t2, t5 - t4)
+
+    def _device_work(self, P: int):
+        """Padded device array (8P transforms) and its VkFFT plan, kept per batch size."""
+        if P not in self._vkfft:
+            import pyopencl.array as cla
+            from pyvkfft.opencl import VkFFTApp
+
+            shape = (8 * P,) + tuple(self.grid.padded)
+            Q = cla.zeros(self.ctx.queue, shape, self.complex)
+            app = VkFFTApp(shape, self.complex, self.ctx.queue, ndim=3, inplace=True, norm=1)
+            self._vkfft = {P: (Q, app)}  # one batch size at a time: the arrays are large
+        return self._vkfft[P]
+
+    def _record(self, scatter, fft, fourier, gather):
+        self.timings["scatter_s"] += scatter
+        self.timings["fft_s"] += fft
+        self.timings["fourier_s"] += fourier
+        self.timings["gather_s"] += gather
 
     def apply_numpy(self, x: np.ndarray) -> np.ndarray:
         """NumPy reference of :meth:`apply` (double precision, full FFTs)."""
@@ -329,6 +388,13 @@ def shared_buffer(ctx, array: np.ndarray, writable: bool = False):
     if "CPU" in ctx.info.kind:
         return cl.Buffer(ctx.context, access | mf.USE_HOST_PTR, hostbuf=array)
     return cl.Buffer(ctx.context, access | mf.COPY_HOST_PTR, hostbuf=array)
+
+
+def int4_arg(values):
+    """An OpenCL int4 kernel argument from up to 4 integers (missing ones are 0)."""
+    import pyopencl as cl
+
+    return np.array(list(values) + [0] * (4 - len(values)), dtype=np.int32).view(cl.cltypes.int4)[0]
 
 
 def _sync(queue, buf, host: np.ndarray):

@@ -38,7 +38,7 @@ __all__ = [
     "padded_offsets",
 ]
 
-DECAY_TOLERANCE = 1e-5
+DECAY_TOLERANCE = 1e-4  # dropped interior entries ≤ 1e-4·d/r_near of the near ones, decaying as e^{−|Im k₂|R}
 
 
 def lattice_green(k: complex, spacing, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

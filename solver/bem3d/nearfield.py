@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse
 
+from wavebrdf.solver.bem3d.aim_base import int4_arg, shared_buffer
 from wavebrdf.solver.bem3d.aim_green import lattice_green
 from wavebrdf.solver.bem3d.assembly import basis_pair_entries
 from wavebrdf.solver.bem3d.elements import ElementIntegrals
@@ -323,7 +324,6 @@ class NearMatrix:
         """Device buffers of the values (split by offsets where a block exceeds max allocation)."""
         import pyopencl as cl
 
-        from wavebrdf.solver.bem3d.aim_base import shared_buffer
 
         max_alloc = int(ctx.info.max_alloc_gib * 2**30)
         device = {}
@@ -427,7 +427,6 @@ class _NearBaseOpenCL:
         sources = (near_first(orow, pattern.cells) + np.asarray(rows)).astype(np.int32)
         step = max(1, POTENTIAL_BUDGET // (6 * nW * 16))
         weights = self.weights[id(projection)]
-        i4 = lambda v: np.array(list(v) + [0], dtype=np.int32).view(cl.cltypes.int4)[0]  # noqa: E731
         sx, sy, sz = grid.stencil
         for s0 in range(0, len(rows), step):
             s1 = min(len(rows), s0 + step)
@@ -437,13 +436,14 @@ class _NearBaseOpenCL:
                                 hostbuf=np.ascontiguousarray(rows[s0:s1], np.int32))
             pot = cl.Buffer(ctx.context, mf.READ_WRITE, n * 6 * nW * 16)
             pot_knl(queue, (n * nW,), None, src_buf, np.int32(n), self.origins, np.int32(2 * pattern.rows),
-                    np.int32(n_horizontal), weights, np.int32(sx), np.int32(sy), np.int32(sz), i4(wdim), i4(wbase),
-                    i4(lo), i4(dims), *tables, pot)
+                    np.int32(n_horizontal), weights, np.int32(sx), np.int32(sy), np.int32(sz), int4_arg(wdim),
+                    int4_arg(wbase), int4_arg(lo), int4_arg(dims), *tables, pot)
             chunk = np.ascontiguousarray(staged[:, s0:s1])
             val_buf = cl.Buffer(ctx.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=chunk)
             cor_knl(queue, (len(offsets) * n,), None, np.int32(orow), np.int32(ocol), np.int32(pattern.cells),
                     off_buf, np.int32(len(offsets)), row_buf, np.int32(n), self.origins, np.int32(2 * pattern.rows),
-                    weights, np.int32(sx), np.int32(sy), np.int32(sz), i4(wdim), i4(wbase), pot, coef_buf, val_buf)
+                    weights, np.int32(sx), np.int32(sy), np.int32(sz), int4_arg(wdim), int4_arg(wbase), pot,
+                    coef_buf, val_buf)
             cl.enqueue_copy(queue, chunk, val_buf)
             staged[:, s0:s1] = chunk
         queue.finish()

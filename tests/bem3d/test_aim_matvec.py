@@ -3,7 +3,8 @@
 Bar: relative error ‖(Z_AIM − Z)x‖/‖Zx‖ < 1e-3 for random vectors, with the default options, at
 three patch sizes for a dielectric (n = 1.5, d = λ/10) and for aluminium (d = λ/12.8), rough
 surfaces (several z planes). The dense matrix uses the same quadrature, so the difference is the
-AIM approximation alone. The OpenCL product must also equal its NumPy twin.
+AIM approximation alone (both use the AIM's element quadrature, AIM_QUADRATURE). The OpenCL
+product must also equal its NumPy twin.
 """
 
 from __future__ import annotations
@@ -11,8 +12,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wavebrdf.solver.bem3d.aim import AIMOperator, AIMOptions
+from wavebrdf.solver.bem3d.aim import AIM_QUADRATURE, AIMOperator, AIMOptions
 from wavebrdf.solver.bem3d.assembly import assemble_dense
+from wavebrdf.solver.bem3d.elements import ElementIntegrals
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.surface import generate
@@ -28,7 +30,7 @@ def _matvec_error(ctx, cells, case, rng, options=None):
                        correlation_um=0.8 * lam)
     mesh = BEMMesh(surface)
     media = Media(lam, index)
-    Z, _ = assemble_dense(ctx, mesh, media)
+    Z, _ = assemble_dense(ctx, mesh, media, ElementIntegrals(mesh, AIM_QUADRATURE, ctx))
     op = AIMOperator(ctx, mesh, media, options or AIMOptions(preconditioner="none"))
     x = rng.standard_normal((2, mesh.n_unknowns)) + 1j * rng.standard_normal((2, mesh.n_unknowns))
     ref = x @ Z.T
