@@ -49,15 +49,17 @@ def fields_from_integrals(media: Media, directions: np.ndarray, FJ: np.ndarray, 
     return E, H
 
 
-FARFIELD_STENCIL = (5, 5, 4)  # measured: error ~1e-6 vs the direct sum, flat or rough (docs/aim.md)
+FARFIELD_STENCIL = (4, 4, 4)  # with 1.5 S directions, order 3: error ~5e-6 vs the direct sum (docs/aim.md)
+FARFIELD_ORDER = 3
 
 
 class GridFarField:
     """Point-source far field of one mesh at one wavelength on a projected-hemisphere grid.
 
-    ``grid_options``: the AIM grid of the point sources (default: Δ = 1.6 d and a 5 × 5 × 4
+    ``grid_options``: the AIM grid of the point sources (default: Δ = 1.6 d and a 4 × 4 × 4
     stencil; a z stencil helps even on flat patches: the extra planes fit the grazing
-    directions); ``directions``, ``regularization``: far-field matching on the upper hemisphere.
+    directions); ``directions`` (default 1.5 S), ``regularization``: far-field matching on the
+    upper hemisphere.
     """
 
     def __init__(self, mesh: BEMMesh, media: Media, output: HemisphereGrid, *,
@@ -70,8 +72,9 @@ class GridFarField:
         self.grid = grid or build_grid(mesh, grid_options or GridOptions(stencil=FARFIELD_STENCIL))
         k1 = media.k0 * media.exterior_index
         self.k = k1
-        self.projection = project(mesh, self.grid, "farfield", k=k1, hemisphere=True,
-                                  directions=directions, regularization=regularization)
+        self.projection = project(mesh, self.grid, "farfield", k=k1, hemisphere=True, order=FARFIELD_ORDER,
+                                  directions=directions or (3 * self.grid.stencil_size) // 2,
+                                  regularization=regularization)
         self._mats = projection_matrices(self.projection, mesh.n_horizontal)[:3]  # x, y, z
         res = output.resolution
         s0, ds = -1.0 + 1.0 / res, 2.0 / res

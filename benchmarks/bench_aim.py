@@ -1,0 +1,300 @@
+"""Benchmarks of the AIM solver (docs/aim.md quotes their output).
+
+    .venv/bin/python benchmarks/bench_aim.py matvec            # matvec / FFT time, near memory, 3 sizes
+    .venv/bin/python benchmarks/bench_aim.py solve             # solve time at 3 patch sizes vs N log N
+    .venv/bin/python benchmarks/bench_aim.py solvers           # iterations and time per Krylov method
+    .venv/bin/python benchmarks/bench_aim.py precision         # single vs double: time and accuracy
+    .venv/bin/python benchmarks/bench_aim.py fft               # host scipy.fft vs VkFFT on this device
+    .venv/bin/python benchmarks/bench_aim.py accuracy          # matvec error vs near radius / spacing / projection
+    .venv/bin/python benchmarks/bench_aim.py reference         # the reference simulator's 4 µm flat case
+    .venv/bin/python benchmarks/bench_aim.py scale             # 12.5 µm aluminium, d = λ/12.8 (~6.4e5 unknowns)
+
+Every run prints the machine load (other agents share the 2 cores): compare ratios measured in
+one run, not absolute times. CPU seconds and peak memory come from getrusage.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import resource
+import time
+import warnings
+
+import numpy as np
+
+from wavebrdf.kernels import load_source
+from wavebrdf.solver.bem3d.aim import AIM_QUADRATURE, AIMBEM, AIMOperator, AIMOptions, estimate_aim
+from wavebrdf.solver.bem3d.aim_base import forward_pruned, inverse_pruned
+from wavebrdf.solver.bem3d.aim_grid import build_grid
+from wavebrdf.solver.bem3d.checks import BEMWarning
+from wavebrdf.solver.bem3d.media import Media
+from wavebrdf.solver.bem3d.mesh import BEMMesh
+from wavebrdf.solver.farfield import HemisphereGrid, albedo
+from wavebrdf.solver.opencl import create_context
+from wavebrdf.solver.surface import generate
+
+AL_400 = 0.46582 - 4.7119j
+KERNELS = ("aim.cl", "aim_near.cl", "sparse.cl", "bem_elements.cl", "bem_assembly.cl", "bem_farfield.cl")
+
+
+def freeze_kernel_sources():
+    """Read every kernel source now: long runs are then immune to edits of kernels/ on disk."""
+    for name in KERNELS:
+        load_source(name)
+
+
+def load() -> str:
+    one, five, _ = os.getloadavg()
+    return f"load average {one:.2f} (1 min), {five:.2f} (5 min) on {os.cpu_count()} CPUs"
+
+
+def usage() -> dict:
+    ru = resource.getrusage(resource.RUSAGE_SELF)
+    return {"cpu_s": ru.ru_utime + ru.ru_stime, "peak_memory_gb": ru.ru_maxrss / 2**20}
+
+
+def aluminium_patch(cells: int, lam: float = 0.4, per_wavelength: float = 12.8, seed: int = 1):
+    """Rough aluminium test surface like the reference's 'test' set (rms 0.088 µm, T = 1.8 µm)."""
+    d = lam / per_wavelength
+    return generate("gaussian", cells=cells, size_um=cells * d, seed=seed, rms_height_um=0.088,
+                    correlation_um=1.8)
+
+
+def best_matvec(op: AIMOperator, x: np.ndarray, repeat: int = 3):
+    """(best total time, the base timings of that call) of the operator product."""
+    best, timings = math.inf, None
+    for _ in range(repeat):
+        op.base.timings = {k: 0.0 for k in op.base.timings}
+        t0 = time.perf_counter()
+        op.matvec(x)
+        dt = time.perf_counter() - t0
+        if dt < best:
+            best, timings = dt, dict(op.base.timings)
+    return best, timings
+
+
+def cmd_matvec(args, ctx):
+    rng = np.random.default_rng(0)
+    print(load())
+    for cells in args.sizes:
+        surface = aluminium_patch(cells)
+        mesh = BEMMesh(surface)
+        media = Media(0.4, AL_400)
+        op = AIMOperator(ctx, mesh, media, AIMOptions(precision=args.precision, preconditioner="none"))
+        x = rng.standard_normal((2, mesh.n_unknowns)) + 1j * rng.standard_normal((2, mesh.n_unknowns))
+        total, t = best_matvec(op, x.astype(op.dtype))
+        print(f"N = {cells}: {mesh.n_unknowns} unknowns, {op.grid.describe()}; near {op.near.bytes() / mesh.n_unknowns:.0f} "
+              f"B/unknown; matvec (2 RHS) {total:.3f} s: FFT {t['fft_s']:.3f}, scatter {t['scatter_s']:.3f}, "
+              f"Fourier {t['fourier_s']:.3f}, gather {t['gather_s']:.3f}, near {t['near_s']:.3f}; "
+              f"matvec / FFT = {total / t['fft_s']:.2f}", flush=True)
+    print(load())
+
+
+def cmd_solve(args, ctx):
+    """Solve time at 3 sizes (aluminium, normal incidence) against N log N growth."""
+    print(load())
+    rows = []
+    for cells in args.sizes:
+        surface = aluminium_patch(cells)
+        t0 = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", BEMWarning)
+            solver = AIMBEM(ctx, surface, 0.4, AL_400, aim={"precision": args.precision})
+            setup = time.perf_counter() - t0
+            ff = solver.farfield(0.0, 0.0, HemisphereGrid(128), waist_um=surface.size_um / 5)
+        n = solver.mesh.n_unknowns
+        d = ff.diagnostics
+        rows.append((n, setup, d["solve_s"], d["iterations"]))
+        print(f"N = {cells}: {n} unknowns, set-up {setup:.1f} s, solve {d['solve_s']:.1f} s "
+              f"({d['iterations']} products), per product {d['solve_s'] / max(d['iterations']):.3f} s", flush=True)
+    n0, _, s0, i0 = rows[0]
+    for n, setup, s, its in rows[1:]:
+        nlogn = n * math.log(n) / (n0 * math.log(n0))
+        per = (s / max(its)) / (s0 / max(i0))
+        print(f"{n} vs {n0} unknowns: N log N ratio {nlogn:.2f}; solve-time ratio {s / s0:.2f}; "
+              f"time per product ratio {per:.2f}; iterations {its} vs {i0}")
+    print(load())
+
+
+def cmd_solvers(args, ctx):
+    """Iterations and time of each Krylov method (with and without the near preconditioner)."""
+    print(load())
+    for lam, index, per in ((0.5, 1.5, 10.0), (0.4, AL_400, 12.8)):
+        d = lam / per
+        surface = generate("gaussian", cells=args.cells, size_um=args.cells * d, seed=3, rms_height_um=0.1 * lam,
+                           correlation_um=0.8 * lam)
+        base = AIMBEM(ctx, surface, lam, index, aim={"preconditioner": "none"})
+        pre = AIMBEM(ctx, surface, lam, index)
+        for label, solver, method in (("gmres", base, "gmres"), ("csym", base, "csym"), ("bicgstab", base, "bicgstab"),
+                                      ("gmres + near LU", pre, "gmres"), ("bicgstab + near LU", pre, "bicgstab")):
+            solver.operator.options = AIMOptions(**{**solver.operator.options.__dict__, "solver": method})
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", BEMWarning)
+                    ff = solver.farfield(0.2, 0.0, HemisphereGrid(32), waist_um=surface.size_um / 5)
+                print(f"n = {index}, N = {args.cells}: {label:20s} products {ff.diagnostics['iterations']}, "
+                      f"solve {ff.diagnostics['solve_s']:.2f} s", flush=True)
+            except Exception as exc:  # a method that fails is a result here
+                print(f"n = {index}: {label}: {type(exc).__name__}: {str(exc)[:100]}", flush=True)
+    print(load())
+
+
+def cmd_precision(args, ctx):
+    """Single vs double precision: matvec time ratio and BRDF difference."""
+    print(load())
+    surface = aluminium_patch(args.cells)
+    out = {}
+    for precision in ("double", "single"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", BEMWarning)
+            solver = AIMBEM(ctx, surface, 0.4, AL_400, aim={"precision": precision})
+            x = np.random.default_rng(0).standard_normal((2, solver.mesh.n_unknowns)).astype(solver.operator.dtype)
+            mv, _ = best_matvec(solver.operator, x)
+            ff = solver.farfield(0.0, 0.0, HemisphereGrid(128), waist_um=surface.size_um / 5)
+        out[precision] = (mv, ff.brdf(), ff.diagnostics["solve_s"], ff.diagnostics["iterations"])
+    bd, bs = out["double"][1], out["single"][1]
+    lobe = np.isfinite(bd) & (bd > 1e-3 * np.nanmax(bd))
+    err = np.linalg.norm((bs - bd)[lobe]) / np.linalg.norm(bd[lobe])
+    print(f"N = {args.cells}: matvec single/double time ratio {out['single'][0] / out['double'][0]:.2f}; "
+          f"solve time ratio {out['single'][2] / out['double'][2]:.2f} (iterations {out['single'][3]} vs "
+          f"{out['double'][3]}); BRDF rel. L2 over the lobe single vs double {err:.2e}")
+    print(load())
+
+
+def cmd_fft(args, ctx):
+    """Host scipy.fft (pruned) vs VkFFT (full padded) for the AIM FFTs of one product."""
+    import pyopencl.array as cla
+    from pyvkfft.opencl import VkFFTApp
+
+    print(load())
+    for cells in args.sizes:
+        mesh = BEMMesh(aluminium_patch(cells))
+        grid = build_grid(mesh, AIMOptions().grid_options(Media(0.4, AL_400), mesh.spacing_um, (0,)))
+        for dtype in (np.complex128, np.complex64):
+            q = (np.random.default_rng(0).standard_normal((16,) + grid.shape)).astype(dtype)
+            Q = cla.zeros(ctx.queue, (16,) + grid.padded, dtype)
+            app = VkFFTApp(Q.shape, dtype, ctx.queue, ndim=3, inplace=True, norm=1)
+            host, device = math.inf, math.inf
+            for _ in range(args.repeat):  # alternate to share the load fairly
+                t0 = time.perf_counter()
+                inverse_pruned(forward_pruned(q, grid.padded), grid.shape)
+                host = min(host, time.perf_counter() - t0)
+                t0 = time.perf_counter()
+                app.fft(Q)
+                app.ifft(Q)
+                ctx.queue.finish()
+                device = min(device, time.perf_counter() - t0)
+            print(f"N = {cells}, FFT {grid.padded}, {np.dtype(dtype).name}, 16 transforms each way: host "
+                  f"(pruned scipy) {host:.3f} s, VkFFT on {ctx.info.name} {device:.3f} s, ratio VkFFT/host "
+                  f"{device / host:.2f}", flush=True)
+    print(load())
+
+
+def cmd_accuracy(args, ctx):
+    """Matvec error vs the dense matrix as a function of the near radius (and grid spacing)."""
+    from wavebrdf.solver.bem3d.assembly import assemble_dense
+    from wavebrdf.solver.bem3d.elements import ElementIntegrals
+
+    print(load())
+    rng = np.random.default_rng(0)
+    for lam, index, per in ((0.5, 1.5, 10.0), (0.4, AL_400, 12.8)):
+        d = lam / per
+        surface = generate("gaussian", cells=args.cells, size_um=args.cells * d, seed=args.cells,
+                           rms_height_um=0.1 * lam, correlation_um=0.8 * lam)
+        mesh = BEMMesh(surface)
+        media = Media(lam, index)
+        Z, _ = assemble_dense(ctx, mesh, media, ElementIntegrals(mesh, AIM_QUADRATURE, ctx))
+        x = rng.standard_normal((2, mesh.n_unknowns)) + 1j * rng.standard_normal((2, mesh.n_unknowns))
+        ref = x @ Z.T
+        for options in args.variants:
+            opts = AIMOptions(preconditioner="none", **json.loads(options))
+            op = AIMOperator(ctx, mesh, media, opts)
+            err = np.linalg.norm(op.matvec(x) - ref) / np.linalg.norm(ref)
+            print(f"n = {index}, N = {args.cells}: {options:50s} error {err:.2e}, near "
+                  f"{op.near.bytes() / mesh.n_unknowns:.0f} B/unknown, {op.grid.describe()}", flush=True)
+    print(load())
+
+
+def _single_run(ctx, surface, lam, index, waist, resolution, aim):
+    t0 = time.perf_counter()
+    cpu0 = usage()["cpu_s"]
+    estimate = estimate_aim(surface, lam, index, aim=aim, resolution=resolution)
+    print("estimate:", {k: v for k, v in estimate.items()}, flush=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", BEMWarning)
+        solver = AIMBEM(ctx, surface, lam, index, aim=aim)
+        print("set-up:", json.dumps(solver.diagnostics["aim_setup"], default=str), flush=True)
+        print("after set-up:", usage(), load(), flush=True)
+        grid = HemisphereGrid(resolution)
+        ff = solver.farfield(0.0, 0.0, grid, waist_um=waist)
+    wall = time.perf_counter() - t0
+    measured = albedo(ff.brdf(), grid)
+    expected = ff.diagnostics["beam_reflectance"]
+    d = ff.diagnostics
+    print(f"unknowns {d['unknowns']}, iterations {d['iterations']}, residual {d['residual']}, solve {d['solve_s']:.1f} s, "
+          f"far field {d['farfield_s']:.1f} s, near {d['near_bytes_per_unknown']:.0f} B/unknown, "
+          f"matvec timings {d['matvec_timings']}")
+    print(f"albedo {measured}, exact-beam reflectance {expected}, relative error {measured / expected - 1}, "
+          f"unpolarized {measured.mean() / expected.mean() - 1:+.4f}")
+    print(f"wall {wall:.1f} s, CPU {usage()['cpu_s'] - cpu0:.1f} s, peak memory {usage()['peak_memory_gb']:.2f} GB; {load()}")
+
+
+def cmd_reference(args, ctx):
+    """The reference simulator's CPU case: 4 µm flat dielectric, n = 1.5, λ = 0.5, d = 0.025,
+    waist 1.6 µm, normal incidence, 256² output (it took 5169 CPU-s, 4.8 GB, albedo error 1.35%)."""
+    print(load())
+    surface = generate("flat", cells=160, size_um=4.0)
+    _single_run(ctx, surface, 0.5, 1.5, args.waist, 256, {"precision": args.precision})
+
+
+def cmd_scale(args, ctx):
+    """12.5 µm aluminium patch at λ = 0.4 µm, d = λ/12.8 = 0.03125 µm (N = 400, 638 400 unknowns)."""
+    print(load())
+    surface = aluminium_patch(args.cells)
+    print(f"surface: {surface.cells} cells, {surface.size_um:g} µm, {surface.statistics()}")
+    _single_run(ctx, surface, 0.4, AL_400, args.waist or surface.size_um / 5, 256,
+                {"precision": args.precision, "near_storage": "single"})
+
+
+def main():
+    freeze_kernel_sources()
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("matvec")
+    p.add_argument("--sizes", type=int, nargs="+", default=[96, 160, 256])
+    p.add_argument("--precision", default="double")
+    p = sub.add_parser("solve")
+    p.add_argument("--sizes", type=int, nargs="+", default=[64, 128, 192])
+    p.add_argument("--precision", default="single")
+    p = sub.add_parser("solvers")
+    p.add_argument("--cells", type=int, default=32)
+    p = sub.add_parser("precision")
+    p.add_argument("--cells", type=int, default=96)
+    p = sub.add_parser("fft")
+    p.add_argument("--sizes", type=int, nargs="+", default=[128, 400])
+    p.add_argument("--repeat", type=int, default=5)
+    p = sub.add_parser("accuracy")
+    p.add_argument("--cells", type=int, default=24)
+    p.add_argument("--variants", nargs="+", default=[
+        '{"near_cells": 4}', '{"near_cells": 5}', '{"near_cells": 6}', '{"near_cells": 7}', '{"near_cells": 8}',
+        '{"near_cells": 6, "spacing_cells": 1.6, "max_k_spacing": 9}', '{"near_cells": 6, "projection": "moments"}',
+        '{"near_cells": 6, "near_storage": "double"}'])
+    p = sub.add_parser("reference")
+    p.add_argument("--waist", type=float, default=1.6)
+    p.add_argument("--precision", default="double")
+    p = sub.add_parser("scale")
+    p.add_argument("--cells", type=int, default=400)
+    p.add_argument("--waist", type=float, default=None)
+    p.add_argument("--precision", default="single")
+    args = parser.parse_args()
+    ctx = create_context()
+    print(f"device: {ctx.describe()}")
+    globals()[f"cmd_{args.command}"](args, ctx)
+    print("usage:", usage())
+
+
+if __name__ == "__main__":
+    main()
