@@ -156,6 +156,8 @@ def cmd_plan(args) -> int:
         lam = plan.wavelengths_um[task.wavelength]
         patch = "x".join(map(str, task.patch)) or "-"
         model = "steering synthesis" if task.kind == "synth" else plan.model_name(task)
+        if est.detail:
+            model += f" ({est.detail})"
         print(f"{task.id:6d} {task.kind:6} {task.case:4d} {lam:7.3f} {theta:7.2f} {phi:7.2f} {patch:>6} "
               f"{est.memory_bytes / 2**30:12.2f} {est.seconds:9.2f}  {model}")
     total = sum(e.seconds for e in estimates)

@@ -13,7 +13,8 @@ Sections (see configs/*.toml and the README for a full example)::
     [material]     name | table = [[λ_um, n, κ], ...] | n (+ kappa); exterior_index (default 1)
     [illumination] wavelengths_um, directions_deg = [[θ, φ], ...], waist_um,
                    polarization ("unpolarized"|"s"|"p"), beam ("exact"|"paraxial"|"plane")
-    [model]        name, method, precision ("double"|"single")
+    [model]        name, method, precision ("double"|"single"); [model.aim] options of the
+                   bem model's method "aim" (solver/bem3d/aim.py AIMOptions)
     [output]       resolution, per_polarization
     [steering]     patches ([mx, my] | "auto"), patch_size_um, shift_um (default: the waist),
                    hexagon_fill (hexagon radius as a fraction of sin(λ_min/(π w)); > 1 steers
@@ -204,6 +205,12 @@ def _patches(section, key, value):
     return (int(value[0]), int(value[1]))
 
 
+def _options_table(section, key, value):
+    if not isinstance(value, dict):
+        raise _fail(section, key, value, f"must be a table ([{section}.{key}] or {key} = {{...}})")
+    return dict(value)
+
+
 def _table(section, key, value):
     if not isinstance(value, list) or not value or not all(isinstance(r, list) and len(r) == 3 for r in value):
         raise _fail(section, key, value, "must be a list of [wavelength_um, n, kappa] rows")
@@ -254,6 +261,7 @@ SCHEMA: dict[str, dict[str, Spec]] = {
         "name": Spec(_string, required=True),
         "method": Spec(_string),
         "precision": Spec(_choice(*PRECISION_CHOICES), default="double"),
+        "aim": Spec(_options_table),  # bem method "aim": AIMOptions (docs/aim.md)
     },
     "steering": {
         "patches": Spec(_patches, required=True),
@@ -377,6 +385,7 @@ class ModelSpec:
     name: str
     method: str | None
     precision: str
+    aim: dict | None = None  # [model.aim] options of the bem model's AIM method
 
 
 @dataclass(frozen=True)
@@ -544,7 +553,16 @@ def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: di
         if mod["method"] not in methods:
             offered = ", ".join(repr(m) for m in methods) or "no methods"
             raise _fail("model", "method", mod["method"], f"model {mod['name']!r} offers {offered}")
-    model = ModelSpec(mod["name"], mod["method"], mod["precision"])
+    if mod["aim"] is not None:
+        if mod["name"] != "bem" or mod["method"] != "aim":
+            raise _fail("model", "aim", mod["aim"], 'applies to name = "bem", method = "aim" only')
+        from wavebrdf.solver.bem3d.aim import AIMOptions
+
+        try:
+            AIMOptions.from_mapping(mod["aim"])
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"[model.aim] {exc}") from None
+    model = ModelSpec(mod["name"], mod["method"], mod["precision"], mod["aim"])
     o = v["output"]
     out = OutputSpec(o["resolution"], o["per_polarization"], o["phi_r_bins"], o["phi_i_bins"])
     steering = None

@@ -151,7 +151,7 @@ class Plan:
             beam=study.illumination.beam,
             precision=study.model.precision,
             z_reference=z_reference,
-            options={"method": study.model.method},
+            options={"method": study.model.method, "aim": study.model.aim},
         )
 
     def model_name(self, task: Task) -> str:

@@ -106,8 +106,20 @@ def worker_environment(workers_on_node: int, rank: int, cores: int | None = None
 # Task execution (any process)
 
 
+def _plain(diagnostics: dict) -> dict:
+    """Diagnostics with JSON-ready values (numbers, strings, lists of numbers; anything else as repr)."""
+    def value(v):
+        if isinstance(v, (bool, int, float, str)):
+            return v
+        if isinstance(v, (list, tuple)) and all(isinstance(x, (bool, int, float, str)) for x in v):
+            return list(v)
+        return repr(v)
+
+    return {k: value(v) for k, v in diagnostics.items()}
+
+
 def _farfield_diagnostics(ff: FarField) -> dict:
-    return {k: (v if isinstance(v, (int, float, str, bool)) else repr(v)) for k, v in ff.diagnostics.items()}
+    return _plain(ff.diagnostics)
 
 
 def _reduce(plan: Plan, task: Task, ff: FarField) -> TaskResult:
@@ -347,7 +359,7 @@ def _run_guarded(ctx, plan: Plan, task: Task, parts: PartsFolder) -> tuple[bool,
         return True, execute_task(ctx, plan, task, parts)
     except Exception as exc:  # a task failure is data, not a crash of the run
         diag = {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(limit=8)}
-        diag.update(getattr(exc, "diagnostics", {}) or {})
+        diag.update(_plain(getattr(exc, "diagnostics", {}) or {}))
         return False, diag
 
 
