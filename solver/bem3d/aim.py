@@ -26,13 +26,12 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import scipy.sparse.linalg
 
-from wavebrdf.solver.beams import BEAMS, make_beam
 from wavebrdf.solver.bem3d.aim_base import BaseOperator, GridGroup
 from wavebrdf.solver.bem3d.aim_grid import GridOptions, build_grid
 from wavebrdf.solver.bem3d.aim_green import DECAY_TOLERANCE, grid_media, interior_decay, kernel_spectra
-from wavebrdf.solver.bem3d.checks import check_footprint, check_material, check_resolution
+from wavebrdf.solver.bem3d.checks import check_material, check_resolution
 from wavebrdf.solver.bem3d.elements import ElementIntegrals
-from wavebrdf.solver.bem3d.excitation import SurfaceRule, power_into_material, right_hand_side
+from wavebrdf.solver.bem3d.excitation import SurfaceRule, beam_excitation, power_into_material
 from wavebrdf.solver.bem3d.fft_farfield import FARFIELD_STENCIL, GridFarField
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
@@ -340,19 +339,12 @@ class AIMBEM:
     def farfield(self, theta_i: float, phi_i: float, grid: HemisphereGrid, *, waist_um: float | None,
                  beam: str = "exact", focus_um=(0.0, 0.0)) -> FarField:
         """Far field for incidence (θ_i, φ_i) (toward the light) with the named beam."""
-        if beam not in BEAMS:
-            raise ValueError(f"illumination.beam must be one of {BEAMS}, got {beam!r}")
         t0 = time.perf_counter()
         diag = {k: v for k, v in self.diagnostics.items() if k != "warnings"}
         diag["warnings"] = list(self.diagnostics["warnings"])
-        L = self.mesh.surface.size_um
-        inc = make_beam(beam, self.media.wavelength_um, theta_i, phi_i, waist_um,
-                        exterior_index=self.media.exterior_index, focus_um=(focus_um[0], focus_um[1], 0.0),
-                        patch_size_um=L)
-        if beam != "plane":
-            check_footprint(inc.outside_fraction(L), theta_i, L, beam, diag)
-        rule = SurfaceRule.build(self.mesh, self.quadrature.rhs_order)
-        b = right_hand_side(self.mesh, inc.fields(rule.r), rule)
+        excitation = beam_excitation(self.mesh, self.media, theta_i, phi_i, waist_um=waist_um, beam=beam,
+                                     focus_um=focus_um, rhs_order=self.quadrature.rhs_order, diagnostics=diag)
+        inc, power, b = excitation.beam, excitation.incident_power, excitation.rhs
         self.progress("solve", 0.0)
         try:
             result = self.operator.solve(b)
@@ -363,7 +355,6 @@ class AIMBEM:
             raise
         t_solve = time.perf_counter()
         self.progress("far field", 0.0)
-        power = inc.incident_power(L)
         ff = self._grid_farfield(grid).farfield(result.x, theta_i=theta_i, phi_i=phi_i, incident_power=power,
                                                 diagnostics=diag)
         ff_rule = SurfaceRule.build(self.mesh, self.quadrature.farfield_order)

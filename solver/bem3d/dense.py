@@ -18,18 +18,16 @@ import time
 import numpy as np
 import scipy.linalg
 
-from wavebrdf.solver.beams import BEAMS, make_beam
 from wavebrdf.solver.bem3d.assembly import assemble_dense, dense_blocks
 from wavebrdf.solver.bem3d.checks import (
     RESIDUAL,
     SolverWarning,
-    check_footprint,
     check_material,
     check_resolution,
     emit,
 )
 from wavebrdf.solver.bem3d.elements import ElementIntegrals
-from wavebrdf.solver.bem3d.excitation import SurfaceRule, power_into_material, right_hand_side
+from wavebrdf.solver.bem3d.excitation import SurfaceRule, beam_excitation, power_into_material
 from wavebrdf.solver.bem3d.farfield import farfield_on_grid, radiated_fields, radiated_power
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
@@ -186,31 +184,16 @@ class DenseBEM:
     def farfield(self, theta_i: float, phi_i: float, grid: HemisphereGrid, *, waist_um: float | None,
                  beam: str = "exact", focus_um=(0.0, 0.0)) -> FarField:
         """Far field for incidence (θ_i, φ_i) (toward the light) with the named beam."""
-        if beam not in BEAMS:
-            raise ValueError(f"illumination.beam must be one of {BEAMS}, got {beam!r}")
         t0 = time.perf_counter()
         diag = {k: v for k, v in self.diagnostics.items() if k != "warnings"}
         diag["warnings"] = list(self.diagnostics["warnings"])
-        L = self.mesh.surface.size_um
-        inc = make_beam(beam, self.media.wavelength_um, theta_i, phi_i, waist_um,
-                        exterior_index=self.media.exterior_index, focus_um=(focus_um[0], focus_um[1], 0.0),
-                        patch_size_um=L)
-        if beam != "plane":
-            check_footprint(inc.outside_fraction(L), theta_i, L, beam, diag)
-        rule = SurfaceRule.build(self.mesh, self.options.rhs_order)
-        b = right_hand_side(self.mesh, inc.fields(rule.r), rule)
-        x, residual = self.solve(b)
+        excitation = beam_excitation(self.mesh, self.media, theta_i, phi_i, waist_um=waist_um, beam=beam,
+                                     focus_um=focus_um, rhs_order=self.options.rhs_order, diagnostics=diag)
+        inc, power = excitation.beam, excitation.incident_power
+        x, residual = self.solve(excitation.rhs)
         t_solve = time.perf_counter()
         if np.any(residual > RESIDUAL):
             emit(diag, SolverWarning, f"relative residual {residual} of the LU solve exceeds {RESIDUAL:g}")
-        power = inc.incident_power(L)
-        if not np.all(np.isfinite(power) & (power > 0)):
-            raise FloatingPointError(
-                f"the {beam} beam's incident power through the patch is {power} (not positive): at "
-                f"θ_i = {np.rad2deg(theta_i):.4g}° with waist {waist_um} µm on a {L:g} µm patch the beam is not "
-                "a beam there (paraxial breakdown or footprint far beyond the patch); use beam = 'exact', a "
-                "larger waist or a larger patch"
-            )
         ff_rule = SurfaceRule.build(self.mesh, self.options.farfield_order)
         ff = farfield_on_grid(self.ctx, self.mesh, self.media, x, grid, ff_rule,
                               theta_i=theta_i, phi_i=phi_i, incident_power=power, diagnostics=diag)
@@ -247,11 +230,10 @@ class DenseBEM:
     def solution(self, theta_i: float, phi_i: float, *, waist_um: float | None, beam: str = "exact",
                  focus_um=(0.0, 0.0)):
         """(beam, x (2, n), residual (2,)) without the far field (for custom post-processing)."""
-        inc = make_beam(beam, self.media.wavelength_um, theta_i, phi_i, waist_um,
-                        exterior_index=self.media.exterior_index, focus_um=(focus_um[0], focus_um[1], 0.0),
-                        patch_size_um=self.mesh.surface.size_um)
-        rule = SurfaceRule.build(self.mesh, self.options.rhs_order)
-        x, residual = self.solve(right_hand_side(self.mesh, inc.fields(rule.r), rule))
+        excitation = beam_excitation(self.mesh, self.media, theta_i, phi_i, waist_um=waist_um, beam=beam,
+                                     focus_um=focus_um, rhs_order=self.options.rhs_order)
+        inc = excitation.beam
+        x, residual = self.solve(excitation.rhs)
         return inc, x, residual
 
 

@@ -17,11 +17,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from wavebrdf.solver.beams import BEAMS, make_beam
+from wavebrdf.solver.bem3d.checks import check_footprint
+from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import SLOT_TANGENT, BEMMesh, slot_weight
 from wavebrdf.solver.bem3d.quadrature import tensor_rule
 from wavebrdf.solver.farfield import ETA0
 
-__all__ = ["SurfaceRule", "power_into_material", "right_hand_side", "surface_currents"]
+__all__ = ["BeamExcitation", "SurfaceRule", "beam_excitation", "power_into_material", "right_hand_side",
+           "surface_currents"]
 
 
 @dataclass(frozen=True)
@@ -86,3 +90,36 @@ def power_into_material(mesh: BEMMesh, x: np.ndarray, rule: SurfaceRule) -> np.n
     jac = np.linalg.norm(normal, axis=-1)
     integrand = np.einsum("eqc,...eqc->...eq", normal, np.cross(m, np.conj(j))) / jac**2
     return 0.5 * ETA0 * np.real(np.einsum("...eq,q->...", integrand, rule.weights))
+
+
+@dataclass(frozen=True)
+class BeamExcitation:
+    """An incident beam on a patch: the beam object, right-hand sides b (2, n) and its power (2,) (W)."""
+
+    beam: object
+    rhs: np.ndarray
+    incident_power: np.ndarray
+
+
+def beam_excitation(mesh: BEMMesh, media: Media, theta_i: float, phi_i: float, *, waist_um: float | None,
+                    beam: str, focus_um, rhs_order: int, diagnostics: dict | None = None) -> BeamExcitation:
+    """Build the named beam toward (θ_i, φ_i) (radians) focused at ``focus_um`` (x, y in µm) and its
+    right-hand sides; warn (into ``diagnostics``) about a footprint leaking off the patch and
+    refuse a beam whose incident power through the patch is not positive."""
+    if beam not in BEAMS:
+        raise ValueError(f"illumination.beam must be one of {BEAMS}, got {beam!r}")
+    L = mesh.surface.size_um
+    inc = make_beam(beam, media.wavelength_um, theta_i, phi_i, waist_um, exterior_index=media.exterior_index,
+                    focus_um=(focus_um[0], focus_um[1], 0.0), patch_size_um=L)
+    if beam != "plane" and diagnostics is not None:
+        check_footprint(inc.outside_fraction(L), theta_i, L, beam, diagnostics)
+    power = inc.incident_power(L)
+    if not np.all(np.isfinite(power) & (power > 0)):
+        raise FloatingPointError(
+            f"the {beam} beam's incident power through the patch is {power} (not positive): at "
+            f"θ_i = {np.rad2deg(theta_i):.4g}° with waist {waist_um} µm on a {L:g} µm patch the beam is not "
+            "a beam there (paraxial breakdown or footprint far beyond the patch); use beam = 'exact', a "
+            "larger waist or a larger patch"
+        )
+    rule = SurfaceRule.build(mesh, rhs_order)
+    return BeamExcitation(inc, right_hand_side(mesh, inc.fields(rule.r), rule), power)
