@@ -4,7 +4,7 @@
   (aim_grid.py), projections Λ (projection.py), sampled kernels (aim_green.py);
 * C (nearfield.py): exact minus grid entries of near pairs, sparse offset format;
 * a Krylov solve (solver/krylov.py) for both polarizations at once, right-preconditioned by the
-  incomplete LU of the exact near entries within ``preconditioner_cells`` (:class:`NearPreconditioner`);
+  sparse LU of the exact near entries within ``preconditioner_cells`` (:class:`NearPreconditioner`);
   without a preconditioner, on the rescaled system S Z S y = S b with S = diag(I, jI)
   (complex-symmetric like Z, but with its spectrum in the right half-plane, which roughly halves
   the GMRES iterations). Both measured in docs/aim.md;
@@ -77,7 +77,7 @@ class AIMOptions:
     tolerance           ‖r‖/‖b‖ of the Krylov solve (checked on the true residual)
     max_iterations      operator products per polarization
     restart             GMRES restart length
-    preconditioner      "near" (incomplete LU of the exact entries within preconditioner_cells) | "none"
+    preconditioner      "near" (sparse LU of the exact entries within preconditioner_cells) | "none"
     preconditioner_cells   radius of the preconditioner's pairs (cells)
     farfield_stencil, farfield_directions, farfield_regularization   far-field projection
                         (upper hemisphere, its own grid with Δ = 1.6 d)
@@ -156,32 +156,30 @@ def _symmetric_scaling(n_b: int, dtype) -> np.ndarray:
 class NearPreconditioner:
     """M(X) ≈ Z⁻¹X from the exact entries A_near of the pairs within the preconditioner radius.
 
-    An incomplete LU (SuperLU ILUTP, drop tolerance 1e-2, fill ≤ 4 nnz(A)) of S A_near S,
-    S = diag(I, jI): its diagonal blocks have the same sign, so nearly diagonal pivots are
-    stable, which allows the minimum-degree ordering of A + Aᵀ with a pivot threshold of 0.1.
-    Measured (docs/aim.md): the same iterations as the complete LU with a quarter of its fill and
-    a factorization time linear in the unknowns. Kept in complex64: it only steers the iteration.
-    M = S (S A S)⁻¹ S. Falls back to the complete LU if the incomplete one breaks down.
+    The sparse LU (SuperLU) of S A_near S, S = diag(I, jI): its diagonal blocks have the same
+    sign, so nearly diagonal pivots are stable, which allows the minimum-degree ordering of
+    A + Aᵀ with a pivot threshold of 0.1. Kept in complex64: it only steers the iteration.
+    M = S (S A S)⁻¹ S.
+
+    Measured (docs/aim.md, rough patches, radius 2.3 cells): the complete factorization has a
+    fill of 5.6, 8.9, 11.7 × nnz(A_near) at 4·10³, 2·10⁴, 6.5·10⁴ unknowns and factors faster
+    than SuperLU's incomplete LU, whose drop tolerance 1e-2 left a preconditioner error
+    ‖M A x − x‖/‖x‖ of 0.1–0.15 (and, with its fill capped at 4, of 155: GMRES then stalled).
     """
 
-    def __init__(self, near, drop_tolerance: float = 1e-2, fill_factor: float = 4.0):
+    def __init__(self, near):
         t0 = time.perf_counter()
         n_b = near.n_bases
         self.scale = _symmetric_scaling(n_b, np.complex64)
         S = scipy.sparse.diags(self.scale)
         A = (S @ near.exact_sparse(np.complex64) @ S).tocsc()
         self.nnz = A.nnz
-        try:
-            self.lu = scipy.sparse.linalg.spilu(A, drop_tol=drop_tolerance, fill_factor=fill_factor,
-                                                permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.1)
-            self.kind = "ilu"
-        except RuntimeError as exc:  # zero pivot in the incomplete factorization
-            logger.warning("incomplete LU of the near field failed (%s); using the complete LU", exc)
-            self.lu = scipy.sparse.linalg.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.1)
-            self.kind = "lu"
+        self.lu = scipy.sparse.linalg.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.1)
         self.factor_nnz = self.lu.L.nnz + self.lu.U.nnz
         self.seconds = time.perf_counter() - t0
         self.apply_s = 0.0
+        logger.info("near preconditioner: LU of %d entries, fill %.1f, %.1f s", self.nnz, self.factor_nnz / self.nnz,
+                    self.seconds)
 
     def bytes(self) -> int:
         return int(self.factor_nnz * 12)  # complex64 values + int32 indices
@@ -423,10 +421,14 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     weights = cplx * 3 * grid.stencil_size * mesh.n_bases * groups
     work = cplx * grid.padded_points * 8 * 2 * 2  # 8 components, 2 right-hand sides, FFT temporaries
     krylov = cplx * n * 2 * (options.restart + 3 if options.solver == "gmres" else 6)
+    preconditioner = 0.0
+    if options.preconditioner == "near":  # complex64 LU factors (+ int32 indices), fill ~ 2.2 ln n − 12.6
+        near_nnz = 4 * NearPattern.build(mesh.cells, options.preconditioner_cells).nnz()  # (J, M) × (J, M) blocks
+        preconditioner = 12.0 * near_nnz * max(4.0, 2.2 * math.log(n) - 12.6) * 2  # factors + SuperLU work
     stored_pairs = int(pattern.stored_entries())
     element_pairs = mesh.n_elements * math.pi * (options.near_cells + 1.5) ** 2
     assembly_temp = 600_000 * 1100 * 2  # element tables + staging of one strip
-    total = near_bytes + spectra + weights + work + krylov + assembly_temp + 300 * 2**20
+    total = near_bytes + spectra + weights + work + krylov + preconditioner + assembly_temp + 300 * 2**20
     # time model (seconds), constants from benchmarks/bench_aim.py on the 2-core machine
     fft_points = grid.padded_points * 16 * groups
     matvec_s = 2.5e-8 * fft_points * math.log2(max(grid.padded_points, 2)) / 20 + 4e-9 * stored_pairs * 2
@@ -441,6 +443,7 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
         "near_bytes": int(near_bytes),
         "spectra_bytes": int(spectra),
         "work_bytes": int(work + krylov),
+        "preconditioner_bytes": int(preconditioner),
         "seconds": float(seconds),
         "iterations_guess": int(iterations),
         "grid": grid.shape,
