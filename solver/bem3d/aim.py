@@ -156,15 +156,16 @@ def _symmetric_scaling(n_b: int, dtype) -> np.ndarray:
 class NearPreconditioner:
     """M(X) ≈ Z⁻¹X from the exact entries A_near of the pairs within the preconditioner radius.
 
-    The sparse LU (SuperLU) of S A_near S, S = diag(I, jI): its diagonal blocks have the same
-    sign, so nearly diagonal pivots are stable, which allows the minimum-degree ordering of
-    A + Aᵀ with a pivot threshold of 0.1. Kept in complex64: it only steers the iteration.
+    The sparse LU (SuperLU, minimum-degree ordering of A + Aᵀ) of S A_near S, S = diag(I, jI),
+    with diagonal pivots only: S keeps Z complex-symmetric and gives its diagonal blocks the same
+    sign, so the diagonal is dominant enough. Kept in complex64: it only steers the iteration.
     M = S (S A S)⁻¹ S.
 
-    Measured (docs/aim.md, rough patches, radius 2.3 cells): the complete factorization has a
-    fill of 5.6, 8.9, 11.7 × nnz(A_near) at 4·10³, 2·10⁴, 6.5·10⁴ unknowns and factors faster
-    than SuperLU's incomplete LU, whose drop tolerance 1e-2 left a preconditioner error
-    ‖M A x − x‖/‖x‖ of 0.1–0.15 (and, with its fill capped at 4, of 155: GMRES then stalled).
+    Measured (docs/aim.md, radius 2.3 cells, ~67 entries per row): fill 8–12 × nnz(A_near) at
+    1.6·10⁴–4·10⁴ unknowns, 1.4 s and 9 s, ‖M A x − x‖/‖x‖ = 9e-5 (complex64). Partial pivoting
+    (threshold 0.1) pivoted off the diagonal for aluminium at d = λ/8 (fill 29–37, 10× slower);
+    SuperLU's incomplete LU was no cheaper and far less accurate (error 0.07 at drop 1e-3; with
+    its fill capped at 4 and drop 1e-2, 155: GMRES then stalled).
     """
 
     def __init__(self, near):
@@ -174,7 +175,7 @@ class NearPreconditioner:
         S = scipy.sparse.diags(self.scale)
         A = (S @ near.exact_sparse(np.complex64) @ S).tocsc()
         self.nnz = A.nnz
-        self.lu = scipy.sparse.linalg.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.1)
+        self.lu = scipy.sparse.linalg.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0)
         self.factor_nnz = self.lu.L.nnz + self.lu.U.nnz
         self.seconds = time.perf_counter() - t0
         self.apply_s = 0.0
