@@ -423,9 +423,11 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     work = cplx * grid.padded_points * 8 * 2 * 2  # 8 components, 2 right-hand sides, FFT temporaries
     krylov = cplx * n * 2 * (options.restart + 3 if options.solver == "gmres" else 6)
     preconditioner = 0.0
-    if options.preconditioner == "near":  # complex64 LU factors (+ int32 indices), fill ~ 2.2 ln n − 12.6
+    if options.preconditioner == "near":
+        # complex64 LU factors + int32 indices; fill 2.2 ln n − 12.6 fits 5.6 … 12.0 measured at
+        # 4·10³ … 10⁵ unknowns (docs/aim.md); the 10⁵-unknown reference run peaked at 2.1 GB in all
         near_nnz = 4 * NearPattern.build(mesh.cells, options.preconditioner_cells).nnz()  # (J, M) × (J, M) blocks
-        preconditioner = 12.0 * near_nnz * max(4.0, 2.2 * math.log(n) - 12.6) * 2  # factors + SuperLU work
+        preconditioner = 12.0 * near_nnz * max(4.0, 2.2 * math.log(n) - 12.6)
     stored_pairs = int(pattern.stored_entries())
     element_pairs = mesh.n_elements * math.pi * (options.near_cells + 1.5) ** 2
     assembly_temp = 600_000 * 1100 * 2  # element tables + staging of one strip
