@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import logging
 import math
-import resource
 import time
 from dataclasses import asdict, dataclass, field
 
@@ -40,6 +39,7 @@ from wavebrdf.solver.bem3d.projection import PROJECTIONS, project
 from wavebrdf.solver.bem3d.quadrature import QuadratureOptions
 from wavebrdf.solver.farfield import FarField, HemisphereGrid
 from wavebrdf.solver.krylov import KRYLOV_METHODS, solve
+from wavebrdf.solver.resources import peak_memory_mb
 from wavebrdf.solver.surface import HeightField
 
 logger = logging.getLogger(__name__)
@@ -365,7 +365,7 @@ class AIMBEM:
             matvec_timings=dict(self.operator.base.timings),
             farfield_s=time.perf_counter() - t_solve, total_direction_s=time.perf_counter() - t0,
             into_material_fraction=into / power,
-            peak_memory_bytes=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+            peak_memory_bytes=peak_memory_mb() * 2**20,
         )
         if beam == "exact":
             ff.diagnostics["beam_reflectance"] = inc.reflectance(self.media.index)
