@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import os
 import resource
 
-__all__ = ["meminfo_bytes", "peak_memory_mb"]
+__all__ = ["meminfo_bytes", "peak_memory_mb", "release_free_memory", "resident_memory_mb"]
 
 
 def meminfo_bytes(field: str = "MemTotal") -> int:
@@ -24,3 +26,29 @@ def meminfo_bytes(field: str = "MemTotal") -> int:
 def peak_memory_mb() -> float:
     """Peak resident memory of this process (MB)."""
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def resident_memory_mb() -> float:
+    """Current resident memory of this process (MB; VmRSS), 0 where /proc is missing."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return 0.0
+
+
+def release_free_memory() -> None:
+    """Return the C heap's free pages to the system (glibc malloc_trim; a no-op elsewhere).
+
+    Large sparse factorizations (SuperLU) free gigabytes of working memory that glibc would
+    otherwise keep resident for the rest of the run.
+    """
+    name = ctypes.util.find_library("c")
+    try:
+        trim = getattr(ctypes.CDLL(name), "malloc_trim")
+    except (OSError, AttributeError, TypeError):
+        return
+    trim(0)

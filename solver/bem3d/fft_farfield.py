@@ -75,7 +75,7 @@ class GridFarField:
         self.projection = project(mesh, self.grid, "farfield", k=k1, hemisphere=True, order=FARFIELD_ORDER,
                                   directions=directions or (3 * self.grid.stencil_size) // 2,
                                   regularization=regularization)
-        self._mats = projection_matrices(self.projection, mesh.n_horizontal)[:3]  # x, y, z
+        self._mats = projection_matrices(self.projection, mesh.n_horizontal, 3)  # x, y, z
         res = output.resolution
         s0, ds = -1.0 + 1.0 / res, 2.0 / res
         g = self.grid
