@@ -34,12 +34,12 @@ from wavebrdf.solver.bem3d.excitation import SurfaceRule, beam_excitation, power
 from wavebrdf.solver.bem3d.fft_farfield import FARFIELD_STENCIL, GridFarField
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
-from wavebrdf.solver.bem3d.nearfield import NearPattern, assemble_near
+from wavebrdf.solver.bem3d.nearfield import NearPattern, assemble_near, near_coords, near_first
 from wavebrdf.solver.bem3d.projection import PROJECTIONS, project
 from wavebrdf.solver.bem3d.quadrature import QuadratureOptions
 from wavebrdf.solver.farfield import FarField, HemisphereGrid
 from wavebrdf.solver.krylov import KRYLOV_METHODS, solve
-from wavebrdf.solver.resources import peak_memory_mb
+from wavebrdf.solver.resources import peak_memory_mb, release_free_memory
 from wavebrdf.solver.surface import HeightField
 
 logger = logging.getLogger(__name__)
@@ -54,6 +54,10 @@ AIM_QUADRATURE = QuadratureOptions(tolerance=1e-4, static_order=5)
 PROJECTION_ORDER = 3  # Gauss order per element of the projection integrals (order 4: same AIM error)
 
 PRECONDITIONERS = ("near", "none")
+PRECONDITIONER_OVERLAP = 3  # cells added on every side of a preconditioner tile
+# resident bytes per factor entry of a complex64 SuperLU factorization: 8 + 4 of value and index,
+# and SuperLU's supernodal storage (measured: 14.7 GiB for 7.8·10⁸ entries at 6.4·10⁵ unknowns)
+SUPERLU_BYTES = 20.0
 
 
 @dataclass(frozen=True)
@@ -79,6 +83,7 @@ class AIMOptions:
     restart             GMRES restart length
     preconditioner      "near" (sparse LU of the exact entries within preconditioner_cells) | "none"
     preconditioner_cells   radius of the preconditioner's pairs (cells)
+    preconditioner_tile_cells   side of the preconditioner's LU tiles in cells (0: one LU)
     farfield_stencil, farfield_directions, farfield_regularization   far-field projection
                         (upper hemisphere, its own grid with Δ = 1.6 d)
     """
@@ -101,6 +106,7 @@ class AIMOptions:
     restart: int = 60
     preconditioner: str = "near"
     preconditioner_cells: float = 2.3
+    preconditioner_tile_cells: int = 0
     farfield_stencil: tuple[int, int, int] = FARFIELD_STENCIL
     farfield_directions: int = 0
     farfield_regularization: float = 1e-5
@@ -114,6 +120,10 @@ class AIMOptions:
             raise ValueError(f"aim.preconditioner must be one of {PRECONDITIONERS}, got {self.preconditioner!r}")
         if self.preconditioner == "near" and self.solver == "csym":
             raise ValueError("aim.solver 'csym' cannot use the near preconditioner; set preconditioner = 'none'")
+        if isinstance(self.preconditioner_tile_cells, bool) or not isinstance(self.preconditioner_tile_cells, int) \
+                or self.preconditioner_tile_cells < 0:
+            raise ValueError(f"aim.preconditioner_tile_cells must be an integer >= 0 (0: one LU), "
+                             f"got {self.preconditioner_tile_cells!r}")
         if self.precision not in ("double", "single"):
             raise ValueError(f"aim.precision must be 'double' or 'single', got {self.precision!r}")
         if not (np.isfinite(self.max_k_spacing) and self.max_k_spacing > 0):
@@ -161,6 +171,13 @@ class NearPreconditioner:
     sign, so the diagonal is dominant enough. Kept in complex64: it only steers the iteration.
     M = S (S A S)⁻¹ S.
 
+    ``tile_cells`` > 0 splits the patch into square tiles of about that many cells and factors
+    each tile's block, extended by ``overlap_cells`` on every side, on its own (restricted
+    additive Schwarz: each tile's solve writes only the unknowns of its own tile). The fill of
+    one LU grows with its size (8.9 at 2·10⁴ unknowns, 13 at 1.6·10⁵, ~20 at 6·10⁵), so tiles
+    keep the memory and time linear in the patch size for a few more GMRES products
+    (docs/aim.md). 0: one LU of the whole patch.
+
     Measured (docs/aim.md, radius 2.3 cells, ~67 entries per row): fill 8–12 × nnz(A_near) at
     1.6·10⁴–4·10⁴ unknowns, 1.4 s and 9 s, ‖M A x − x‖/‖x‖ = 9e-5 (complex64). Partial pivoting
     (threshold 0.1) pivoted off the diagonal for aluminium at d = λ/8 (fill 29–37, 10× slower);
@@ -168,29 +185,72 @@ class NearPreconditioner:
     its fill capped at 4 and drop 1e-2, 155: GMRES then stalled).
     """
 
-    def __init__(self, near):
+    def __init__(self, near, tile_cells: int = 0, overlap_cells: int = PRECONDITIONER_OVERLAP):
         t0 = time.perf_counter()
         n_b = near.n_bases
         self.scale = _symmetric_scaling(n_b, np.complex64)
         S = scipy.sparse.diags(self.scale)
         A = (S @ near.exact_sparse(np.complex64) @ S).tocsc()
         self.nnz = A.nnz
-        self.lu = scipy.sparse.linalg.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0)
-        self.factor_nnz = self.lu.L.nnz + self.lu.U.nnz
+        self.tiles = []  # (unknowns of the extended tile, positions of its own unknowns in them, own unknowns, LU)
+        self.factor_nnz = 0
+        for extended, own in preconditioner_tiles(near.pattern, tile_cells, overlap_cells):
+            block = A if len(extended) == A.shape[0] else A[extended][:, extended].tocsc()
+            lu = scipy.sparse.linalg.splu(block, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0)
+            self.factor_nnz += lu.L.nnz + lu.U.nnz
+            self.tiles.append((extended, np.flatnonzero(np.isin(extended, own, assume_unique=True)), own, lu))
+        del A
+        release_free_memory()
         self.seconds = time.perf_counter() - t0
         self.apply_s = 0.0
-        logger.info("near preconditioner: LU of %d entries, fill %.1f, %.1f s", self.nnz, self.factor_nnz / self.nnz,
-                    self.seconds)
+        logger.info("near preconditioner: LU of %d entries in %d tile(s), fill %.1f, %.1f s", self.nnz,
+                    len(self.tiles), self.factor_nnz / self.nnz, self.seconds)
 
     def bytes(self) -> int:
-        return int(self.factor_nnz * 12)  # complex64 values + int32 indices
+        return int(self.factor_nnz * SUPERLU_BYTES)
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
         t0 = time.perf_counter()
         X = np.atleast_2d(X)
-        Y = self.scale * self.lu.solve(np.ascontiguousarray((self.scale * X).T, dtype=np.complex64)).T
+        Xs = np.ascontiguousarray((self.scale * X).T, dtype=np.complex64)  # (n, P)
+        if len(self.tiles) == 1:
+            Y = self.tiles[0][3].solve(Xs)
+        else:
+            Y = np.empty_like(Xs)
+            for extended, positions, own, lu in self.tiles:
+                Y[own] = lu.solve(np.ascontiguousarray(Xs[extended]))[positions]
+        Y = self.scale * Y.T
         self.apply_s += time.perf_counter() - t0
         return Y.astype(X.dtype, copy=False)
+
+
+def preconditioner_tiles(pattern: NearPattern, tile_cells: int, overlap_cells: int):
+    """(extended, own) unknown indices (sorted) of each preconditioner tile; one tile if tile_cells ≤ 0.
+
+    Rooftops belong to the tile holding their centre (horizontal (x + 1, y + ½), vertical
+    (x + ½, y + 1) in cells); the extended tile adds the rooftops within ``overlap_cells``.
+    Unknowns are [J | M̃]: rooftop b gives b and b + N_b.
+    """
+    N, n_b = pattern.cells, 2 * pattern.rows
+    if tile_cells <= 0 or tile_cells >= N:
+        everything = np.arange(2 * n_b)
+        yield everything, everything
+        return
+    x = np.empty(n_b)
+    y = np.empty(n_b)
+    for o in (0, 1):
+        first = near_first(o, N)
+        cx, cy = near_coords(o, N, np.arange(pattern.rows))
+        x[first:first + pattern.rows] = cx + (1.0 if o == 0 else 0.5)
+        y[first:first + pattern.rows] = cy + (0.5 if o == 0 else 1.0)
+    edges = np.linspace(0.0, N, max(1, round(N / tile_cells)) + 1)
+    edges[-1] = np.inf
+    for x0, x1 in zip(edges[:-1], edges[1:]):
+        for y0, y1 in zip(edges[:-1], edges[1:]):
+            own = np.flatnonzero((x >= x0) & (x < x1) & (y >= y0) & (y < y1))
+            ext = np.flatnonzero((x >= x0 - overlap_cells) & (x < x1 + overlap_cells)
+                                 & (y >= y0 - overlap_cells) & (y < y1 + overlap_cells))
+            yield np.concatenate([ext, ext + n_b]), np.concatenate([own, own + n_b])
 
 
 class AIMOperator:
@@ -230,7 +290,7 @@ class AIMOperator:
         if ctx is not None:
             self.near.upload(ctx)
         t3 = time.perf_counter()
-        self.preconditioner = NearPreconditioner(self.near) if precondition else None
+        self.preconditioner = NearPreconditioner(self.near, options.preconditioner_tile_cells) if precondition else None
         self.setup = {
             "projection_s": t1 - t0, "spectra_s": t2 - t1, "near_s": t3 - t2,
             "near_detail": dict(self.near.timings), "grid": self.grid.describe(),
@@ -396,6 +456,22 @@ def aim_farfield(ctx, surface: HeightField, wavelength_um: float, index: complex
 # Planning
 
 
+def _preconditioner_cost(cells: int, unknowns: int, options: AIMOptions) -> tuple[float, float]:
+    """(peak bytes, seconds) of the near LU: SUPERLU_BYTES per factor entry of every tile, plus
+    SuperLU's working memory while one tile is factored (0.06 × its factors). Fill 2.2 ln n − 12.6
+    per LU of n unknowns fits 5.6 … 16.6 measured at 4·10³ … 6.4·10⁵ unknowns; time
+    1.1e-9 nnz^1.5 per LU fits 42 s and 346–384 s at 1.2·10⁷ and 4.7·10⁷ entries (docs/aim.md)."""
+    near_nnz = 4 * NearPattern.build(cells, options.preconditioner_cells).nnz()  # (J, M) × (J, M) blocks
+    T = options.preconditioner_tile_cells
+    per_axis = max(1, round(cells / T)) if 0 < T < cells else 1
+    side = cells if per_axis == 1 else cells / per_axis + 2 * PRECONDITIONER_OVERLAP
+    share = (side / cells) ** 2  # of the unknowns and near entries in one (extended) tile
+    fill = max(4.0, 2.2 * math.log(max(unknowns * share, 2.0)) - 12.6)
+    one_tile = SUPERLU_BYTES * near_nnz * share * fill
+    seconds = per_axis**2 * 1.1e-9 * (near_nnz * share) ** 1.5
+    return one_tile * per_axis**2 + 0.06 * one_tile, seconds
+
+
 def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, exterior_index: float = 1.0,
                  aim=None, resolution: int = 256, directions: int = 1) -> dict:
     """Memory and time of an AIM run before it starts (for ``wavebrdf plan``).
@@ -422,22 +498,23 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     weights = cplx * 3 * grid.stencil_size * mesh.n_bases * groups
     work = cplx * grid.padded_points * 8 * 2 * 2  # 8 components, 2 right-hand sides, FFT temporaries
     krylov = cplx * n * 2 * (options.restart + 3 if options.solver == "gmres" else 6)
-    preconditioner = 0.0
+    preconditioner = preconditioner_s = 0.0
     if options.preconditioner == "near":
-        # complex64 LU factors + int32 indices; fill 2.2 ln n − 12.6 fits 5.6 … 12.0 measured at
-        # 4·10³ … 10⁵ unknowns (docs/aim.md); the 10⁵-unknown reference run peaked at 2.1 GB in all
-        near_nnz = 4 * NearPattern.build(mesh.cells, options.preconditioner_cells).nnz()  # (J, M) × (J, M) blocks
-        preconditioner = 12.0 * near_nnz * max(4.0, 2.2 * math.log(n) - 12.6)
+        preconditioner, preconditioner_s = _preconditioner_cost(mesh.cells, n, options)
     stored_pairs = int(pattern.stored_entries())
     element_pairs = mesh.n_elements * math.pi * (options.near_cells + 1.5) ** 2
     assembly_temp = 600_000 * 1100 * 2  # element tables + staging of one strip
-    total = near_bytes + spectra + weights + work + krylov + preconditioner + assembly_temp + 300 * 2**20
+    farfield = 4300 * n  # far-field projection and sums (measured 2.7 GiB at 6.4·10⁵ unknowns)
+    total = near_bytes + spectra + weights + work + krylov + preconditioner + assembly_temp + farfield + 300 * 2**20
     # time model (seconds), constants from benchmarks/bench_aim.py on the 2-core machine
     fft_points = grid.padded_points * 16 * groups
     matvec_s = 2.5e-8 * fft_points * math.log2(max(grid.padded_points, 2)) / 20 + 4e-9 * stored_pairs * 2
     size_waves = surface.size_um * exterior_index / wavelength_um
-    iterations = 60 + 25 * math.sqrt(size_waves) * (1 + abs(media.index) / 4)
-    setup_s = 2e-5 * element_pairs + 3e-6 * stored_pairs
+    if options.preconditioner == "near":  # measured 7–43 products (docs/aim.md): a generous bound
+        iterations = 20 + 6 * math.sqrt(size_waves)
+    else:
+        iterations = 60 + 25 * math.sqrt(size_waves) * (1 + abs(media.index) / 4)
+    setup_s = 2e-5 * element_pairs + 3e-6 * stored_pairs + preconditioner_s
     seconds = setup_s + directions * iterations * matvec_s * 1.1
     return {
         "unknowns": n,

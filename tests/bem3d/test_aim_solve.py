@@ -16,8 +16,9 @@ import numpy as np
 import pytest
 
 from wavebrdf.solver.bem3d import DenseBEM
-from wavebrdf.solver.bem3d.aim import AIM_QUADRATURE, AIMBEM, aim_farfield
+from wavebrdf.solver.bem3d.aim import AIM_QUADRATURE, AIMBEM, NearPreconditioner, aim_farfield, preconditioner_tiles
 from wavebrdf.solver.bem3d.checks import BEMWarning
+from wavebrdf.solver.bem3d.nearfield import NearPattern
 from wavebrdf.solver.farfield import HemisphereGrid, albedo
 from wavebrdf.solver.krylov import KrylovNotConverged
 from wavebrdf.solver.surface import generate
@@ -102,3 +103,41 @@ def test_near_preconditioner_inverts_the_near_block_and_cuts_iterations(cl_ctx):
             products[preconditioner] = max(ff.diagnostics["iterations"])
     print("GMRES products with / without the near preconditioner:", products)
     assert products["near"] < products["none"]
+
+
+def test_preconditioner_tiles_partition_the_unknowns():
+    """Every unknown is owned by exactly one tile, inside that tile's extended block."""
+    pattern = NearPattern.build(20, 2.3)
+    n = 4 * pattern.rows
+    owners = np.zeros(n, dtype=int)
+    tiles = list(preconditioner_tiles(pattern, 7, 3))
+    assert len(tiles) == 9
+    for extended, own in tiles:
+        assert np.all(np.isin(own, extended)) and len(extended) > len(own)
+        owners[own] += 1
+    assert np.all(owners == 1)
+    (whole, own), = preconditioner_tiles(pattern, 0, 3)
+    assert np.array_equal(whole, np.arange(n)) and np.array_equal(own, whole)
+
+
+def test_tiled_preconditioner_still_cuts_iterations(cl_ctx):
+    """LU tiles (restricted additive Schwarz) approximate the whole near LU: GMRES products stay
+    far below the unpreconditioned count, and one tile covering the patch is the whole LU."""
+    lam, cells = 0.5, 32
+    surface = generate("gaussian", cells=cells, size_um=cells * lam / 10, seed=3, rms_height_um=0.1 * lam,
+                       correlation_um=0.8 * lam)
+    grid = HemisphereGrid(32)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", BEMWarning)
+        solver = AIMBEM(cl_ctx, surface, lam, 1.5)
+        whole = solver.operator.preconditioner
+        x = np.random.default_rng(2).standard_normal((1, whole.scale.size)) + 0j
+        assert np.array_equal(NearPreconditioner(solver.operator.near, cells)(x), whole(x))
+        products = {}
+        for tile in (0, 11):
+            solver.operator.preconditioner = NearPreconditioner(solver.operator.near, tile)
+            assert len(solver.operator.preconditioner.tiles) == (1 if tile == 0 else 9)
+            ff = solver.farfield(0.2, 0.0, grid, waist_um=surface.size_um / 5)
+            products[tile] = max(ff.diagnostics["iterations"])
+    print("GMRES products, whole near LU vs 3 × 3 tiles:", products)
+    assert products[11] <= 2 * products[0]  # measured 17 vs 12; 87 without a preconditioner (test above)
