@@ -7,6 +7,7 @@
     .venv/bin/python benchmarks/bench_aim.py fft               # host scipy.fft vs VkFFT on this device
     .venv/bin/python benchmarks/bench_aim.py accuracy          # matvec error vs near radius / spacing / projection
     .venv/bin/python benchmarks/bench_aim.py reference         # the reference simulator's 4 µm flat case
+    .venv/bin/python benchmarks/bench_aim.py truncation        # dense vs AIM on that geometry at d = λ/8
     .venv/bin/python benchmarks/bench_aim.py scale             # 12.5 µm aluminium, d = λ/12.8 (~6.4e5 unknowns)
 
 Every run prints the machine load (other agents share the 2 cores): compare ratios measured in
@@ -34,6 +35,7 @@ from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.farfield import HemisphereGrid, albedo
 from wavebrdf.solver.opencl import create_context
+from wavebrdf.solver.resources import resident_memory_mb
 from wavebrdf.solver.surface import generate
 
 AL_400 = 0.46582 - 4.7119j
@@ -53,7 +55,8 @@ def load() -> str:
 
 def usage() -> dict:
     ru = resource.getrusage(resource.RUSAGE_SELF)
-    return {"cpu_s": ru.ru_utime + ru.ru_stime, "peak_memory_gb": ru.ru_maxrss / 2**20}
+    return {"cpu_s": ru.ru_utime + ru.ru_stime, "peak_memory_gb": ru.ru_maxrss / 2**20,
+            "resident_gb": resident_memory_mb() / 1024}
 
 
 def aluminium_patch(cells: int, lam: float = 0.4, per_wavelength: float = 12.8, seed: int = 1):
@@ -244,10 +247,35 @@ def _single_run(ctx, surface, lam, index, waist, resolution, aim):
 
 def cmd_reference(args, ctx):
     """The reference simulator's CPU case: 4 µm flat dielectric, n = 1.5, λ = 0.5, d = 0.025,
-    waist 1.6 µm, normal incidence, 256² output (it took 5169 CPU-s, 4.8 GB, albedo error 1.35%)."""
+    waist 1.6 µm, normal incidence, 256² output (it took 5169 CPU-s, 4.8 GB, albedo error 1.35%).
+    ``--size`` enlarges the patch at the same d (truncation study), ``--aim`` adds AIM options."""
     print(load())
-    surface = generate("flat", cells=160, size_um=4.0)
-    _single_run(ctx, surface, 0.5, 1.5, args.waist, 256, {"precision": args.precision})
+    surface = generate("flat", cells=round(args.size / 0.025), size_um=args.size)
+    _single_run(ctx, surface, 0.5, 1.5, args.waist, 256, {"precision": args.precision, **json.loads(args.aim)})
+
+
+def cmd_truncation(args, ctx):
+    """Dense LU vs AIM on the reference geometry (4 µm flat glass, waist 1.6 µm) at d = λ/8: how
+    much of the albedo error belongs to the truncated patch rather than to AIM."""
+    from wavebrdf.solver.bem3d import DenseBEM
+
+    print(load())
+    surface = generate("flat", cells=64, size_um=4.0)
+    grid = HemisphereGrid(256)
+    brdf = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", BEMWarning)
+        for name, cls in (("AIM", AIMBEM), ("dense", DenseBEM)):
+            t0 = time.perf_counter()
+            ff = cls(ctx, surface, 0.5, 1.5).farfield(0.0, 0.0, grid, waist_um=args.waist)
+            measured, expected = albedo(ff.brdf(), grid), ff.diagnostics["beam_reflectance"]
+            brdf[name] = ff.brdf()
+            print(f"{name}: {ff.diagnostics['unknowns']} unknowns, albedo {measured}, exact beam {expected}, "
+                  f"relative error {measured / expected - 1}, {time.perf_counter() - t0:.0f} s", flush=True)
+    ref = brdf["dense"]
+    lobe = np.isfinite(ref) & (ref > 1e-3 * np.nanmax(ref))
+    print(f"AIM vs dense BRDF rel. L2 over the lobe {np.linalg.norm((brdf['AIM'] - ref)[lobe]) / np.linalg.norm(ref[lobe]):.1e}")
+    print(load())
 
 
 def cmd_scale(args, ctx):
@@ -284,7 +312,11 @@ def main():
         '{"near_cells": 6, "near_storage": "double"}'])
     p = sub.add_parser("reference")
     p.add_argument("--waist", type=float, default=1.6)
+    p.add_argument("--size", type=float, default=4.0, help="patch side (µm) at d = 0.025 µm")
     p.add_argument("--precision", default="double")
+    p.add_argument("--aim", default="{}", help='AIM options as JSON, e.g. \'{"near_cells": 8}\'')
+    p = sub.add_parser("truncation")
+    p.add_argument("--waist", type=float, default=1.6)
     p = sub.add_parser("scale")
     p.add_argument("--cells", type=int, default=400)
     p.add_argument("--waist", type=float, default=None)
