@@ -249,6 +249,9 @@ def test_options_errors_name_the_parameter():
         AIMOptions(solver="csym")  # the near preconditioner needs gmres/bicgstab
     with pytest.raises(ValueError, match="stencil"):
         GridOptions(stencil=(0, 4, 3))
+    for bad in (-1, 2.5, True):
+        with pytest.raises(ValueError, match="aim.preconditioner_tile_cells"):
+            AIMOptions(preconditioner_tile_cells=bad)
 
 
 def test_flat_surface_has_no_vertical_projection():
