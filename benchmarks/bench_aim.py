@@ -35,7 +35,7 @@ from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.farfield import HemisphereGrid, albedo
 from wavebrdf.solver.opencl import create_context
-from wavebrdf.solver.resources import resident_memory_mb
+from wavebrdf.solver.resources import peak_memory_mb, resident_memory_mb
 from wavebrdf.solver.surface import generate
 
 AL_400 = 0.46582 - 4.7119j
@@ -55,7 +55,7 @@ def load() -> str:
 
 def usage() -> dict:
     ru = resource.getrusage(resource.RUSAGE_SELF)
-    return {"cpu_s": ru.ru_utime + ru.ru_stime, "peak_memory_gb": ru.ru_maxrss / 2**20,
+    return {"cpu_s": ru.ru_utime + ru.ru_stime, "peak_memory_gb": peak_memory_mb() / 1024,
             "resident_gb": resident_memory_mb() / 1024}
 
 

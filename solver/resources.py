@@ -10,16 +10,24 @@ import resource
 __all__ = ["meminfo_bytes", "peak_memory_mb", "release_free_memory", "resident_memory_mb"]
 
 
+def _proc_kb(path: str, field: str) -> int | None:
+    """The kB value of ``field`` in a /proc status-style file, None when the file or field is missing."""
+    try:
+        with open(path) as fh:
+            for line in fh:
+                if line.startswith(f"{field}:"):
+                    return int(line.split()[1])
+    except OSError:
+        pass
+    return None
+
+
 def meminfo_bytes(field: str = "MemTotal") -> int:
     """A /proc/meminfo field in bytes ("MemTotal", "MemAvailable", ...); physical memory when the
     file or field is missing (non-Linux)."""
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith(f"{field}:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
+    kb = _proc_kb("/proc/meminfo", field)
+    if kb is not None:
+        return kb * 1024
     return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
 
 
@@ -30,14 +38,8 @@ def peak_memory_mb() -> float:
 
 def resident_memory_mb() -> float:
     """Current resident memory of this process (MB; VmRSS), 0 where /proc is missing."""
-    try:
-        with open("/proc/self/status") as fh:
-            for line in fh:
-                if line.startswith("VmRSS:"):
-                    return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return 0.0
+    kb = _proc_kb("/proc/self/status", "VmRSS")
+    return 0.0 if kb is None else kb / 1024.0
 
 
 def release_free_memory() -> None:

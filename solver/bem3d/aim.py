@@ -200,7 +200,7 @@ class NearPreconditioner:
             block = A if len(extended) == A.shape[0] else A[extended][:, extended].tocsc()
             lu = scipy.sparse.linalg.splu(block, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0)
             self.factor_nnz += lu.L.nnz + lu.U.nnz
-            self.tiles.append((extended, np.flatnonzero(np.isin(extended, own, assume_unique=True)), own, lu))
+            self.tiles.append((extended, np.searchsorted(extended, own), own, lu))  # both sorted, own ⊂ extended
         del A
         release_free_memory()
         self.seconds = time.perf_counter() - t0
@@ -226,6 +226,11 @@ class NearPreconditioner:
         return Y.astype(X.dtype, copy=False)
 
 
+def tiles_per_axis(cells: int, tile_cells: int) -> int:
+    """Preconditioner tiles along each axis of an N-cell patch: 1 (one LU) unless 0 < T < N."""
+    return max(1, round(cells / tile_cells)) if 0 < tile_cells < cells else 1
+
+
 def preconditioner_tiles(pattern: NearPattern, tile_cells: int, overlap_cells: int):
     """(extended, own) unknown indices (sorted) of each preconditioner tile; one tile if tile_cells ≤ 0.
 
@@ -234,7 +239,8 @@ def preconditioner_tiles(pattern: NearPattern, tile_cells: int, overlap_cells: i
     Unknowns are [J | M̃]: rooftop b gives b and b + N_b.
     """
     N, n_b = pattern.cells, 2 * pattern.rows
-    if tile_cells <= 0 or tile_cells >= N:
+    per_axis = tiles_per_axis(N, tile_cells)
+    if per_axis == 1:
         everything = np.arange(2 * n_b)
         yield everything, everything
         return
@@ -245,7 +251,7 @@ def preconditioner_tiles(pattern: NearPattern, tile_cells: int, overlap_cells: i
         cx, cy = near_coords(o, N, np.arange(pattern.rows))
         x[first:first + pattern.rows] = cx + (1.0 if o == 0 else 0.5)
         y[first:first + pattern.rows] = cy + (0.5 if o == 0 else 1.0)
-    edges = np.linspace(0.0, N, max(1, round(N / tile_cells)) + 1)
+    edges = np.linspace(0.0, N, per_axis + 1)
     edges[-1] = np.inf
     for x0, x1 in zip(edges[:-1], edges[1:]):
         for y0, y1 in zip(edges[:-1], edges[1:]):
@@ -464,8 +470,7 @@ def _preconditioner_cost(cells: int, unknowns: int, options: AIMOptions) -> tupl
     per LU of n unknowns fits 5.6 … 16.6 measured at 4·10³ … 6.4·10⁵ unknowns; time
     1.1e-9 nnz^1.5 per LU fits 42 s and 346–384 s at 1.2·10⁷ and 4.7·10⁷ entries (docs/aim.md)."""
     near_nnz = 4 * NearPattern.build(cells, options.preconditioner_cells).nnz()  # (J, M) × (J, M) blocks
-    T = options.preconditioner_tile_cells
-    per_axis = max(1, round(cells / T)) if 0 < T < cells else 1
+    per_axis = tiles_per_axis(cells, options.preconditioner_tile_cells)
     side = cells if per_axis == 1 else cells / per_axis + 2 * PRECONDITIONER_OVERLAP
     share = (side / cells) ** 2  # of the unknowns and near entries in one (extended) tile
     fill = max(4.0, 2.2 * math.log(max(unknowns * share, 2.0)) - 12.6)
