@@ -1,19 +1,28 @@
-/* Near-field correction C x in the offset format of solver/bem3d/nearfield.py.
+/* Near-field correction C x on the rooftop lattice (solver/bem3d/nearfield.py, NearLattice).
  *
- * The pattern is translation invariant: block "same" (horizontal-horizontal or
- * vertical-vertical) stores the upper half of the offsets (a, b) (b > 0, or b = 0 and a >= 0)
- * of one orientation; block "cross" stores all offsets from horizontal rows to vertical
- * columns (vertical (x + a, y + b) of horizontal (x, y)). Values: (noff, nrows, 3) of storage
- * type near_t (NEAR_FP64 = 1: double2, 0: float2) = [ee, em, mm] of the pair, zero where the
- * column lies outside the patch. Column indices are implicit (near_index.h).
+ * Both orientations live on one N x N lattice: rooftop (x, y) of either orientation sits at
+ * site p = N y + x (near_index.h gives the rooftop ranges; sites without a rooftop hold zeros),
+ * and every array keeps a guard of G zero sites on each side (length L = G + sites + G). An
+ * offset (a, b) of the pattern is then one constant shift s = a + N b for all rows, so C x is a
+ * sum of shifted element-wise products (diagonal storage), streamed in WB_VW-lane vectors
+ * (wb_vcomplex.h: PoCL does not vectorize work-items that run inner loops).
  *
- * Z is complex-symmetric, so every stored pair (m, n) acts twice:
- *   y_E[m] += ee x_J[n] + em x_M[n],   y_H[m] += em x_J[n] + mm x_M[n]   and (m <-> n).
- * Both kernels gather (one work-item per output rooftop, no atomics): the transposed half is
- * read from the row that stores it. NEAR_BATCH right-hand sides per launch; y accumulates.
+ * Values, per block, real storage type near_s: (n_offsets, 3, 2, L) = [ee, em, mm] x [re, im],
+ * zero where the column lies outside the patch, at empty sites and in the guards. HH and VV keep
+ * the upper half of the offsets, HV all offsets from horizontal rows to vertical columns.
+ * Lattice vectors X (input) and Y (output): (NEAR_BATCH, 2 orientations, 2 [J, M] or [E, H],
+ * 2 [re, im], L) of real_t.
+ *
+ * Z is complex-symmetric, so a stored pair (row m, column n = m + s) acts twice:
+ *   forward     Y_E[m] += ee X_J[n] + em X_M[n],   Y_H[m] += em X_J[n] + mm X_M[n]
+ *   transposed  the same with m and n exchanged, the values read at the row m = n - s.
+ * near_lattice gathers the rows of one orientation o (one work-item per WB_VW sites, no
+ * atomics): its own block forward and transposed, and the cross block forward (o = 0: values at
+ * the row, X_V at row + s) or transposed (o = 1: values and X_H at row - s); Y accumulates.
+ * near_to_lattice / near_from_lattice move x onto the lattice and add Y into y (zeroing Y).
  * NumPy twin: NearMatrix.apply_numpy (a scipy.sparse matrix of the same entries).
  */
-#include "wb_complex.h"
+#include "wb_vcomplex.h"
 #include "near_index.h"
 
 #ifndef NEAR_BATCH
@@ -23,86 +32,112 @@
 #define NEAR_FP64 WB_FP64
 #endif
 #if NEAR_FP64
-typedef double2 near_t;
+typedef double near_s;
+#else
+typedef float near_s;
+#endif
+
+/* WB_VW consecutive values of a near_s or real_t array as a vreal_t */
+#if WB_VW == 1
+#define VLOAD(p) ((real_t)((p)[0]))
+#define VSTORE(v, p) ((p)[0] = (v))
+#else
 #if WB_FP64
-#define NEAR_LOAD(v) (v)
+#define VLOAD(p) WB_PASTE(convert_double, WB_VW)(WB_PASTE(vload, WB_VW)(0, (p)))
 #else
-#define NEAR_LOAD(v) convert_float2(v)
+#define VLOAD(p) WB_PASTE(convert_float, WB_VW)(WB_PASTE(vload, WB_VW)(0, (p)))
 #endif
-#else
-typedef float2 near_t;
-#if WB_FP64
-#define NEAR_LOAD(v) convert_double2(v)
-#else
-#define NEAR_LOAD(v) (v)
-#endif
+#define VSTORE(v, p) WB_PASTE(vstore, WB_VW)((v), 0, (p))
 #endif
 
-inline void near_accumulate(__global const near_t *v, __global const cplx_t *x, int col, int nb,
-                            cplx_t ye[NEAR_BATCH], cplx_t yh[NEAR_BATCH])
+/* one stored slice: v at [ee re][site] (component c, part r at v + (2c + r) L); x at [J re][site]
+   of one orientation of right-hand side 0 (J at x, x + L; M at x + 2L, x + 3L; next RHS + 8L) */
+inline void near_pair(__global const near_s *v, __global const real_t *x, const int L,
+                      vcplx_t ye[NEAR_BATCH], vcplx_t yh[NEAR_BATCH])
 {
-    const cplx_t ee = NEAR_LOAD(v[0]), em = NEAR_LOAD(v[1]), mm = NEAR_LOAD(v[2]);
+    const vcplx_t ee = vc_new(VLOAD(v), VLOAD(v + L));
+    const vcplx_t em = vc_new(VLOAD(v + 2 * L), VLOAD(v + 3 * L));
+    const vcplx_t mm = vc_new(VLOAD(v + 4 * L), VLOAD(v + 5 * L));
+#pragma unroll
+    for (int b = 0; b < NEAR_BATCH; ++b) {  /* unrolled: the accumulators stay in registers */
+        __global const real_t *xb = x + (size_t)b * 8 * L;
+        const vcplx_t xj = vc_new(VLOAD(xb), VLOAD(xb + L));
+        const vcplx_t xm = vc_new(VLOAD(xb + 2 * L), VLOAD(xb + 3 * L));
+        ye[b] = vc_fma(ee, xj, vc_fma(em, xm, ye[b]));
+        yh[b] = vc_fma(em, xj, vc_fma(mm, xm, yh[b]));
+    }
+}
+
+__kernel void near_lattice(const int o, const int L, const int G, const int sites,
+                           __global const int *same_shift, const int nsame, __global const near_s *same,
+                           __global const int *cross_shift, const int ncross, __global const near_s *cross,
+                           __global const real_t *X, __global real_t *Y)
+{
+    const int first = get_global_id(0) * WB_VW;
+    if (first >= sites) return;
+    const int i = G + first;
+    const size_t slice = 6 * (size_t)L;
+    __global const real_t *Xown = X + (size_t)4 * L * o, *Xother = X + (size_t)4 * L * (1 - o);
+    vcplx_t ye[NEAR_BATCH], yh[NEAR_BATCH];
+    for (int b = 0; b < NEAR_BATCH; ++b) ye[b] = yh[b] = vc_zero();
+    for (int j = 0; j < nsame; ++j) {
+        const int s = same_shift[j];
+        __global const near_s *v = same + j * slice;
+        near_pair(v + i, Xown + i + s, L, ye, yh);
+        if (s != 0) near_pair(v + i - s, Xown + i - s, L, ye, yh);
+    }
+    for (int j = 0; j < ncross; ++j) {
+        const int s = cross_shift[j];
+        const int row = o == 0 ? i : i - s, column = o == 0 ? i + s : i - s;
+        near_pair(cross + j * slice + row, Xother + column, L, ye, yh);
+    }
     for (int b = 0; b < NEAR_BATCH; ++b) {
-        const cplx_t xj = x[(size_t)b * 2 * nb + col], xm = x[(size_t)b * 2 * nb + nb + col];
-        ye[b] = c_fma(ee, xj, c_fma(em, xm, ye[b]));
-        yh[b] = c_fma(em, xj, c_fma(mm, xm, yh[b]));
+        __global real_t *y = Y + (size_t)b * 8 * L + (size_t)4 * L * o + i;
+        VSTORE(VLOAD(y) + ye[b].re, y);
+        VSTORE(VLOAD(y + L) + ye[b].im, y + L);
+        VSTORE(VLOAD(y + 2 * L) + yh[b].re, y + 2 * L);
+        VSTORE(VLOAD(y + 3 * L) + yh[b].im, y + 3 * L);
     }
 }
 
-inline void near_store(__global cplx_t *y, int g, int nb, const cplx_t ye[NEAR_BATCH], const cplx_t yh[NEAR_BATCH])
+/* lattice site (with guard) of rooftop g of the 2 N (N - 1) */
+inline size_t near_site(const int N, const int G, const int g, int *o)
 {
-    for (int b = 0; b < NEAR_BATCH; ++b) {
-        y[(size_t)b * 2 * nb + g] = c_add(y[(size_t)b * 2 * nb + g], ye[b]);
-        y[(size_t)b * 2 * nb + nb + g] = c_add(y[(size_t)b * 2 * nb + nb + g], yh[b]);
-    }
+    const int nrows = N * (N - 1);
+    *o = g < nrows ? 0 : 1;
+    const int2 c = near_coords(*o, N, g - near_first(*o, N));
+    return (size_t)G + (size_t)N * c.y + c.x;
 }
 
-/* one orientation o with itself: one work-item per rooftop of orientation o */
-__kernel void near_same(const int o, const int N, __global const int2 *offsets, const int noff,
-                        __global const near_t *values, __global const cplx_t *x, __global cplx_t *y)
+__kernel void near_to_lattice(const int N, const int L, const int G, __global const cplx_t *x, __global real_t *X)
 {
-    const int nrows = N * (N - 1), nb = 2 * nrows;
-    const int row = get_global_id(0);
-    if (row >= nrows) return;
-    const int2 c = near_coords(o, N, row);
-    const int first = near_first(o, N);
-    cplx_t ye[NEAR_BATCH], yh[NEAR_BATCH];
-    for (int b = 0; b < NEAR_BATCH; ++b) ye[b] = yh[b] = c_new(R(0.0), R(0.0));
-    for (int j = 0; j < noff; ++j) {
-        const int2 d = offsets[j];
-        if (near_valid(o, N, c.x + d.x, c.y + d.y)) {
-            const int r = near_row(o, N, c.x + d.x, c.y + d.y);
-            near_accumulate(values + ((size_t)j * nrows + row) * 3, x, first + r, nb, ye, yh);
-        }
-        if ((d.x != 0 || d.y != 0) && near_valid(o, N, c.x - d.x, c.y - d.y)) {
-            const int r = near_row(o, N, c.x - d.x, c.y - d.y);
-            near_accumulate(values + ((size_t)j * nrows + r) * 3, x, first + r, nb, ye, yh);
-        }
-    }
-    near_store(y, first + row, nb, ye, yh);
-}
-
-/* horizontal rows with vertical columns and the transpose: one work-item per rooftop */
-__kernel void near_cross(const int N, __global const int2 *offsets, const int noff,
-                         __global const near_t *values, __global const cplx_t *x, __global cplx_t *y)
-{
-    const int nrows = N * (N - 1), nb = 2 * nrows;
+    const int nb = 2 * N * (N - 1);
     const int g = get_global_id(0);
     if (g >= nb) return;
-    const int o = g < nrows ? 0 : 1;
-    const int2 c = near_coords(o, N, g - near_first(o, N));
-    cplx_t ye[NEAR_BATCH], yh[NEAR_BATCH];
-    for (int b = 0; b < NEAR_BATCH; ++b) ye[b] = yh[b] = c_new(R(0.0), R(0.0));
-    for (int j = 0; j < noff; ++j) {
-        const int2 d = offsets[j];
-        if (o == 0) {
-            if (near_valid(1, N, c.x + d.x, c.y + d.y))
-                near_accumulate(values + ((size_t)j * nrows + g) * 3, x,
-                                nrows + near_row(1, N, c.x + d.x, c.y + d.y), nb, ye, yh);
-        } else if (near_valid(0, N, c.x - d.x, c.y - d.y)) {
-            const int r = near_row(0, N, c.x - d.x, c.y - d.y);
-            near_accumulate(values + ((size_t)j * nrows + r) * 3, x, r, nb, ye, yh);
+    int o;
+    const size_t p = near_site(N, G, g, &o);
+    for (int b = 0; b < NEAR_BATCH; ++b)
+        for (int t = 0; t < 2; ++t) {
+            const cplx_t v = x[((size_t)b * 2 + t) * nb + g];
+            __global real_t *d = X + (((size_t)b * 2 + o) * 2 + t) * 2 * L + p;
+            d[0] = v.x;
+            d[L] = v.y;
         }
-    }
-    near_store(y, g, nb, ye, yh);
+}
+
+__kernel void near_from_lattice(const int N, const int L, const int G, __global real_t *Y, __global cplx_t *y)
+{
+    const int nb = 2 * N * (N - 1);
+    const int g = get_global_id(0);
+    if (g >= nb) return;
+    int o;
+    const size_t p = near_site(N, G, g, &o);
+    for (int b = 0; b < NEAR_BATCH; ++b)
+        for (int t = 0; t < 2; ++t) {
+            __global real_t *s = Y + (((size_t)b * 2 + o) * 2 + t) * 2 * L + p;
+            const size_t k = ((size_t)b * 2 + t) * nb + g;
+            y[k] = c_add(y[k], c_new(s[0], s[L]));
+            s[0] = R(0.0);
+            s[L] = R(0.0);
+        }
 }

@@ -54,6 +54,11 @@ inline vcplx_t vc_mul(vcplx_t a, vcplx_t b)
 {
     return vc_new(a.re * b.re - a.im * b.im, a.re * b.im + a.im * b.re);
 }
+/* a*b + c */
+inline vcplx_t vc_fma(vcplx_t a, vcplx_t b, vcplx_t c)
+{
+    return vc_new(fma(a.re, b.re, fma(-a.im, b.im, c.re)), fma(a.re, b.im, fma(a.im, b.re, c.im)));
+}
 /* a + b*s (s real vector) */
 inline vcplx_t vc_fma_real(vcplx_t b, vreal_t s, vcplx_t a)
 {

@@ -2,7 +2,7 @@
 
 * B (aim_base.py): far interactions through grid point sources, FFT convolution on the AIM grid
   (aim_grid.py), projections Λ (projection.py), sampled kernels (aim_green.py);
-* C (nearfield.py): exact minus grid entries of near pairs, sparse offset format;
+* C (nearfield.py): exact minus grid entries of near pairs, diagonal (offset) storage on the rooftop lattice;
 * a Krylov solve (solver/krylov.py) for both polarizations at once, right-preconditioned by the
   sparse LU of the exact near entries within ``preconditioner_cells`` (:class:`NearPreconditioner`);
   without a preconditioner, on the rescaled system S Z S y = S b with S = diag(I, jI)
@@ -502,7 +502,7 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     near_entry = 24 if options.near_storage == "single" else 48
     near_bytes = pattern.stored_entries() * near_entry
     spectra = cplx * grid.padded_points * (len(gm) + 3) * groups
-    weights = cplx * 3 * grid.stencil_size * mesh.n_bases * groups
+    weights = 2 * cplx * 3 * grid.stencil_size * mesh.n_bases * groups  # by basis and by grid point (aim.cl)
     work = cplx * grid.padded_points * 8 * 2 * 2  # 8 components, 2 right-hand sides, FFT temporaries
     krylov = cplx * n * 2 * (options.restart + 3 if options.solver == "gmres" else 6)
     preconditioner = preconditioner_s = 0.0

@@ -230,10 +230,14 @@ class BaseOperator:
         self._origins = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
                                   hostbuf=np.ascontiguousarray(self.grid.origins, np.int32))
         self._device_groups = []
+        self._host_weights = []  # arrays behind shared buffers
         for group in self.groups:
             w = group.projection.weights
             wdtype = self.real if not np.iscomplexobj(w) else self.complex
-            weights = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(w, wdtype))
+            by_basis = np.ascontiguousarray(w, wdtype)  # no copy when the dtype matches
+            by_point = np.ascontiguousarray(by_basis.reshape(3, -1)[:, entries])  # streamed by aim_scatter
+            self._host_weights += [by_basis, by_point]
+            weights = (shared_buffer(ctx, by_basis), shared_buffer(ctx, by_point))
             green = shared_buffer(ctx, group.green)
             gradient = shared_buffer(ctx, group.gradient)
             coef = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
@@ -271,7 +275,7 @@ class BaseOperator:
     def _scatter(self, P, x_buf, q_buf, weights, defines, layout):
         knl = self.ctx.kernel("aim.cl", "aim_scatter", defines)
         knl(self.ctx.queue, (self.grid.points,), None, *self._map, int4_arg(self.grid.shape), int4_arg(layout),
-            np.int32(self.grid.stencil_size), np.int32(self.n_b), np.int32(self.n_h), weights, x_buf, q_buf)
+            np.int32(self.grid.stencil_size), np.int32(self.n_b), np.int32(self.n_h), weights[1], x_buf, q_buf)
 
     def _fourier(self, Q_buf, green, gradient, coef, defines):
         nfreq = self.grid.padded_points
@@ -282,7 +286,7 @@ class BaseOperator:
         sx, sy, sz = self.grid.stencil
         knl = self.ctx.kernel("aim.cl", "aim_gather", defines)
         knl(self.ctx.queue, (self.n_b,), None, self._origins, int4_arg(layout), np.int32(sx), np.int32(sy),
-            np.int32(sz), np.int32(self.n_b), np.int32(self.n_h), weights, F_buf, y_buffer)
+            np.int32(sz), np.int32(self.n_b), np.int32(self.n_h), weights[0], F_buf, y_buffer)
 
     def _apply_host(self, P, x_buf, y_buffer, device_group, group):
         """Charges and fields on compact host arrays; pruned scipy FFTs on the host."""
@@ -381,8 +385,8 @@ class BaseOperator:
     def bytes(self) -> int:
         """Device/host memory held by the operator (spectra, weights, maps)."""
         total = sum(g.green.nbytes + g.gradient.nbytes for g in self.groups)
-        total += sum(g.projection.weights.size * (self.real.itemsize * (2 if not g.projection.is_real else 1))
-                     for g in self.groups)
+        total += sum(2 * g.projection.weights.size * (self.real.itemsize * (2 if not g.projection.is_real else 1))
+                     for g in self.groups)  # by basis and by grid point
         total += 4 * (self.grid.points + 1 + self.n_b * self.grid.stencil_size) + 12 * self.n_b
         return int(total)
 

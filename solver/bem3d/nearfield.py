@@ -10,10 +10,14 @@ translation invariant, so no column index is stored (kernels/near_index.h for th
 * block "HV" keeps all offsets from a horizontal rooftop (x, y) to the vertical (x + a, y + b),
   centre offset (a − ½, b + ½).
 
-Values: per block an array (n_offsets, n_rows, 3) of [ee, em, mm] (Z_EE, Z_EM = Z_ME, Z_MM of
-the pair), zero where the column falls outside the patch, stored in complex64 by default
-(``storage="single"``; the AIM error it sits next to is ~1e-4, complex64 rounding 6e-8) or
-complex128. Memory ≈ 24 B × (n_HH + n_VV + n_HV)/2 per unknown for complex64.
+Values [ee, em, mm] (Z_EE, Z_EM = Z_ME, Z_MM of the pair) are kept in diagonal storage on the
+rooftop lattice (kernels/sparse.cl): rooftop (x, y) of either orientation sits at lattice site
+N y + x, so offset (a, b) is the shift a + N b for every row, and each block is one real array
+(n_offsets, 3, [re, im], L) over the N² sites plus a guard of zero sites at both ends (L ≈ N² +
+2 N r). Entries are zero where the column falls outside the patch and at sites without a
+rooftop. Stored in single precision by default (``storage="single"``; the AIM error it sits next
+to is ~1e-4, float32 rounding 6e-8) or double. Memory ≈ 24 B × (n_HH + n_VV + n_HV)/2 per
+unknown in single precision, plus the guards (~2r/N).
 
 Assembly, per strip of rows (one chunk of y lines):
 
@@ -24,11 +28,13 @@ Assembly, per strip of rows (one chunk of y lines):
    (kernels/aim_near.cl: grid potentials of each row's stencil on a window, then the column's
    stencil sum), subtracted in double precision for every grid medium.
 
-C x is applied by kernels/sparse.cl (``near_same``, ``near_cross``).
+C x is applied by kernels/sparse.cl (``near_lattice`` streams the shifted products in SIMD
+vectors; ``near_to_lattice`` / ``near_from_lattice`` move the vectors on and off the lattice).
 """
 
 from __future__ import annotations
 
+import itertools
 import logging
 import time
 from dataclasses import dataclass, field
@@ -39,7 +45,7 @@ import scipy.sparse
 from wavebrdf.solver.bem3d.aim_base import int4_arg, shared_buffer
 from wavebrdf.solver.bem3d.aim_green import lattice_green
 from wavebrdf.solver.bem3d.assembly import basis_pair_entries
-from wavebrdf.solver.bem3d.elements import ElementIntegrals
+from wavebrdf.solver.bem3d.elements import ElementIntegrals, vector_lanes
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.bem3d.projection import Projection
@@ -56,11 +62,13 @@ __all__ = [
     "near_base_numpy",
     "near_coords",
     "near_first",
+    "lattice_site",
     "near_row",
     "near_valid",
 ]
 
 STORAGE = {"single": np.complex64, "double": np.complex128}
+LATTICE_ALIGN = 8  # lattice guards and lengths are multiples of the widest SIMD vector (WB_VW ≤ 8)
 # block name → (row orientation, column orientation, which offset set)
 BLOCKS = {"HH": (0, 0, "same"), "VV": (1, 1, "same"), "HV": (0, 1, "cross")}
 PAIRS_PER_CHUNK = 600_000  # stored pairs per assembly chunk (element tables ≈ 1 KB per element pair)
@@ -89,6 +97,12 @@ def near_first(o, N) -> int:
 def near_coords(o, N, row):
     row = np.asarray(row)
     return (row % (N - 1), row // (N - 1)) if o == 0 else (row // (N - 1), row % (N - 1))
+
+
+def lattice_site(o, N, rows):
+    """Lattice site N y + x (before the guard) of block-local rows of orientation o (kernels/sparse.cl)."""
+    x, y = near_coords(o, N, rows)
+    return N * y + x
 
 
 # ---------------------------------------------------------------------------------------------
@@ -120,6 +134,24 @@ class NearPattern:
     def offsets(self, block: str) -> np.ndarray:
         return self.same if BLOCKS[block][2] == "same" else self.cross
 
+    def shifts(self, block: str) -> np.ndarray:
+        """Lattice shifts a + N b of the block's offsets (int32)."""
+        off = self.offsets(block).astype(np.int64)
+        return (off[:, 0] + self.cells * off[:, 1]).astype(np.int32)
+
+    @property
+    def guard(self) -> int:
+        """Zero sites kept before and after the N² lattice sites: the largest |shift|, aligned."""
+        off = np.abs(np.concatenate([self.same, self.cross]).astype(np.int64))
+        largest = int(np.max(off[:, 0] + self.cells * off[:, 1]))
+        return -(-largest // LATTICE_ALIGN) * LATTICE_ALIGN
+
+    @property
+    def lattice_length(self) -> int:
+        """Length L of the lattice arrays: guard + N² sites (aligned) + guard."""
+        sites = -(-self.cells**2 // LATTICE_ALIGN) * LATTICE_ALIGN
+        return 2 * self.guard + sites
+
     def within(self, block: str, radius_cells: float) -> np.ndarray:
         """Indices of the block's offsets whose centre distance is ≤ ``radius_cells``."""
         off = self.offsets(block).astype(float)
@@ -133,8 +165,8 @@ class NearPattern:
         return self.cells * (self.cells - 1)
 
     def stored_entries(self) -> int:
-        """Stored (offset, row) slots of all blocks (including out-of-patch zeros)."""
-        return self.rows * (2 * len(self.same) + len(self.cross))
+        """Stored (offset, site) slots of all blocks (including out-of-patch zeros and the guards)."""
+        return self.lattice_length * (2 * len(self.same) + len(self.cross))
 
     def pairs(self, block: str, rows: np.ndarray):
         """Valid pairs of ``rows`` (block-local row indices): (row geometric id, column id, offset j, row position)."""
@@ -255,11 +287,12 @@ def near_base_numpy(projection: Projection, k: complex, coefficients: np.ndarray
 # The matrix
 
 
-def offset_matrix(pattern: NearPattern, values: dict, offset_index: dict | None = None, dtype=complex,
+def offset_matrix(pattern: NearPattern, entries, offset_index: dict | None = None, dtype=complex,
                   fmt: str = "csr") -> scipy.sparse.spmatrix:
-    """Sparse 2N_b × 2N_b matrix (both triangles) of offset-format ``values``.
+    """Sparse 2N_b × 2N_b matrix (both triangles) of near-pattern entries.
 
-    ``offset_index[block]`` maps the rows of ``values[block]`` to pattern offsets (default all).
+    ``entries(block, j, pos)``: the (P, 3) [ee, em, mm] of stored offsets j at block-local rows
+    pos; ``offset_index[block]`` maps the stored offsets to pattern offsets (default all).
     """
     nb = 2 * pattern.rows
     rows_all = np.arange(pattern.rows)
@@ -271,7 +304,7 @@ def offset_matrix(pattern: NearPattern, values: dict, offset_index: dict | None 
             lookup[offset_index[block]] = np.arange(len(offset_index[block]))
             keep = lookup[j] >= 0
             row_id, col_id, j, pos = row_id[keep], col_id[keep], lookup[j[keep]], pos[keep]
-        v = values[block][j, pos]  # (P, 3)
+        v = entries(block, j, pos)  # (P, 3)
         mirror = row_id != col_id
         for (ro, co, comp) in ((0, 0, 0), (0, nb, 1), (nb, 0, 1), (nb, nb, 2)):
             r_list += [row_id + ro, col_id[mirror] + ro]
@@ -285,10 +318,10 @@ def offset_matrix(pattern: NearPattern, values: dict, offset_index: dict | None 
 
 @dataclass
 class NearMatrix:
-    """C in the offset format: ``values[block]`` (n_offsets, N(N−1), 3) [ee, em, mm].
+    """C in lattice diagonal storage: ``values[block]`` real (n_offsets, 3, 2, L) (module doc).
 
     ``exact[block]`` (optional) keeps the exact entries A of the offsets ``exact_offsets[block]``
-    (the pairs within the preconditioner radius).
+    (the pairs within the preconditioner radius) as complex (n, N(N−1), 3) [ee, em, mm].
     """
 
     pattern: NearPattern
@@ -297,6 +330,29 @@ class NearMatrix:
     exact: dict | None = None
     exact_offsets: dict | None = None
     _device: dict | None = field(default=None, repr=False)
+    _lattice_vectors: dict = field(default_factory=dict, repr=False)
+
+    @staticmethod
+    def zeros(pattern: NearPattern, storage: str) -> dict:
+        """Zero value arrays of every block for ``storage`` ("single" | "double")."""
+        real = np.finfo(STORAGE[storage]).dtype
+        return {b: np.zeros((len(pattern.offsets(b)), 3, 2, pattern.lattice_length), dtype=real) for b in BLOCKS}
+
+    def _sites(self, block: str, rows) -> np.ndarray:
+        return self.pattern.guard + lattice_site(BLOCKS[block][0], self.pattern.cells, rows)
+
+    def entries(self, block: str, j, rows) -> np.ndarray:
+        """Complex (P, 3) [ee, em, mm] of pattern offsets j (P,) at block-local rows (P,)."""
+        v = self.values[block]
+        site = self._sites(block, rows)
+        return v[j, :, 0, site] + 1j * v[j, :, 1, site]
+
+    def store(self, block: str, rows, staged: np.ndarray):
+        """Write complex ``staged`` (n_offsets, len(rows), 3) as the entries of block-local ``rows``."""
+        site = self._sites(block, rows)
+        v = self.values[block]
+        v[:, :, 0, site] = staged.real.transpose(0, 2, 1)
+        v[:, :, 1, site] = staged.imag.transpose(0, 2, 1)
 
     @property
     def n_bases(self) -> int:
@@ -307,13 +363,13 @@ class NearMatrix:
 
     def to_sparse(self) -> scipy.sparse.csr_matrix:
         """The full 2N_b × 2N_b correction matrix (both triangles) as scipy CSR (for tests)."""
-        return offset_matrix(self.pattern, self.values)
+        return offset_matrix(self.pattern, self.entries)
 
     def exact_sparse(self, dtype=complex) -> scipy.sparse.csc_matrix:
         """The exact near entries kept by the assembly (``exact_cells``), CSC."""
         if self.exact is None:
             raise ValueError("the near field was assembled without exact_cells: no exact entries kept")
-        return offset_matrix(self.pattern, self.exact, self.exact_offsets, dtype, "csc")
+        return offset_matrix(self.pattern, lambda b, j, rows: self.exact[b][j, rows], self.exact_offsets, dtype, "csc")
 
     def apply_numpy(self, x: np.ndarray) -> np.ndarray:
         """C x for x (P, 2N_b) (NumPy twin of the sparse.cl kernels)."""
@@ -324,39 +380,58 @@ class NearMatrix:
         """Device buffers of the values (split by offsets where a block exceeds max allocation)."""
         import pyopencl as cl
 
-
         max_alloc = int(ctx.info.max_alloc_gib * 2**30)
         device = {}
         for block, values in self.values.items():
-            offsets = self.pattern.offsets(block)
+            shifts = self.pattern.shifts(block)
             per_offset = values[0].nbytes if len(values) else 1
             step = max(1, max_alloc // max(per_offset, 1))
             parts = []
             for j0 in range(0, len(values), step):
                 j1 = min(len(values), j0 + step)
                 off = cl.Buffer(ctx.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
-                                hostbuf=np.ascontiguousarray(offsets[j0:j1]))
+                                hostbuf=np.ascontiguousarray(shifts[j0:j1]))
                 parts.append((off, j1 - j0, shared_buffer(ctx, values[j0:j1])))
             device[block] = parts
         self._device = device
 
-    def apply(self, ctx, x_buf, y_buf, batch: int, precision_fp64: bool):
-        """y += C x on the device for ``batch`` right-hand sides (buffers of 2N_b complex each)."""
+    def _vectors(self, ctx, batch: int, real: np.dtype):
+        """Zeroed lattice vectors X, Y (batch, 2, 2, 2, L) on the device, kept for one batch size."""
+        import pyopencl as cl
+
+        key = (batch, np.dtype(real).char)
+        if key not in self._lattice_vectors:
+            zeros = np.zeros(batch * 8 * self.pattern.lattice_length, dtype=real)
+            mf = cl.mem_flags
+            self._lattice_vectors = {key: tuple(cl.Buffer(ctx.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=zeros)
+                                                for _ in range(2))}
+        return self._lattice_vectors[key]
+
+    def apply(self, ctx, x_buf, y_buf, batch: int, precision_fp64: bool, lanes: int | None = None):
+        """y += C x on the device for ``batch`` right-hand sides (buffers of 2N_b complex each).
+
+        ``lanes``: sites per work-item (WB_VW); default 256-bit vectors on CPUs, 1 on GPUs.
+        """
         if self._device is None:
             self.upload(ctx)
-        storage64 = next(iter(self.values.values())).dtype == np.complex128
-        defines = {"WB_FP64": int(precision_fp64), "NEAR_BATCH": batch, "NEAR_FP64": int(storage64)}
-        N = self.pattern.cells
-        nrows = self.pattern.rows
-        same = ctx.kernel("sparse.cl", "near_same", defines)
-        cross = ctx.kernel("sparse.cl", "near_cross", defines)
-        for block, parts in self._device.items():
-            for off, noff, vals in parts:
-                if block == "HV":
-                    cross(ctx.queue, (2 * nrows,), None, np.int32(N), off, np.int32(noff), vals, x_buf, y_buf)
-                else:
-                    o = BLOCKS[block][0]
-                    same(ctx.queue, (nrows,), None, np.int32(o), np.int32(N), off, np.int32(noff), vals, x_buf, y_buf)
+        storage64 = next(iter(self.values.values())).dtype == np.float64
+        if lanes is None:
+            lanes = vector_lanes(ctx) * (1 if precision_fp64 else 2)
+        defines = {"WB_FP64": int(precision_fp64), "NEAR_BATCH": batch, "NEAR_FP64": int(storage64), "WB_VW": lanes}
+        N, L, G = np.int32(self.pattern.cells), np.int32(self.pattern.lattice_length), np.int32(self.pattern.guard)
+        X, Y = self._vectors(ctx, batch, np.float64 if precision_fp64 else np.float32)
+        queue = ctx.queue
+        ctx.kernel("sparse.cl", "near_to_lattice", defines)(queue, (self.n_bases,), None, N, L, G, x_buf, X)
+        lattice = ctx.kernel("sparse.cl", "near_lattice", defines)
+        sites = self.pattern.cells**2
+        items = (-(-sites // lanes),)
+        for o, own in ((0, "HH"), (1, "VV")):
+            for same, cross in itertools.zip_longest(self._device[own], self._device["HV"]):
+                s_shift, s_n, s_vals = same or (self._device[own][0][0], 0, self._device[own][0][2])
+                c_shift, c_n, c_vals = cross or (self._device["HV"][0][0], 0, self._device["HV"][0][2])
+                lattice(queue, items, None, np.int32(o), L, G, np.int32(sites), s_shift, np.int32(s_n), s_vals,
+                        c_shift, np.int32(c_n), c_vals, X, Y)
+        ctx.kernel("sparse.cl", "near_from_lattice", defines)(queue, (self.n_bases,), None, N, L, G, Y, y_buf)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -477,7 +552,7 @@ def assemble_near(ctx, mesh: BEMMesh, media: Media, pattern: NearPattern, groups
     tables = RepeatingTables(integrals) if RepeatingTables.worthwhile(mesh) else integrals
     coef_all = media.pmchwt_coefficients()
     nrows = pattern.rows
-    values = {b: np.zeros((len(pattern.offsets(b)), nrows, 3), dtype=STORAGE[storage]) for b in BLOCKS}
+    near = NearMatrix(pattern, NearMatrix.zeros(pattern, storage))
     exact_offsets = exact = None
     if exact_cells is not None:
         exact_offsets = {b: pattern.within(b, min(exact_cells, pattern.radius_cells)) for b in BLOCKS}
@@ -519,7 +594,7 @@ def assemble_near(ctx, mesh: BEMMesh, media: Media, pattern: NearPattern, groups
         for b in BLOCKS:
             if not np.all(np.isfinite(staged[b])):
                 raise FloatingPointError(f"near-field block {b}: non-finite entries (window or quadrature failure)")
-            values[b][:, rows_by_block[b]] = staged[b]
+            near.store(b, rows_by_block[b], staged[b])
         t2 = time.perf_counter()
         timings["exact_s"] += t1 - t0
         timings["base_s"] += t2 - t1
@@ -529,4 +604,5 @@ def assemble_near(ctx, mesh: BEMMesh, media: Media, pattern: NearPattern, groups
                      len(all_rows), t1 - t0, t2 - t1)
     timings["total_s"] = time.perf_counter() - t_start
     timings.update({f"element_{k}": v for k, v in integrals.timings.items()})
-    return NearMatrix(pattern, values, timings, exact, exact_offsets)
+    near.timings, near.exact, near.exact_offsets = timings, exact, exact_offsets
+    return near

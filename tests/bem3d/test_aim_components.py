@@ -12,7 +12,14 @@ from wavebrdf.solver.bem3d.aim_grid import GridOptions, build_grid
 from wavebrdf.solver.bem3d.assembly import basis_pair_entries
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
-from wavebrdf.solver.bem3d.nearfield import BLOCKS, NearPattern, assemble_near, near_base_numpy
+from wavebrdf.solver.bem3d.nearfield import (
+    BLOCKS,
+    NearPattern,
+    assemble_near,
+    lattice_site,
+    near_base_numpy,
+    near_first,
+)
 from wavebrdf.solver.bem3d.projection import basis_quadrature, fibonacci_directions, project
 from wavebrdf.solver.surface import HeightField, generate
 
@@ -193,7 +200,7 @@ def test_near_correction_is_exact_minus_grid_entries(cl_ctx, rough_mesh, near_se
             c = [coef["ee_vec"][i], coef["ee_div"][i], coef["mm_vec"][i], coef["mm_div"][i]]
             expected = expected - near_base_numpy(projection, media.wavenumbers[i], c, rough_mesh.n_horizontal,
                                                   row_id, col_id)
-        got = near.values[block][j, pos].T
+        got = near.entries(block, j, pos).T
         err = np.linalg.norm(got - expected) / np.linalg.norm(expected)
         print(block, "C: OpenCL vs A − B(NumPy)", err)
         assert err < 1e-11
@@ -205,24 +212,56 @@ def test_near_correction_is_exact_minus_grid_entries(cl_ctx, rough_mesh, near_se
         assert np.allclose(kept, np.stack([ee, em, mm])[:, keep], rtol=1e-12, atol=0)
 
 
-@pytest.mark.parametrize("batch", [1, 2])
-def test_near_spmv_kernels_match_scipy(cl_ctx, rough_mesh, near_setup, rng, batch):
+@pytest.mark.parametrize("batch, precision, lanes, split", [
+    (1, "double", None, False), (2, "double", None, False), (2, "single", None, False),
+    (2, "double", 1, False), (2, "double", None, True)])
+def test_near_spmv_kernels_match_scipy(cl_ctx, rough_mesh, near_setup, rng, batch, precision, lanes, split):
+    """Lattice SpMV = scipy product of the same entries: SIMD lanes (CPU) and one site per
+    work-item (the GPU path), single precision, values split over several buffers."""
+    import dataclasses
+
     import pyopencl as cl
 
     _, _, _, near = near_setup
+    ctx = cl_ctx
+    if split:  # a device whose largest allocation holds ~3 offsets forces several value buffers
+        per_offset = near.values["HV"][0].nbytes
+        ctx = dataclasses.replace(cl_ctx, info=dataclasses.replace(cl_ctx.info, max_alloc_gib=3.5 * per_offset / 2**30),
+                                  _programs={}, _kernels={})
+    near = dataclasses.replace(near, _device=None, _lattice_vectors={})
     n = rough_mesh.n_unknowns
-    x = rng.standard_normal((batch, n)) + 1j * rng.standard_normal((batch, n))
+    dtype = np.complex128 if precision == "double" else np.complex64
+    x = (rng.standard_normal((batch, n)) + 1j * rng.standard_normal((batch, n))).astype(dtype)
     y = np.zeros_like(x)
     mf = cl.mem_flags
-    xb = cl.Buffer(cl_ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
-    yb = cl.Buffer(cl_ctx.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=y)
-    near.apply(cl_ctx, xb, yb, batch, True)
-    cl.enqueue_copy(cl_ctx.queue, y, yb)
+    xb = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
+    yb = cl.Buffer(ctx.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=y)
+    near.apply(ctx, xb, yb, batch, precision == "double", lanes=lanes)
+    if split:
+        assert all(len(parts) > 1 for parts in near._device.values())
+    cl.enqueue_copy(ctx.queue, y, yb)
     ref = near.apply_numpy(x)
-    assert np.linalg.norm(y - ref) / np.linalg.norm(ref) < 1e-13
+    assert np.linalg.norm(y - ref) / np.linalg.norm(ref) < (1e-13 if precision == "double" else 1e-6)
     # the stored pattern is symmetric: C = Cᵀ
     C = near.to_sparse()
     assert abs(C - C.T).max() == 0
+
+
+def test_near_lattice_shifts_are_the_rooftop_offsets():
+    """Every rooftop has its own lattice site, and site(column) − site(row) is the offset's shift."""
+    pattern = NearPattern.build(7, 2.5)
+    N, rows = pattern.cells, np.arange(pattern.rows)
+    for o in (0, 1):
+        sites = lattice_site(o, N, rows)
+        assert len(np.unique(sites)) == len(rows) and sites.min() >= 0 and sites.max() < N * N
+    for block in BLOCKS:
+        row_id, col_id, j, pos = pattern.pairs(block, rows)
+        orow, ocol, _ = BLOCKS[block]
+        row_site = lattice_site(orow, N, row_id - near_first(orow, N))
+        col_site = lattice_site(ocol, N, col_id - near_first(ocol, N))
+        assert np.array_equal(col_site - row_site, pattern.shifts(block)[j])
+        assert np.abs(pattern.shifts(block)).max() <= pattern.guard
+    assert pattern.lattice_length >= 2 * pattern.guard + N * N
 
 
 def test_near_pattern_counts_and_symmetry():
