@@ -88,7 +88,7 @@ def cmd_matvec(args, ctx):
         media = Media(0.4, AL_400)
         op = AIMOperator(ctx, mesh, media, AIMOptions(precision=args.precision, preconditioner="none"))
         x = rng.standard_normal((2, mesh.n_unknowns)) + 1j * rng.standard_normal((2, mesh.n_unknowns))
-        total, t = best_matvec(op, x.astype(op.dtype))
+        total, t = best_matvec(op, x.astype(op.dtype), repeat=args.repeat)
         print(f"N = {cells}: {mesh.n_unknowns} unknowns, {op.grid.describe()}; near {op.near.bytes() / mesh.n_unknowns:.0f} "
               f"B/unknown; matvec (2 RHS) {total:.3f} s: FFT {t['fft_s']:.3f}, scatter {t['scatter_s']:.3f}, "
               f"Fourier {t['fourier_s']:.3f}, gather {t['gather_s']:.3f}, near {t['near_s']:.3f}; "
@@ -294,6 +294,7 @@ def main():
     p = sub.add_parser("matvec")
     p.add_argument("--sizes", type=int, nargs="+", default=[96, 160, 256])
     p.add_argument("--precision", default="double")
+    p.add_argument("--repeat", type=int, default=7, help="products per size; the fastest is reported")
     p = sub.add_parser("solve")
     p.add_argument("--sizes", type=int, nargs="+", default=[64, 128, 192])
     p.add_argument("--precision", default="single")
