@@ -21,6 +21,7 @@
  * NumPy twins: scatter_numpy, gather_numpy, fourier_numpy in aim_base.py.
  */
 #include "aim_weights.h"
+#include "wb_vcomplex.h"
 
 #ifndef AIM_BATCH
 #define AIM_BATCH 1
@@ -29,26 +30,72 @@
 #define AIM_NMED 1
 #endif
 
+/* Scatter and gather work on packs: the 2 AIM_BATCH complex numbers (J, M) or (E, H) of every
+   right-hand side side by side in one real vector, (re, im) pairs, so one weight multiplies them
+   all in two vector FMAs (PoCL does not vectorize work-items that run inner loops). */
+#if AIM_BATCH == 1
+#define AIM_PACK 4
+#elif AIM_BATCH == 2
+#define AIM_PACK 8
+#elif AIM_BATCH == 4
+#define AIM_PACK 16
+#else
+#error "AIM_BATCH must be 1, 2 or 4"
+#endif
+#if WB_FP64
+typedef WB_PASTE(double, AIM_PACK) pack_t;
+#else
+typedef WB_PASTE(float, AIM_PACK) pack_t;
+#endif
+#define PLANE(v, i) (((real_t *)&(v))[i])
+
+/* acc + w z for every complex pair of z; zs = (-im, re) of every pair (aim_swap) */
+inline pack_t aim_pmad(const weight_t w, const pack_t z, const pack_t zs, const pack_t acc)
+{
+#if AIM_COMPLEX_W
+    return fma((pack_t)(w.x), z, fma((pack_t)(w.y), zs, acc));
+#else
+    return fma((pack_t)(w), z, acc);
+#endif
+}
+inline pack_t aim_swap(const pack_t z)
+{
+#if AIM_COMPLEX_W
+#if AIM_PACK == 4
+    return z.s1032 * (pack_t)(-1, 1, -1, 1);
+#elif AIM_PACK == 8
+    return z.s10325476 * (pack_t)(-1, 1, -1, 1, -1, 1, -1, 1);
+#else
+    return z.s1032547698badcfe * (pack_t)(-1, 1, -1, 1, -1, 1, -1, 1, -1, 1, -1, 1, -1, 1, -1, 1);
+#endif
+#else
+    return z;
+#endif
+}
+/* (a[b], c[b]) of every right-hand side b, a and c at stride `stride` per right-hand side */
+inline pack_t aim_pack(__global const cplx_t *a, __global const cplx_t *c, const size_t stride)
+{
+#if AIM_PACK == 4
+    return (pack_t)(a[0], c[0]);
+#elif AIM_PACK == 8
+    return (pack_t)(a[0], c[0], a[stride], c[stride]);
+#else
+    return (pack_t)(a[0], c[0], a[stride], c[stride], a[2 * stride], c[2 * stride], a[3 * stride], c[3 * stride]);
+#endif
+}
+
 /* charges of the inverse-map entries [e0, e1) of one grid point: tangential parts into qt (one of
-   x, y), z and divergence parts into qz, qd; [b][0] from J, [b][1] from M */
+   x, y), z and divergence parts into qz, qd */
 inline void aim_scatter_entries(__global const int *entries, const int e0, const int e1, const int S,
                                 const size_t wstride, const int nb, __global const weight_t *W,
-                                __global const cplx_t *x, cplx_t qt[AIM_BATCH][2], cplx_t qz[AIM_BATCH][2],
-                                cplx_t qd[AIM_BATCH][2])
+                                __global const cplx_t *x, pack_t *qt, pack_t *qz, pack_t *qd)
 {
     for (int e = e0; e < e1; ++e) {
         const int g = entries[e] / S;
-        const weight_t wt = W[e], wz = W[wstride + e], wd = W[2 * wstride + e];
-#pragma unroll
-        for (int b = 0; b < AIM_BATCH; ++b) {  /* unrolled: the accumulators stay in registers */
-            const cplx_t xj = x[(size_t)b * 2 * nb + g], xm = x[(size_t)b * 2 * nb + nb + g];
-            qt[b][0] = c_add(qt[b][0], aim_wmul(wt, xj));
-            qz[b][0] = c_add(qz[b][0], aim_wmul(wz, xj));
-            qd[b][0] = c_add(qd[b][0], aim_wmul(wd, xj));
-            qt[b][1] = c_add(qt[b][1], aim_wmul(wt, xm));
-            qz[b][1] = c_add(qz[b][1], aim_wmul(wz, xm));
-            qd[b][1] = c_add(qd[b][1], aim_wmul(wd, xm));
-        }
+        const pack_t z = aim_pack(x + g, x + nb + g, 2 * (size_t)nb), zs = aim_swap(z);
+        *qt = aim_pmad(W[e], z, zs, *qt);
+        *qz = aim_pmad(W[wstride + e], z, zs, *qz);
+        *qd = aim_pmad(W[2 * wstride + e], z, zs, *qd);
     }
 }
 
@@ -68,22 +115,16 @@ __kernel void aim_scatter(__global const int *pointer, __global const int *entri
     const int e0 = pointer[p], e2 = pointer[p + 1];
     int e1 = e0;
     while (e1 < e2 && entries[e1] < nh * S) ++e1;
-    cplx_t qx[AIM_BATCH][2], qy[AIM_BATCH][2], qz[AIM_BATCH][2], qd[AIM_BATCH][2];
+    pack_t qc[4] = {(pack_t)(R(0.0)), (pack_t)(R(0.0)), (pack_t)(R(0.0)), (pack_t)(R(0.0))};  /* x, y, z, d */
+    aim_scatter_entries(entries, e0, e1, S, wstride, nb, W_by_point, x, &qc[0], &qc[2], &qc[3]);
+    aim_scatter_entries(entries, e1, e2, S, wstride, nb, W_by_point, x, &qc[1], &qc[2], &qc[3]);
 #pragma unroll
     for (int b = 0; b < AIM_BATCH; ++b)
-        for (int t = 0; t < 2; ++t) qx[b][t] = qy[b][t] = qz[b][t] = qd[b][t] = c_new(R(0.0), R(0.0));
-    aim_scatter_entries(entries, e0, e1, S, wstride, nb, W_by_point, x, qx, qz, qd);
-    aim_scatter_entries(entries, e1, e2, S, wstride, nb, W_by_point, x, qy, qz, qd);
 #pragma unroll
-    for (int b = 0; b < AIM_BATCH; ++b) {
-        __global cplx_t *out = q + (size_t)b * 8 * lpoints + lp;
-        for (int t = 0; t < 2; ++t) {
-            out[(4 * t + 0) * lpoints] = qx[b][t];
-            out[(4 * t + 1) * lpoints] = qy[b][t];
-            out[(4 * t + 2) * lpoints] = qz[b][t];
-            out[(4 * t + 3) * lpoints] = qd[b][t];
+        for (int c = 0; c < 4; ++c) {
+            q[((size_t)b * 8 + c) * lpoints + lp] = c_new(PLANE(qc[c], 4 * b), PLANE(qc[c], 4 * b + 1));
+            q[((size_t)b * 8 + 4 + c) * lpoints + lp] = c_new(PLANE(qc[c], 4 * b + 2), PLANE(qc[c], 4 * b + 3));
         }
-    }
 }
 
 __kernel void aim_gather(__global const int *origins, const int4 layout, const int sx, const int sy,
@@ -98,27 +139,26 @@ __kernel void aim_gather(__global const int *origins, const int4 layout, const i
     const size_t wstride = (size_t)nb * S;
     const int ct = g < nh ? 0 : 1;
     const int ox = origins[3 * g], oy = origins[3 * g + 1], oz = origins[3 * g + 2];
-    cplx_t ye[AIM_BATCH], yh[AIM_BATCH];
-    for (int b = 0; b < AIM_BATCH; ++b) ye[b] = yh[b] = c_new(R(0.0), R(0.0));
+    pack_t acc = (pack_t)(R(0.0));  /* (E, H) of every right-hand side */
     int s = 0;
     for (int a = 0; a < sx; ++a)
         for (int bb = 0; bb < sy; ++bb)
             for (int c = 0; c < sz; ++c, ++s) {
                 const size_t p = ((size_t)(ox + a) * ny + (oy + bb)) * nz + (oz + c);
                 const size_t e = (size_t)g * S + s;
-                const weight_t wt = W[e], wz = W[wstride + e], wd = W[2 * wstride + e];
-#pragma unroll
-                for (int b = 0; b < AIM_BATCH; ++b) {  /* unrolled: accumulators in registers */
-                    __global const cplx_t *f = F + (size_t)b * 8 * npoints + p;
-                    ye[b] = c_add(ye[b], c_add(aim_wmul(wt, f[ct * npoints]),
-                                               c_add(aim_wmul(wz, f[2 * npoints]), aim_wmul(wd, f[3 * npoints]))));
-                    yh[b] = c_add(yh[b], c_add(aim_wmul(wt, f[(4 + ct) * npoints]),
-                                               c_add(aim_wmul(wz, f[6 * npoints]), aim_wmul(wd, f[7 * npoints]))));
-                }
+                __global const cplx_t *f = F + p;
+                const pack_t ft = aim_pack(f + ct * npoints, f + (4 + ct) * npoints, 8 * npoints);
+                const pack_t fz = aim_pack(f + 2 * npoints, f + 6 * npoints, 8 * npoints);
+                const pack_t fd = aim_pack(f + 3 * npoints, f + 7 * npoints, 8 * npoints);
+                acc = aim_pmad(W[e], ft, aim_swap(ft), acc);
+                acc = aim_pmad(W[wstride + e], fz, aim_swap(fz), acc);
+                acc = aim_pmad(W[2 * wstride + e], fd, aim_swap(fd), acc);
             }
+#pragma unroll
     for (int b = 0; b < AIM_BATCH; ++b) {
-        y[(size_t)b * 2 * nb + g] = c_add(y[(size_t)b * 2 * nb + g], ye[b]);
-        y[(size_t)b * 2 * nb + nb + g] = c_add(y[(size_t)b * 2 * nb + nb + g], yh[b]);
+        __global cplx_t *yb = y + (size_t)b * 2 * nb + g;
+        yb[0] = c_add(yb[0], c_new(PLANE(acc, 4 * b), PLANE(acc, 4 * b + 1)));
+        yb[nb] = c_add(yb[nb], c_new(PLANE(acc, 4 * b + 2), PLANE(acc, 4 * b + 3)));
     }
 }
 

@@ -26,7 +26,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import scipy.sparse.linalg
 
-from wavebrdf.solver.bem3d.aim_base import BaseOperator, GridGroup
+from wavebrdf.solver.bem3d.aim_base import PACKED_BATCHES, BaseOperator, GridGroup, batch_chunks
 from wavebrdf.solver.bem3d.aim_grid import GridOptions, build_grid
 from wavebrdf.solver.bem3d.aim_green import DECAY_TOLERANCE, grid_media, interior_decay, kernel_spectra
 from wavebrdf.solver.bem3d.checks import check_material, check_resolution
@@ -320,6 +320,8 @@ class AIMOperator:
 
         single = np.ndim(x) == 1
         x = np.ascontiguousarray(np.atleast_2d(x), dtype=self.dtype)
+        if len(x) not in PACKED_BATCHES:
+            return np.concatenate([self.matvec(x[c]) for c in batch_chunks(len(x))])
         ctx = self.ctx
         mf = cl.mem_flags
         y = np.zeros_like(x)

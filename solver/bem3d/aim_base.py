@@ -42,6 +42,8 @@ logger = logging.getLogger(__name__)
 
 __all__ = [
     "FFT_BACKENDS",
+    "PACKED_BATCHES",
+    "batch_chunks",
     "BaseOperator",
     "GridGroup",
     "fft_workers",
@@ -57,6 +59,14 @@ __all__ = [
 ]
 
 FFT_BACKENDS = ("auto", "host", "vkfft")
+PACKED_BATCHES = (1, 2, 4)  # right-hand sides per launch that aim.cl packs into one SIMD vector
+
+
+def batch_chunks(n: int):
+    """Slices of n right-hand sides, each of a packed batch size (pairs and a last single)."""
+    if n in PACKED_BATCHES:
+        return [slice(0, n)]
+    return [slice(i, min(n, i + 2)) for i in range(0, n, 2)]
 
 
 def fft_workers() -> int:
@@ -256,6 +266,10 @@ class BaseOperator:
         ctx = self.ctx
         mf = cl.mem_flags
         x = np.ascontiguousarray(np.atleast_2d(x), dtype=self.complex)
+        if len(x) not in PACKED_BATCHES:
+            if y_buffer is not None:
+                raise ValueError(f"{len(x)} right-hand sides into one buffer: the kernels take {PACKED_BATCHES}")
+            return np.concatenate([self.apply(x[c]) for c in batch_chunks(len(x))])
         x_buf = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
         own_y = y_buffer is None
         if own_y:

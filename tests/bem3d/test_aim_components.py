@@ -142,9 +142,12 @@ def test_interior_leaves_the_grid_only_when_it_has_decayed():
     assert np.all(np.diff(np.log(decay[1:])) < 0)  # monotone: one switch point, no jumps back
 
 
-@pytest.mark.parametrize("projection", ["farfield", "moments"])
-@pytest.mark.parametrize("precision", ["double", "single"])
-def test_base_operator_kernels_match_numpy(cl_ctx, rough_mesh, rng, projection, precision):
+@pytest.mark.parametrize("projection, precision, batch", [
+    ("farfield", "double", 2), ("farfield", "single", 2), ("moments", "double", 2), ("moments", "single", 2),
+    ("farfield", "double", 1), ("farfield", "single", 4), ("moments", "double", 3)])
+def test_base_operator_kernels_match_numpy(cl_ctx, rough_mesh, rng, projection, precision, batch):
+    """B x on the device = its NumPy twin: both projections and precisions, every packed batch
+    size of aim.cl (1, 2, 4 right-hand sides per launch) and one it splits (3 = 2 + 1)."""
     media = Media(LAMBDA, 1.5)
     grid = build_grid(rough_mesh)
     spectra = kernel_spectra(grid, media, (0, 1))
@@ -155,7 +158,7 @@ def test_base_operator_kernels_match_numpy(cl_ctx, rough_mesh, rng, projection, 
         groups = [GridGroup.build(project(rough_mesh, grid, "farfield", k=media.wavenumbers[i].real), spectra,
                                   media, (i,), dtype) for i in (0, 1)]
     op = BaseOperator(cl_ctx, rough_mesh, groups, precision=precision)
-    x = rng.standard_normal((2, rough_mesh.n_unknowns)) + 1j * rng.standard_normal((2, rough_mesh.n_unknowns))
+    x = rng.standard_normal((batch, rough_mesh.n_unknowns)) + 1j * rng.standard_normal((batch, rough_mesh.n_unknowns))
     y = op.apply(x)
     ref = op.apply_numpy(x)
     err = np.linalg.norm(y - ref) / np.linalg.norm(ref)
