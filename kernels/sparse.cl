@@ -19,7 +19,7 @@
  * near_lattice gathers the rows of one orientation o (one work-item per WB_VW sites, no
  * atomics): its own block forward and transposed, and the cross block forward (o = 0: values at
  * the row, X_V at row + s) or transposed (o = 1: values and X_H at row - s); Y accumulates.
- * near_to_lattice / near_from_lattice move x onto the lattice and add Y into y (zeroing Y).
+ * near_move puts x onto the lattice, and adds Y into y (zeroing Y).
  * NumPy twin: NearMatrix.apply_numpy (a scipy.sparse matrix of the same entries).
  */
 #include "wb_vcomplex.h"
@@ -109,7 +109,9 @@ inline size_t near_site(const int N, const int G, const int g, int *o)
     return (size_t)G + (size_t)N * c.y + c.x;
 }
 
-__kernel void near_to_lattice(const int N, const int L, const int G, __global const cplx_t *x, __global real_t *X)
+/* to_lattice = 1: lattice X <- x at the sites of the rooftops; 0: y += lattice Y there, then Y <- 0 */
+__kernel void near_move(const int to_lattice, const int N, const int L, const int G, __global real_t *lattice,
+                        __global cplx_t *v)
 {
     const int nb = 2 * N * (N - 1);
     const int g = get_global_id(0);
@@ -118,26 +120,15 @@ __kernel void near_to_lattice(const int N, const int L, const int G, __global co
     const size_t p = near_site(N, G, g, &o);
     for (int b = 0; b < NEAR_BATCH; ++b)
         for (int t = 0; t < 2; ++t) {
-            const cplx_t v = x[((size_t)b * 2 + t) * nb + g];
-            __global real_t *d = X + (((size_t)b * 2 + o) * 2 + t) * 2 * L + p;
-            d[0] = v.x;
-            d[L] = v.y;
-        }
-}
-
-__kernel void near_from_lattice(const int N, const int L, const int G, __global real_t *Y, __global cplx_t *y)
-{
-    const int nb = 2 * N * (N - 1);
-    const int g = get_global_id(0);
-    if (g >= nb) return;
-    int o;
-    const size_t p = near_site(N, G, g, &o);
-    for (int b = 0; b < NEAR_BATCH; ++b)
-        for (int t = 0; t < 2; ++t) {
-            __global real_t *s = Y + (((size_t)b * 2 + o) * 2 + t) * 2 * L + p;
+            __global real_t *s = lattice + (((size_t)b * 2 + o) * 2 + t) * 2 * L + p;
             const size_t k = ((size_t)b * 2 + t) * nb + g;
-            y[k] = c_add(y[k], c_new(s[0], s[L]));
-            s[0] = R(0.0);
-            s[L] = R(0.0);
+            if (to_lattice) {
+                s[0] = v[k].x;
+                s[L] = v[k].y;
+            } else {
+                v[k] = c_add(v[k], c_new(s[0], s[L]));
+                s[0] = R(0.0);
+                s[L] = R(0.0);
+            }
         }
 }

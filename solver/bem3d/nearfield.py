@@ -29,7 +29,7 @@ Assembly, per strip of rows (one chunk of y lines):
    stencil sum), subtracted in double precision for every grid medium.
 
 C x is applied by kernels/sparse.cl (``near_lattice`` streams the shifted products in SIMD
-vectors; ``near_to_lattice`` / ``near_from_lattice`` move the vectors on and off the lattice).
+vectors; ``near_move`` moves the vectors on and off the lattice).
 """
 
 from __future__ import annotations
@@ -421,7 +421,8 @@ class NearMatrix:
         N, L, G = np.int32(self.pattern.cells), np.int32(self.pattern.lattice_length), np.int32(self.pattern.guard)
         X, Y = self._vectors(ctx, batch, np.float64 if precision_fp64 else np.float32)
         queue = ctx.queue
-        ctx.kernel("sparse.cl", "near_to_lattice", defines)(queue, (self.n_bases,), None, N, L, G, x_buf, X)
+        move = ctx.kernel("sparse.cl", "near_move", defines)
+        move(queue, (self.n_bases,), None, np.int32(1), N, L, G, X, x_buf)
         lattice = ctx.kernel("sparse.cl", "near_lattice", defines)
         sites = self.pattern.cells**2
         items = (-(-sites // lanes),)
@@ -431,7 +432,7 @@ class NearMatrix:
                 c_shift, c_n, c_vals = cross or (self._device["HV"][0][0], 0, self._device["HV"][0][2])
                 lattice(queue, items, None, np.int32(o), L, G, np.int32(sites), s_shift, np.int32(s_n), s_vals,
                         c_shift, np.int32(c_n), c_vals, X, Y)
-        ctx.kernel("sparse.cl", "near_from_lattice", defines)(queue, (self.n_bases,), None, N, L, G, Y, y_buf)
+        move(queue, (self.n_bases,), None, np.int32(0), N, L, G, Y, y_buf)
 
 
 # ---------------------------------------------------------------------------------------------
