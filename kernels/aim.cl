@@ -1,6 +1,6 @@
 /* The AIM base matrix B = Lambda^T G Lambda applied on the grid (solver/bem3d/aim_base.py).
  *
- * Unknowns x = [J (nb) | M~ (nb)] per right-hand side (AIM_BATCH of them, build define).
+ * Unknowns x = [J (nb) | M~ (nb)] per right-hand side (AIM_BATCH = 1, 2 or 4 of them, build define).
  * Grid arrays: 8 components per right-hand side, row-major with layout dims (Lx, Ly, Lz) >= (nx, ny, nz):
  * compact (L = n) for host FFTs, the zero-padded FFT size for device FFTs; "points" = Lx Ly Lz:
  *   charges  q = [Jx, Jy, Jz, Jd, Mx, My, Mz, Md]   (x from horizontal, y from vertical rooftops)

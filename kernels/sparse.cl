@@ -1,4 +1,4 @@
-/* Near-field correction C x on the rooftop lattice (solver/bem3d/nearfield.py, NearLattice).
+/* Near-field correction C x on the rooftop lattice (solver/bem3d/nearfield.py, NearMatrix).
  *
  * Both orientations live on one N x N lattice: rooftop (x, y) of either orientation sits at
  * site p = N y + x (near_index.h gives the rooftop ranges; sites without a rooftop hold zeros),
@@ -100,7 +100,7 @@ __kernel void near_lattice(const int o, const int L, const int G, const int site
     }
 }
 
-/* lattice site (with guard) of rooftop g of the 2 N (N - 1) */
+/* lattice site (guard included) of rooftop g (0 <= g < 2 N (N - 1)) and its orientation o */
 inline size_t near_site(const int N, const int G, const int g, int *o)
 {
     const int nrows = N * (N - 1);

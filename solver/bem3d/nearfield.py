@@ -59,10 +59,10 @@ __all__ = [
     "NearPattern",
     "RepeatingTables",
     "assemble_near",
+    "lattice_site",
     "near_base_numpy",
     "near_coords",
     "near_first",
-    "lattice_site",
     "near_row",
     "near_valid",
 ]
