@@ -47,7 +47,6 @@ typedef WB_PASTE(double, AIM_PACK) pack_t;
 #else
 typedef WB_PASTE(float, AIM_PACK) pack_t;
 #endif
-#define PLANE(v, i) (((real_t *)&(v))[i])
 
 /* acc + w z for every complex pair of z; zs = (-im, re) of every pair (aim_swap) */
 inline pack_t aim_pmad(const weight_t w, const pack_t z, const pack_t zs, const pack_t acc)
@@ -122,8 +121,8 @@ __kernel void aim_scatter(__global const int *pointer, __global const int *entri
     for (int b = 0; b < AIM_BATCH; ++b)
 #pragma unroll
         for (int c = 0; c < 4; ++c) {
-            q[((size_t)b * 8 + c) * lpoints + lp] = c_new(PLANE(qc[c], 4 * b), PLANE(qc[c], 4 * b + 1));
-            q[((size_t)b * 8 + 4 + c) * lpoints + lp] = c_new(PLANE(qc[c], 4 * b + 2), PLANE(qc[c], 4 * b + 3));
+            q[((size_t)b * 8 + c) * lpoints + lp] = c_new(VLANE(qc[c], 4 * b), VLANE(qc[c], 4 * b + 1));
+            q[((size_t)b * 8 + 4 + c) * lpoints + lp] = c_new(VLANE(qc[c], 4 * b + 2), VLANE(qc[c], 4 * b + 3));
         }
 }
 
@@ -157,8 +156,8 @@ __kernel void aim_gather(__global const int *origins, const int4 layout, const i
 #pragma unroll
     for (int b = 0; b < AIM_BATCH; ++b) {
         __global cplx_t *yb = y + (size_t)b * 2 * nb + g;
-        yb[0] = c_add(yb[0], c_new(PLANE(acc, 4 * b), PLANE(acc, 4 * b + 1)));
-        yb[nb] = c_add(yb[nb], c_new(PLANE(acc, 4 * b + 2), PLANE(acc, 4 * b + 3)));
+        yb[0] = c_add(yb[0], c_new(VLANE(acc, 4 * b), VLANE(acc, 4 * b + 1)));
+        yb[nb] = c_add(yb[nb], c_new(VLANE(acc, 4 * b + 2), VLANE(acc, 4 * b + 3)));
     }
 }
 

@@ -63,9 +63,7 @@ PACKED_BATCHES = (1, 2, 4)  # right-hand sides per launch that aim.cl packs into
 
 
 def batch_chunks(n: int):
-    """Slices of n right-hand sides, each of a packed batch size (pairs and a last single)."""
-    if n in PACKED_BATCHES:
-        return [slice(0, n)]
+    """Slices of n right-hand sides in packed batch sizes: pairs and, for odd n, a last single."""
     return [slice(i, min(n, i + 2)) for i in range(0, n, 2)]
 
 
