@@ -13,8 +13,9 @@
  *              inverse-map order (3, nb S), so its weight reads stream: read in rooftop order
  *              they cost 2.3x the time (measured, PoCL, 36 480 and 101 760 unknowns).
  * aim_gather   one work-item per rooftop: y += Lambda^T F over its stencil.
- * aim_fourier  one work-item per Fourier sample: F^ = K^ q^ with the PMCHWT coefficients
- *              (in place), for AIM_NMED grid media sharing the projection:
+ * aim_fourier  one work-item per WB_VW Fourier samples (vc_load deinterleaves them into SIMD
+ *              vectors): F^ = K^ q^ with the PMCHWT coefficients (in place), for AIM_NMED grid
+ *              media sharing the projection:
  *   E_c = A q_c[J] + (B x q[M])_c,  E_d = D q_d[J],  H_c = A' q_c[M] + (B x q[J])_c,  H_d = D' q_d[M]
  *   A = sum_i ee_vec_i G_i, A' = sum_i mm_vec_i G_i, D = sum_i ee_div_i G_i, D' = sum_i mm_div_i G_i,
  *   B_a = eta0 sum_i FFT(d_a g_i)  (precombined on the host).
@@ -162,43 +163,47 @@ __kernel void aim_gather(__global const int *origins, const int4 layout, const i
 }
 
 /* (B x q)_a = B_{a+1} q_{a+2} - B_{a+2} q_{a+1}  (indices mod 3) */
-inline void aim_curl(const cplx_t B[3], const cplx_t q[3], cplx_t out[3])
+inline void aim_curl(const vcplx_t B[3], const vcplx_t q[3], vcplx_t out[3])
 {
-    out[0] = c_sub(c_mul(B[1], q[2]), c_mul(B[2], q[1]));
-    out[1] = c_sub(c_mul(B[2], q[0]), c_mul(B[0], q[2]));
-    out[2] = c_sub(c_mul(B[0], q[1]), c_mul(B[1], q[0]));
+    for (int a = 0; a < 3; ++a) {
+        const int a1 = (a + 1) % 3, a2 = (a + 2) % 3;
+        out[a] = vc_sub(vc_mul(B[a1], q[a2]), vc_mul(B[a2], q[a1]));
+    }
 }
 
+/* one work-item per WB_VW consecutive samples (aim_base.py picks WB_VW; the host launches whole
+   vectors, then the rest with WB_VW = 1), from sample `first` */
 __kernel void aim_fourier(__global const cplx_t *green, __global const cplx_t *gradient, const long nfreq,
-                          __constant const cplx_t *coef, __global cplx_t *Q)
+                          __constant const cplx_t *coef, __global cplx_t *Q, const long first)
 {
     /* green (AIM_NMED, nfreq); gradient (3, nfreq) = B_a; coef (4, AIM_NMED): ee_vec, mm_vec,
        ee_div, mm_div; Q (AIM_BATCH, 8, nfreq) in place */
-    const size_t v = get_global_id(0);
-    if (v >= (size_t)nfreq) return;
-    cplx_t A = c_new(R(0.0), R(0.0)), Ap = A, D = A, Dp = A;
+    const size_t v = first + get_global_id(0) * WB_VW;
+    if (v + WB_VW > (size_t)nfreq) return;
+    vcplx_t k[4] = {vc_zero(), vc_zero(), vc_zero(), vc_zero()};  /* A, A', D, D' */
     for (int m = 0; m < AIM_NMED; ++m) {
-        const cplx_t G = green[m * nfreq + v];
-        A = c_fma(coef[0 * AIM_NMED + m], G, A);
-        Ap = c_fma(coef[1 * AIM_NMED + m], G, Ap);
-        D = c_fma(coef[2 * AIM_NMED + m], G, D);
-        Dp = c_fma(coef[3 * AIM_NMED + m], G, Dp);
+        const vcplx_t G = vc_load(green + m * nfreq + v);
+        for (int r = 0; r < 4; ++r) {
+            const cplx_t c = coef[r * AIM_NMED + m];
+            k[r] = vc_fma(vc_new((vreal_t)(c.x), (vreal_t)(c.y)), G, k[r]);
+        }
     }
-    const cplx_t B[3] = {gradient[v], gradient[nfreq + v], gradient[2 * nfreq + v]};
+    const vcplx_t B[3] = {vc_load(gradient + v), vc_load(gradient + nfreq + v), vc_load(gradient + 2 * nfreq + v)};
 #pragma unroll
     for (int b = 0; b < AIM_BATCH; ++b) {
         __global cplx_t *q = Q + (size_t)b * 8 * nfreq + v;
-        const cplx_t qj[3] = {q[0], q[nfreq], q[2 * nfreq]};
-        const cplx_t qm[3] = {q[4 * nfreq], q[5 * nfreq], q[6 * nfreq]};
-        const cplx_t qjd = q[3 * nfreq], qmd = q[7 * nfreq];
-        cplx_t cj[3], cm[3];
-        aim_curl(B, qj, cj);
-        aim_curl(B, qm, cm);
+        vcplx_t qe[3], qh[3], ce[3], ch[3];
         for (int a = 0; a < 3; ++a) {
-            q[a * nfreq] = c_fma(A, qj[a], cm[a]);
-            q[(4 + a) * nfreq] = c_fma(Ap, qm[a], cj[a]);
+            qe[a] = vc_load(q + a * nfreq);
+            qh[a] = vc_load(q + (4 + a) * nfreq);
         }
-        q[3 * nfreq] = c_mul(D, qjd);
-        q[7 * nfreq] = c_mul(Dp, qmd);
+        aim_curl(B, qh, ce);  /* B x q[M] */
+        aim_curl(B, qe, ch);  /* B x q[J] */
+        for (int a = 0; a < 3; ++a) {
+            vc_store(vc_fma(k[0], qe[a], ce[a]), q + a * nfreq);
+            vc_store(vc_fma(k[1], qh[a], ch[a]), q + (4 + a) * nfreq);
+        }
+        vc_store(vc_mul(k[2], vc_load(q + 3 * nfreq)), q + 3 * nfreq);
+        vc_store(vc_mul(k[3], vc_load(q + 7 * nfreq)), q + 7 * nfreq);
     }
 }

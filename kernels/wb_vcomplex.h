@@ -86,4 +86,36 @@ inline vcplx_t vc_select(vcplx_t a, vcplx_t b, vmask_t mask)
 /* lane i as a scalar complex */
 inline cplx_t vc_lane(vcplx_t a, int i) { return c_new(VLANE(a.re, i), VLANE(a.im, i)); }
 
+/* WB_VW consecutive complex numbers of an interleaved (re, im) array as a vcplx_t, and back */
+#if WB_VW == 1
+inline vcplx_t vc_load(__global const cplx_t *p) { return vc_new(p[0].x, p[0].y); }
+inline void vc_store(const vcplx_t z, __global cplx_t *p) { p[0] = c_new(z.re, z.im); }
+#else
+#if WB_VW == 2
+#define WB_VW2 4
+#define VC_PAIRS(T, z) ((T)((z).re.s0, (z).im.s0, (z).re.s1, (z).im.s1))
+#elif WB_VW == 4
+#define WB_VW2 8
+#define VC_PAIRS(T, z) ((T)((z).re.s0, (z).im.s0, (z).re.s1, (z).im.s1, (z).re.s2, (z).im.s2, (z).re.s3, (z).im.s3))
+#else
+#define WB_VW2 16
+#define VC_PAIRS(T, z) ((T)((z).re.s0, (z).im.s0, (z).re.s1, (z).im.s1, (z).re.s2, (z).im.s2, (z).re.s3, (z).im.s3, \
+                            (z).re.s4, (z).im.s4, (z).re.s5, (z).im.s5, (z).re.s6, (z).im.s6, (z).re.s7, (z).im.s7))
+#endif
+#if WB_FP64
+typedef WB_PASTE(double, WB_VW2) vpair_t;
+#else
+typedef WB_PASTE(float, WB_VW2) vpair_t;
+#endif
+inline vcplx_t vc_load(__global const cplx_t *p)
+{
+    const vpair_t v = WB_PASTE(vload, WB_VW2)(0, (__global const real_t *)p);
+    return vc_new(v.even, v.odd);
+}
+inline void vc_store(const vcplx_t z, __global cplx_t *p)
+{
+    WB_PASTE(vstore, WB_VW2)(VC_PAIRS(vpair_t, z), 0, (__global real_t *)p);
+}
+#endif
+
 #endif

@@ -34,6 +34,7 @@ import scipy.fft
 import scipy.sparse
 
 from wavebrdf.solver.bem3d.aim_green import KernelSpectra
+from wavebrdf.solver.bem3d.elements import vector_lanes
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.projection import Projection
 from wavebrdf.solver.farfield import ETA0
@@ -209,6 +210,8 @@ class BaseOperator:
             self.real = ctx.real_dtype(precision)
             self.complex = np.result_type(self.real, np.complex64)
         self.fft = self._choose_fft(fft)
+        # samples per work-item of aim_fourier (measured: docs/aim.md)
+        self.fourier_lanes = 1 if ctx is None else vector_lanes(ctx) * (1 if self.real == np.float64 else 2)
         self.timings = {"scatter_s": 0.0, "fft_s": 0.0, "fourier_s": 0.0, "gather_s": 0.0, "calls": 0}
         self._mats = None
         self._vkfft: dict = {}
@@ -290,9 +293,15 @@ class BaseOperator:
             np.int32(self.grid.stencil_size), np.int32(self.n_b), np.int32(self.n_h), weights[1], x_buf, q_buf)
 
     def _fourier(self, Q_buf, green, gradient, coef, defines):
+        """``fourier_lanes`` samples per work-item (SIMD lanes) for whole vectors, then the rest one by one."""
         nfreq = self.grid.padded_points
-        knl = self.ctx.kernel("aim.cl", "aim_fourier", defines)
-        knl(self.ctx.queue, (nfreq,), None, green, gradient, np.int64(nfreq), coef, Q_buf)
+        done = 0
+        for lanes in sorted({self.fourier_lanes, 1}, reverse=True):
+            items = (nfreq - done) // lanes
+            if items:
+                knl = self.ctx.kernel("aim.cl", "aim_fourier", {**defines, "WB_VW": lanes})
+                knl(self.ctx.queue, (items,), None, green, gradient, np.int64(nfreq), coef, Q_buf, np.int64(done))
+                done += items * lanes
 
     def _gather(self, F_buf, y_buffer, weights, defines, layout):
         sx, sy, sz = self.grid.stencil

@@ -12,12 +12,15 @@ translation invariant, so no column index is stored (kernels/near_index.h for th
 
 Values [ee, em, mm] (Z_EE, Z_EM = Z_ME, Z_MM of the pair) are kept in diagonal storage on the
 rooftop lattice (kernels/sparse.cl): rooftop (x, y) of either orientation sits at lattice site
-N y + x, so offset (a, b) is the shift a + N b for every row, and each block is one real array
-(n_offsets, 3, [re, im], L) over the N² sites plus a guard of zero sites at both ends (L ≈ N² +
-2 N r). Entries are zero where the column falls outside the patch and at sites without a
-rooftop. Stored in single precision by default (``storage="single"``; the AIM error it sits next
-to is ~1e-4, float32 rounding 6e-8) or double. Memory ≈ 24 B × (n_HH + n_VV + n_HV)/2 per
-unknown in single precision, plus the guards (~2r/N).
+(G + y) P + x, rows of pitch P ≥ N + max|a| (zero pad sites) and G zero guard rows above and
+below, so offset (a, b) is the shift a + P b for every row and a shifted read stays on zeros
+outside the patch. Rows are grouped in tiles of ``TILE_ROWS``; each block is one real array
+(n_offsets, tiles, 3, [re, im], TILE_ROWS, P), so the values of one offset over one tile are 6
+contiguous runs (what the SpMV streams). Entries are zero where the column falls outside the
+patch and at sites without a rooftop. Stored in single precision by default
+(``storage="single"``; the AIM error it sits next to is ~1e-4, float32 rounding 6e-8) or double.
+Memory ≈ 24 B × (n_HH + n_VV + n_HV)/2 per unknown in single precision, times the pads and
+guards (P/N · tiles T/N: ~1.1 at N = 96, ~1.05 at N = 400).
 
 Assembly, per strip of rows (one chunk of y lines):
 
@@ -28,8 +31,8 @@ Assembly, per strip of rows (one chunk of y lines):
    (kernels/aim_near.cl: grid potentials of each row's stencil on a window, then the column's
    stencil sum), subtracted in double precision for every grid medium.
 
-C x is applied by kernels/sparse.cl (``near_lattice`` streams the shifted products in SIMD
-vectors; ``near_move`` moves the vectors on and off the lattice).
+C x is applied by kernels/sparse.cl (``near_tiles`` streams the shifted products tile by tile in
+SIMD vectors; ``near_move`` moves the vectors on and off the lattice).
 """
 
 from __future__ import annotations
@@ -55,11 +58,11 @@ logger = logging.getLogger(__name__)
 
 __all__ = [
     "BLOCKS",
+    "TILE_ROWS",
     "NearMatrix",
     "NearPattern",
     "RepeatingTables",
     "assemble_near",
-    "lattice_site",
     "near_base_numpy",
     "near_coords",
     "near_first",
@@ -68,7 +71,8 @@ __all__ = [
 ]
 
 STORAGE = {"single": np.complex64, "double": np.complex128}
-LATTICE_ALIGN = 8  # lattice guards and lengths are multiples of the widest SIMD vector (WB_VW ≤ 8)
+LATTICE_ALIGN = 8  # row pitch and pads are multiples of the widest SIMD vector (WB_VW ≤ 8)
+TILE_ROWS = 8  # lattice rows per tile of the SpMV (docs/aim.md: 4-16 measured alike)
 # block name → (row orientation, column orientation, which offset set)
 BLOCKS = {"HH": (0, 0, "same"), "VV": (1, 1, "same"), "HV": (0, 1, "cross")}
 PAIRS_PER_CHUNK = 600_000  # stored pairs per assembly chunk (element tables ≈ 1 KB per element pair)
@@ -97,12 +101,6 @@ def near_first(o, N) -> int:
 def near_coords(o, N, row):
     row = np.asarray(row)
     return (row % (N - 1), row // (N - 1)) if o == 0 else (row // (N - 1), row % (N - 1))
-
-
-def lattice_site(o, N, rows):
-    """Lattice site N y + x (before the guard) of block-local rows of orientation o (kernels/sparse.cl)."""
-    x, y = near_coords(o, N, rows)
-    return N * y + x
 
 
 # ---------------------------------------------------------------------------------------------
@@ -135,22 +133,35 @@ class NearPattern:
         return self.same if BLOCKS[block][2] == "same" else self.cross
 
     def shifts(self, block: str) -> np.ndarray:
-        """Lattice shifts a + N b of the block's offsets (int32)."""
+        """Lattice shifts a + P b of the block's offsets (int64)."""
         off = self.offsets(block).astype(np.int64)
-        return (off[:, 0] + self.cells * off[:, 1]).astype(np.int32)
+        return off[:, 0] + self.pitch * off[:, 1]
 
     @property
-    def guard(self) -> int:
-        """Zero sites kept before and after the N² lattice sites: the largest |shift|, aligned."""
-        off = np.abs(np.concatenate([self.same, self.cross]).astype(np.int64))
-        largest = int(np.max(off[:, 0] + self.cells * off[:, 1]))
-        return -(-largest // LATTICE_ALIGN) * LATTICE_ALIGN
+    def pitch(self) -> int:
+        """Sites per lattice row P: N sites and at least max|a| zero pad sites, both aligned."""
+        reach = int(np.max(np.abs(np.concatenate([self.same[:, 0], self.cross[:, 0]]))))
+        return _aligned(self.cells) + _aligned(reach)
+
+    @property
+    def guard_rows(self) -> int:
+        """Zero rows above and below the N lattice rows: max|b| + 1 (a shifted read stays inside)."""
+        return int(np.max(np.abs(np.concatenate([self.same[:, 1], self.cross[:, 1]])))) + 1
+
+    @property
+    def tiles(self) -> int:
+        """Tiles of ``TILE_ROWS`` rows covering the N rows and both guards."""
+        return -(-(self.cells + 2 * self.guard_rows) // TILE_ROWS)
 
     @property
     def lattice_length(self) -> int:
-        """Length L of the lattice arrays: guard + N² sites (aligned) + guard."""
-        sites = -(-self.cells**2 // LATTICE_ALIGN) * LATTICE_ALIGN
-        return 2 * self.guard + sites
+        """Length L of one lattice array: tiles × TILE_ROWS rows of P sites."""
+        return self.tiles * TILE_ROWS * self.pitch
+
+    def site(self, o: int, rows) -> np.ndarray:
+        """Lattice site (G + y) P + x of block-local rows of orientation o (kernels/sparse.cl)."""
+        x, y = near_coords(o, self.cells, rows)
+        return (self.guard_rows + np.asarray(y, np.int64)) * self.pitch + x
 
     def within(self, block: str, radius_cells: float) -> np.ndarray:
         """Indices of the block's offsets whose centre distance is ≤ ``radius_cells``."""
@@ -316,9 +327,14 @@ def offset_matrix(pattern: NearPattern, entries, offset_index: dict | None = Non
     return scipy.sparse.coo_matrix((vals, (rows, cols)), shape=(2 * nb, 2 * nb)).asformat(fmt)
 
 
+def _aligned(n: int) -> int:
+    return -(-int(n) // LATTICE_ALIGN) * LATTICE_ALIGN
+
+
 @dataclass
 class NearMatrix:
-    """C in lattice diagonal storage: ``values[block]`` real (n_offsets, 3, 2, L) (module doc).
+    """C in lattice diagonal storage: ``values[block]`` real (n_offsets, tiles, 3, 2, TILE_ROWS, P)
+    (module doc).
 
     ``exact[block]`` (optional) keeps the exact entries A of the offsets ``exact_offsets[block]``
     (the pairs within the preconditioner radius) as complex (n, N(N−1), 3) [ee, em, mm].
@@ -336,23 +352,27 @@ class NearMatrix:
     def zeros(pattern: NearPattern, storage: str) -> dict:
         """Zero value arrays of every block for ``storage`` ("single" | "double")."""
         real = np.finfo(STORAGE[storage]).dtype
-        return {b: np.zeros((len(pattern.offsets(b)), 3, 2, pattern.lattice_length), dtype=real) for b in BLOCKS}
+        shape = (pattern.tiles, 3, 2, TILE_ROWS, pattern.pitch)
+        return {b: np.zeros((len(pattern.offsets(b)),) + shape, dtype=real) for b in BLOCKS}
 
-    def _sites(self, block: str, rows) -> np.ndarray:
-        return self.pattern.guard + lattice_site(BLOCKS[block][0], self.pattern.cells, rows)
+    def _place(self, block: str, rows):
+        """(tile, row in tile, site in row) of block-local rows in the value arrays."""
+        row, x = np.divmod(self.pattern.site(BLOCKS[block][0], rows), self.pattern.pitch)
+        tile, in_tile = np.divmod(row, TILE_ROWS)
+        return tile, in_tile, x
 
     def entries(self, block: str, j, rows) -> np.ndarray:
-        """Complex (P, 3) [ee, em, mm] of pattern offsets j (P,) at block-local rows (P,)."""
+        """Complex (n, 3) [ee, em, mm] of pattern offsets j (n,) at block-local rows (n,)."""
         v = self.values[block]
-        site = self._sites(block, rows)
-        return v[j, :, 0, site] + 1j * v[j, :, 1, site]
+        t, r, x = self._place(block, rows)
+        return v[j, t, :, 0, r, x] + 1j * v[j, t, :, 1, r, x]
 
     def store(self, block: str, rows, staged: np.ndarray):
         """Write complex ``staged`` (n_offsets, len(rows), 3) as the entries of block-local ``rows``."""
-        site = self._sites(block, rows)
+        t, r, x = self._place(block, rows)
         v = self.values[block]
-        v[:, :, 0, site] = staged.real.transpose(0, 2, 1)
-        v[:, :, 1, site] = staged.imag.transpose(0, 2, 1)
+        v[:, t, :, 0, r, x] = staged.real.transpose(1, 0, 2)
+        v[:, t, :, 1, r, x] = staged.imag.transpose(1, 0, 2)
 
     @property
     def n_bases(self) -> int:
@@ -383,14 +403,14 @@ class NearMatrix:
         max_alloc = int(ctx.info.max_alloc_gib * 2**30)
         device = {}
         for block, values in self.values.items():
-            shifts = self.pattern.shifts(block)
+            offsets = self.pattern.offsets(block)
             per_offset = values[0].nbytes if len(values) else 1
             step = max(1, max_alloc // max(per_offset, 1))
             parts = []
             for j0 in range(0, len(values), step):
                 j1 = min(len(values), j0 + step)
                 off = cl.Buffer(ctx.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
-                                hostbuf=np.ascontiguousarray(shifts[j0:j1]))
+                                hostbuf=np.ascontiguousarray(offsets[j0:j1], np.int32))
                 parts.append((off, j1 - j0, shared_buffer(ctx, values[j0:j1])))
             device[block] = parts
         self._device = device
@@ -410,7 +430,8 @@ class NearMatrix:
     def apply(self, ctx, x_buf, y_buf, batch: int, precision_fp64: bool, lanes: int | None = None):
         """y += C x on the device for ``batch`` right-hand sides (buffers of 2N_b complex each).
 
-        ``lanes``: sites per work-item (WB_VW); default 256-bit vectors on CPUs, 1 on GPUs.
+        ``lanes``: sites per SIMD vector (WB_VW); default 256-bit vectors on CPUs, where a
+        work-item takes whole rows of a tile, and 1 on GPUs, one site per work-item.
         """
         if self._device is None:
             self.upload(ctx)
@@ -418,21 +439,25 @@ class NearMatrix:
         if lanes is None:
             lanes = vector_lanes(ctx) * (1 if precision_fp64 else 2)
         defines = {"WB_FP64": int(precision_fp64), "NEAR_BATCH": batch, "NEAR_FP64": int(storage64), "WB_VW": lanes}
-        N, L, G = np.int32(self.pattern.cells), np.int32(self.pattern.lattice_length), np.int32(self.pattern.guard)
+        pattern = self.pattern
+        N, P, L = np.int32(pattern.cells), np.int32(pattern.pitch), np.int32(pattern.lattice_length)
+        first_row = np.int32(pattern.guard_rows)
         X, Y = self._vectors(ctx, batch, np.float64 if precision_fp64 else np.float32)
         queue = ctx.queue
         move = ctx.kernel("sparse.cl", "near_move", defines)
-        move(queue, (self.n_bases,), None, np.int32(1), N, L, G, X, x_buf)
-        lattice = ctx.kernel("sparse.cl", "near_lattice", defines)
-        sites = self.pattern.cells**2
-        items = (-(-sites // lanes),)
+        move(queue, (self.n_bases,), None, np.int32(1), N, P, first_row, L, X, x_buf)
+        tiles = ctx.kernel("sparse.cl", "near_tiles", defines)
+        row_vectors = -(-pattern.cells // lanes)
+        xvectors = row_vectors if lanes > 1 else 1  # CPU: whole rows per work-item; GPU: one site
+        items = (pattern.tiles, -(-row_vectors // xvectors))
+        local = (1, 1) if lanes > 1 else None  # CPU: one tile per work-group, spread over the cores
         for o, own in ((0, "HH"), (1, "VV")):
             for same, cross in itertools.zip_longest(self._device[own], self._device["HV"]):
-                s_shift, s_n, s_vals = same or (self._device[own][0][0], 0, self._device[own][0][2])
-                c_shift, c_n, c_vals = cross or (self._device["HV"][0][0], 0, self._device["HV"][0][2])
-                lattice(queue, items, None, np.int32(o), L, G, np.int32(sites), s_shift, np.int32(s_n), s_vals,
-                        c_shift, np.int32(c_n), c_vals, X, Y)
-        move(queue, (self.n_bases,), None, np.int32(0), N, L, G, Y, y_buf)
+                s_ab, s_n, s_vals = same or (self._device[own][0][0], 0, self._device[own][0][2])
+                c_ab, c_n, c_vals = cross or (self._device["HV"][0][0], 0, self._device["HV"][0][2])
+                tiles(queue, items, local, np.int32(o), N, P, np.int32(TILE_ROWS), np.int32(pattern.tiles), first_row,
+                      np.int32(xvectors), s_ab, np.int32(s_n), s_vals, c_ab, np.int32(c_n), c_vals, X, Y)
+        move(queue, (self.n_bases,), None, np.int32(0), N, P, first_row, L, Y, y_buf)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -14,9 +14,10 @@ from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.bem3d.nearfield import (
     BLOCKS,
+    TILE_ROWS,
+    NearMatrix,
     NearPattern,
     assemble_near,
-    lattice_site,
     near_base_numpy,
     near_first,
 )
@@ -166,6 +167,25 @@ def test_base_operator_kernels_match_numpy(cl_ctx, rough_mesh, rng, projection, 
     assert err < (1e-12 if precision == "double" else 2e-5)
 
 
+@pytest.mark.parametrize("precision, lanes", [("double", 4), ("single", 8), ("single", 1), ("double", 2)])
+def test_fourier_lanes_and_their_remainder(cl_ctx, rng, precision, lanes):
+    """aim_fourier with 1, 2, 4, 8 samples per work-item, on a grid whose sample count is not a
+    multiple of the lanes (the remainder goes through the one-lane build)."""
+    mesh = BEMMesh(generate("gaussian", cells=11, size_um=11 * LAMBDA / 10, seed=5, rms_height_um=0.06,
+                            correlation_um=0.2))
+    media = Media(LAMBDA, 1.5 - 0.1j)
+    grid = build_grid(mesh)
+    spectra = kernel_spectra(grid, media, (0, 1))
+    dtype = np.complex128 if precision == "double" else np.complex64
+    groups = [GridGroup.build(project(mesh, grid, "moments"), spectra, media, (0, 1), dtype)]
+    op = BaseOperator(cl_ctx, mesh, groups, precision=precision)
+    op.fourier_lanes = lanes
+    assert lanes == 1 or grid.padded_points % lanes
+    x = rng.standard_normal((2, mesh.n_unknowns)) + 1j * rng.standard_normal((2, mesh.n_unknowns))
+    err = np.linalg.norm(op.apply(x) - op.apply_numpy(x)) / np.linalg.norm(op.apply_numpy(x))
+    assert err < (1e-12 if precision == "double" else 2e-5)
+
+
 def test_device_fft_path_matches_host(cl_ctx, rough_mesh, rng):
     """fft = "vkfft" (zero-padded device arrays, VkFFT) gives the host path's product."""
     pytest.importorskip("pyvkfft.opencl")
@@ -251,20 +271,58 @@ def test_near_spmv_kernels_match_scipy(cl_ctx, rough_mesh, near_setup, rng, batc
 
 
 def test_near_lattice_shifts_are_the_rooftop_offsets():
-    """Every rooftop has its own lattice site, and site(column) − site(row) is the offset's shift."""
+    """Every rooftop has its own lattice site, site(column) − site(row) is the offset's shift, and
+    every shifted read of the SpMV (sites [0, N) rounded up to whole vectors, moved by ±(a, b))
+    stays on the row's pad sites and inside the guard rows."""
     pattern = NearPattern.build(7, 2.5)
-    N, rows = pattern.cells, np.arange(pattern.rows)
+    N, P, G, rows = pattern.cells, pattern.pitch, pattern.guard_rows, np.arange(pattern.rows)
+    lattice_rows = pattern.lattice_length // P
     for o in (0, 1):
-        sites = lattice_site(o, N, rows)
-        assert len(np.unique(sites)) == len(rows) and sites.min() >= 0 and sites.max() < N * N
+        x, row = np.divmod(pattern.site(o, rows), P)[::-1]
+        assert len(np.unique(pattern.site(o, rows))) == len(rows)
+        assert x.max() < N and row.min() == G and row.max() < G + N
     for block in BLOCKS:
         row_id, col_id, j, pos = pattern.pairs(block, rows)
         orow, ocol, _ = BLOCKS[block]
-        row_site = lattice_site(orow, N, row_id - near_first(orow, N))
-        col_site = lattice_site(ocol, N, col_id - near_first(ocol, N))
+        row_site = pattern.site(orow, row_id - near_first(orow, N))
+        col_site = pattern.site(ocol, col_id - near_first(ocol, N))
         assert np.array_equal(col_site - row_site, pattern.shifts(block)[j])
-        assert np.abs(pattern.shifts(block)).max() <= pattern.guard
-    assert pattern.lattice_length >= 2 * pattern.guard + N * N
+        a, b = np.abs(pattern.offsets(block)).max(axis=0)
+        assert -(-N // 8) * 8 + a <= P  # reads x ± a of the widest vectors stay in [−pad, P)
+        assert G - b >= 1 and G + N - 1 + b < lattice_rows
+    assert lattice_rows % TILE_ROWS == 0 and lattice_rows >= N + 2 * G
+
+
+@pytest.mark.parametrize("cells, batch, precision, lanes", [
+    (11, 1, "double", None), (11, 4, "single", None), (13, 2, "double", 1), (13, 2, "double", 2)])
+def test_near_spmv_random_entries_match_scipy(cl_ctx, rng, cells, batch, precision, lanes):
+    """Lattice SpMV = scipy product for random entries on every valid pair of a pattern whose
+    rows are not whole vectors and span several tiles (pads, guards and tile edges)."""
+    import pyopencl as cl
+
+    pattern = NearPattern.build(cells, 4.2)
+    assert pattern.tiles > 2 and cells % 8
+    near = NearMatrix(pattern, NearMatrix.zeros(pattern, "double"))
+    rows = np.arange(pattern.rows)
+    for block in BLOCKS:
+        _, _, j, pos = pattern.pairs(block, rows)
+        staged = np.zeros((len(pattern.offsets(block)), len(rows), 3), complex)
+        staged[j, pos] = rng.standard_normal((len(j), 3)) + 1j * rng.standard_normal((len(j), 3))
+        near.store(block, rows, staged)
+    dtype = np.complex128 if precision == "double" else np.complex64
+    n = 2 * near.n_bases
+    x = (rng.standard_normal((batch, n)) + 1j * rng.standard_normal((batch, n))).astype(dtype)
+    y = np.zeros_like(x)
+    mf = cl.mem_flags
+    xb = cl.Buffer(cl_ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
+    yb = cl.Buffer(cl_ctx.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=y)
+    for _ in range(2):  # the second product checks that the lattice output was zeroed
+        y[:] = 0
+        cl.enqueue_copy(cl_ctx.queue, yb, y)
+        near.apply(cl_ctx, xb, yb, batch, precision == "double", lanes=lanes)
+        cl.enqueue_copy(cl_ctx.queue, y, yb)
+        ref = near.apply_numpy(x)
+        assert np.linalg.norm(y - ref) / np.linalg.norm(ref) < (1e-13 if precision == "double" else 1e-6)
 
 
 def test_near_pattern_counts_and_symmetry():
