@@ -43,11 +43,7 @@
 #else
 #error "AIM_BATCH must be 1, 2 or 4"
 #endif
-#if WB_FP64
-typedef WB_PASTE(double, AIM_PACK) pack_t;
-#else
-typedef WB_PASTE(float, AIM_PACK) pack_t;
-#endif
+typedef WB_REALN(AIM_PACK) pack_t;
 
 /* acc + w z for every complex pair of z; zs = (-im, re) of every pair (aim_swap) */
 inline pack_t aim_pmad(const weight_t w, const pack_t z, const pack_t zs, const pack_t acc)

@@ -14,6 +14,12 @@
 #endif
 #define WB_PASTE_(a, b) a##b
 #define WB_PASTE(a, b) WB_PASTE_(a, b)
+/* the n-lane vector type of real_t (n = 2, 3, 4, 8, 16) */
+#if WB_FP64
+#define WB_REALN(n) WB_PASTE(double, n)
+#else
+#define WB_REALN(n) WB_PASTE(float, n)
+#endif
 
 #if WB_VW == 1
 typedef real_t vreal_t;
@@ -102,11 +108,7 @@ inline void vc_store(const vcplx_t z, __global cplx_t *p) { p[0] = c_new(z.re, z
 #define VC_PAIRS(T, z) ((T)((z).re.s0, (z).im.s0, (z).re.s1, (z).im.s1, (z).re.s2, (z).im.s2, (z).re.s3, (z).im.s3, \
                             (z).re.s4, (z).im.s4, (z).re.s5, (z).im.s5, (z).re.s6, (z).im.s6, (z).re.s7, (z).im.s7))
 #endif
-#if WB_FP64
-typedef WB_PASTE(double, WB_VW2) vpair_t;
-#else
-typedef WB_PASTE(float, WB_VW2) vpair_t;
-#endif
+typedef WB_REALN(WB_VW2) vpair_t;
 inline vcplx_t vc_load(__global const cplx_t *p)
 {
     const vpair_t v = WB_PASTE(vload, WB_VW2)(0, (__global const real_t *)p);

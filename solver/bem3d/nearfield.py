@@ -20,7 +20,7 @@ contiguous runs (what the SpMV streams). Entries are zero where the column falls
 patch and at sites without a rooftop. Stored in single precision by default
 (``storage="single"``; the AIM error it sits next to is ~1e-4, float32 rounding 6e-8) or double.
 Memory ≈ 24 B × (n_HH + n_VV + n_HV)/2 per unknown in single precision, times the pads and
-guards (P/N · tiles T/N: ~1.1 at N = 96, ~1.05 at N = 400).
+guards (P · 8 tiles / N²: 1.26 at N = 96, 1.06 at N = 400).
 
 Assembly, per strip of rows (one chunk of y lines):
 
