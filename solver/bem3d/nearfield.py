@@ -132,11 +132,6 @@ class NearPattern:
     def offsets(self, block: str) -> np.ndarray:
         return self.same if BLOCKS[block][2] == "same" else self.cross
 
-    def shifts(self, block: str) -> np.ndarray:
-        """Lattice shifts a + P b of the block's offsets (int64)."""
-        off = self.offsets(block).astype(np.int64)
-        return off[:, 0] + self.pitch * off[:, 1]
-
     @property
     def pitch(self) -> int:
         """Sites per lattice row P: N sites and at least max|a| zero pad sites, both aligned."""

@@ -286,8 +286,9 @@ def test_near_lattice_shifts_are_the_rooftop_offsets():
         orow, ocol, _ = BLOCKS[block]
         row_site = pattern.site(orow, row_id - near_first(orow, N))
         col_site = pattern.site(ocol, col_id - near_first(ocol, N))
-        assert np.array_equal(col_site - row_site, pattern.shifts(block)[j])
-        a, b = np.abs(pattern.offsets(block)).max(axis=0)
+        offsets = pattern.offsets(block).astype(np.int64)
+        assert np.array_equal(col_site - row_site, (offsets[:, 0] + P * offsets[:, 1])[j])  # the kernel's a + P b
+        a, b = np.abs(offsets).max(axis=0)
         assert -(-N // 8) * 8 + a <= P  # reads x ± a of the widest vectors stay in [−pad, P)
         assert G - b >= 1 and G + N - 1 + b < lattice_rows
     assert lattice_rows % TILE_ROWS == 0 and lattice_rows >= N + 2 * G
