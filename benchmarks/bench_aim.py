@@ -8,6 +8,7 @@
     .venv/bin/python benchmarks/bench_aim.py accuracy          # matvec error vs near radius / spacing / projection
     .venv/bin/python benchmarks/bench_aim.py reference         # the reference simulator's 4 µm flat case
     .venv/bin/python benchmarks/bench_aim.py truncation        # dense vs AIM on that geometry at d = λ/8
+    .venv/bin/python benchmarks/bench_aim.py continuation      # a bump: continued vs pinned patches, glass and Al
     .venv/bin/python benchmarks/bench_aim.py scale             # 12.5 µm aluminium, d = λ/12.8 (~6.4e5 unknowns)
 
 Every run prints the machine load (other agents share the 2 cores): compare ratios measured in
@@ -36,7 +37,7 @@ from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.farfield import HemisphereGrid, albedo
 from wavebrdf.solver.opencl import create_context
 from wavebrdf.solver.resources import peak_memory_mb, resident_memory_mb
-from wavebrdf.solver.surface import generate
+from wavebrdf.solver.surface import HeightField, generate
 
 AL_400 = 0.46582 - 4.7119j
 KERNELS = ("aim.cl", "aim_near.cl", "sparse.cl", "bem_elements.cl", "bem_assembly.cl", "bem_farfield.cl")
@@ -225,7 +226,7 @@ def cmd_accuracy(args, ctx):
 def _single_run(ctx, surface, lam, index, waist, resolution, aim):
     t0 = time.perf_counter()
     cpu0 = usage()["cpu_s"]
-    estimate = estimate_aim(surface, lam, index, aim=aim, resolution=resolution)
+    estimate = estimate_aim(surface, lam, index, aim=aim, resolution=resolution, waist_um=waist)
     print("estimate:", {k: v for k, v in estimate.items()}, flush=True)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BEMWarning)
@@ -249,15 +250,18 @@ def _single_run(ctx, surface, lam, index, waist, resolution, aim):
 def cmd_reference(args, ctx):
     """The reference simulator's CPU case: 4 µm flat dielectric, n = 1.5, λ = 0.5, d = 0.025,
     waist 1.6 µm, normal incidence, 256² output (it took 5169 CPU-s, 4.8 GB, albedo error 1.35%).
-    ``--size`` enlarges the patch at the same d (truncation study), ``--aim`` adds AIM options."""
+    ``--size`` enlarges the patch at the same d (truncation study), ``--aim`` adds AIM options,
+    ``--edge pinned`` stops the currents at the border instead of continuing the flat interface."""
     print(load())
     surface = generate("flat", cells=round(args.size / 0.025), size_um=args.size)
-    _single_run(ctx, surface, 0.5, 1.5, args.waist, 256, {"precision": args.precision, **json.loads(args.aim)})
+    _single_run(ctx, surface, 0.5, 1.5, args.waist, 256,
+                {"precision": args.precision, "edge": args.edge, **json.loads(args.aim)})
 
 
 def cmd_truncation(args, ctx):
     """Dense LU vs AIM on the reference geometry (4 µm flat glass, waist 1.6 µm) at d = λ/8: how
-    much of the albedo error belongs to the truncated patch rather than to AIM."""
+    much of the albedo error belongs to the truncated patch rather than to AIM; and AIM with the
+    patch continued as the flat interface (aim.edge = "flat")."""
     from wavebrdf.solver.bem3d import DenseBEM
 
     print(load())
@@ -266,9 +270,14 @@ def cmd_truncation(args, ctx):
     brdf = {}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BEMWarning)
-        for name, cls in (("AIM", AIMBEM), ("dense", DenseBEM)):
+        runs = {
+            "AIM": lambda: AIMBEM(ctx, surface, 0.5, 1.5),
+            "dense": lambda: DenseBEM(ctx, surface, 0.5, 1.5),
+            "AIM, flat continuation": lambda: AIMBEM(ctx, surface, 0.5, 1.5, aim={"edge": "flat"}),
+        }
+        for name, make in runs.items():
             t0 = time.perf_counter()
-            ff = cls(ctx, surface, 0.5, 1.5).farfield(0.0, 0.0, grid, waist_um=args.waist)
+            ff = make().farfield(0.0, 0.0, grid, waist_um=args.waist)
             measured, expected = albedo(ff.brdf(), grid), ff.diagnostics["beam_reflectance"]
             brdf[name] = ff.brdf()
             print(f"{name}: {ff.diagnostics['unknowns']} unknowns, albedo {measured}, exact beam {expected}, "
@@ -276,6 +285,39 @@ def cmd_truncation(args, ctx):
     ref = brdf["dense"]
     lobe = np.isfinite(ref) & (ref > 1e-3 * np.nanmax(ref))
     print(f"AIM vs dense BRDF rel. L2 over the lobe {np.linalg.norm((brdf['AIM'] - ref)[lobe]) / np.linalg.norm(ref[lobe]):.1e}")
+    print(load())
+
+
+def cmd_continuation(args, ctx):
+    """A bump (0.1 µm high, radius 0.3 µm) on a flat interface, λ = 0.5 µm, waist 0.8 µm: continued
+    patches (aim.edge = "flat", border at 1.25 w and 1.9 w) and pinned ones (1.25 w, 2.5 w, 3.1 w),
+    BRDF over the lobe of every pair; on glass and on aluminium (surface plasmons)."""
+    print(load())
+    lam, d, waist = 0.5, 0.5 / args.per_wavelength, 0.8
+    grid = HemisphereGrid(96)
+    runs = (("pinned 4 µm", 4.0, "pinned"), ("pinned 5 µm", 5.0, "pinned"), ("continued 2 µm", 2.0, "flat"),
+            ("continued 3 µm", 3.0, "flat"), ("pinned 2 µm", 2.0, "pinned"))
+    for index in (1.5, AL_400):
+        brdf = {}
+        for name, size, edge in runs:
+            n = round(size / d)
+            x = np.linspace(-size / 2, size / 2, n + 1)
+            X, Y = np.meshgrid(x, x, indexing="ij")
+            surface = HeightField(0.1 * np.exp(-(X**2 + Y**2) / 0.3**2), size)
+            t0 = time.perf_counter()
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", BEMWarning)
+                ff = AIMBEM(ctx, surface, lam, index, z_reference=0.0, aim={"edge": edge}).farfield(
+                    args.theta, 0.0, grid, waist_um=waist)
+            brdf[name] = ff.brdf()
+            print(f"n = {index}, {name}: {ff.diagnostics['unknowns']} unknowns, albedo {albedo(ff.brdf(), grid)}, "
+                  f"products {ff.diagnostics['iterations']}, {time.perf_counter() - t0:.0f} s", flush=True)
+        names = list(brdf)
+        for i, a in enumerate(names):
+            lobe = np.isfinite(brdf[a]) & (brdf[a] > 1e-3 * np.nanmax(brdf[a]))
+            for b in names[i + 1 :]:
+                err = np.linalg.norm((brdf[b] - brdf[a])[lobe]) / np.linalg.norm(brdf[a][lobe])
+                print(f"n = {index}: {b} vs {a}: BRDF rel. L2 over the lobe {err:.2e}")
     print(load())
 
 
@@ -317,8 +359,13 @@ def main():
     p.add_argument("--size", type=float, default=4.0, help="patch side (µm) at d = 0.025 µm")
     p.add_argument("--precision", default="double")
     p.add_argument("--aim", default="{}", help='AIM options as JSON, e.g. \'{"near_cells": 8}\'')
+    p.add_argument("--edge", default="flat", choices=("flat", "pinned"),
+                   help="patch border: continued as the flat interface, or currents pinned to zero")
     p = sub.add_parser("truncation")
     p.add_argument("--waist", type=float, default=1.6)
+    p = sub.add_parser("continuation")
+    p.add_argument("--theta", type=float, default=0.4, help="incidence (rad)")
+    p.add_argument("--per-wavelength", type=float, default=10.0, help="cells per wavelength")
     p = sub.add_parser("scale")
     p.add_argument("--cells", type=int, default=400)
     p.add_argument("--waist", type=float, default=None)

@@ -298,22 +298,49 @@ class ExactGaussianBeam(_GaussianBeam):
         norm = self.plane_waves["norm"]
         return E / norm, H / norm
 
-    def fields(self, points, chunk: int = 4096):
+    def fields(self, points, chunk: int = 4096, interface_index: complex | None = None):
+        """E, H (2, ..., 3) at ``points``; with ``interface_index``, the total field above the flat
+        interface z = 0 with that material below: the beam plus its Fresnel reflection."""
+        waves = [(self.plane_waves, self.focus_um)]
+        if interface_index is not None:
+            waves.append((self.reflected_waves(interface_index), self.focus_um * [1.0, 1.0, -1.0]))
         points = np.asarray(points, dtype=float)
         shape = points.shape[:-1]
-        flat = points.reshape(-1, 3) - self.focus_um
-        pw = self.plane_waves
-        m = len(pw["kvec"])
-        # columns: E_s, E_p, H_s, H_p (x, y, z each)
-        amps = np.concatenate([pw["E"].transpose(1, 0, 2).reshape(m, 6), pw["H"].transpose(1, 0, 2).reshape(m, 6)], axis=1)
-        out = np.empty((len(flat), 12), dtype=complex)
-        for s in range(0, len(flat), chunk):
-            phase = np.exp(-1j * (flat[s : s + chunk] @ pw["kvec"].T))
-            out[s : s + chunk] = phase @ amps
+        out = np.zeros((int(np.prod(shape)), 12), dtype=complex)
+        for pw, origin in waves:
+            flat = points.reshape(-1, 3) - origin
+            m = len(pw["kvec"])
+            # columns: E_s, E_p, H_s, H_p (x, y, z each)
+            amps = np.concatenate([pw["E"].transpose(1, 0, 2).reshape(m, 6), pw["H"].transpose(1, 0, 2).reshape(m, 6)],
+                                  axis=1)
+            for s in range(0, len(flat), chunk):
+                out[s : s + chunk] += np.exp(-1j * (flat[s : s + chunk] @ pw["kvec"].T)) @ amps
         out = out.reshape(shape + (2, 2, 3))  # (..., E|H, pol, xyz)
         E = np.moveaxis(out[..., 0, :, :], -2, 0)
         H = np.moveaxis(out[..., 1, :, :], -2, 0)
         return E, H
+
+    def reflected_waves(self, index: complex) -> dict:
+        """The plane waves reflected by the flat interface z = 0 over a material of ``index``
+        (``kvec``, ``E``, ``H`` like ``plane_waves``; phases about the mirrored focus).
+
+        Every wave k (k_z < 0) goes to k_r = (k_x, k_y, −k_z): TE by r_s on E·ŝ, TM by r_p on H·ŝ
+        (fresnel.py's r_p is the ratio of the magnetic amplitudes), ŝ = ẑ × k̂ / |ẑ × k̂| (y_b at
+        normal incidence); a plane wave has H = k̂ × E / η₁.
+        """
+        pw = self.plane_waves
+        kvec = pw["kvec"]
+        khat = kvec / np.linalg.norm(kvec, axis=1, keepdims=True)
+        s_hat = np.cross([0.0, 0.0, 1.0], khat)
+        norm = np.linalg.norm(s_hat, axis=1, keepdims=True)
+        s_hat = np.where(norm > 1e-12, s_hat / np.where(norm > 0, norm, 1.0), self.frame[1])
+        r_s, r_p = fresnel_rs_rp(complex(index) / self.exterior_index, -khat[:, 2])
+        eta1 = ETA0 / self.exterior_index
+        kr = kvec * np.array([1.0, 1.0, -1.0])
+        kr_hat = khat * np.array([1.0, 1.0, -1.0])
+        E_te = (r_s * np.einsum("pmc,mc->pm", pw["E"], s_hat))[..., None] * s_hat
+        H_tm = (r_p * np.einsum("pmc,mc->pm", pw["H"], s_hat))[..., None] * s_hat
+        return {"kvec": kr, "E": E_te + eta1 * np.cross(H_tm, kr_hat), "H": H_tm + np.cross(kr_hat, E_te) / eta1}
 
     def _flux_weights(self) -> np.ndarray:
         """Downward power of each plane wave per period cell, shape (2, M)."""
@@ -331,21 +358,12 @@ class ExactGaussianBeam(_GaussianBeam):
         return float(np.max(1.0 - inside / self.incident_power()))
 
     def reflectance(self, index: complex) -> np.ndarray:
-        """Exact flat-interface reflectance per polarization: Σ_m P_m (|ê·ŝ_m|²|r_s|² + |ê·p̂_m|²|r_p|²)/Σ P_m."""
+        """Exact flat-interface reflectance per polarization: Σ_m |k_z,m| |E_r,m|² / Σ_m |k_z,m| |E_m|²."""
         pw = self.plane_waves
-        kvec = pw["kvec"]
-        khat = kvec / np.linalg.norm(kvec, axis=1, keepdims=True)
-        s_hat = np.cross([0.0, 0.0, 1.0], khat)
-        norm = np.linalg.norm(s_hat, axis=1, keepdims=True)
-        s_hat = np.where(norm > 1e-12, s_hat / np.where(norm > 0, norm, 1.0), self.frame[1])
-        p_hat = np.cross(s_hat, khat)
-        r_s, r_p = fresnel_rs_rp(complex(index) / self.exterior_index, -khat[:, 2])
-        E = pw["E"]
-        es = np.abs(np.einsum("pmc,mc->pm", E, s_hat)) ** 2
-        ep = np.abs(np.einsum("pmc,mc->pm", E, p_hat)) ** 2
-        weights = -khat[:, 2]
-        reflected = np.sum(weights * (es * np.abs(r_s) ** 2 + ep * np.abs(r_p) ** 2), axis=1)
-        return reflected / np.sum(weights * (es + ep), axis=1)
+        weights = -pw["kvec"][:, 2]
+        reflected = self.reflected_waves(index)["E"]
+        return (np.sum(weights * np.sum(np.abs(reflected) ** 2, axis=2), axis=1)
+                / np.sum(weights * np.sum(np.abs(pw["E"]) ** 2, axis=2), axis=1))
 
 
 def make_beam(kind: str, wavelength_um: float, theta_i: float, phi_i: float, waist_um: float | None,

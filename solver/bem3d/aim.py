@@ -29,7 +29,9 @@ import scipy.sparse.linalg
 from wavebrdf.solver.bem3d.aim_base import PACKED_BATCHES, BaseOperator, GridGroup, batch_chunks
 from wavebrdf.solver.bem3d.aim_grid import GridOptions, build_grid
 from wavebrdf.solver.bem3d.aim_green import DECAY_TOLERANCE, grid_media, interior_decay, kernel_spectra
-from wavebrdf.solver.bem3d.checks import check_material, check_resolution
+from wavebrdf.solver.beams import make_beam
+from wavebrdf.solver.bem3d.checks import check_material, check_resolution, check_surface_plasmons
+from wavebrdf.solver.bem3d.continuation import border_height
 from wavebrdf.solver.bem3d.elements import ElementIntegrals
 from wavebrdf.solver.bem3d.excitation import SurfaceRule, beam_excitation, power_into_material
 from wavebrdf.solver.bem3d.fft_farfield import FARFIELD_STENCIL, GridFarField
@@ -55,6 +57,7 @@ AIM_QUADRATURE = QuadratureOptions(tolerance=1e-4, static_order=5)
 PROJECTION_ORDER = 3  # Gauss order per element of the projection integrals (order 4: same AIM error)
 
 PRECONDITIONERS = ("near", "none")
+EDGES = ("pinned", "flat")  # AIMOptions.edge
 PRECONDITIONER_OVERLAP = 3  # cells added on every side of a preconditioner tile
 # resident bytes per factor entry of a complex64 SuperLU factorization: 8 + 4 of value and index,
 # and SuperLU's supernodal storage (measured: 14.7 GiB for 7.8·10⁸ entries at 6.4·10⁵ unknowns)
@@ -87,6 +90,10 @@ class AIMOptions:
     preconditioner_tile_cells   side of the preconditioner's LU tiles in cells (0: one LU)
     farfield_stencil, farfield_directions, farfield_regularization   far-field projection
                         (upper hemisphere, its own grid with Δ = 1.6 d)
+    edge                "pinned": the currents stop at the patch border (the beam must have
+                        decayed there) | "flat": the surface goes on as the flat interface beyond
+                        the border, with its closed-form currents (continuation.py; exact beam,
+                        border in one plane)
     """
 
     near_cells: float = 6.0
@@ -111,8 +118,11 @@ class AIMOptions:
     farfield_stencil: tuple[int, int, int] = FARFIELD_STENCIL
     farfield_directions: int = 0
     farfield_regularization: float = 1e-5
+    edge: str = "pinned"
 
     def __post_init__(self):
+        if self.edge not in EDGES:
+            raise ValueError(f"aim.edge must be one of {EDGES}, got {self.edge!r}")
         if self.projection not in PROJECTIONS:
             raise ValueError(f"aim.projection must be one of {PROJECTIONS}, got {self.projection!r}")
         if self.solver not in KRYLOV_METHODS:
@@ -261,6 +271,36 @@ def preconditioner_tiles(pattern: NearPattern, tile_cells: int, overlap_cells: i
             yield np.concatenate([ext, ext + n_b]), np.concatenate([own, own + n_b])
 
 
+@dataclass
+class GridPart:
+    """The grid part B of an AIM operator: the media on the grid, the grid, the projections
+    (each with the media it serves) and the BaseOperator that applies B."""
+
+    media: tuple
+    grid: object
+    groups: list
+    base: BaseOperator
+    projection_s: float
+
+    @classmethod
+    def build(cls, ctx, mesh: BEMMesh, media: Media, options: AIMOptions) -> "GridPart":
+        t0 = time.perf_counter()
+        on_grid = grid_media(media, options.near_cells * mesh.spacing_um, options.interior_decay_tolerance)
+        grid = build_grid(mesh, options.grid_options(media, mesh.spacing_um, on_grid))
+        cdtype = np.complex128 if options.precision == "double" else np.complex64
+        if options.projection == "moments":
+            groups = [(project(mesh, grid, "moments", order=PROJECTION_ORDER), on_grid)]
+        else:
+            groups = [(project(mesh, grid, "farfield", k=media.wavenumbers[i].real, order=PROJECTION_ORDER,
+                               directions=options.directions or None, regularization=options.regularization), (i,))
+                      for i in on_grid]
+        t1 = time.perf_counter()
+        spectra = kernel_spectra(grid, media, on_grid, dtype=cdtype)
+        base = BaseOperator(ctx, mesh, [GridGroup.build(p, spectra, media, m, cdtype) for p, m in groups],
+                            precision=options.precision, fft=options.fft)
+        return cls(on_grid, grid, groups, base, t1 - t0)
+
+
 class AIMOperator:
     """Z x ≈ (B + C) x for one mesh, wavelength and material (see the module docstring)."""
 
@@ -272,23 +312,12 @@ class AIMOperator:
         self.mesh = mesh
         self.media = media
         self.options = options = options or AIMOptions()
-        near_um = options.near_cells * mesh.spacing_um
-        self.grid_media = grid_media(media, near_um, options.interior_decay_tolerance)
-        self.grid = build_grid(mesh, options.grid_options(media, mesh.spacing_um, self.grid_media))
         self.precision = options.precision
-        cdtype = np.complex128 if options.precision == "double" else np.complex64
-        self.dtype = cdtype
-        if options.projection == "moments":
-            groups = [(project(mesh, self.grid, "moments", order=PROJECTION_ORDER), self.grid_media)]
-        else:
-            groups = [(project(mesh, self.grid, "farfield", k=media.wavenumbers[i].real, order=PROJECTION_ORDER,
-                               directions=options.directions or None, regularization=options.regularization), (i,))
-                      for i in self.grid_media]
-        t1 = time.perf_counter()
-        spectra = kernel_spectra(self.grid, media, self.grid_media, dtype=cdtype)
-        self.base = BaseOperator(ctx, mesh, [GridGroup.build(p, spectra, media, m, cdtype) for p, m in groups],
-                                 precision=options.precision, fft=options.fft)
-        t2 = time.perf_counter()
+        self.dtype = np.complex128 if options.precision == "double" else np.complex64
+        grid_part = GridPart.build(ctx, mesh, media, options)
+        self.grid_media, self.grid, self.base = grid_part.media, grid_part.grid, grid_part.base
+        groups = grid_part.groups
+        t1, t2 = t0 + grid_part.projection_s, time.perf_counter()
         self.pattern = NearPattern.build(mesh.cells, options.near_cells)
         self.integrals = integrals or ElementIntegrals(mesh, quadrature or AIM_QUADRATURE, ctx)
         precondition = options.preconditioner == "near"
@@ -302,7 +331,8 @@ class AIMOperator:
         self.setup = {
             "projection_s": t1 - t0, "spectra_s": t2 - t1, "near_s": t3 - t2,
             "near_detail": dict(self.near.timings), "grid": self.grid.describe(),
-            "grid_media": list(self.grid_media), "interior_decay": interior_decay(media, near_um),
+            "grid_media": list(self.grid_media),
+            "interior_decay": interior_decay(media, options.near_cells * mesh.spacing_um),
             "preconditioner_s": 0.0 if self.preconditioner is None else self.preconditioner.seconds,
             "preconditioner_fill": 0.0 if self.preconditioner is None else
             self.preconditioner.factor_nnz / self.preconditioner.nnz,
@@ -373,13 +403,15 @@ class AIMBEM:
             raise ValueError("the AIM solver needs an OpenCL context (ctx)")
         self.ctx = ctx
         self.media = Media(wavelength_um, index, exterior_index)
+        self.options = aim if isinstance(aim, AIMOptions) else AIMOptions.from_mapping(aim)
+        if self.options.edge == "flat" and z_reference is None:
+            z_reference = border_height(surface)  # the continuation plane is z = 0
         self.mesh = BEMMesh(surface, z_reference)
         if quadrature is None:
             quadrature = AIM_QUADRATURE
         elif not isinstance(quadrature, QuadratureOptions):
             quadrature = QuadratureOptions.from_mapping(quadrature)
         self.quadrature = quadrature
-        self.options = aim if isinstance(aim, AIMOptions) else AIMOptions.from_mapping(aim)
         self.progress = progress or (lambda stage, fraction: None)
         self.diagnostics: dict = {"model": "bem", "method": "aim", "warnings": []}
         check_material(self.media, surface.size_um, self.diagnostics)
@@ -387,6 +419,13 @@ class AIMBEM:
         t0 = time.perf_counter()
         self.operator = AIMOperator(ctx, self.mesh, self.media, self.options, quadrature=quadrature,
                                     progress=self.progress)
+        self.continuation = None
+        if self.options.edge == "flat":
+            from wavebrdf.solver.bem3d.continuation import FlatContinuation  # it builds AIM operators
+
+            self.continuation = FlatContinuation(ctx, self.mesh, self.media, self.options, quadrature=quadrature)
+            if np.ptp(self.mesh.heights) > 0:
+                check_surface_plasmons(self.media, surface.size_um, self.diagnostics)
         self.diagnostics.update(
             unknowns=self.mesh.n_unknowns, cells=self.mesh.cells, spacing_um=self.mesh.spacing_um,
             setup_s=time.perf_counter() - t0, aim_setup=self.operator.setup,
@@ -396,12 +435,14 @@ class AIMBEM:
         )
         self._farfields: dict = {}
 
-    def _grid_farfield(self, grid: HemisphereGrid) -> GridFarField:
-        key = grid.resolution
+    def _grid_farfield(self, grid: HemisphereGrid, mesh: BEMMesh | None = None) -> GridFarField:
+        """The far-field transform of ``mesh`` (default the patch's) onto ``grid``, kept."""
+        mesh = mesh or self.mesh
+        key = (grid.resolution, mesh.cells)
         if key not in self._farfields:
             o = self.options
             self._farfields[key] = GridFarField(
-                self.mesh, self.media, grid, grid_options=GridOptions(stencil=o.farfield_stencil),
+                mesh, self.media, grid, grid_options=GridOptions(stencil=o.farfield_stencil),
                 directions=o.farfield_directions or None, regularization=o.farfield_regularization)
         return self._farfields[key]
 
@@ -411,9 +452,25 @@ class AIMBEM:
         t0 = time.perf_counter()
         diag = {k: v for k, v in self.diagnostics.items() if k != "warnings"}
         diag["warnings"] = list(self.diagnostics["warnings"])
+        margin = None
+        if self.continuation is not None:
+            if beam != "exact":
+                raise ValueError(f"aim.edge = 'flat' needs illumination.beam = 'exact' (the continued currents "
+                                 f"come from its plane waves), got {beam!r}")
+            margin = self.continuation.margin(make_beam(beam, self.media.wavelength_um, theta_i, phi_i, waist_um,
+                                                        exterior_index=self.media.exterior_index,
+                                                        focus_um=(*focus_um, 0.0), patch_size_um=self.mesh.surface.size_um))
+        extent = None if margin is None else self.mesh.surface.size_um + 2 * margin * self.mesh.spacing_um
         excitation = beam_excitation(self.mesh, self.media, theta_i, phi_i, waist_um=waist_um, beam=beam,
-                                     focus_um=focus_um, rhs_order=self.quadrature.rhs_order, diagnostics=diag)
+                                     focus_um=focus_um, rhs_order=self.quadrature.rhs_order, diagnostics=diag,
+                                     extent_um=extent)
         inc, power, b = excitation.beam, excitation.incident_power, excitation.rhs
+        if margin is not None:
+            t_fixed = time.perf_counter()
+            fixed, field = self.continuation.fixed_currents(inc, margin)
+            b = b - field
+            diag.update(edge="flat", continuation_cells=margin, continuation_s=time.perf_counter() - t_fixed,
+                        extended_unknowns=fixed.shape[1])
         self.progress("solve", 0.0)
         try:
             result = self.operator.solve(b)
@@ -424,10 +481,13 @@ class AIMBEM:
             raise
         t_solve = time.perf_counter()
         self.progress("far field", 0.0)
-        ff = self._grid_farfield(grid).farfield(result.x, theta_i=theta_i, phi_i=phi_i, incident_power=power,
-                                                diagnostics=diag)
+        mesh, x = self.mesh, result.x
+        if margin is not None:  # the far field of the patch's and the continued currents
+            mesh, x = self.continuation.extended_solution(margin, fixed, result.x)
+        ff = self._grid_farfield(grid, mesh).farfield(x, theta_i=theta_i, phi_i=phi_i, incident_power=power,
+                                                      diagnostics=diag)
         ff_rule = SurfaceRule.build(self.mesh, self.quadrature.farfield_order)
-        into = power_into_material(self.mesh, result.x, ff_rule)
+        into = power_into_material(self.mesh, result.x, ff_rule)  # through the patch only
         if not (np.all(np.isfinite(ff.E)) and np.all(np.isfinite(ff.H))):
             raise FloatingPointError("AIM far field contains NaN/inf")
         ff.diagnostics.update(
@@ -466,6 +526,26 @@ def aim_farfield(ctx, surface: HeightField, wavelength_um: float, index: complex
 # Planning
 
 
+def _continuation_cost(mesh: BEMMesh, options: AIMOptions, waist_um: float | None, near_entry: int, cplx: int,
+                       stencil_points: int) -> tuple[float, float, float]:
+    """(bytes, set-up seconds, far-field bytes) of the flat continuation (continuation.py): the ring
+    operator's near storage and set-up, the extended mesh's grid weights, and the far field of the
+    extended mesh (which replaces the patch's)."""
+    from wavebrdf.solver.bem3d.continuation import FLUX_LEFT
+
+    n, d, L = mesh.cells, mesh.spacing_um, mesh.surface.size_um
+    ring = n + 2 * (math.ceil(options.near_cells) + 2)
+    waist = waist_um or L / 2.5
+    reach = waist * math.sqrt(0.5 * math.log(1.0 / FLUX_LEFT))
+    extended = max(ring + 4, math.ceil(2 * reach / d))
+    ring_pairs = NearPattern.build(ring, options.near_cells).stored_entries()
+    ring_elements = ring**2 * math.pi * (options.near_cells + 1.5) ** 2
+    extended_bases = 2 * extended * (extended - 1)
+    weights = 2 * cplx * 3 * stencil_points * extended_bases
+    farfield = 4300 * 2 * extended_bases
+    return ring_pairs * near_entry + weights, 2e-5 * ring_elements + 3e-6 * ring_pairs, farfield
+
+
 def _preconditioner_cost(cells: int, unknowns: int, options: AIMOptions) -> tuple[float, float]:
     """(peak bytes, seconds) of the near LU: SUPERLU_BYTES per factor entry of every tile, plus
     SuperLU's working memory while one tile is factored (0.06 × its factors). Fill 2.2 ln n − 12.6
@@ -482,13 +562,15 @@ def _preconditioner_cost(cells: int, unknowns: int, options: AIMOptions) -> tupl
 
 
 def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, exterior_index: float = 1.0,
-                 aim=None, resolution: int = 256, directions: int = 1) -> dict:
+                 aim=None, resolution: int = 256, directions: int = 1, waist_um: float | None = None) -> dict:
     """Memory and time of an AIM run before it starts (for ``wavebrdf plan``).
 
     Returns ``unknowns``, ``near_nnz`` (stored near pairs), ``bytes`` (peak estimate) with its
     parts, ``seconds`` (set-up + ``directions`` × both polarizations) and the grid sizes. The
     time model uses throughputs measured on the 2-core development machine (docs/aim.md) and an
-    iteration count growing like the square root of the patch size in wavelengths.
+    iteration count growing like the square root of the patch size in wavelengths. With
+    ``edge = "flat"`` it adds the continuation (``continuation_bytes``): the ring operator and the
+    extended mesh, whose size follows from ``waist_um`` (default L/2.5, a border at 1.25 w).
     """
     options = aim if isinstance(aim, AIMOptions) else AIMOptions.from_mapping(aim)
     media = Media(wavelength_um, index, exterior_index)
@@ -514,7 +596,12 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     element_pairs = mesh.n_elements * math.pi * (options.near_cells + 1.5) ** 2
     assembly_temp = 600_000 * 1100 * 2  # element tables + staging of one strip
     farfield = 4300 * n  # far-field projection and sums (measured 2.7 GiB at 6.4·10⁵ unknowns)
-    total = near_bytes + spectra + weights + work + krylov + preconditioner + assembly_temp + farfield + 300 * 2**20
+    continuation = continuation_s = 0.0
+    if options.edge == "flat":
+        continuation, continuation_s, farfield = _continuation_cost(mesh, options, waist_um, near_entry, cplx,
+                                                                     grid.stencil_size * groups)
+    total = (near_bytes + spectra + weights + work + krylov + preconditioner + assembly_temp + farfield
+             + continuation + 300 * 2**20)
     # time model (seconds), constants from benchmarks/bench_aim.py on the 2-core machine
     fft_points = grid.padded_points * 16 * groups
     matvec_s = 2.5e-8 * fft_points * math.log2(max(grid.padded_points, 2)) / 20 + 4e-9 * stored_pairs * 2
@@ -523,7 +610,7 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
         iterations = 20 + 6 * math.sqrt(size_waves)
     else:
         iterations = 60 + 25 * math.sqrt(size_waves) * (1 + abs(media.index) / 4)
-    setup_s = 2e-5 * element_pairs + 3e-6 * stored_pairs + preconditioner_s
+    setup_s = 2e-5 * element_pairs + 3e-6 * stored_pairs + preconditioner_s + continuation_s
     seconds = setup_s + directions * iterations * matvec_s * 1.1
     return {
         "unknowns": n,
@@ -533,6 +620,7 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
         "spectra_bytes": int(spectra),
         "work_bytes": int(work + krylov),
         "preconditioner_bytes": int(preconditioner),
+        "continuation_bytes": int(continuation),
         "seconds": float(seconds),
         "iterations_guess": int(iterations),
         "grid": grid.shape,

@@ -102,16 +102,21 @@ class BeamExcitation:
 
 
 def beam_excitation(mesh: BEMMesh, media: Media, theta_i: float, phi_i: float, *, waist_um: float | None,
-                    beam: str, focus_um, rhs_order: int, diagnostics: dict | None = None) -> BeamExcitation:
+                    beam: str, focus_um, rhs_order: int, diagnostics: dict | None = None,
+                    extent_um: float | None = None) -> BeamExcitation:
     """Build the named beam toward (θ_i, φ_i) (radians) focused at ``focus_um`` (x, y in µm) and its
     right-hand sides; warn (into ``diagnostics``) about a footprint leaking off the patch and
-    refuse a beam whose incident power through the patch is not positive."""
+    refuse a beam whose incident power through the patch is not positive.
+
+    ``extent_um``: side of the square on which the beam is needed (an exact beam's periodic copies
+    stay negligible there); default the patch. A larger extent (the flat continuation's) also
+    drops the footprint warning: the currents there are carried beyond the patch."""
     if beam not in BEAMS:
         raise ValueError(f"illumination.beam must be one of {BEAMS}, got {beam!r}")
     L = mesh.surface.size_um
     inc = make_beam(beam, media.wavelength_um, theta_i, phi_i, waist_um, exterior_index=media.exterior_index,
-                    focus_um=(focus_um[0], focus_um[1], 0.0), patch_size_um=L)
-    if beam != "plane" and diagnostics is not None:
+                    focus_um=(focus_um[0], focus_um[1], 0.0), patch_size_um=extent_um or L)
+    if beam != "plane" and diagnostics is not None and extent_um is None:
         check_footprint(inc.outside_fraction(L), theta_i, L, beam, diagnostics)
     power = inc.incident_power(L)
     if not np.all(np.isfinite(power) & (power > 0)):

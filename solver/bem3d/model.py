@@ -88,7 +88,7 @@ class BEMModel(Model):
             from wavebrdf.solver.bem3d.aim import estimate_aim
 
             est = estimate_aim(scene.surface, scene.wavelength_um, scene.index, exterior_index=scene.exterior_index,
-                               aim=_aim_options(scene), resolution=scene.grid.resolution)
+                               aim=_aim_options(scene), resolution=scene.grid.resolution, waist_um=scene.waist_um)
             return Estimate(est["bytes"], est["seconds"],
                             f"aim {est['unknowns']} unknowns, near {est['near_bytes'] / 2**30:.2f} GiB, "
                             f"FFT {'x'.join(map(str, est['fft']))}")

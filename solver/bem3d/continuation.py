@@ -1,0 +1,180 @@
+"""Flat continuation: the surface goes on as the flat interface beyond the patch border.
+
+A patch solve pins the currents to zero at the patch border (bem3d.md §14.7), so the beam must
+have decayed there (margin ≥ 2.5 w). With the flat continuation the surface is the patch inside
+and the flat interface z = 0 outside, and the currents outside the patch are those of the flat
+interface under the same beam, known in closed form (every plane wave of the exact beam with its
+Fresnel reflection). Only the patch's rooftops are unknowns. On the rooftop lattice of a large
+flat mesh around the patch (the *extended* mesh, reaching where the beam's flux is below
+``FLUX_LEFT``), the rooftops split into S (the patch's own, solved) and F (all others, fixed at
+the flat-interface coefficients c_F), and the patch rows read
+
+    Z_SS x_S = b_S − Z_SF c_F.
+
+Z_SS is the patch's AIM operator. Z_SF c_F comes in two parts, both independent of the patch
+solve: the rooftops of F within ``near_cells`` + 2 cells of the patch (the *ring*) through a full
+AIM operator (near + grid) of the patch grown by that margin, and the rest through the grid part
+alone of the extended mesh (those pairs lie beyond the near radius, where the AIM operator is
+its grid part). The far field is that of [x_S, c_F] on the extended mesh.
+
+Flat-interface currents (exterior side, normal n̂ = ẑ): J = ẑ × H, M = E × ẑ (unknowns J and
+M̃ = M/η₀, mesh.py), with E, H the incident plus Fresnel-reflected fields at z = 0. On a flat
+element a rooftop of coefficient c carries J·t̂ = 4c/d across its shared edge (mesh.py: the
+half-basis weight 1 + u is 2 there and |r_u| = d/2), so c = d J·t̂ / 4 at the edge midpoint.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from wavebrdf.solver.bem3d.media import Media
+from wavebrdf.solver.bem3d.mesh import BEMMesh
+from wavebrdf.solver.farfield import ETA0
+from wavebrdf.solver.surface import HeightField
+
+__all__ = ["FLUX_LEFT", "FlatContinuation", "border_height", "embedded_mesh", "flat_interface_coefficients"]
+
+FLUX_LEFT = 1e-6  # beam flux (relative) allowed to fall outside the extended mesh
+BORDER_TOLERANCE = 0.05  # largest |border height − continuation plane| in cells d
+
+
+def flat_interface_coefficients(mesh: BEMMesh, beam, media: Media, bases: np.ndarray | None = None) -> np.ndarray:
+    """Rooftop coefficients [J | M̃] (2, 2N_b) of the flat-interface currents on ``mesh`` (taken
+    as flat at z = 0) for ``bases`` (default all; the others stay 0): the exact ``beam`` and its
+    Fresnel reflection (``ExactGaussianBeam.fields`` with ``interface_index``)."""
+    nb = mesh.n_bases
+    bases = np.arange(nb) if bases is None else np.asarray(bases)
+    centres = mesh.basis_centres[bases].copy()
+    centres[:, 2] = 0.0
+    E, H = beam.fields(centres, interface_index=complex(media.index))
+    horizontal = bases < mesh.n_horizontal
+    z = np.array([0.0, 0.0, 1.0])
+    J = np.cross(z, H)
+    M = np.cross(E, z)
+    scale = 0.25 * mesh.spacing_um
+    x = np.zeros((2, 2 * nb), dtype=complex)
+    x[:, bases] = scale * np.where(horizontal, J[..., 0], J[..., 1])
+    x[:, nb + bases] = scale * np.where(horizontal, M[..., 0], M[..., 1]) / ETA0
+    return x
+
+
+def border_height(surface: HeightField) -> float:
+    """Mean height of the patch border (µm): the plane the flat continuation goes on in."""
+    z = surface.z
+    return float(np.mean(np.concatenate([z[0], z[-1], z[1:-1, 0], z[1:-1, -1]])))
+
+
+def embedded_mesh(mesh: BEMMesh, margin: int) -> BEMMesh:
+    """``mesh`` grown by ``margin`` flat cells on every side, at its reference height."""
+    z0 = mesh.heights
+    n = mesh.cells + 2 * margin
+    z = np.zeros((n + 1, n + 1))
+    z[margin : margin + mesh.cells + 1, margin : margin + mesh.cells + 1] = z0
+    s = mesh.surface
+    return BEMMesh(HeightField(z, n * s.spacing_um, s.origin_um), z_reference=0.0)
+
+
+def embedded_bases(mesh: BEMMesh, margin: int) -> np.ndarray:
+    """Index in ``embedded_mesh(mesh, margin)`` of every rooftop of ``mesh`` (mesh.py numbering)."""
+    n, N = mesh.cells, mesh.cells + 2 * margin
+    mx, my = np.meshgrid(np.arange(n - 1), np.arange(n), indexing="xy")  # horizontal m = (n−1)·my + mx
+    horizontal = (N - 1) * (my.ravel() + margin) + mx.ravel() + margin
+    ax, ay = np.meshgrid(np.arange(n), np.arange(n - 1), indexing="ij")  # vertical m = (n−1)·mx + my
+    vertical = N * (N - 1) + (N - 1) * (ax.ravel() + margin) + ay.ravel() + margin
+    return np.concatenate([horizontal, vertical])
+
+
+def unknown_indices(bases: np.ndarray, n_bases: int) -> np.ndarray:
+    """Positions of the J and M̃ coefficients of ``bases`` in a [J | M̃] vector of n_bases rooftops."""
+    return np.concatenate([bases, n_bases + bases])
+
+
+def extended_margin(mesh: BEMMesh, beam, minimum: int) -> int:
+    """Cells to add on every side so that the beam's flux beyond the extended mesh is ≤ FLUX_LEFT
+    (a Gaussian footprint of radius w about the focus: e^{−2R²/w²} at radius R, then checked)."""
+    L, d = mesh.surface.size_um, mesh.spacing_um
+    reach = beam.waist_um * math.sqrt(0.5 * math.log(1.0 / FLUX_LEFT)) + float(np.max(np.abs(beam.focus_um[:2])))
+    margin = max(minimum, math.ceil((reach - 0.5 * L) / d))
+    while beam.outside_fraction(L + 2 * margin * d) > FLUX_LEFT:
+        margin = math.ceil(1.1 * margin) + 1
+    return margin
+
+
+class FlatContinuation:
+    """The fixed currents of a patch with flat continuation and their field on the patch rooftops,
+    for one patch mesh, wavelength, material and AIM options (see the module docstring).
+
+    ``mesh``'s heights must be relative to the continuation plane (``border_height``) and its
+    border must lie in it (within BORDER_TOLERANCE cells), else ValueError.
+    """
+
+    def __init__(self, ctx, mesh: BEMMesh, media: Media, options, *, quadrature=None):
+        from dataclasses import replace
+
+        from wavebrdf.solver.bem3d.aim import AIMOperator
+
+        d = mesh.spacing_um
+        z = mesh.heights
+        border = np.concatenate([z[0], z[-1], z[1:-1, 0], z[1:-1, -1]])
+        worst = float(np.max(np.abs(border)))
+        if worst > BORDER_TOLERANCE * d:
+            raise ValueError(
+                f"aim.edge = 'flat' continues the surface as a plane at the patch border, but the border heights "
+                f"leave that plane by up to {worst:.4g} µm (> {BORDER_TOLERANCE:g} d = {BORDER_TOLERANCE * d:.4g} µm): "
+                "use a patch whose border is flat, or aim.edge = 'pinned'")
+        self.ctx, self.mesh, self.media, self.options = ctx, mesh, media, options
+        self.ring_cells = math.ceil(options.near_cells) + 2
+        self.ring_mesh = embedded_mesh(mesh, self.ring_cells)
+        self.ring_operator = AIMOperator(ctx, self.ring_mesh, media, replace(options, preconditioner="none"),
+                                         quadrature=quadrature)
+        self._patch_in_ring = embedded_bases(mesh, self.ring_cells)
+        self._extended: dict = {}
+
+    def extended(self, margin: int):
+        """(mesh, grid part, patch rooftops in it, ring-mesh rooftops in it) for ``margin`` cells."""
+        if margin not in self._extended:
+            from wavebrdf.solver.bem3d.aim import GridPart
+
+            ext = embedded_mesh(self.mesh, margin)
+            self._extended = {margin: (ext, GridPart.build(self.ctx, ext, self.media, self.options),
+                                       embedded_bases(self.mesh, margin),
+                                       embedded_bases(self.ring_mesh, margin - self.ring_cells))}
+        return self._extended[margin]
+
+    def margin(self, beam) -> int:
+        """Cells of flat interface around the patch that carry the beam's currents (≥ the ring)."""
+        return extended_margin(self.mesh, beam, self.ring_cells + 2)
+
+    def fixed_currents(self, beam, margin: int) -> tuple[np.ndarray, np.ndarray]:
+        """(c_F on the extended mesh of ``margin`` cells with zeros on the patch rooftops (2, 2N_b,ext),
+        Z_SF c_F on the patch rooftops (2, 2N_b)) for ``beam`` (an exact beam whose period covers
+        the extended mesh)."""
+        ext, grid_part, patch, ring = self.extended(margin)
+        nb_ext, nb_ring = ext.n_bases, self.ring_mesh.n_bases
+        c = flat_interface_coefficients(ext, beam, self.media)
+        c[:, unknown_indices(patch, nb_ext)] = 0.0
+        # ring rooftops: near + grid through the ring mesh's operator
+        op = self.ring_operator
+        y_ring = op.matvec(c[:, unknown_indices(ring, nb_ext)].astype(op.dtype))
+        # the rest: grid part of the extended mesh (beyond the near radius of every patch rooftop)
+        outer = c.copy()
+        outer[:, unknown_indices(ring, nb_ext)] = 0.0
+        y_outer = grid_part.base.apply(outer.astype(grid_part.base.complex))
+        field = (y_ring[:, unknown_indices(self._patch_in_ring, nb_ring)]
+                 + y_outer[:, unknown_indices(patch, nb_ext)])
+        return c, field.astype(complex)
+
+    def extended_solution(self, margin: int, c: np.ndarray, x_patch: np.ndarray) -> tuple[BEMMesh, np.ndarray]:
+        """(extended mesh, [x_S, c_F] on it) from ``fixed_currents``' c and the patch solution."""
+        ext, _, patch, _ = self.extended(margin)
+        x = c.copy()
+        x[:, unknown_indices(patch, ext.n_bases)] = x_patch
+        return ext, x
+
+    def bytes(self) -> int:
+        total = self.ring_operator.bytes()
+        for _, grid_part, _, _ in self._extended.values():
+            total += grid_part.base.bytes()
+        return int(total)
