@@ -40,30 +40,33 @@ FLUX_LEFT = 1e-6  # beam flux (relative) allowed to fall outside the extended me
 BORDER_TOLERANCE = 0.05  # largest |border height − continuation plane| in cells d
 
 
-def flat_interface_coefficients(mesh: BEMMesh, beam, media: Media, bases: np.ndarray | None = None) -> np.ndarray:
+def flat_interface_coefficients(mesh: BEMMesh, beam, media: Media) -> np.ndarray:
     """Rooftop coefficients [J | M̃] (2, 2N_b) of the flat-interface currents on ``mesh`` (taken
-    as flat at z = 0) for ``bases`` (default all; the others stay 0): the exact ``beam`` and its
-    Fresnel reflection (``ExactGaussianBeam.fields`` with ``interface_index``)."""
+    as flat at z = 0): the exact ``beam`` and its Fresnel reflection (``ExactGaussianBeam.fields``
+    with ``interface_index``)."""
     nb = mesh.n_bases
-    bases = np.arange(nb) if bases is None else np.asarray(bases)
-    centres = mesh.basis_centres[bases].copy()
+    centres = mesh.basis_centres.copy()
     centres[:, 2] = 0.0
     E, H = beam.fields(centres, interface_index=complex(media.index))
-    horizontal = bases < mesh.n_horizontal
+    horizontal = np.arange(nb) < mesh.n_horizontal
     z = np.array([0.0, 0.0, 1.0])
     J = np.cross(z, H)
     M = np.cross(E, z)
     scale = 0.25 * mesh.spacing_um
-    x = np.zeros((2, 2 * nb), dtype=complex)
-    x[:, bases] = scale * np.where(horizontal, J[..., 0], J[..., 1])
-    x[:, nb + bases] = scale * np.where(horizontal, M[..., 0], M[..., 1]) / ETA0
+    x = np.empty((2, 2 * nb), dtype=complex)
+    x[:, :nb] = scale * np.where(horizontal, J[..., 0], J[..., 1])
+    x[:, nb:] = scale * np.where(horizontal, M[..., 0], M[..., 1]) / ETA0
     return x
+
+
+def _border(z: np.ndarray) -> np.ndarray:
+    """The corner heights on the border of a height grid, each once."""
+    return np.concatenate([z[0], z[-1], z[1:-1, 0], z[1:-1, -1]])
 
 
 def border_height(surface: HeightField) -> float:
     """Mean height of the patch border (µm): the plane the flat continuation goes on in."""
-    z = surface.z
-    return float(np.mean(np.concatenate([z[0], z[-1], z[1:-1, 0], z[1:-1, -1]])))
+    return float(np.mean(_border(surface.z)))
 
 
 def embedded_mesh(mesh: BEMMesh, margin: int) -> BEMMesh:
@@ -116,9 +119,7 @@ class FlatContinuation:
         from wavebrdf.solver.bem3d.aim import AIMOperator
 
         d = mesh.spacing_um
-        z = mesh.heights
-        border = np.concatenate([z[0], z[-1], z[1:-1, 0], z[1:-1, -1]])
-        worst = float(np.max(np.abs(border)))
+        worst = float(np.max(np.abs(_border(mesh.heights))))
         if worst > BORDER_TOLERANCE * d:
             raise ValueError(
                 f"aim.edge = 'flat' continues the surface as a plane at the patch border, but the border heights "
