@@ -31,7 +31,7 @@ from wavebrdf.solver.bem3d.aim_grid import GridOptions, build_grid
 from wavebrdf.solver.bem3d.aim_green import DECAY_TOLERANCE, grid_media, interior_decay, kernel_spectra
 from wavebrdf.solver.beams import make_beam
 from wavebrdf.solver.bem3d.checks import check_material, check_resolution, check_surface_plasmons
-from wavebrdf.solver.bem3d.continuation import border_height
+from wavebrdf.solver.bem3d.continuation import FLUX_LEFT, FlatContinuation, border_height
 from wavebrdf.solver.bem3d.elements import ElementIntegrals
 from wavebrdf.solver.bem3d.excitation import SurfaceRule, beam_excitation, power_into_material
 from wavebrdf.solver.bem3d.fft_farfield import FARFIELD_STENCIL, GridFarField
@@ -421,8 +421,6 @@ class AIMBEM:
                                     progress=self.progress)
         self.continuation = None
         if self.options.edge == "flat":
-            from wavebrdf.solver.bem3d.continuation import FlatContinuation  # it builds AIM operators
-
             self.continuation = FlatContinuation(ctx, self.mesh, self.media, self.options, quadrature=quadrature)
             if np.ptp(self.mesh.heights) > 0:
                 check_surface_plasmons(self.media, surface.size_um, self.diagnostics)
@@ -457,9 +455,10 @@ class AIMBEM:
             if beam != "exact":
                 raise ValueError(f"aim.edge = 'flat' needs illumination.beam = 'exact' (the continued currents "
                                  f"come from its plane waves), got {beam!r}")
-            margin = self.continuation.margin(make_beam(beam, self.media.wavelength_um, theta_i, phi_i, waist_um,
-                                                        exterior_index=self.media.exterior_index,
-                                                        focus_um=(*focus_um, 0.0), patch_size_um=self.mesh.surface.size_um))
+            footprint = make_beam(beam, self.media.wavelength_um, theta_i, phi_i, waist_um,
+                                  exterior_index=self.media.exterior_index, focus_um=(*focus_um, 0.0),
+                                  patch_size_um=self.mesh.surface.size_um)
+            margin = self.continuation.margin(footprint)
         extent = None if margin is None else self.mesh.surface.size_um + 2 * margin * self.mesh.spacing_um
         excitation = beam_excitation(self.mesh, self.media, theta_i, phi_i, waist_um=waist_um, beam=beam,
                                      focus_um=focus_um, rhs_order=self.quadrature.rhs_order, diagnostics=diag,
@@ -531,8 +530,6 @@ def _continuation_cost(mesh: BEMMesh, options: AIMOptions, waist_um: float | Non
     """(bytes, set-up seconds, far-field bytes) of the flat continuation (continuation.py): the ring
     operator's near storage and set-up, the extended mesh's grid weights, and the far field of the
     extended mesh (which replaces the patch's)."""
-    from wavebrdf.solver.bem3d.continuation import FLUX_LEFT
-
     n, d, L = mesh.cells, mesh.spacing_um, mesh.surface.size_um
     ring = n + 2 * (math.ceil(options.near_cells) + 2)
     waist = waist_um or L / 2.5

@@ -122,9 +122,9 @@ class FlatContinuation:
         worst = float(np.max(np.abs(_border(mesh.heights))))
         if worst > BORDER_TOLERANCE * d:
             raise ValueError(
-                f"aim.edge = 'flat' continues the surface as a plane at the patch border, but the border heights "
-                f"leave that plane by up to {worst:.4g} µm (> {BORDER_TOLERANCE:g} d = {BORDER_TOLERANCE * d:.4g} µm): "
-                "use a patch whose border is flat, or aim.edge = 'pinned'")
+                f"aim.edge = 'flat' continues the surface as a plane at the patch border, but the border "
+                f"heights leave that plane by up to {worst:.4g} µm (> {BORDER_TOLERANCE:g} d = "
+                f"{BORDER_TOLERANCE * d:.4g} µm): use a patch whose border is flat, or aim.edge = 'pinned'")
         self.ctx, self.mesh, self.media, self.options = ctx, mesh, media, options
         self.ring_cells = math.ceil(options.near_cells) + 2
         self.ring_mesh = embedded_mesh(mesh, self.ring_cells)
