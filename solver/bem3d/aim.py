@@ -434,10 +434,13 @@ class AIMBEM:
         self._farfields: dict = {}
 
     def _grid_farfield(self, grid: HemisphereGrid, mesh: BEMMesh | None = None) -> GridFarField:
-        """The far-field transform of ``mesh`` (default the patch's) onto ``grid``, kept."""
+        """The far-field transform of ``mesh`` (default the patch's) onto ``grid``, kept (one
+        extended mesh at a time: its size follows the beam)."""
         mesh = mesh or self.mesh
         key = (grid.resolution, mesh.cells)
         if key not in self._farfields:
+            if mesh is not self.mesh:
+                self._farfields = {k: v for k, v in self._farfields.items() if k[1] == self.mesh.cells}
             o = self.options
             self._farfields[key] = GridFarField(
                 mesh, self.media, grid, grid_options=GridOptions(stencil=o.farfield_stencil),
