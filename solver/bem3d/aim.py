@@ -486,6 +486,7 @@ class AIMBEM:
         mesh, x = self.mesh, result.x
         if margin is not None:  # the far field of the patch's and the continued currents
             mesh, x = self.continuation.extended_solution(margin, fixed, result.x)
+            diag["continuation_bytes"] = self.continuation.bytes()
         ff = self._grid_farfield(grid, mesh).farfield(x, theta_i=theta_i, phi_i=phi_i, incident_power=power,
                                                       diagnostics=diag)
         ff_rule = SurfaceRule.build(self.mesh, self.quadrature.farfield_order)

@@ -26,6 +26,7 @@ half-basis weight 1 + u is 2 there and |r_u| = d/2), so c = d J·t̂ / 4 at the 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -114,9 +115,7 @@ class FlatContinuation:
     """
 
     def __init__(self, ctx, mesh: BEMMesh, media: Media, options, *, quadrature=None):
-        from dataclasses import replace
-
-        from wavebrdf.solver.bem3d.aim import AIMOperator
+        from wavebrdf.solver.bem3d.aim import AIMOperator  # aim.py imports this module
 
         d = mesh.spacing_um
         worst = float(np.max(np.abs(_border(mesh.heights))))
@@ -136,7 +135,7 @@ class FlatContinuation:
     def extended(self, margin: int):
         """(mesh, grid part, patch rooftops in it, ring-mesh rooftops in it) for ``margin`` cells."""
         if margin not in self._extended:
-            from wavebrdf.solver.bem3d.aim import GridPart
+            from wavebrdf.solver.bem3d.aim import GridPart  # aim.py imports this module
 
             ext = embedded_mesh(self.mesh, margin)
             self._extended = {margin: (ext, GridPart.build(self.ctx, ext, self.media, self.options),
@@ -175,6 +174,7 @@ class FlatContinuation:
         return ext, x
 
     def bytes(self) -> int:
+        """Memory held: the ring operator and the extended mesh's grid part."""
         total = self.ring_operator.bytes()
         for _, grid_part, _, _ in self._extended.values():
             total += grid_part.base.bytes()
