@@ -559,9 +559,12 @@ def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: di
         from wavebrdf.solver.bem3d.aim import AIMOptions
 
         try:
-            AIMOptions.from_mapping(mod["aim"])
+            options = AIMOptions.from_mapping(mod["aim"])
         except (TypeError, ValueError) as exc:
             raise ConfigError(f"[model.aim] {exc}") from None
+        if options.edge == "flat" and illumination.beam != "exact":
+            raise _fail("model.aim", "edge", "flat", f'needs illumination.beam = "exact" (the continued currents '
+                        f'come from its plane waves), got "{illumination.beam}"')
     model = ModelSpec(mod["name"], mod["method"], mod["precision"], mod["aim"])
     o = v["output"]
     out = OutputSpec(o["resolution"], o["per_polarization"], o["phi_r_bins"], o["phi_i_bins"])
@@ -641,9 +644,16 @@ def _check_physics(study: Study) -> None:
         raise ConfigError("[material]: negative kappa (gain medium)")
     if study.surface is not None:
         try:
-            study.surface.build()
+            surface = study.surface.build()
         except SurfaceError as exc:
             raise ConfigError(f"[surface] {exc}") from None
+        if (study.model.aim or {}).get("edge") == "flat" and study.steering is None:
+            from wavebrdf.solver.bem3d.continuation import border_height, check_flat_border
+
+            try:
+                check_flat_border(surface.z - border_height(surface), surface.spacing_um)
+            except ValueError as exc:
+                raise ConfigError(f"[model.aim] {exc}") from None
     if study.fiber is not None:
         from wavebrdf.solver.fiber import ShapeError
 

@@ -153,3 +153,45 @@ def test_whitespace_and_npy_height_files(tmp_path):
         config = write_config(tmp_path, surface=f'file = "{name}"\nsize_um = 2.0')
         study = parse_config(config.read_text(), config).cases[0]
         assert np.allclose(study.surface.build().z, z, atol=1e-12)
+
+
+AIM_FLAT_EDGE = """
+[study]
+output = "{out}"
+
+[surface]
+{surface}
+
+[material]
+name = "glass"
+
+[illumination]
+wavelengths_um = [0.5]
+directions_deg = [[0, 0]]
+waist_um = 0.5
+beam = "{beam}"
+
+[model]
+name = "bem"
+method = "aim"
+
+[model.aim]
+edge = "flat"
+"""
+
+
+@pytest.mark.parametrize(
+    "surface, beam, pattern",
+    [
+        ('generator = "flat"\nsize_um = 2.0\ncells = 16', "paraxial",
+         r'\[model.aim\] edge = "flat": needs illumination.beam = "exact"'),
+        (GOOD_SURFACE, "exact", r"\[model.aim\] aim.edge = 'flat' .* border heights leave that plane by up to"),
+    ],
+    ids=["paraxial-beam", "rough-border"],
+)
+def test_flat_edge_needs_an_exact_beam_and_a_flat_border(tmp_path, capsys, surface, beam, pattern):
+    config = tmp_path / "study.toml"
+    config.write_text(AIM_FLAT_EDGE.format(out=tmp_path / "result.h5", surface=surface, beam=beam))
+    code, err = run_cli(config, capsys)
+    assert code == 2 and len(err.splitlines()) == 1
+    assert pytest.importorskip("re").search(pattern, err), err

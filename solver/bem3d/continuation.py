@@ -35,7 +35,8 @@ from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.farfield import ETA0
 from wavebrdf.solver.surface import HeightField
 
-__all__ = ["FLUX_LEFT", "FlatContinuation", "border_height", "embedded_mesh", "flat_interface_coefficients"]
+__all__ = ["FLUX_LEFT", "FlatContinuation", "border_height", "check_flat_border", "embedded_mesh",
+           "flat_interface_coefficients"]
 
 FLUX_LEFT = 1e-6  # beam flux (relative) allowed to fall outside the extended mesh
 BORDER_TOLERANCE = 0.05  # largest |border height − continuation plane| in cells d
@@ -68,6 +69,17 @@ def _border(z: np.ndarray) -> np.ndarray:
 def border_height(surface: HeightField) -> float:
     """Mean height of the patch border (µm): the plane the flat continuation goes on in."""
     return float(np.mean(_border(surface.z)))
+
+
+def check_flat_border(heights: np.ndarray, spacing_um: float) -> None:
+    """ValueError unless the border of ``heights`` (µm, relative to the continuation plane) lies
+    in that plane within BORDER_TOLERANCE cells."""
+    worst = float(np.max(np.abs(_border(heights))))
+    if worst > BORDER_TOLERANCE * spacing_um:
+        raise ValueError(
+            f"aim.edge = 'flat' continues the surface as a plane at the patch border, but the border "
+            f"heights leave that plane by up to {worst:.4g} µm (> {BORDER_TOLERANCE:g} d = "
+            f"{BORDER_TOLERANCE * spacing_um:.4g} µm): use a patch whose border is flat, or aim.edge = 'pinned'")
 
 
 def embedded_mesh(mesh: BEMMesh, margin: int) -> BEMMesh:
@@ -117,13 +129,7 @@ class FlatContinuation:
     def __init__(self, ctx, mesh: BEMMesh, media: Media, options, *, quadrature=None):
         from wavebrdf.solver.bem3d.aim import AIMOperator  # aim.py imports this module
 
-        d = mesh.spacing_um
-        worst = float(np.max(np.abs(_border(mesh.heights))))
-        if worst > BORDER_TOLERANCE * d:
-            raise ValueError(
-                f"aim.edge = 'flat' continues the surface as a plane at the patch border, but the border "
-                f"heights leave that plane by up to {worst:.4g} µm (> {BORDER_TOLERANCE:g} d = "
-                f"{BORDER_TOLERANCE * d:.4g} µm): use a patch whose border is flat, or aim.edge = 'pinned'")
+        check_flat_border(mesh.heights, mesh.spacing_um)
         self.ctx, self.mesh, self.media, self.options = ctx, mesh, media, options
         self.ring_cells = math.ceil(options.near_cells) + 2
         self.ring_mesh = embedded_mesh(mesh, self.ring_cells)
