@@ -32,6 +32,7 @@ import numpy as np
 
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
+from wavebrdf.solver.bem3d.nearfield import near_coords, near_first, near_row
 from wavebrdf.solver.farfield import ETA0
 from wavebrdf.solver.surface import HeightField
 
@@ -93,13 +94,14 @@ def embedded_mesh(mesh: BEMMesh, margin: int) -> BEMMesh:
 
 
 def embedded_bases(mesh: BEMMesh, margin: int) -> np.ndarray:
-    """Index in ``embedded_mesh(mesh, margin)`` of every rooftop of ``mesh`` (mesh.py numbering)."""
+    """Index in ``embedded_mesh(mesh, margin)`` of every rooftop of ``mesh`` (mesh.py numbering,
+    through the rooftop index spaces of nearfield.py)."""
     n, N = mesh.cells, mesh.cells + 2 * margin
-    mx, my = np.meshgrid(np.arange(n - 1), np.arange(n), indexing="xy")  # horizontal m = (n−1)·my + mx
-    horizontal = (N - 1) * (my.ravel() + margin) + mx.ravel() + margin
-    ax, ay = np.meshgrid(np.arange(n), np.arange(n - 1), indexing="ij")  # vertical m = (n−1)·mx + my
-    vertical = N * (N - 1) + (N - 1) * (ax.ravel() + margin) + ay.ravel() + margin
-    return np.concatenate([horizontal, vertical])
+    out = []
+    for o in (0, 1):  # horizontal, vertical
+        x, y = near_coords(o, n, np.arange(n * (n - 1)))
+        out.append(near_first(o, N) + near_row(o, N, x + margin, y + margin))
+    return np.concatenate(out)
 
 
 def unknown_indices(bases: np.ndarray, n_bases: int) -> np.ndarray:
