@@ -28,10 +28,10 @@ import warnings
 import numpy as np
 
 from wavebrdf.kernels import load_source
-from wavebrdf.solver.bem3d.aim import AIM_QUADRATURE, AIMBEM, AIMOperator, AIMOptions, estimate_aim
-from wavebrdf.solver.bem3d.aim_base import forward_pruned, inverse_pruned
-from wavebrdf.solver.bem3d.aim_grid import build_grid
-from wavebrdf.solver.bem3d.checks import BEMWarning
+from wavebrdf.solver.bem3d import BEMSolver, BEMWarning, estimate_aim
+from wavebrdf.solver.bem3d.aim import AIM_QUADRATURE, AIMOperator, AIMOptions
+from wavebrdf.solver.bem3d.aim.convolution import forward_pruned, inverse_pruned
+from wavebrdf.solver.bem3d.aim.grid import build_grid
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.farfield import HemisphereGrid, albedo
@@ -107,7 +107,7 @@ def cmd_solve(args, ctx):
         t0 = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", BEMWarning)
-            solver = AIMBEM(ctx, surface, 0.4, AL_400, aim={"precision": args.precision})
+            solver = BEMSolver(ctx, surface, 0.4, AL_400, method="aim", aim={"precision": args.precision})
             setup = time.perf_counter() - t0
             ff = solver.farfield(0.0, 0.0, HemisphereGrid(128), waist_um=surface.size_um / 5)
         n = solver.mesh.n_unknowns
@@ -131,8 +131,8 @@ def cmd_solvers(args, ctx):
         d = lam / per
         surface = generate("gaussian", cells=args.cells, size_um=args.cells * d, seed=3, rms_height_um=0.1 * lam,
                            correlation_um=0.8 * lam)
-        base = AIMBEM(ctx, surface, lam, index, aim={"preconditioner": "none"})
-        pre = AIMBEM(ctx, surface, lam, index)
+        base = BEMSolver(ctx, surface, lam, index, method="aim", aim={"preconditioner": "none"})
+        pre = BEMSolver(ctx, surface, lam, index, method="aim")
         for label, solver, method in (("gmres", base, "gmres"), ("csym", base, "csym"), ("bicgstab", base, "bicgstab"),
                                       ("gmres + near LU", pre, "gmres"), ("bicgstab + near LU", pre, "bicgstab")):
             solver.operator.options = AIMOptions(**{**solver.operator.options.__dict__, "solver": method})
@@ -155,7 +155,7 @@ def cmd_precision(args, ctx):
     for precision in ("double", "single"):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", BEMWarning)
-            solver = AIMBEM(ctx, surface, 0.4, AL_400, aim={"precision": precision})
+            solver = BEMSolver(ctx, surface, 0.4, AL_400, method="aim", aim={"precision": precision})
             x = np.random.default_rng(0).standard_normal((2, solver.mesh.n_unknowns)).astype(solver.operator.dtype)
             mv, _, _ = best_matvec(solver.operator, x)
             ff = solver.farfield(0.0, 0.0, HemisphereGrid(128), waist_um=surface.size_um / 5)
@@ -226,11 +226,11 @@ def cmd_accuracy(args, ctx):
 def _single_run(ctx, surface, lam, index, waist, resolution, aim):
     t0 = time.perf_counter()
     cpu0 = usage()["cpu_s"]
-    estimate = estimate_aim(surface, lam, index, aim=aim, resolution=resolution, waist_um=waist)
+    estimate = estimate_aim(surface, lam, index, aim=aim, waist_um=waist)
     print("estimate:", {k: v for k, v in estimate.items()}, flush=True)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BEMWarning)
-        solver = AIMBEM(ctx, surface, lam, index, aim=aim)
+        solver = BEMSolver(ctx, surface, lam, index, method="aim", aim=aim)
         print("set-up:", json.dumps(solver.diagnostics["aim_setup"], default=str), flush=True)
         print("after set-up:", usage(), load(), flush=True)
         grid = HemisphereGrid(resolution)
@@ -262,8 +262,6 @@ def cmd_truncation(args, ctx):
     """Dense LU vs AIM on the reference geometry (4 µm flat glass, waist 1.6 µm) at d = λ/8: how
     much of the albedo error belongs to the truncated patch rather than to AIM; and AIM with the
     patch continued as the flat interface (aim.edge = "flat")."""
-    from wavebrdf.solver.bem3d import DenseBEM
-
     print(load())
     surface = generate("flat", cells=64, size_um=4.0)
     grid = HemisphereGrid(256)
@@ -271,9 +269,10 @@ def cmd_truncation(args, ctx):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BEMWarning)
         runs = {
-            "AIM": lambda: AIMBEM(ctx, surface, 0.5, 1.5),
-            "dense": lambda: DenseBEM(ctx, surface, 0.5, 1.5),
-            "AIM, flat continuation": lambda: AIMBEM(ctx, surface, 0.5, 1.5, aim={"edge": "flat"}),
+            "AIM": lambda: BEMSolver(ctx, surface, 0.5, 1.5, method="aim"),
+            "dense": lambda: BEMSolver(ctx, surface, 0.5, 1.5),
+            "AIM, flat continuation": lambda: BEMSolver(ctx, surface, 0.5, 1.5, method="aim",
+                                                        aim={"edge": "flat"}),
         }
         for name, make in runs.items():
             t0 = time.perf_counter()
@@ -307,8 +306,8 @@ def cmd_continuation(args, ctx):
             t0 = time.perf_counter()
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", BEMWarning)
-                ff = AIMBEM(ctx, surface, lam, index, z_reference=0.0, aim={"edge": edge}).farfield(
-                    args.theta, 0.0, grid, waist_um=waist)
+                solver = BEMSolver(ctx, surface, lam, index, method="aim", z_reference=0.0, aim={"edge": edge})
+                ff = solver.farfield(args.theta, 0.0, grid, waist_um=waist)
             brdf[name] = ff.brdf()
             print(f"n = {index}, {name}: {ff.diagnostics['unknowns']} unknowns, albedo {albedo(ff.brdf(), grid)}, "
                   f"products {ff.diagnostics['iterations']}, {time.perf_counter() - t0:.0f} s", flush=True)

@@ -19,7 +19,7 @@ import warnings
 
 import numpy as np
 
-from wavebrdf.solver.bem3d import BEMWarning, DenseBEM, QuadratureOptions, estimate_dense
+from wavebrdf.solver.bem3d import BEMSolver, BEMWarning, QuadratureOptions, estimate_dense
 from wavebrdf.solver.bem3d import elements as el
 from wavebrdf.solver.bem3d.assembly import basis_pair_entries
 from wavebrdf.solver.bem3d.elements import ElementIntegrals
@@ -140,7 +140,7 @@ def bench_quadrature(ctx):
 def _solver(ctx, surface, index, quadrature=None):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BEMWarning)
-        return DenseBEM(ctx, surface, LAMBDA, index, quadrature=quadrature)
+        return BEMSolver(ctx, surface, LAMBDA, index, quadrature=quadrature)
 
 
 def _flat_solvers(ctx, cells: int):

@@ -13,8 +13,9 @@ Sections (see configs/*.toml and the README for a full example)::
     [material]     name | table = [[λ_um, n, κ], ...] | n (+ kappa); exterior_index (default 1)
     [illumination] wavelengths_um, directions_deg = [[θ, φ], ...], waist_um,
                    polarization ("unpolarized"|"s"|"p"), beam ("exact"|"paraxial"|"plane")
-    [model]        name, method, precision ("double"|"single"); [model.aim] options of the
-                   bem model's method "aim" (solver/bem3d/aim.py AIMOptions)
+    [model]        name, precision ("double"|"single"), and the model's own options: the keys of
+                   its Options dataclass, in [model] or in [model.<name>] (e.g. the bem model's
+                   method and its [model.aim] table); unknown keys and bad values are refused
     [output]       resolution, per_polarization
     [steering]     patches ([mx, my] | "auto"), patch_size_um, shift_um (default: the waist),
                    hexagon_fill (hexagon radius as a fraction of sin(λ_min/(π w)); > 1 steers
@@ -205,12 +206,6 @@ def _patches(section, key, value):
     return (int(value[0]), int(value[1]))
 
 
-def _options_table(section, key, value):
-    if not isinstance(value, dict):
-        raise _fail(section, key, value, f"must be a table ([{section}.{key}] or {key} = {{...}})")
-    return dict(value)
-
-
 def _table(section, key, value):
     if not isinstance(value, list) or not value or not all(isinstance(r, list) and len(r) == 3 for r in value):
         raise _fail(section, key, value, "must be a list of [wavelength_um, n, kappa] rows")
@@ -257,11 +252,9 @@ SCHEMA: dict[str, dict[str, Spec]] = {
         "polarization": Spec(_choice(*POLARIZATION_CHOICES), default="unpolarized"),
         "beam": Spec(_choice(*BEAM_CHOICES), default="exact"),
     },
-    "model": {
+    "model": {  # the other keys are the model's Options (solver/models.py), checked by it
         "name": Spec(_string, required=True),
-        "method": Spec(_string),
         "precision": Spec(_choice(*PRECISION_CHOICES), default="double"),
-        "aim": Spec(_options_table),  # bem method "aim": AIMOptions (docs/aim.md)
     },
     "steering": {
         "patches": Spec(_patches, required=True),
@@ -291,7 +284,7 @@ SCHEMA: dict[str, dict[str, Spec]] = {
     },
 }
 REQUIRED_SECTIONS = ("material", "illumination", "model")  # + exactly one of [surface] / [fiber]
-FIBER_MODELS = ("fiber-bem", "mie")
+OPEN_SECTIONS = ("model",)  # sections whose other keys belong to a plug-in (the model's Options)
 SURFACE_ONLY_KEYS = ("directions_deg", "waist_um", "beam")
 FIBER_ONLY_KEYS = ("theta_i_deg", "phi_i_deg")
 GENERATOR_KEYS = ("rms_height_um", "correlation_um", "amplitude_um", "period_um", "angle_deg")
@@ -382,10 +375,23 @@ class FiberSpec:
 
 @dataclass(frozen=True)
 class ModelSpec:
+    """The model of a study: its registry name, precision and parsed Options dataclass."""
+
     name: str
-    method: str | None
     precision: str
-    aim: dict | None = None  # [model.aim] options of the bem model's AIM method
+    options: Any = None
+
+    def build(self):
+        """A new instance of the model with these options."""
+        from wavebrdf.solver.models import get_model
+
+        return get_model(self.name, self.options)
+
+    @property
+    def capabilities(self):
+        from wavebrdf.solver.models import model_class
+
+        return model_class(self.name).capabilities
 
 
 @dataclass(frozen=True)
@@ -471,7 +477,7 @@ def _validate_section(section: str, raw: Any, present: bool = True) -> dict:
     if not isinstance(raw, dict):
         raise ConfigError(f"[{section}] must be a table, got {_fmt(raw)}")
     for key in raw:
-        if key not in schema:
+        if key not in schema and section not in OPEN_SECTIONS:
             raise ConfigError(
                 f"[{section}] {key}: unknown key{_suggest(key, schema)} (allowed: {', '.join(schema)})"
             )
@@ -483,6 +489,8 @@ def _validate_section(section: str, raw: Any, present: bool = True) -> dict:
             raise ConfigError(f"[{section}] {key}: missing required key")
         else:
             out[key] = spec.default
+    if section in OPEN_SECTIONS:
+        out["options"] = {k: v for k, v in raw.items() if k not in schema}
     return out
 
 
@@ -533,44 +541,22 @@ def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: di
         m["exterior_index"],
     )
     illumination = _illumination_spec(v["illumination"], data.get("illumination", {}), fiber is not None)
-    mod = v["model"]
-    from wavebrdf.solver.models import model_names
-
-    allowed = FIBER_MODELS if fiber is not None else model_names()
-    if mod["name"] not in allowed:
-        kind = "fiber" if fiber is not None else "surface"
-        raise _fail("model", "name", mod["name"], f"a {kind} study needs one of {', '.join(repr(n) for n in allowed)}")
-    if fiber is not None and mod["name"] == "fiber-bem" and fiber.shape != "polygon" and fiber.segments is None:
+    model = _model_spec(v["model"], fiber is not None)
+    if fiber is not None and model.name == "fiber-bem" and fiber.shape != "polygon" and fiber.segments is None:
         raise ConfigError(f"[fiber] segments: required by the fiber-bem model for shape = \"{fiber.shape}\" "
                           "(e.g. 300 for a 1 µm radius at 0.4 µm: >= 10 elements per interior wavelength)")
-    if mod["name"] == "mie" and fiber.shape != "circle":
+    if model.name == "mie" and fiber.shape != "circle":
         raise _fail("model", "name", "mie", f"the Mie series solves circular fibers only, not fiber.shape = "
                     f"{fiber.shape!r}; use \"fiber-bem\"")
-    if fiber is None and mod["method"] is not None:
-        from wavebrdf.solver.models import get_model
-
-        methods = get_model(mod["name"]).methods
-        if mod["method"] not in methods:
-            offered = ", ".join(repr(m) for m in methods) or "no methods"
-            raise _fail("model", "method", mod["method"], f"model {mod['name']!r} offers {offered}")
-    if mod["aim"] is not None:
-        if mod["name"] != "bem" or mod["method"] != "aim":
-            raise _fail("model", "aim", mod["aim"], 'applies to name = "bem", method = "aim" only')
-        from wavebrdf.solver.bem3d.aim import AIMOptions
-
-        try:
-            options = AIMOptions.from_mapping(mod["aim"])
-        except (TypeError, ValueError) as exc:
-            raise ConfigError(f"[model.aim] {exc}") from None
-        if options.edge == "flat" and illumination.beam != "exact":
-            raise _fail("model.aim", "edge", "flat", f'needs illumination.beam = "exact" (the continued currents '
-                        f'come from its plane waves), got "{illumination.beam}"')
-    model = ModelSpec(mod["name"], mod["method"], mod["precision"], mod["aim"])
     o = v["output"]
     out = OutputSpec(o["resolution"], o["per_polarization"], o["phi_r_bins"], o["phi_i_bins"])
     steering = None
     if "steering" in data and fiber is not None:
         raise ConfigError("[steering] applies to height fields, not to fibers")
+    if "steering" in data and not model.capabilities.steerable:
+        raise ConfigError(f"[steering]: model {model.name!r} cannot be steered (it returns "
+                          f"{model.capabilities.returns}, not coherent fields with their incident beam); "
+                          "remove [steering] or choose a steerable model")
     if "steering" in data:
         st = v["steering"]
         steering = SteeringSpec(st["patches"], st["patch_size_um"], st["shift_um"] or illumination.waist_um,
@@ -581,6 +567,33 @@ def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: di
                   dict(sweep_values))
     _check_physics(study)
     return study
+
+
+def _model_spec(m: dict, is_fiber: bool) -> ModelSpec:
+    """[model]: a registered model that takes this study's input, with its Options parsed."""
+    from wavebrdf.solver.models import model_class, model_names
+    from wavebrdf.solver.options import parse_options
+
+    takes = ("cross_section",) if is_fiber else ("height_field", "statistics")
+    if m["name"] not in model_names() or model_class(m["name"]).capabilities.takes not in takes:
+        allowed = [n for t in takes for n in model_names(t)]  # imports every model: the error path only
+        kind = "fiber" if is_fiber else "surface"
+        raise _fail("model", "name", m["name"], f"a {kind} study needs one of {', '.join(repr(n) for n in allowed)}")
+    cls = model_class(m["name"])
+    given = dict(m["options"])
+    own = given.pop(m["name"], None)  # [model.<name>] table
+    if own is not None:
+        if not isinstance(own, dict):
+            raise _fail("model", m["name"], own, f"must be a table of the {m['name']} model's options")
+        both = sorted(set(own) & set(given))
+        if both:
+            raise ConfigError(f"[model.{m['name']}] {both[0]}: also given in [model]; give it once")
+        given.update(own)
+    try:
+        options = parse_options(cls.Options, given, "model")
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    return ModelSpec(m["name"], m["precision"], options)
 
 
 def _surface_spec(s: dict, base_dir: Path) -> SurfaceSpec:
@@ -647,13 +660,8 @@ def _check_physics(study: Study) -> None:
             surface = study.surface.build()
         except SurfaceError as exc:
             raise ConfigError(f"[surface] {exc}") from None
-        if (study.model.aim or {}).get("edge") == "flat" and study.steering is None:
-            from wavebrdf.solver.bem3d.continuation import border_height, check_flat_border
-
-            try:
-                check_flat_border(surface.z - border_height(surface), surface.spacing_um)
-            except ValueError as exc:
-                raise ConfigError(f"[model.aim] {exc}") from None
+        if study.steering is None:
+            _check_model_scene(study, surface, index[0])
     if study.fiber is not None:
         from wavebrdf.solver.fiber import ShapeError
 
@@ -661,6 +669,22 @@ def _check_physics(study: Study) -> None:
             study.fiber.build()
         except (ShapeError, OSError) as exc:
             raise ConfigError(f"[fiber] {exc}") from None
+
+
+def _check_model_scene(study: Study, surface, index: complex) -> None:
+    """The model's own checks (Model.check) on the case's first scene."""
+    from wavebrdf.solver.farfield import HemisphereGrid
+    from wavebrdf.solver.models import SurfaceScene
+
+    ill = study.illumination
+    theta, phi = np.deg2rad(ill.directions_deg[0])
+    scene = SurfaceScene(surface, ill.wavelengths_um[0], complex(index), float(theta), float(phi), ill.waist_um,
+                         HemisphereGrid(study.output_options.resolution), study.material.exterior_index, ill.beam,
+                         study.model.precision)
+    try:
+        study.model.build().check(scene)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
 
 
 def _set_dotted(data: dict, dotted: str, value: Any) -> None:
@@ -684,7 +708,7 @@ def parse_config(text: str, path: Path | None = None) -> StudyConfig:
     axes: dict[str, tuple] = {}
     for dotted, values in _flatten_sweep(sweep).items():
         section, _, key = dotted.partition(".")
-        if section not in SCHEMA or key not in SCHEMA[section]:
+        if section not in SCHEMA or (key not in SCHEMA[section] and section not in OPEN_SECTIONS):
             raise ConfigError(f"[sweep] {dotted}: not a config key{_suggest(dotted, _all_keys())}")
         if dotted in NOT_SWEEPABLE:
             raise ConfigError(f"[sweep] {dotted}: cannot be swept ({NOT_SWEEPABLE[dotted]})")

@@ -6,7 +6,8 @@ jobs/steering.py) and the plan holds one ``patch`` task per (case, wavelength, b
 sub-area) plus one ``synth`` task per (case, wavelength, requested direction) that depends on
 the patch tasks of its basic direction. Every task's result slot in the dataset is given by
 (case, wavelength, incidence) of the direct/synth tasks. Fiber studies have one ``fiber`` task
-per (case, wavelength, θ_i) that solves every φ_i and both polarizations at once.
+per (case, wavelength, θ_i) that solves every φ_i and both polarizations at once. What each kind
+runs, estimates, saves and writes is the table jobs/tasks.py ``KINDS``.
 """
 
 from __future__ import annotations
@@ -19,15 +20,18 @@ from functools import cached_property, lru_cache
 
 import numpy as np
 
-from wavebrdf.jobs.config import Study, StudyConfig
+from wavebrdf.jobs.config import ModelSpec, Study, StudyConfig
 from wavebrdf.jobs.steering import HexagonTiling, PatchLayout
+from wavebrdf.jobs.tasks import KINDS
 from wavebrdf.solver.farfield import HemisphereGrid
-from wavebrdf.solver.models import Estimate, SurfaceScene, get_model
+from wavebrdf.solver.models import Estimate, FiberScene, SurfaceScene
 from wavebrdf.solver.resources import meminfo_bytes
 
 logger = logging.getLogger(__name__)
 
 __all__ = ["Plan", "PlanError", "Task", "check_memory", "node_memory_bytes", "plan_study"]
+
+DEFAULT_PHI_I_BINS = 72  # fiber tables of non-circular cross sections
 
 
 class PlanError(ValueError):
@@ -57,7 +61,7 @@ class Task:
 
     @property
     def writes_result(self) -> bool:
-        return self.kind in ("direct", "synth", "fiber")
+        return KINDS[self.kind].writes_result
 
 
 @dataclass
@@ -75,7 +79,7 @@ class Plan:
     config: StudyConfig
     tasks: list[Task] = field(default_factory=list)
     steering: dict[int, CaseSteering] = field(default_factory=dict)
-    _surfaces: dict = field(default_factory=dict, repr=False)
+    _geometry: dict = field(default_factory=dict, repr=False)  # built height fields / cross sections
 
     @property
     def study(self) -> Study:
@@ -100,15 +104,40 @@ class Plan:
     def cross_section(self, case: int):
         """The fiber cross section of ``case``, built once."""
         key = ("fiber", case)
-        if key not in self._surfaces:
-            self._surfaces[key] = self.config.cases[case].fiber.build()
-        return self._surfaces[key]
+        if key not in self._geometry:
+            self._geometry[key] = self.config.cases[case].fiber.build()
+        return self._geometry[key]
 
     def surface(self, case: int):
         """The (global) height field of ``case``, built once."""
-        if case not in self._surfaces:
-            self._surfaces[case] = self.config.cases[case].surface.build()
-        return self._surfaces[case]
+        key = ("surface", case)
+        if key not in self._geometry:
+            self._geometry[key] = self.config.cases[case].surface.build()
+        return self._geometry[key]
+
+    @property
+    def phi_i_bins(self) -> int:
+        """Fiber tables: number of φ_i bins (ignored when explicit φ_i samples are given); default
+        1 for circles (rotation invariant), DEFAULT_PHI_I_BINS otherwise."""
+        study = self.study
+        if study.output_options.phi_i_bins is not None:
+            return study.output_options.phi_i_bins
+        return 1 if study.fiber.shape == "circle" else DEFAULT_PHI_I_BINS
+
+    @property
+    def phi_i_axis_deg(self) -> np.ndarray:
+        """Fiber tables: the dataset's φ_i coordinate (degrees): explicit samples or bin centres."""
+        explicit = self.study.illumination.phi_i_deg
+        if explicit is not None:
+            return np.array(explicit, dtype=float)
+        n = self.phi_i_bins
+        return np.zeros(1) if n == 1 else 360.0 * np.arange(n) / n
+
+    @property
+    def phi_r_axis_deg(self) -> np.ndarray:
+        """Fiber tables: φ_r bin centres (degrees)."""
+        bins = self.study.output_options.phi_r_bins
+        return 360.0 * np.arange(bins) / bins
 
     def index(self, case: int) -> np.ndarray:
         """Material index n − jκ of ``case`` at every wavelength."""
@@ -151,24 +180,34 @@ class Plan:
             beam=study.illumination.beam,
             precision=study.model.precision,
             z_reference=z_reference,
-            options={"method": study.model.method, "aim": study.model.aim},
         )
 
+    def fiber_scene(self, task: Task) -> FiberScene:
+        """The (λ, θ_i) a fiber task solves, every φ_i at once."""
+        study = self.config.cases[task.case]
+        explicit = study.illumination.phi_i_deg
+        theta, _ = self.direction_rad(task)
+        return FiberScene(
+            cross_section=self.cross_section(task.case),
+            wavelength_um=study.illumination.wavelengths_um[task.wavelength],
+            index=complex(self.index(task.case)[task.wavelength]),
+            theta_i=theta,
+            phi_i=None if explicit is None else tuple(np.deg2rad(explicit)),
+            phi_i_bins=self.phi_i_bins,
+            phi_r_bins=study.output_options.phi_r_bins,
+            radius_um=study.fiber.radius_um if study.fiber.shape == "circle" else None,
+            precision=study.model.precision,
+        )
+
+    def model_spec(self, task: Task) -> ModelSpec:
+        return self.config.cases[task.case].model
+
     def model_name(self, task: Task) -> str:
-        return self.config.cases[task.case].model.name
+        return self.model_spec(task).name
 
     def estimate(self, task: Task) -> Estimate:
-        """Memory/time of ``task`` (synthesis: reading and summing the patch far fields)."""
-        if task.kind == "fiber":
-            from wavebrdf.jobs.fibers import estimate_fiber_task
-
-            return estimate_fiber_task(self, task)
-        if task.kind == "synth":
-            res = self.grid.resolution
-            n = len(task.depends)
-            field_bytes = 2 * 6 * 16.0 * res * res
-            return Estimate(3 * field_bytes + 100e6, 2e-8 * n * res * res + 0.05 * n, f"sum of {n} patch fields")
-        return get_model(self.model_name(task)).estimate(self.scene(task))
+        """Memory/time of ``task`` (jobs/tasks.py KINDS)."""
+        return KINDS[task.kind].estimate(self, task)
 
     @cached_property
     def fingerprint(self) -> str:
@@ -240,6 +279,10 @@ def plan_study(config: StudyConfig) -> Plan:
     for case, case_index in cases:
         if config.cases[case].steering is None:
             continue
+        model = config.cases[case].model
+        if not model.capabilities.steerable:
+            raise PlanError(f"[steering]: model {model.name!r} cannot be steered (it returns "
+                            f"{model.capabilities.returns}); remove [steering] or choose a steerable model")
         st = plan.steering[case] = _case_steering(plan, case)
         for wl in range(n_wl):
             for patch in st.layout.indices:  # patch-major: one operator serves all basic directions

@@ -1,11 +1,10 @@
 """Execution: run a plan's tasks (in-process, local processes or MPI ranks), keep every finished
 task on disk, and assemble the dataset with one writer.
 
-Finished tasks are saved atomically in ``<output>.parts/`` (written under a temporary name, then
-renamed): ``task-<id>.npz`` for result tasks, ``patch-<id>.npz`` for sub-area far fields (kept
-until the dataset is written, so no wavelength overwrites another's). A run that dies loses only
-the tasks in flight; re-running the same command runs only what is missing. A changed config is
-refused (the folder records the plan's fingerprint). A task that raises is recorded with its
+Finished tasks are saved atomically in ``<output>.parts/`` (jobs/parts.py); a run that dies loses
+only the tasks in flight; re-running the same command runs only what is missing. A changed config
+is refused (the folder records the plan's fingerprint). What a task runs and saves is its kind's
+entry in jobs/tasks.py; every worker process keeps its own :class:`~wavebrdf.jobs.tasks.ModelPool`. A task that raises is recorded with its
 diagnostics and retried ``[run] retries`` times; if it still fails, its slot stays NaN, the
 dataset is written with ``status = "failed"`` for it, the parts folder is kept (a re-run retries
 it) and the command exits non-zero.
@@ -23,56 +22,30 @@ Executors share one :class:`TaskBoard` (dependencies, retries, progress):
 
 from __future__ import annotations
 
-import json
 import logging
 import os
-import queue
-import shutil
 import sys
 import threading
 import time
 import traceback
-import warnings
 from dataclasses import dataclass
 from enum import IntEnum
 from pathlib import Path
 
-import numpy as np
-
-from wavebrdf import __version__
+from wavebrdf.jobs.parts import PartsFolder, ResumeError
 from wavebrdf.jobs.plan import Plan, Task
-from wavebrdf.jobs.steering import synthesize, synthesized_incident_power
-from wavebrdf.jobs.store import SurfaceDatasetWriter, atomic_h5
-from wavebrdf.solver.farfield import FarField, albedo, combine_polarizations
-from wavebrdf.solver.models import get_model
-from wavebrdf.solver.resources import peak_memory_mb
+from wavebrdf.jobs.store import write_dataset
+from wavebrdf.jobs.tasks import ModelPool, execute_task, plain
 
 logger = logging.getLogger(__name__)
 
 __all__ = [
-    "PartsFolder",
     "ResumeError",
     "RunSummary",
     "TaskBoard",
-    "TaskResult",
-    "execute_task",
     "run_plan",
     "worker_environment",
 ]
-
-
-class ResumeError(RuntimeError):
-    """Existing partial results belong to a different configuration."""
-
-
-@dataclass
-class TaskResult:
-    brdf_sp: np.ndarray  # (2, res, res) float32, s and p
-    albedo_sp: np.ndarray  # (2,)
-    diagnostics: dict
-
-    def brdf(self, polarization: str) -> np.ndarray:
-        return combine_polarizations(self.brdf_sp, polarization)
 
 
 @dataclass
@@ -100,173 +73,6 @@ def worker_environment(workers_on_node: int, rank: int, cores: int | None = None
         "MKL_NUM_THREADS": threads,
         "POCL_CACHE_DIR": str(base / f"rank-{rank}"),
     }
-
-
-# ---------------------------------------------------------------------------------------------
-# Task execution (any process)
-
-
-def _plain(diagnostics: dict) -> dict:
-    """Diagnostics with JSON-ready values (numbers, strings, lists of numbers; anything else as repr)."""
-    def value(v):
-        if isinstance(v, (bool, int, float, str)):
-            return v
-        if isinstance(v, (list, tuple)) and all(isinstance(x, (bool, int, float, str)) for x in v):
-            return list(v)
-        return repr(v)
-
-    return {k: value(v) for k, v in diagnostics.items()}
-
-
-def _farfield_diagnostics(ff: FarField) -> dict:
-    return _plain(ff.diagnostics)
-
-
-def _reduce(plan: Plan, task: Task, ff: FarField) -> TaskResult:
-    brdf_sp = ff.brdf()
-    if not np.all(np.isfinite(brdf_sp[:, plan.grid.inside])):
-        raise FloatingPointError(f"{task.label}: NaN/inf inside the unit disk")
-    return TaskResult(brdf_sp.astype(np.float32), albedo(brdf_sp, plan.grid), _farfield_diagnostics(ff))
-
-
-def execute_task(ctx, plan: Plan, task: Task, parts: "PartsFolder") -> dict:
-    """Run ``task`` and save its output in ``parts``; return its diagnostics."""
-    if task.kind == "fiber":
-        from wavebrdf.jobs.fibers import run_fiber_task
-
-        return run_fiber_task(ctx, plan, task, parts)
-    t0 = time.perf_counter()
-    model = get_model(plan.model_name(task))
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        if task.kind == "synth":
-            st = plan.steering[task.case]
-            fields = {tuple(p.patch): parts.load_patch(p) for p in (plan.tasks[i] for i in task.depends)}
-            basic_scene = plan.scene(task, basic=task.basic)
-            theta, phi = plan.direction_rad(task)
-            power = synthesized_incident_power(
-                lambda pts: model.incident_fields(basic_scene, pts), st.layout, basic_scene.surface.spacing_um,
-                basic_scene.wavelength_um, basic_scene.exterior_index, theta, phi,
-            )
-            ff = synthesize(fields, st.layout, theta, phi, power)
-            ff.diagnostics["steering_offset"] = float(np.hypot(
-                *(np.sin(theta) * np.array([np.cos(phi), np.sin(phi)])
-                  - np.sin(basic_scene.theta_i) * np.array([np.cos(basic_scene.phi_i), np.sin(basic_scene.phi_i)]))))
-        else:
-            ff = model.farfield(ctx, plan.scene(task))
-    messages = sorted({f"{w.category.__name__}: {w.message}" for w in caught})
-    extra = {
-        "kind": task.kind,
-        "model": model.name,
-        "wall_time_s": time.perf_counter() - t0,
-        "peak_memory_mb": peak_memory_mb(),
-        "device": ctx.describe() if ctx is not None else "",
-        "warnings": "; ".join(messages),
-    }
-    if task.kind == "patch":
-        centre = plan.steering[task.case].layout.centre(task.patch)
-        ff = ff.translated(centre)
-        ff.diagnostics.update(extra)
-        parts.save_patch(task, ff)
-        return {**_farfield_diagnostics(ff), **extra}
-    result = _reduce(plan, task, ff)
-    result.diagnostics.update(extra)
-    parts.save_result(task, result)
-    return result.diagnostics
-
-
-# ---------------------------------------------------------------------------------------------
-# On-disk parts
-
-
-def _atomic_write(path: Path, write) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
-    with open(tmp, "wb") as fh:
-        write(fh)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
-
-
-class PartsFolder:
-    """Finished task outputs next to the dataset, for resume and for the final assembly."""
-
-    def __init__(self, plan: Plan):
-        self.plan = plan
-        output = Path(plan.config.output)
-        self.path = output.with_name(output.name + ".parts")
-        self.manifest = self.path / "manifest.json"
-
-    def open(self) -> None:
-        """Create the folder, or check that an existing one belongs to this plan."""
-        expected = {"fingerprint": self.plan.fingerprint, "tasks": len(self.plan.tasks)}
-        if self.manifest.exists():
-            found = json.loads(self.manifest.read_text())
-            if {k: found.get(k) for k in expected} != expected:
-                raise ResumeError(
-                    f"{self.path} holds partial results of a different configuration "
-                    f"(fingerprint {found.get('fingerprint')} vs {expected['fingerprint']}); "
-                    "delete that folder to start over, or restore the original config to resume"
-                )
-            return
-        self.path.mkdir(parents=True, exist_ok=True)
-        payload = json.dumps({**expected, "software_version": __version__}).encode()
-        _atomic_write(self.manifest, lambda fh: fh.write(payload))
-
-    def _file(self, task: Task) -> Path:
-        prefix = "patch" if task.kind == "patch" else "task"
-        return self.path / f"{prefix}-{task.id:06d}.npz"
-
-    def done(self, task: Task) -> bool:
-        return self._file(task).exists()
-
-    def save_arrays(self, task: Task, diagnostics: dict, **arrays: np.ndarray) -> None:
-        """Store a task's arrays and diagnostics (atomic)."""
-        payload = {**arrays, "diagnostics": np.array(json.dumps(diagnostics))}
-        _atomic_write(self._file(task), lambda fh: np.savez(fh, **payload))
-
-    def load_arrays(self, task: Task) -> tuple[dict, dict]:
-        with np.load(self._file(task)) as data:
-            arrays = {k: data[k] for k in data.files if k != "diagnostics"}
-            return arrays, json.loads(str(data["diagnostics"]))
-
-    def save_result(self, task: Task, result: TaskResult) -> None:
-        self.save_arrays(task, result.diagnostics, brdf_sp=result.brdf_sp, albedo_sp=result.albedo_sp)
-
-    def load_result(self, task: Task) -> TaskResult:
-        arrays, diagnostics = self.load_arrays(task)
-        return TaskResult(arrays["brdf_sp"], arrays["albedo_sp"], diagnostics)
-
-    def save_patch(self, task: Task, ff: FarField) -> None:
-        arrays = {"E": ff.E, "incident_power": ff.incident_power,
-                  "scalars": np.array([ff.wavelength_um, ff.exterior_index, ff.theta_i, ff.phi_i])}
-        if ff.H is not None:
-            arrays["H"] = ff.H
-        self.save_arrays(task, _farfield_diagnostics(ff), **arrays)
-
-    def load_patch(self, task: Task) -> FarField:
-        arrays, diagnostics = self.load_arrays(task)
-        lam, n1, theta, phi = arrays["scalars"]
-        return FarField(grid=self.plan.grid, wavelength_um=float(lam), exterior_index=float(n1),
-                        theta_i=float(theta), phi_i=float(phi), E=arrays["E"], H=arrays.get("H"),
-                        incident_power=arrays["incident_power"], diagnostics=diagnostics)
-
-    def load_diagnostics(self, task: Task) -> dict:
-        return self.load_arrays(task)[1]
-
-    def save_failure(self, task: Task, diagnostics: dict) -> None:
-        payload = json.dumps(diagnostics).encode()
-        _atomic_write(self.path / f"failed-{task.id:06d}.json", lambda fh: fh.write(payload))
-
-    def failure(self, task: Task) -> dict | None:
-        path = self.path / f"failed-{task.id:06d}.json"
-        return json.loads(path.read_text()) if path.exists() else None
-
-    def clear_failure(self, task: Task) -> None:
-        (self.path / f"failed-{task.id:06d}.json").unlink(missing_ok=True)
-
-    def remove(self) -> None:
-        shutil.rmtree(self.path, ignore_errors=True)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -353,22 +159,23 @@ class TaskBoard:
         self.bar.close()
 
 
-def _run_guarded(ctx, plan: Plan, task: Task, parts: PartsFolder) -> tuple[bool, dict]:
+def _run_guarded(ctx, plan: Plan, task: Task, parts: PartsFolder, pool: ModelPool) -> tuple[bool, dict]:
     """Execute a task, turning any exception into failure diagnostics."""
     try:
-        return True, execute_task(ctx, plan, task, parts)
+        return True, execute_task(ctx, plan, task, parts, pool)
     except Exception as exc:  # a task failure is data, not a crash of the run
         diag = {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(limit=8)}
-        diag.update(_plain(getattr(exc, "diagnostics", {}) or {}))
+        diag.update(plain(getattr(exc, "diagnostics", {}) or {}))
         return False, diag
 
 
 def _run_serial(board: TaskBoard, ctx) -> None:
+    pool = ModelPool()
     while not board.finished:
         task = board.next_task()
         if task is None:
             raise RuntimeError("internal error: tasks are waiting on dependencies that can never finish")
-        ok, diag = _run_guarded(ctx, board.plan, task, board.parts)
+        ok, diag = _run_guarded(ctx, board.plan, task, board.parts, pool)
         board.finish(task, diag) if ok else board.fail(task, diag)
 
 
@@ -384,12 +191,12 @@ def _process_init(config_path, output, env):
     from wavebrdf.solver.opencl import create_context
 
     plan = plan_study(load_config(config_path, output=output))
-    _WORKER.update(plan=plan, parts=PartsFolder(plan), ctx=create_context())
+    _WORKER.update(plan=plan, parts=PartsFolder(plan), ctx=create_context(), pool=ModelPool())
 
 
 def _process_run(task_id: int):
     plan = _WORKER["plan"]
-    return _run_guarded(_WORKER["ctx"], plan, plan.tasks[task_id], _WORKER["parts"])
+    return _run_guarded(_WORKER["ctx"], plan, plan.tasks[task_id], _WORKER["parts"], _WORKER["pool"])
 
 
 def _run_processes(board: TaskBoard, workers: int) -> None:
@@ -473,6 +280,7 @@ def _mpi_coordinator(board: TaskBoard, comm, size: int, error: list) -> None:
 
 def _mpi_worker(comm, ctx, plan: Plan, parts: PartsFolder) -> None:
     rank = comm.Get_rank()
+    pool = ModelPool()
     previous = (None, True, {})
     while True:
         asked = time.perf_counter()
@@ -481,7 +289,7 @@ def _mpi_worker(comm, ctx, plan: Plan, parts: PartsFolder) -> None:
         if task_id is None:
             return
         waited = time.perf_counter() - asked  # coordinator round trip: the scheduling overhead
-        ok, diag = _run_guarded(ctx, plan, plan.tasks[task_id], parts)
+        ok, diag = _run_guarded(ctx, plan, plan.tasks[task_id], parts, pool)
         diag["dispatch_wait_s"] = waited
         diag["rank"] = rank
         previous = (task_id, ok, diag)
@@ -538,46 +346,3 @@ def run_plan(plan: Plan, ctx, *, executor: str = "serial", workers: int | None =
     if not board.failed:
         parts.remove()
     return RunSummary(path, len(board.done), len(board.failed), len(plan.tasks))
-
-
-def write_dataset(plan: Plan, parts: PartsFolder, device: str, run_info: dict | None = None) -> Path:
-    """Assemble the HDF5 dataset from the finished parts (one writer, atomic rename)."""
-    if plan.is_fiber:
-        from wavebrdf.jobs.fibers import write_fiber_dataset
-
-        return write_fiber_dataset(plan, parts, device, run_info)
-    study = plan.study
-    output = Path(plan.config.output)
-    with atomic_h5(output) as h5:
-        writer = SurfaceDatasetWriter(
-            h5, plan.config.sweep_axes, plan.wavelengths_um, plan.directions_deg, plan.grid.resolution,
-            study.illumination.polarization, study.output_options.per_polarization,
-        )
-        writer.create(config_text=plan.config.text, study=study.name, software_version=__version__, device=device)
-        shape = plan.config.case_shape
-        for case, case_index in enumerate(np.ndindex(*shape) if shape else [()]):
-            surface = plan.surface(case)
-            writer.write_case(tuple(case_index), str(case), surface.z, surface.size_um, surface.statistics(),
-                              plan.index(case))
-            if case in plan.steering:
-                writer.write_steering(tuple(case_index), plan.steering[case])
-        rows = []
-        for task in plan.tasks:
-            row = {"id": task.id, "kind": task.kind, "case": task.case, "wavelength_index": task.wavelength,
-                   "incidence_index": task.incidence, "basic_index": task.basic,
-                   "patch": "x".join(map(str, task.patch)), **(run_info or {}).get(task.id, {})}
-            failure = parts.failure(task)
-            if failure is not None or not parts.done(task):
-                rows.append({**row, "status": "failed", **(failure or {"error": "not run"})})
-                continue
-            if task.kind == "patch":
-                rows.append({**row, "status": "done", **parts.load_diagnostics(task)})
-                continue
-            result = parts.load_result(task)
-            pol = plan.config.cases[task.case].illumination.polarization
-            brdf = result.brdf(pol)
-            writer.write_result(task.case_index, task.wavelength, task.incidence, result.brdf_sp, brdf,
-                                result.albedo_sp, float(albedo(brdf, plan.grid)))
-            rows.append({**row, "status": "done", **result.diagnostics})
-        writer.write_tasks(rows)
-    return output

@@ -18,7 +18,9 @@
    grating lobes (spacing λ/s in direction cosine) alias the BRDF.
 
 Nothing here is model-specific: models provide FarFields and their incident fields
-(:meth:`wavebrdf.solver.models.Model.incident_fields`).
+(:meth:`wavebrdf.solver.models.Model.incident_fields`); only steerable models
+(``Capabilities.steerable``) are accepted in a ``[steering]`` study. :func:`synthesize_task`
+and :func:`estimate_synthesis` are the "synth" task kind of jobs/tasks.py.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from wavebrdf.solver.farfield import FarField
+from wavebrdf.solver.models import Estimate
 from wavebrdf.solver.surface import HeightField
 
 __all__ = [
@@ -35,7 +38,9 @@ __all__ = [
     "HexagonTiling",
     "PatchLayout",
     "aliasing_limit",
+    "estimate_synthesis",
     "synthesize",
+    "synthesize_task",
     "synthesized_incident_power",
 ]
 
@@ -204,3 +209,30 @@ def synthesized_incident_power(incident_fields, layout: PatchLayout, spacing_um:
         H[sl] += weight * H_b
     S_z = 0.5 * np.real(E[:, 0] * np.conj(H[:, 1]) - E[:, 1] * np.conj(H[:, 0]))
     return d * d * np.sum(np.abs(S_z), axis=(-2, -1))
+
+
+def synthesize_task(ctx, plan, task, pool, parts) -> FarField:
+    """The far field of a requested direction from the saved patch fields of its basic direction,
+    with the incident power of the summed patch beams (the "synth" task kind)."""
+    st = plan.steering[task.case]
+    model = pool.get(plan.model_spec(task))
+    fields = {tuple(p.patch): parts.load_farfield(p) for p in (plan.tasks[i] for i in task.depends)}
+    basic_scene = plan.scene(task, basic=task.basic)
+    theta, phi = plan.direction_rad(task)
+    power = synthesized_incident_power(
+        lambda pts: model.incident_fields(basic_scene, pts), st.layout, basic_scene.surface.spacing_um,
+        basic_scene.wavelength_um, basic_scene.exterior_index, theta, phi,
+    )
+    ff = synthesize(fields, st.layout, theta, phi, power)
+    ff.diagnostics["steering_offset"] = float(np.hypot(
+        *(np.sin(theta) * np.array([np.cos(phi), np.sin(phi)])
+          - np.sin(basic_scene.theta_i) * np.array([np.cos(basic_scene.phi_i), np.sin(basic_scene.phi_i)]))))
+    return ff
+
+
+def estimate_synthesis(plan, task) -> Estimate:
+    """Reading and summing the patch far fields of one requested direction."""
+    res = plan.grid.resolution
+    n = len(task.depends)
+    field_bytes = 2 * 6 * 16.0 * res * res
+    return Estimate(3 * field_bytes + 100e6, 2e-8 * n * res * res + 0.05 * n, f"sum of {n} patch fields")

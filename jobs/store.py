@@ -24,7 +24,9 @@ is a 1-D dataset registered as an HDF5 dimension scale, so
                               wall_time_s, peak_memory_mb, device, message (diagnostics)
 
 Writing is atomic: the file is assembled under a temporary name in the target folder and
-renamed into place only when complete, so a crash never leaves a half-written dataset.
+renamed into place only when complete, so a crash never leaves a half-written dataset. This
+module owns every HDF5 write: :func:`write_dataset` assembles a run's dataset (surface or fiber
+layout) from its parts folder, each task's slot written by its kind (jobs/tasks.py ``KINDS``).
 """
 
 from __future__ import annotations
@@ -40,6 +42,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from wavebrdf.solver.fiber.results import power_balance_error
+
 __all__ = [
     "FORMAT",
     "FORMAT_VERSION",
@@ -49,6 +53,7 @@ __all__ = [
     "SurfaceDatasetWriter",
     "atomic_h5",
     "open_dataset",
+    "write_dataset",
 ]
 
 FORMAT = "wavebrdf"
@@ -324,8 +329,77 @@ class FiberDatasetWriter(_Writer):
         where = tuple(case_index) + (wl, theta)
         self.h5["dCs_dphi"][where] = dCs_dphi.astype(np.float32)
         self.h5["C_ext"][where], self.h5["C_sca"][where], self.h5["C_abs"][where] = C_ext, C_sca, C_abs
-        self.h5["power_balance_error"][where] = np.abs(C_ext - C_sca - C_abs) / np.abs(C_ext)
+        self.h5["power_balance_error"][where] = power_balance_error(C_ext, C_sca, C_abs)
         self.h5["bcsdf"][where] = (dCs_dphi.mean(axis=0) / C_ext.mean(axis=0)[:, None]).astype(np.float32)
+
+
+def _case_indices(plan):
+    shape = plan.config.case_shape
+    return enumerate(np.ndindex(*shape) if shape else [()])
+
+
+def _surface_writer(h5, plan) -> SurfaceDatasetWriter:
+    study = plan.study
+    return SurfaceDatasetWriter(h5, plan.config.sweep_axes, plan.wavelengths_um, plan.directions_deg,
+                                plan.grid.resolution, study.illumination.polarization,
+                                study.output_options.per_polarization)
+
+
+def _fiber_writer(h5, plan) -> FiberDatasetWriter:
+    study = plan.study
+    return FiberDatasetWriter(h5, plan.config.sweep_axes, plan.wavelengths_um, np.array(study.illumination.theta_i_deg),
+                              plan.phi_i_axis_deg, plan.phi_r_axis_deg,
+                              phi_i_binned=study.illumination.phi_i_deg is None and plan.phi_i_bins > 1)
+
+
+def _write_case(writer, plan, case: int, case_index: tuple) -> None:
+    """Per-case data: the height field (or cross section), the material index, the steering layout."""
+    if plan.is_fiber:
+        section = plan.cross_section(case)
+        writer.write_case(case_index, str(case), section.nodes, section.width(np.deg2rad(plan.phi_i_axis_deg)),
+                          plan.index(case))
+        return
+    surface = plan.surface(case)
+    writer.write_case(case_index, str(case), surface.z, surface.size_um, surface.statistics(), plan.index(case))
+    if case in plan.steering:
+        writer.write_steering(case_index, plan.steering[case])
+
+
+def _task_row(plan, task) -> dict:
+    if plan.is_fiber:
+        return {"id": task.id, "kind": task.kind, "case": task.case, "wavelength_index": task.wavelength,
+                "theta_index": task.incidence}
+    return {"id": task.id, "kind": task.kind, "case": task.case, "wavelength_index": task.wavelength,
+            "incidence_index": task.incidence, "basic_index": task.basic, "patch": "x".join(map(str, task.patch))}
+
+
+def write_dataset(plan, parts, device: str, run_info: dict | None = None) -> Path:
+    """Assemble the HDF5 dataset of ``plan`` from its finished ``parts`` (one writer, atomic rename).
+
+    Tasks without a finished part get ``status = "failed"`` and keep NaN in their slot.
+    """
+    from wavebrdf import __version__
+    from wavebrdf.jobs.tasks import KINDS
+
+    output = Path(plan.config.output)
+    with atomic_h5(output) as h5:
+        writer = (_fiber_writer if plan.is_fiber else _surface_writer)(h5, plan)
+        writer.create(config_text=plan.config.text, study=plan.study.name, software_version=__version__,
+                      device=device)
+        for case, case_index in _case_indices(plan):
+            _write_case(writer, plan, case, tuple(case_index))
+        rows = []
+        for task in plan.tasks:
+            row = {**_task_row(plan, task), **(run_info or {}).get(task.id, {})}
+            failure = parts.failure(task)
+            if failure is not None or not parts.done(task):
+                rows.append({**row, "status": "failed", **(failure or {"error": "not run"})})
+                continue
+            write = KINDS[task.kind].write
+            diagnostics = parts.load_diagnostics(task) if write is None else write(writer, plan, task, parts)
+            rows.append({**row, "status": "done", **diagnostics})
+        writer.write_tasks(rows)
+    return output
 
 
 class Dataset:

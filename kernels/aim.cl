@@ -1,4 +1,4 @@
-/* The AIM base matrix B = Lambda^T G Lambda applied on the grid (solver/bem3d/aim_base.py).
+/* The AIM base matrix B = Lambda^T G Lambda applied on the grid (solver/bem3d/aim/convolution.py).
  *
  * Unknowns x = [J (nb) | M~ (nb)] per right-hand side (AIM_BATCH = 1, 2 or 4 of them, build define).
  * Grid arrays: 8 components per right-hand side, row-major with layout dims (Lx, Ly, Lz) >= (nx, ny, nz):
@@ -19,7 +19,7 @@
  *   E_c = A q_c[J] + (B x q[M])_c,  E_d = D q_d[J],  H_c = A' q_c[M] + (B x q[J])_c,  H_d = D' q_d[M]
  *   A = sum_i ee_vec_i G_i, A' = sum_i mm_vec_i G_i, D = sum_i ee_div_i G_i, D' = sum_i mm_div_i G_i,
  *   B_a = eta0 sum_i FFT(d_a g_i)  (precombined on the host).
- * NumPy twins: scatter_numpy, gather_numpy, fourier_numpy in aim_base.py.
+ * NumPy twins: scatter_numpy, gather_numpy, fourier_numpy in aim/convolution.py.
  */
 #include "aim_weights.h"
 #include "wb_vcomplex.h"
@@ -167,7 +167,7 @@ inline void aim_curl(const vcplx_t B[3], const vcplx_t q[3], vcplx_t out[3])
     }
 }
 
-/* one work-item per WB_VW consecutive samples (aim_base.py picks WB_VW; the host launches whole
+/* one work-item per WB_VW consecutive samples (aim/convolution.py picks WB_VW; the host launches whole
    vectors, then the rest with WB_VW = 1), from sample `first` */
 __kernel void aim_fourier(__global const cplx_t *green, __global const cplx_t *gradient, const long nfreq,
                           __constant const cplx_t *coef, __global cplx_t *Q, const long first)

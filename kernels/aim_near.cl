@@ -1,6 +1,6 @@
-/* The AIM part B of near pairs, subtracted from the exact entries: C = A - B (nearfield.py).
+/* The AIM part B of near pairs, subtracted from the exact entries: C = A - B (solver/bem3d/aim/near_assembly.py).
  *
- * B of a pair uses exactly the sampled grid kernel of the FFT path (aim_green.lattice_green),
+ * B of a pair uses exactly the sampled grid kernel of the FFT path (aim/green.py lattice_green),
  * given here as a table over the lattice offsets [lo, lo + T) per axis: green (T) and
  * gradient (3, T). Two steps per chunk of row rooftops s (the "sources"):
  *
@@ -15,7 +15,7 @@
  *     K = sum L^t_n FK_{x or y} + L^z_n FK_z,
  *   and subtracts ee_vec Lvec + ee_div Ldiv, eta0 K, mm_vec Lvec + mm_div Ldiv from the staged
  *   (noff, nrows, 3) entries [ee, em, mm]. B is symmetric, so B(n, s) = B(s, n).
- * NumPy twin: near_base_numpy in nearfield.py (the explicit S x S double sum).
+ * NumPy twin: near_base_numpy in aim/near_assembly.py (the explicit S x S double sum).
  */
 #include "aim_weights.h"
 #include "near_index.h"

@@ -1,4 +1,4 @@
-/* Projection weights of the AIM stencils (solver/bem3d/projection.py): real for moment matching,
+/* Projection weights of the AIM stencils (solver/bem3d/aim/projection.py): real for moment matching,
  * complex for far-field matching (build define AIM_COMPLEX_W = 0 | 1).
  * weight_t is the stored type; aim_wmul(w, z) = w z for a complex z.
  */

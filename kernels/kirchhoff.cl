@@ -12,6 +12,8 @@
  * Build define NMAX_BUF: size of the private Bessel buffer (>= n_max + 1).
  */
 #include "wb_complex.h"
+#include "wb_fresnel.h"
+#include "wb_hemisphere.h"
 
 #ifndef NMAX_BUF
 #define NMAX_BUF 64
@@ -77,8 +79,6 @@ __kernel void kirchhoff_fields(
     }
 }
 
-/* Pixel direction cosines of the projected-hemisphere grid (u along rows, v along columns). */
-inline real_t pixel_coordinate(int i, int res) { return R(2.0) * ((real_t)i + R(0.5)) / (real_t)res - R(1.0); }
 
 __kernel void kirchhoff_accumulate(
     __global const cplx_t *chunk,   /* (count, res, row_stride) transforms of orders n0 .. n0+count-1 */
@@ -107,16 +107,6 @@ __kernel void kirchhoff_accumulate(
     acc[gid] = sum;
 }
 
-/* Fresnel (r_s, r_p) for relative index eta at cos(theta) = c; see solver/fresnel.py. */
-inline void fresnel_rs_rp(cplx_t eta, real_t c, cplx_t *rs, cplx_t *rp)
-{
-    cplx_t eta2 = c_mul(eta, eta);
-    cplx_t t = c_sqrt(c_add(eta2, c_new(c * c - R(1.0), R(0.0))));
-    cplx_t cc = c_new(c, R(0.0));
-    *rs = c_div(c_sub(cc, t), c_add(cc, t));
-    cplx_t e2c = c_scale(eta2, c);
-    *rp = c_div(c_sub(e2c, t), c_add(e2c, t));
-}
 
 __kernel void kirchhoff_farfield(
     __global const cplx_t *acc,      /* (res, res) Σ_n T_n A_n (chirp-z post factors not applied) */

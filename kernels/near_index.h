@@ -1,4 +1,4 @@
-/* Rooftop index spaces of the near-field pattern (solver/bem3d/nearfield.py, mesh.py).
+/* Rooftop index spaces of the near-field pattern (solver/bem3d/mesh.py, aim/nearfield.py).
  *
  * Orientation 0 (horizontal, x-directed): rooftop (x, y), x in [0, N-2], y in [0, N-1],
  *   geometric index g = (N-1) y + x.

@@ -1,4 +1,4 @@
-/* Near-field correction C x on the rooftop lattice (solver/bem3d/nearfield.py, NearMatrix).
+/* Near-field correction C x on the rooftop lattice (solver/bem3d/aim/nearfield.py, NearMatrix).
  *
  * Both orientations live on one lattice of rows of pitch P >= N + max|a| (zero pad sites after
  * the N sites of each row) with Gy zero guard rows above and below: rooftop (x, y) of either

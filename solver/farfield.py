@@ -23,8 +23,10 @@ import numpy as np
 __all__ = [
     "ETA0",
     "POLARIZATIONS",
+    "BRDFResult",
     "FarField",
     "HemisphereGrid",
+    "IntensityResult",
     "albedo",
     "combine_polarizations",
     "direction",
@@ -102,8 +104,70 @@ class HemisphereGrid:
         return np.stack([U, V, self.mu], axis=-1)
 
 
+class BRDFResult:
+    """What every surface model returns for one (wavelength, incident direction): the radiant
+    intensity per polarization on the projected-hemisphere grid and the incident power Φ_i.
+
+    BRDF normalization, albedo, polarization averaging and storage are written once against this
+    type. :class:`FarField` (coherent models: complex E, H) and :class:`IntensityResult`
+    (intensity-only models such as geometric optics) are its two kinds.
+    """
+
+    grid: HemisphereGrid
+    incident_power: np.ndarray
+    diagnostics: dict
+
+    def intensity(self) -> np.ndarray:  # pragma: no cover - abstract
+        """Radiant intensity |½Re(E×H*)| per polarization (W/sr), shape (2, res, res)."""
+        raise NotImplementedError
+
+    def brdf(self) -> np.ndarray:
+        """BRDF per polarization (sr⁻¹), shape (2, res, res), NaN outside the unit disk."""
+        mu = self.grid.mu
+        inside = self.grid.inside
+        out = np.full((2,) + mu.shape, np.nan)
+        inten = self.intensity()
+        for p in range(2):
+            out[p][inside] = inten[p][inside] / (self.incident_power[p] * mu[inside])
+        return out
+
+
+def _check_incident_power(power) -> np.ndarray:
+    power = np.asarray(power, dtype=float).reshape(2)
+    if not np.all(power > 0):
+        raise ValueError(f"incident power must be positive, got {power}")
+    return power
+
+
 @dataclass
-class FarField:
+class IntensityResult(BRDFResult):
+    """Radiant intensity of an intensity-only model (no phase: cannot be steered).
+
+    intensity: (2, res, res) per polarization s|p, W/sr with the model's Φ_i normalisation (0
+    outside the disk); incident_power: Φ_i per polarization, shape (2,).
+    """
+
+    grid: HemisphereGrid
+    wavelength_um: float
+    theta_i: float
+    phi_i: float
+    radiant_intensity: np.ndarray
+    incident_power: np.ndarray
+    diagnostics: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        res = self.grid.resolution
+        if self.radiant_intensity.shape != (2, res, res):
+            raise ValueError(f"IntensityResult.radiant_intensity must have shape (2, {res}, {res}), "
+                             f"got {self.radiant_intensity.shape}")
+        self.incident_power = _check_incident_power(self.incident_power)
+
+    def intensity(self) -> np.ndarray:
+        return self.radiant_intensity
+
+
+@dataclass
+class FarField(BRDFResult):
     """Far-field amplitudes of one simulation (one wavelength, one incident direction).
 
     E, H: complex arrays (2, 3, res, res): [polarization s|p, Cartesian component, u, v].
@@ -129,9 +193,7 @@ class FarField:
             raise ValueError(f"FarField.E must have shape (2, 3, {res}, {res}), got {self.E.shape}")
         if self.H is not None and self.H.shape != self.E.shape:
             raise ValueError("FarField.H must have the shape of E")
-        self.incident_power = np.asarray(self.incident_power, dtype=float).reshape(2)
-        if not np.all(self.incident_power > 0):
-            raise ValueError(f"incident power must be positive, got {self.incident_power}")
+        self.incident_power = _check_incident_power(self.incident_power)
 
     @property
     def wavenumber(self) -> float:
@@ -144,16 +206,6 @@ class FarField:
             return self.exterior_index / (2.0 * ETA0) * np.sum(np.abs(self.E) ** 2, axis=1)
         S = 0.5 * np.real(np.cross(self.E, np.conj(self.H), axis=1))
         return np.sqrt(np.sum(S**2, axis=1))
-
-    def brdf(self) -> np.ndarray:
-        """BRDF per polarization (sr⁻¹), shape (2, res, res), NaN outside the unit disk."""
-        mu = self.grid.mu
-        inside = self.grid.inside
-        out = np.full((2,) + mu.shape, np.nan)
-        inten = self.intensity()
-        for p in range(2):
-            out[p][inside] = inten[p][inside] / (self.incident_power[p] * mu[inside])
-        return out
 
     def translated(self, offset_um: np.ndarray) -> "FarField":
         """The same field with its phase reference moved by ``offset_um`` (x, y, z).

@@ -1,8 +1,24 @@
-"""The Model interface and registry: every surface model turns a :class:`SurfaceScene` into a
-:class:`~wavebrdf.solver.farfield.FarField`.
+"""The Model seam: every scattering model is one class registered here by name.
 
-Models are registered by name with the module that implements them and are imported lazily, so
-``[model] name = "..."`` in a config selects one without importing the others.
+A model owns
+
+* ``name`` — the ``[model] name`` of configs;
+* ``Options`` — a frozen dataclass of its settings (solver/options.py), parsed by the config layer
+  from the keys of ``[model]`` besides ``name``/``precision`` and from ``[model.<name>]``;
+  unknown keys and bad values are refused at load;
+* ``capabilities`` — what it takes (a height field, a fiber cross section, surface statistics)
+  and returns (coherent fields, intensities, fiber tables; polarization-resolved or not;
+  steerable; reciprocal), enforced by config and plan before anything runs;
+* :meth:`Model.estimate` — memory and time of one scene, without running it;
+* :meth:`Model.run` — one scene → a result: a :class:`~wavebrdf.solver.farfield.FarField`
+  (coherent) or :class:`~wavebrdf.solver.farfield.IntensityResult` for surfaces, both
+  :class:`~wavebrdf.solver.farfield.BRDFResult`; a :class:`FiberResult` for fibers.
+
+Adding a model is one module with one such class plus one line in ``_REGISTRY`` below
+(docs/architecture.md, "How to add a model"). Models are imported on first use, so selecting one
+never imports the others. An instance holds its options and may keep what one scene built for
+the next (an operator, a factorization): the batch layer keeps one instance per worker process
+and model configuration (jobs/tasks.py ``ModelPool``).
 """
 
 from __future__ import annotations
@@ -12,10 +28,56 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import ClassVar
 
-from wavebrdf.solver.farfield import FarField, HemisphereGrid
+import numpy as np
+
+from wavebrdf.solver.farfield import BRDFResult, HemisphereGrid
+from wavebrdf.solver.options import NoOptions, parse_options
 from wavebrdf.solver.surface import HeightField
 
-__all__ = ["Estimate", "Model", "SurfaceScene", "get_model", "model_names"]
+__all__ = [
+    "Capabilities",
+    "Estimate",
+    "FiberResult",
+    "FiberScene",
+    "Model",
+    "SurfaceScene",
+    "get_model",
+    "model_class",
+    "model_names",
+    "register",
+]
+
+@dataclass(frozen=True)
+class Capabilities:
+    """What a model takes and returns; config and plan enforce it before anything runs.
+
+    takes       "height_field" (a bilinear height field) | "cross_section" (a fiber cross
+                section) | "statistics" (surface statistics, no realization)
+    returns     "fields" (coherent FarField) | "intensity" (IntensityResult) | "fiber_table"
+    polarized   resolves s and p (else both polarizations carry the same values)
+    steerable   its fields can be synthesized by beam steering (coherent, with incident_fields)
+    reciprocal  claims f(ω_i, ω_o) = f(ω_o, ω_i) (checked by the conformance suite)
+    conserves_energy   claims albedo ≤ 1 for κ ≥ 0 at every angle (models that do not, e.g.
+                Kirchhoff without shadowing at grazing angles, report the excess instead)
+    """
+
+    INPUTS: ClassVar[tuple[str, ...]] = ("height_field", "cross_section", "statistics")
+    OUTPUTS: ClassVar[tuple[str, ...]] = ("fields", "intensity", "fiber_table")
+
+    takes: str
+    returns: str
+    polarized: bool = True
+    steerable: bool = False
+    reciprocal: bool = False
+    conserves_energy: bool = False
+
+    def __post_init__(self):
+        if self.takes not in self.INPUTS:
+            raise ValueError(f"Capabilities.takes must be one of {self.INPUTS}, got {self.takes!r}")
+        if self.returns not in self.OUTPUTS:
+            raise ValueError(f"Capabilities.returns must be one of {self.OUTPUTS}, got {self.returns!r}")
+        if self.steerable and self.returns != "fields":
+            raise ValueError("only models returning coherent fields can be steerable")
 
 
 @dataclass(frozen=True)
@@ -25,7 +87,7 @@ class SurfaceScene:
     Angles in radians; θ_i, φ_i give the direction toward the light. ``index`` is n − jκ of the
     material below the surface at this wavelength. ``z_reference`` is the phase-reference height
     (None: the surface mean; sub-area patches pass the global mean). ``footprint_centre_um`` is
-    the beam centre in patch coordinates.
+    the beam centre in patch coordinates. ``precision``: "double" | "single" (kernels and FFTs).
     """
 
     surface: HeightField
@@ -40,7 +102,48 @@ class SurfaceScene:
     precision: str = "double"
     z_reference: float | None = None
     footprint_centre_um: tuple[float, float] = (0.0, 0.0)
-    options: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class FiberScene:
+    """Physics inputs of one fiber solve: one wavelength and one θ_i, every φ_i at once.
+
+    ``cross_section``: a :class:`~wavebrdf.solver.fiber.CrossSection` (µm); θ_i (radians) from
+    the plane normal to the axis. φ_i is either ``phi_i`` (point samples, radians) or, when it
+    is None, ``phi_i_bins`` box-averaged bins over [0, 2π) (fiber.md §14.8); ``phi_r_bins`` bins
+    of the outgoing azimuth. ``radius_um``: the circle's radius for models that need it (Mie).
+    """
+
+    cross_section: object
+    wavelength_um: float
+    index: complex
+    theta_i: float
+    phi_i: tuple[float, ...] | None
+    phi_i_bins: int
+    phi_r_bins: int
+    radius_um: float | None = None
+    precision: str = "double"
+
+
+@dataclass
+class FiberResult:
+    """One fiber solve: dC_s/dφ (2 polarizations, P φ_i, R φ_r bins; µm/rad) and the cross
+    sections C_ext, C_sca, C_abs (2, P) in µm, normalised by S₀ cos θ_i (fiber.md §6)."""
+
+    dCs_dphi: np.ndarray
+    C_ext: np.ndarray
+    C_sca: np.ndarray
+    C_abs: np.ndarray
+    diagnostics: dict = field(default_factory=dict)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {"dCs_dphi": self.dCs_dphi, "C_ext": self.C_ext, "C_sca": self.C_sca, "C_abs": self.C_abs}
+
+    @property
+    def power_balance_error(self) -> np.ndarray:
+        from wavebrdf.solver.fiber.results import power_balance_error
+
+        return power_balance_error(self.C_ext, self.C_sca, self.C_abs)
 
 
 @dataclass(frozen=True)
@@ -53,45 +156,66 @@ class Estimate:
 
 
 class Model(ABC):
-    """A surface scattering model."""
+    """A scattering model: options, capabilities, estimate and run (see the module docstring)."""
 
     name: ClassVar[str]
-    steerable: ClassVar[bool] = True  # returns coherent fields (beam steering can use them)
-    methods: ClassVar[tuple[str, ...]] = ()  # allowed values of [model] method (first = default)
+    capabilities: ClassVar[Capabilities]
+    Options: ClassVar[type] = NoOptions
+
+    def __init__(self, options=None):
+        self.options = parse_options(self.Options, options, f"model.{self.name}")
 
     @abstractmethod
-    def farfield(self, ctx, scene: SurfaceScene) -> FarField:
-        """Simulate ``scene`` on the OpenCL context ``ctx``."""
+    def run(self, ctx, scene):
+        """Simulate ``scene`` on the OpenCL context ``ctx`` (a BRDFResult or a FiberResult)."""
 
     @abstractmethod
-    def estimate(self, scene: SurfaceScene) -> Estimate:
+    def estimate(self, scene) -> Estimate:
         """Memory/time estimate for ``scene`` without running it."""
+
+    def check(self, scene) -> None:
+        """Refuse (ValueError naming the config key) a scene these options cannot simulate; called
+        by the config layer on each case before anything runs. Default: nothing to check."""
 
     def incident_fields(self, scene: SurfaceScene, points):
         """Incident (E, H), each (2 pol, 3, ...), at ``points`` (..., 3) in patch coordinates,
-        with the normalisation of this model's FarField incident power (used by beam steering)."""
+        with the normalisation of this model's FarField incident power (steerable models)."""
         raise NotImplementedError(f"model {self.name!r} does not provide incident fields (cannot be steered)")
+
+    def release(self) -> None:
+        """Free what the instance keeps between scenes (operators, factorizations)."""
 
 
 # name -> "module:ClassName" (imported on first use)
 _REGISTRY: dict[str, str] = {
     "kirchhoff": "wavebrdf.solver.approx.kirchhoff:KirchhoffModel",
     "bem": "wavebrdf.solver.bem3d.model:BEMModel",
+    "fiber-bem": "wavebrdf.solver.fiber.model:FiberBEMModel",
+    "mie": "wavebrdf.solver.fiber.model:MieModel",
 }
 
 
 def register(name: str, target: str) -> None:
-    """Register model ``name`` implemented by ``"module:ClassName"``."""
+    """Register model ``name`` implemented by ``"module:ClassName"`` (plugins, tests)."""
     _REGISTRY[name] = target
 
 
-def model_names() -> tuple[str, ...]:
-    return tuple(_REGISTRY)
+def model_names(takes: str | None = None) -> tuple[str, ...]:
+    """Registered model names (only those taking ``takes`` when given)."""
+    if takes is None:
+        return tuple(_REGISTRY)
+    return tuple(n for n in _REGISTRY if model_class(n).capabilities.takes == takes)
 
 
-def get_model(name: str) -> Model:
-    """An instance of the model registered as ``name``."""
+def model_class(name: str) -> type[Model]:
+    """The class registered as ``name`` (imported on first use)."""
     if name not in _REGISTRY:
         raise KeyError(f"unknown model {name!r}; available: {', '.join(_REGISTRY)}")
     module, cls = _REGISTRY[name].split(":")
-    return getattr(importlib.import_module(module), cls)()
+    return getattr(importlib.import_module(module), cls)
+
+
+def get_model(name: str, options=None) -> Model:
+    """An instance of the model registered as ``name`` with ``options`` (its Options dataclass,
+    a mapping parsed into it, or None for the defaults)."""
+    return model_class(name)(options)

@@ -35,8 +35,30 @@ __all__ = [
     "DeviceInfo",
     "OpenCLUnavailable",
     "create_context",
+    "fft_workers",
     "list_devices",
 ]
+
+PRECISIONS = ("double", "single")
+FFT_WORKERS_ENV = "WAVEBRDF_FFT_WORKERS"  # the batch layer sets it per worker (jobs/scheduler.py)
+
+
+def fft_workers() -> int:
+    """Threads for host FFTs (scipy.fft): ``WAVEBRDF_FFT_WORKERS`` when set (the batch layer caps
+    each worker with it), else the CPUs this process may run on."""
+    value = os.environ.get(FFT_WORKERS_ENV, "").strip()
+    if value:
+        try:
+            workers = int(value)
+        except ValueError:
+            raise ValueError(f"{FFT_WORKERS_ENV}={value!r}: must be an integer >= 1") from None
+        if workers < 1:
+            raise ValueError(f"{FFT_WORKERS_ENV}={value!r}: must be an integer >= 1")
+        return workers
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - non-Linux
+        return max(1, os.cpu_count() or 1)
 
 INSTALL_HINT = (
     "Install a CPU OpenCL runtime: 'sudo apt-get install pocl-opencl-icd' (Debian/Ubuntu), or "
@@ -191,9 +213,41 @@ class ComputeContext:
     def describe(self) -> str:
         return f"{self.info.platform} / {self.info.name} ({self.info.kind})"
 
+    @property
+    def is_gpu(self) -> bool:
+        return "GPU" in self.info.kind
+
+    @property
+    def fft_workers(self) -> int:
+        """Threads for this process's host FFTs (:func:`fft_workers`)."""
+        return fft_workers()
+
+    def vector_lanes(self, precision: str = "double") -> int:
+        """Items per work-item (``WB_VW``): 256-bit SIMD vectors on CPUs (4 doubles, 8 floats), 1 on
+        GPUs, where work-items are the lanes."""
+        if self.is_gpu:
+            return 1
+        return 4 if self.real_dtype(precision) == np.float64 else 8
+
+    def defines(self, precision: str = "double", *, lanes: int | None = None, **extra) -> dict:
+        """Kernel build defines for ``precision`` (``WB_FP64``) and, when ``lanes`` is given,
+        ``WB_VW``; ``extra`` are added as they are."""
+        out = {"WB_FP64": int(self.real_dtype(precision) == np.float64)}
+        if lanes is not None:
+            out["WB_VW"] = int(lanes)
+        out.update(extra)
+        return out
+
+    def to_device(self, array: np.ndarray, dtype=None, *, writable: bool = False):
+        """A device buffer holding a copy of ``array`` (converted to ``dtype`` if given)."""
+        cl = _import_cl()
+        host = np.ascontiguousarray(array, dtype=dtype)
+        flags = (cl.mem_flags.READ_WRITE if writable else cl.mem_flags.READ_ONLY) | cl.mem_flags.COPY_HOST_PTR
+        return cl.Buffer(self.context, flags, hostbuf=host)
+
     def real_dtype(self, precision: str = "double") -> np.dtype:
         """float64 or float32 for ``precision`` ("double" | "single"), checking fp64 support."""
-        if precision not in ("double", "single"):
+        if precision not in PRECISIONS:
             raise ValueError(f"precision must be 'double' or 'single', got {precision!r}")
         if precision == "double" and not self.fp64:
             raise OpenCLUnavailable(

@@ -69,11 +69,6 @@ class HeightField:
         """Node coordinates along y (columns); the same as :attr:`x` for a square patch."""
         return self.x
 
-    def centered(self, reference: float | None = None) -> "HeightField":
-        """Copy with ``reference`` (default: this field's mean) subtracted from the heights."""
-        ref = float(np.mean(self.z)) if reference is None else float(reference)
-        return HeightField(self.z - ref, self.size_um, self.origin_um)
-
     def statistics(self) -> dict[str, float]:
         """rms height, peak-to-valley, rms / max slope of the bilinear surface (cell centres)."""
         z = self.z - self.z.mean()

@@ -19,7 +19,9 @@ def test_default_config_end_to_end(tmp_path, capsys):
     printed = capsys.readouterr().out
     pngs = [Path(line.split(" ", 1)[1]) for line in printed.splitlines() if line.endswith(".png")]
     assert out.is_file() and len(pngs) == 3 and all(p.stat().st_size > 10_000 for p in pngs)
-    xr = pytest.importorskip("xarray")
+    import h5netcdf  # noqa: F401  (dev dependency: engine="h5netcdf" below; a missing one fails)
+    import xarray as xr
+
     ds = xr.open_dataset(out, engine="h5netcdf")
     assert ds["brdf"].shape == (3, 3, 512, 512)
     # rough aluminium: albedo a little below the flat-surface Fresnel value (~0.92)

@@ -155,6 +155,7 @@ def test_whitespace_and_npy_height_files(tmp_path):
         assert np.allclose(study.surface.build().z, z, atol=1e-12)
 
 
+FLAT_PATCH = 'generator = "flat"\nsize_um = 2.0\ncells = 16'
 AIM_FLAT_EDGE = """
 [study]
 output = "{out}"
@@ -183,7 +184,7 @@ edge = "flat"
 @pytest.mark.parametrize(
     "surface, beam, pattern",
     [
-        ('generator = "flat"\nsize_um = 2.0\ncells = 16', "paraxial",
+        (FLAT_PATCH, "paraxial",
          r'\[model.aim\] edge = "flat": needs illumination.beam = "exact"'),
         (GOOD_SURFACE, "exact", r"\[model.aim\] aim.edge = 'flat' .* border heights leave that plane by up to"),
     ],
@@ -195,3 +196,48 @@ def test_flat_edge_needs_an_exact_beam_and_a_flat_border(tmp_path, capsys, surfa
     code, err = run_cli(config, capsys)
     assert code == 2 and len(err.splitlines()) == 1
     assert pytest.importorskip("re").search(pattern, err), err
+
+
+
+
+def aim_config(tmp_path: Path, key: str, value: str) -> str:
+    """The flat-edge AIM study with one [model.aim] key set instead."""
+    text = AIM_FLAT_EDGE.format(out=tmp_path / "result.h5", surface=FLAT_PATCH, beam="exact")
+    return text.replace('edge = "flat"', f"{key} = {value}")
+
+
+@pytest.mark.parametrize(
+    "key, value, pattern",
+    [
+        ("tolerance", "-1", r"\[model.aim\] tolerance = -1: must be > 0"),
+        ("max_iterations", "0", r"\[model.aim\] max_iterations = 0: must be >= 1"),
+        ("restart", "-1", r"\[model.aim\] restart = -1: must be >= 1"),
+        ("near_storage", '"half"', r'\[model.aim\] near_storage = "half": must be one of "single", "double"'),
+        ("near_cells", "nan", r"\[model.aim\] near_cells = nan: must be finite"),
+        ("stencil", "[4, 4]", r"\[model.aim\] stencil = \[4, 4\]: must be a list of 3 integers"),
+        ("tolerence", "1e-5", r"\[model.aim\] tolerence: unknown key; did you mean 'tolerance'"),
+    ],
+)
+def test_model_options_are_checked_at_load(tmp_path, capsys, key, value, pattern):
+    """Every model option is checked when the config is read, by `plan` as by `run`."""
+    import re
+
+    config = tmp_path / "study.toml"
+    config.write_text(aim_config(tmp_path, key, value))
+    assert main(["plan", str(config)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and re.search(pattern, err), err
+    assert not any(p.name.startswith("result") for p in tmp_path.iterdir())
+
+
+def test_model_options_in_their_own_table(tmp_path):
+    """[model.<name>] holds the same keys as [model]; giving one twice is refused."""
+    text = aim_config(tmp_path, "tolerance", "1e-5")
+    moved = text.replace('[model]\nname = "bem"\nmethod = "aim"\n', '[model]\nname = "bem"\n\n[model.bem]\nmethod = "aim"\n')
+    study = parse_config(moved).cases[0]
+    assert study.model.options.method == "aim" and study.model.options.aim.tolerance == 1e-5
+    twice = moved.replace('[model]\nname = "bem"\n', '[model]\nname = "bem"\nmethod = "dense"\n')
+    with pytest.raises(ConfigError, match=r"\[model.bem\] method: also given in \[model\]"):
+        parse_config(twice)
+    with pytest.raises(ConfigError, match=r'\[model\] method = "fast": must be one of "dense", "aim"'):
+        parse_config(text.replace('method = "aim"', 'method = "fast"'))

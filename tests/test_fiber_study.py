@@ -50,7 +50,9 @@ def test_circle_study_matches_mie_and_is_xarray_readable(tmp_path):
     cfg = write(tmp_path, "circle", 'shape = "circle"\nradius_um = 0.3\nsegments = 64', "fiber-bem")
     assert main(["run", str(cfg), "-q"]) == 0
     out = tmp_path / "circle.h5"
-    xr = pytest.importorskip("xarray")
+    import h5netcdf  # noqa: F401  (dev dependency: engine="h5netcdf" below; a missing one fails)
+    import xarray as xr
+
     ds = xr.open_dataset(out, engine="h5netcdf")
     assert ds["bcsdf"].dims == ("wavelength_um", "theta_i", "phi_i", "phi_r")
     assert ds["C_ext"].dims == ("wavelength_um", "theta_i", "polarization", "phi_i")

@@ -9,20 +9,25 @@ import pytest
 import scipy.special
 
 from wavebrdf.solver.approx.kirchhoff import (
-    FootprintWarning,
     KirchhoffSetup,
     chebyshev_order,
-    gaussian_footprint,
     kirchhoff_farfield,
     kirchhoff_farfield_numpy,
 )
+from wavebrdf.solver.footprint import FootprintWarning, gaussian_footprint
 from wavebrdf.solver.farfield import HemisphereGrid, albedo
 from wavebrdf.solver.fresnel import fresnel_reflectance, fresnel_rs_rp
+from references import ALUMINIUM_400NM
+from references import fresnel_reflectance as reference_fresnel
 from wavebrdf.solver.surface import HeightField, generate
 
 logger = logging.getLogger(__name__)
 
-ALUMINIUM_400NM = 0.46582 - 4.7119j  # the reference simulator's aluminium at 0.4 µm
+
+
+def reference_reflectance(index, cos_theta):
+    """(|r_s|², |r_p|²) from the textbook formulas of tests/references.py (air above ``index``)."""
+    return reference_fresnel(1.0, index, np.arccos(np.clip(cos_theta, -1.0, 1.0)))
 
 
 @pytest.fixture(scope="module")
@@ -39,7 +44,7 @@ def test_flat_albedo_equals_fresnel(cl_ctx, wide_flat, index, theta_deg):
     ff = kirchhoff_farfield(cl_ctx, wide_flat, 0.4, index, theta, phi, grid, waist_um=30.0)
     brdf = ff.brdf()
     measured = albedo(brdf, grid)
-    expected = np.array(fresnel_reflectance(index, np.cos(theta)))
+    expected = np.array(reference_reflectance(index, np.cos(theta)))
     rel = np.abs(measured / expected - 1)
     logger.info("θ=%g %s: albedo %s vs Fresnel %s (rel %s)", theta_deg, index, measured, expected, rel)
     assert np.all(rel < 5e-3)
@@ -69,7 +74,7 @@ def test_sinusoidal_grating_orders(cl_ctx):
         mu_m = np.sqrt(1 - u_m**2)
         cos_io = u_i * u_m + mu_i * mu_m
         omega_k = (1 + cos_io) ** 2 / (mu_i * mu_m * (mu_i + mu_m) ** 2)
-        rs2, rp2 = fresnel_reflectance(index / 1.0, np.sqrt(0.5 * (1 + cos_io)))
+        rs2, rp2 = reference_reflectance(index, np.sqrt(0.5 * (1 + cos_io)))
         jm2 = scipy.special.jv(m, k * (mu_i + mu_m) * amp) ** 2
         near = (np.abs(U - u_m) < 0.5 * lam / period) & (np.abs(V) < 0.2)
         for p, r2 in enumerate((rs2, rp2)):
@@ -119,7 +124,7 @@ def test_against_direct_sum(cl_ctx, rng):
         integral = d2 * np.sum(W * np.exp(1j * k * ((u_i[0] + uo) * X + (u_i[1] + vo) * Y + (mu_i + mu_o) * z)))
         cos_io = u_i[0] * uo + u_i[1] * vo + mu_i * mu_o
         omega_k = (1 + cos_io) ** 2 / (mu_i * mu_o * (mu_i + mu_o) ** 2)
-        reflect = fresnel_reflectance(index, np.sqrt(0.5 * (1 + cos_io)))
+        reflect = reference_reflectance(index, np.sqrt(0.5 * (1 + cos_io)))
         for p in range(2):
             expected = reflect[p] * omega_k * abs(integral) ** 2 / (lam**2 * d2 * np.sum(W**2))
             assert brdf[p, i, j] == pytest.approx(expected, rel=1e-9, abs=1e-12 * np.nanmax(brdf))
@@ -189,6 +194,10 @@ def test_fresnel_no_gain_and_pec_limit():
         assert np.all(rs2 <= 1 + 1e-12) and np.all(rp2 <= 1 + 1e-12)
     rs, rp = fresnel_rs_rp(1e-3 - 1e6j, 0.7)
     assert rs == pytest.approx(-1, abs=1e-5) and rp == pytest.approx(1, abs=1e-5)
+    # the model's Fresnel module equals the textbook reference (tests/references.py)
+    for eta in (1.5, 0.5 - 3j, 0.05 - 10j, 2.0 - 1e-4j, 1.3 - 0.5j, ALUMINIUM_400NM):
+        ours = np.array(fresnel_reflectance(eta, c))
+        assert np.allclose(ours, np.array(reference_reflectance(eta, c)), rtol=1e-12, atol=1e-14), eta
 
 
 def test_setup_rejects_bad_inputs():

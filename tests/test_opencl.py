@@ -57,3 +57,44 @@ def test_bessel_sequence_kernel_matches_scipy(cl_ctx):
     orders = np.arange(nmax + 1)
     expected = (np.where(orders == 0, 1, 2) * 1j**orders)[:, None] * scipy.special.jv(orders[:, None], x[None])
     assert np.max(np.abs(g - expected)) < 1e-13
+
+
+WORKER_FFT_PROBE = """
+import numpy as np
+from wavebrdf.solver.opencl import create_context, fft_workers
+from wavebrdf.solver.surface import generate
+from wavebrdf.solver.bem3d.driver import BEMSolver
+
+ctx = create_context()
+solver = BEMSolver(ctx, generate("gaussian", cells=12, size_um=1.2, seed=1, rms_height_um=0.02, correlation_um=0.3),
+                   0.5, 1.5, method="aim")
+print(fft_workers(), ctx.fft_workers, solver.operator.base.workers)
+"""
+
+
+@pytest.mark.parametrize("workers_on_node", [1, 2])
+def test_a_worker_uses_the_fft_threads_it_was_given(workers_on_node):
+    """The batch layer caps each worker's threads with WAVEBRDF_FFT_WORKERS (worker_environment);
+    the host FFTs of every model, AIM's included, must use that many threads, not every CPU."""
+    import os
+    import subprocess
+    import sys
+
+    from wavebrdf.jobs.scheduler import worker_environment
+
+    env = {**os.environ, **worker_environment(workers_on_node, 0, cores=2)}
+    out = subprocess.run([sys.executable, "-c", WORKER_FFT_PROBE], env=env, capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    expected = str(2 // workers_on_node)
+    assert out.stdout.split() == [expected] * 3, out.stdout
+
+
+def test_bad_fft_worker_count_is_refused(monkeypatch):
+    from wavebrdf.solver.opencl import fft_workers
+
+    monkeypatch.setenv("WAVEBRDF_FFT_WORKERS", "zero")
+    with pytest.raises(ValueError, match="WAVEBRDF_FFT_WORKERS='zero': must be an integer >= 1"):
+        fft_workers()
+    monkeypatch.setenv("WAVEBRDF_FFT_WORKERS", "0")
+    with pytest.raises(ValueError, match="must be an integer >= 1"):
+        fft_workers()

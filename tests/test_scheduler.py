@@ -139,7 +139,7 @@ class FlakyModel(KirchhoffModel):
     name = "flaky-test"
     seen: set = set()
 
-    def farfield(self, ctx, scene):
+    def run(self, ctx, scene):
         theta = round(float(np.rad2deg(scene.theta_i)))
         key = (theta, round(scene.wavelength_um, 3), float(scene.surface.z[3, 3]))
         if theta == 20 and key not in FlakyModel.seen:
@@ -149,7 +149,7 @@ class FlakyModel(KirchhoffModel):
             error = RuntimeError("solver did not converge")
             error.diagnostics = {"iterations": 500, "residual": 3e-2}
             raise error
-        return super().farfield(ctx, scene)
+        return super().run(ctx, scene)
 
 
 def test_failed_tasks_are_retried_recorded_and_rerun(tmp_path, monkeypatch):

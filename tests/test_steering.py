@@ -14,7 +14,8 @@ from wavebrdf.jobs.cli import main
 from wavebrdf.jobs.config import load_config
 from wavebrdf.jobs.plan import plan_study
 from wavebrdf.jobs.steering import HexagonTiling, PatchLayout, aliasing_limit
-from wavebrdf.solver.approx.kirchhoff import gaussian_footprint, kirchhoff_farfield
+from wavebrdf.solver.approx.kirchhoff import kirchhoff_farfield
+from wavebrdf.solver.footprint import gaussian_footprint
 from wavebrdf.solver.farfield import albedo, combine_polarizations
 from wavebrdf.solver.fresnel import fresnel_reflectance
 from wavebrdf.solver.surface import generate
@@ -220,7 +221,7 @@ def test_flat_surface_synthesized_albedo_is_fresnel(tmp_path, material, index, d
     albedo = |r_s|², |r_p|² at θ_i within 1 %.
 
     (The synthesized beam's plane waves lie between the basic and the requested direction; where
-    Fresnel varies fast with angle, e.g. glass at 40°, 3x3 patches give a few % — see docs/steering.md.)
+    Fresnel varies fast with angle, e.g. glass at 40°, 3x3 patches give a few % — see docs/batch.md, "Beam steering".)
     """
     config, plan, out = run_steering(tmp_path, str(directions), generator="flat", material=material,
                                      surface_extra="", lam=0.4, waist=2.5, size=18.5, cells=185, patch=13.5)

@@ -57,7 +57,9 @@ def sweep_dataset(tmp_path_factory):
 
 
 def test_xarray_reads_every_swept_coordinate(sweep_dataset):
-    xr = pytest.importorskip("xarray")
+    import h5netcdf  # noqa: F401  (dev dependency: engine="h5netcdf" below; a missing one fails)
+    import xarray as xr
+
     ds = xr.open_dataset(sweep_dataset, engine="h5netcdf")
     assert ds["brdf"].dims == ("surface.rms_height_um", "surface.correlation_um", "wavelength_um", "incidence", "u", "v")
     assert list(ds["surface.rms_height_um"].values) == [0.02, 0.05]

@@ -19,7 +19,6 @@ only, the reference used in tests and benchmarks).
 from __future__ import annotations
 
 import logging
-import os
 import time
 import warnings
 from dataclasses import dataclass
@@ -30,36 +29,22 @@ import scipy.special
 
 from wavebrdf.solver.czt import ChirpZAxis
 from wavebrdf.solver.farfield import ETA0, FarField, HemisphereGrid, transverse_basis
+from wavebrdf.solver.footprint import EDGE_AMPLITUDE, FootprintWarning, edge_fraction, gaussian_footprint
 from wavebrdf.solver.fresnel import fresnel_rs_rp
-from wavebrdf.solver.models import Estimate, Model, SurfaceScene
+from wavebrdf.solver.models import Capabilities, Estimate, Model, SurfaceScene
 from wavebrdf.solver.surface import HeightField
 
 logger = logging.getLogger(__name__)
 
 __all__ = [
-    "FootprintWarning",
     "KirchhoffModel",
     "KirchhoffSetup",
     "chebyshev_order",
-    "gaussian_footprint",
     "kirchhoff_farfield",
     "kirchhoff_farfield_numpy",
 ]
 
 BESSEL_TAIL = 1e-12  # truncate the Jacobi–Anger series where |J_n(x_max)| falls below this
-EDGE_AMPLITUDE = 1e-3  # footprint amplitude at the patch edge above which we warn
-
-
-class FootprintWarning(UserWarning):
-    """The illumination footprint is not negligible at the patch edge."""
-
-
-def gaussian_footprint(surface: HeightField, waist_um: float, centre_um=(0.0, 0.0)) -> np.ndarray:
-    """Footprint amplitude exp(−|x − c|²/w²) on the surface nodes (patch coordinates, µm)."""
-    if not (np.isfinite(waist_um) and waist_um > 0):
-        raise ValueError(f"illumination.waist_um must be > 0, got {waist_um!r}")
-    X, Y = np.meshgrid(surface.x - centre_um[0], surface.y - centre_um[1], indexing="ij")
-    return np.exp(-(X**2 + Y**2) / waist_um**2)
 
 
 def chebyshev_order(x_max: float, tail: float = BESSEL_TAIL) -> int:
@@ -90,20 +75,11 @@ class KirchhoffSetup:
     grid: HemisphereGrid
 
     @classmethod
-    def build(
-        cls,
-        surface: HeightField,
-        wavelength_um: float,
-        index: complex,
-        theta_i: float,
-        phi_i: float,
-        grid: HemisphereGrid,
-        window: np.ndarray | None,
-        exterior_index: float = 1.0,
-        z_reference: float | None = None,
-        waist_um: float | None = None,
-    ) -> "KirchhoffSetup":
-        """``window``: footprint on the nodes, or None for the Gaussian of ``waist_um``."""
+    def build(cls, surface: HeightField, wavelength_um: float, index: complex, theta_i: float, phi_i: float,
+              grid: HemisphereGrid, window: np.ndarray | None, exterior_index: float = 1.0,
+              z_reference: float | None = None, waist_um: float | None = None) -> "KirchhoffSetup":
+        """The set-up of one (surface, λ, index, incidence) on ``grid``; ``window``: footprint on
+        the nodes, or None for the Gaussian of ``waist_um``."""
         if not (np.isfinite(wavelength_um) and wavelength_um > 0):
             raise ValueError(f"wavelength must be > 0 µm, got {wavelength_um!r}")
         if not 0.0 <= theta_i < 0.5 * np.pi:
@@ -116,11 +92,10 @@ class KirchhoffSetup:
         window = window.astype(complex if np.iscomplexobj(window) else float)
         if window.shape != surface.z.shape:
             raise ValueError(f"footprint shape {window.shape} != height matrix {surface.z.shape}")
-        magnitude = np.abs(window)
-        edge = max(magnitude[0].max(), magnitude[-1].max(), magnitude[:, 0].max(), magnitude[:, -1].max())
-        if edge > EDGE_AMPLITUDE * magnitude.max():
+        edge = edge_fraction(window)
+        if edge > EDGE_AMPLITUDE:
             warnings.warn(
-                f"illumination footprint is {edge / magnitude.max():.2g} of its peak at the patch edge "
+                f"illumination footprint is {edge:.2g} of its peak at the patch edge "
                 f"(patch {surface.size_um:g} µm): edge diffraction will show; use a larger patch or "
                 "a smaller waist (patch >= ~5.3 waists)",
                 FootprintWarning,
@@ -180,10 +155,6 @@ def _chunk_orders(n_total: int, res: int, length: int, budget_bytes: float = 256
     return int(max(1, min(n_total, budget_bytes // per_order)))
 
 
-def _fft_workers() -> int:
-    return int(os.environ.get("WAVEBRDF_FFT_WORKERS", os.cpu_count() or 1))
-
-
 def kirchhoff_farfield(
     ctx,
     surface: HeightField,
@@ -199,7 +170,8 @@ def kirchhoff_farfield(
     z_reference: float | None = None,
     precision: str = "double",
 ) -> FarField:
-    """Kirchhoff far field of ``surface`` on ``grid`` computed with OpenCL kernels.
+    """Kirchhoff far field of ``surface`` on ``grid`` computed with OpenCL kernels (``ctx`` None:
+    the NumPy/SciPy reference, double precision only).
 
     Give either ``waist_um`` (Gaussian footprint centred on the patch) or an explicit
     footprint ``window`` on the surface nodes (real, or complex for a phase relative to the
@@ -207,23 +179,38 @@ def kirchhoff_farfield(
     phase reference plane (default: the surface mean; patches of a larger surface pass the
     global mean). ``precision`` "single" runs kernels and FFTs in float32/complex64.
     """
-    import pyopencl as cl
-
     t0 = time.perf_counter()
     setup = KirchhoffSetup.build(
         surface, wavelength_um, index, theta_i, phi_i, grid, window, exterior_index, z_reference, waist_um
     )
+    if ctx is None:
+        if precision != "double":
+            raise ValueError(f"the NumPy reference runs in double precision only, got precision = {precision!r}")
+        return _farfield_numpy(setup, theta_i, phi_i, t0)
+    return _farfield_opencl(ctx, setup, theta_i, phi_i, precision, t0)
+
+
+def kirchhoff_farfield_numpy(*args, **kwargs) -> FarField:
+    """The same model in plain NumPy/SciPy (double precision, numpy.fft, one thread): the
+    arguments of :func:`kirchhoff_farfield` without ``ctx``."""
+    return kirchhoff_farfield(None, *args, **kwargs)
+
+
+def _farfield_opencl(ctx, setup: KirchhoffSetup, theta_i: float, phi_i: float, precision: str,
+                     t0: float) -> FarField:
+    """OpenCL kernels for the fields and the per-pixel assembly, host FFTs."""
+    import pyopencl as cl
+
+    grid = setup.grid
     real = ctx.real_dtype(precision)
     cplx = np.dtype(np.complex128 if real == np.float64 else np.complex64)
-    defines = {"WB_FP64": int(real == np.float64), "NMAX_BUF": max(16, setup.n_max + 1)}
+    defines = ctx.defines(precision, NMAX_BUF=max(16, setup.n_max + 1))
     queue = ctx.queue
-    na = nb = surface.cells + 1
+    na, nb = setup.z_mid.shape
     res = grid.resolution
     n_orders = setup.n_max + 1
     mf = cl.mem_flags
-
-    def to_device(array, dtype):
-        return cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(array, dtype))
+    to_device = ctx.to_device
 
     fields_knl = ctx.kernel("kirchhoff.cl", "kirchhoff_fields", defines)
     fields_dev = cl.Buffer(ctx.context, mf.READ_WRITE, n_orders * na * nb * cplx.itemsize)
@@ -241,7 +228,7 @@ def kirchhoff_farfield(
     acc_knl = ctx.kernel("kirchhoff.cl", "kirchhoff_accumulate", defines)
     acc_dev = cl.Buffer(ctx.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=np.zeros(res * res, cplx))
     chunk = _chunk_orders(n_orders, res, max(setup.czt_x.length, setup.czt_y.length))
-    workers = _fft_workers()
+    workers = ctx.fft_workers
     for n0 in range(0, n_orders, chunk):
         block = setup.czt_x.convolve(fields[n0 : n0 + chunk], axis=1, workers=workers)
         # y transform left un-sliced (rows of length L): the kernel reads the first res columns
@@ -273,24 +260,9 @@ def kirchhoff_farfield(
     )
 
 
-def kirchhoff_farfield_numpy(
-    surface: HeightField,
-    wavelength_um: float,
-    index: complex,
-    theta_i: float,
-    phi_i: float,
-    grid: HemisphereGrid,
-    *,
-    waist_um: float | None = None,
-    window: np.ndarray | None = None,
-    exterior_index: float = 1.0,
-    z_reference: float | None = None,
-) -> FarField:
-    """The same model in plain NumPy/SciPy (double precision, numpy.fft, one thread)."""
-    t0 = time.perf_counter()
-    s = KirchhoffSetup.build(
-        surface, wavelength_um, index, theta_i, phi_i, grid, window, exterior_index, z_reference, waist_um
-    )
+def _farfield_numpy(s: KirchhoffSetup, theta_i: float, phi_i: float, t0: float) -> FarField:
+    """The NumPy/SciPy twin of the kernels."""
+    grid = s.grid
     n = np.arange(s.n_max + 1)
     eps_jn = np.where(n == 0, 1.0, 2.0) * (1j**n)
     bessel = scipy.special.jv(n[:, None, None], 0.5 * s.k * s.z_mid[None])
@@ -319,11 +291,13 @@ def kirchhoff_farfield_numpy(
 
 
 class KirchhoffModel(Model):
-    """Registry adapter: ``[model] name = "kirchhoff"``."""
+    """Registry adapter: ``[model] name = "kirchhoff"`` (no options of its own)."""
 
     name = "kirchhoff"
+    capabilities = Capabilities(takes="height_field", returns="fields", polarized=True, steerable=True,
+                                reciprocal=True, conserves_energy=False)
 
-    def farfield(self, ctx, scene: SurfaceScene) -> FarField:
+    def run(self, ctx, scene: SurfaceScene) -> FarField:
         window = gaussian_footprint(scene.surface, scene.waist_um, scene.footprint_centre_um)
         return kirchhoff_farfield(
             ctx, scene.surface, scene.wavelength_um, scene.index, scene.theta_i, scene.phi_i,

@@ -90,11 +90,7 @@ def basis_entries_opencl(ctx, tables, pair_map, row_elem, row_slot, col_elem, co
     """
     import pyopencl as cl
 
-    mf = cl.mem_flags
-
-    def buf(a, dtype):
-        return cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a, dtype))
-
+    buf = ctx.to_device
     n_source = pair_map.shape[1]
     args = [
         buf(tables, np.complex128), buf(pair_map, np.int32), np.int32(n_source),
@@ -103,16 +99,16 @@ def basis_entries_opencl(ctx, tables, pair_map, row_elem, row_slot, col_elem, co
     coef_buf = buf(coef, np.complex128)
     if rows is None:
         shape = (len(row_elem), len(col_elem))
-        knl = ctx.kernel("bem_assembly.cl", "bem_basis_block", {"WB_FP64": 1, "BEM_SEGMENT": SEGMENT})
+        knl = ctx.kernel("bem_assembly.cl", "bem_basis_block", ctx.defines("double", BEM_SEGMENT=SEGMENT))
         args += [np.int32(shape[0]), np.int32(shape[1])]
         items = shape[0] * ((shape[1] + SEGMENT - 1) // SEGMENT)
     else:
         shape = (len(rows),)
-        knl = ctx.kernel("bem_assembly.cl", "bem_basis_list", {"WB_FP64": 1})
+        knl = ctx.kernel("bem_assembly.cl", "bem_basis_list", ctx.defines("double"))
         args += [buf(rows, np.int32), buf(cols, np.int32), np.int32(shape[0])]
         items = shape[0]
     n = int(np.prod(shape))
-    outs = [cl.Buffer(ctx.context, mf.WRITE_ONLY, max(n, 1) * 16) for _ in range(3)]
+    outs = [cl.Buffer(ctx.context, cl.mem_flags.WRITE_ONLY, max(n, 1) * 16) for _ in range(3)]
     if n:
         knl(ctx.queue, (items,), None, *args, coef_buf, *outs)
     result = []

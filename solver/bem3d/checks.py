@@ -1,7 +1,8 @@
 """Warnings of the 3D BEM: situations that give a result of doubtful accuracy, said out loud.
 
-Every check emits a :class:`BEMWarning` subclass through :func:`warnings.warn` and records the
-message in the run's diagnostics, so a batch run keeps it next to the result.
+Every check emits a :class:`BEMWarning` subclass (or the :class:`FootprintWarning` that all
+surface models share, solver/footprint.py) through :func:`warnings.warn` and records the message
+in the run's diagnostics, so a batch run keeps it next to the result.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import warnings
 import numpy as np
 
 from wavebrdf.solver.bem3d.media import Media
+from wavebrdf.solver.footprint import FootprintWarning
 
 __all__ = [
     "BEMWarning",
@@ -36,10 +38,6 @@ class BEMWarning(UserWarning):
     """Base class of the 3D BEM warnings."""
 
 
-class FootprintWarning(BEMWarning):
-    """The incident beam is not contained in the patch (edge truncation, e.g. grazing incidence)."""
-
-
 class MaterialWarning(BEMWarning):
     """The material is at an extreme (very weak absorber, very high contrast)."""
 
@@ -52,7 +50,7 @@ class SolverWarning(BEMWarning):
     """The linear solve did not reach the expected residual."""
 
 
-def emit(diagnostics: dict | None, category: type[BEMWarning], message: str, stacklevel: int = 3) -> None:
+def emit(diagnostics: dict | None, category: type[Warning], message: str, stacklevel: int = 3) -> None:
     """warnings.warn the message and append it to ``diagnostics["warnings"]``."""
     if diagnostics is not None:
         diagnostics.setdefault("warnings", []).append(f"{category.__name__}: {message}")

@@ -175,18 +175,14 @@ def _cplx(value) -> np.ndarray:
     return np.array([complex(value).real, complex(value).imag], dtype=np.float64).view(np.complex128)[0]
 
 
-def vector_lanes(ctx) -> int:
-    """Pairs per work-item (WB_VW): 4 SIMD lanes on CPUs, 1 on GPUs (work-items are lanes there)."""
-    return 1 if "GPU" in ctx.info.kind else 4
-
-
 WORK_GROUP = 8  # explicit small work-groups: PoCL keeps the large private tables of a whole
 # work-group on a worker thread's stack, and its automatic (large) sizes overflow it
 
 
 def launch_size(ctx, n: int) -> tuple[tuple[int], tuple[int]]:
-    """(global, local) sizes for n items, WB_VW items per work-item, padded to WORK_GROUP."""
-    lanes = vector_lanes(ctx)
+    """(global, local) sizes for n items, WB_VW = ``ctx.vector_lanes("double")`` items per work-item
+    (SIMD lanes on CPUs, 1 on GPUs, where work-items are the lanes), padded to WORK_GROUP."""
+    lanes = ctx.vector_lanes("double")
     items = (n + lanes - 1) // lanes
     items = (items + WORK_GROUP - 1) // WORK_GROUP * WORK_GROUP
     return (items,), (WORK_GROUP,)
@@ -202,20 +198,17 @@ def regular_pairs_opencl(ctx, geometry, h, test, source, order, wavenumbers):
     """OpenCL twin of :func:`regular_pairs_numpy` (kernel ``bem_regular_pairs``)."""
     import pyopencl as cl
 
-    knl = ctx.kernel("bem_elements.cl", "bem_regular_pairs", {"WB_FP64": 1, "WB_VW": vector_lanes(ctx)})
-    mf = cl.mem_flags
-    geom = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(geometry, np.float64))
+    knl = ctx.kernel("bem_elements.cl", "bem_regular_pairs", ctx.defines("double", lanes=ctx.vector_lanes("double")))
+    geom = ctx.to_device(geometry, np.float64)
     x, w = np.polynomial.legendre.leggauss(int(order))
-    nodes = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
-    weights = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=w)
+    nodes, weights = ctx.to_device(x), ctx.to_device(w)
     test = np.ascontiguousarray(test, np.int32)
     source = np.ascontiguousarray(source, np.int32)
     out = np.empty((len(test), 2, TABLE), dtype=np.complex128)
     for sl in _launch_chunks(len(test), 2 * TABLE * 16):
         n = sl.stop - sl.start
-        t_buf = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=test[sl])
-        s_buf = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=source[sl])
-        o_buf = cl.Buffer(ctx.context, mf.WRITE_ONLY, n * 2 * TABLE * 16)
+        t_buf, s_buf = ctx.to_device(test[sl]), ctx.to_device(source[sl])
+        o_buf = cl.Buffer(ctx.context, cl.mem_flags.WRITE_ONLY, n * 2 * TABLE * 16)
         knl(ctx.queue, *launch_size(ctx, n), geom, np.float64(h), t_buf, s_buf, np.int32(n), nodes, weights,
             np.int32(order), _cplx(wavenumbers[0]), _cplx(wavenumbers[1]), o_buf)
         cl.enqueue_copy(ctx.queue, out[sl], o_buf)
@@ -228,10 +221,9 @@ def singular_pairs_opencl(ctx, geometry, h, test, source, code_test, code_source
     import pyopencl as cl
 
     knl = ctx.kernel("bem_elements.cl", "bem_singular_pairs",
-                     {"WB_FP64": 1, "WB_VW": vector_lanes(ctx), "BEM_KIND": int(kind)})
-    mf = cl.mem_flags
-    geom = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(geometry, np.float64))
-    rule_buf = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(rule, np.float64))
+                     ctx.defines("double", lanes=ctx.vector_lanes("double"), BEM_KIND=int(kind)))
+    geom = ctx.to_device(geometry, np.float64)
+    rule_buf = ctx.to_device(rule, np.float64)
     arrays = [np.ascontiguousarray(a, np.int32) for a in (test, source, code_test, code_source)]
     static = kind == KIND_STATIC
     per_pair = TABLE * (8 if static else 32)
@@ -240,8 +232,8 @@ def singular_pairs_opencl(ctx, geometry, h, test, source, code_test, code_source
     k1, k2 = (wavenumbers if not static else (0.0, 0.0))
     for sl in _launch_chunks(len(arrays[0]), per_pair):
         n = sl.stop - sl.start
-        bufs = [cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a[sl]) for a in arrays]
-        o_buf = cl.Buffer(ctx.context, mf.WRITE_ONLY, n * per_pair)
+        bufs = [ctx.to_device(a[sl]) for a in arrays]
+        o_buf = cl.Buffer(ctx.context, cl.mem_flags.WRITE_ONLY, n * per_pair)
         knl(ctx.queue, *launch_size(ctx, n), geom, np.float64(h), *bufs, np.int32(n), rule_buf,
             np.int32(len(rule)), _cplx(k1), _cplx(k2), o_buf)
         cl.enqueue_copy(ctx.queue, out[sl], o_buf)

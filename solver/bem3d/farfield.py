@@ -6,6 +6,7 @@ exterior is E·e^{−jk₁r}/r, H·e^{−jk₁r}/r with (e^{+jωt}, ωμ₀ = η
     E = −(jη₀k₀/4π) [F_J − r̂(r̂·F_J)] + (jk₁/4π) r̂ × F_M
     H = −(jk₁/4π) r̂ × F_J − (jk₀n₁²/(4πη₀)) [F_M − r̂(r̂·F_M)]
 
+(:func:`fields_from_integrals`, also used by the AIM far field of grid sources, aim/farfield.py).
 The integrals are sums over tensor Gauss points of every element (``farfield_order``), computed
 by the OpenCL kernel ``bem_radiation_integrals`` (kernels/bem_farfield.cl; NumPy twin
 :func:`radiation_integrals_numpy`), one work-item per direction.
@@ -15,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wavebrdf.solver.bem3d.elements import launch_size, vector_lanes
+from wavebrdf.solver.bem3d.elements import launch_size
 from wavebrdf.solver.bem3d.excitation import SurfaceRule, surface_currents
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
@@ -23,6 +24,7 @@ from wavebrdf.solver.farfield import ETA0, FarField, HemisphereGrid
 
 __all__ = [
     "farfield_on_grid",
+    "fields_from_integrals",
     "radiated_fields",
     "radiated_power",
     "radiation_integrals_numpy",
@@ -52,16 +54,15 @@ def radiation_integrals_opencl(ctx, directions, points, weights, k):
     weights = np.ascontiguousarray(weights, dtype=np.complex128)
     Q, S, _ = weights.shape
     knl = ctx.kernel("bem_farfield.cl", "bem_radiation_integrals",
-                     {"WB_FP64": 1, "BEM_NSETS": S, "WB_VW": vector_lanes(ctx)})
-    mf = cl.mem_flags
-    pts = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(points, np.float64))
-    wbuf = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=weights)
+                     ctx.defines("double", lanes=ctx.vector_lanes("double"), BEM_NSETS=S))
+    pts = ctx.to_device(points, np.float64)
+    wbuf = ctx.to_device(weights)
     directions = np.ascontiguousarray(directions, dtype=np.float64)
     out = np.empty((len(directions), S, 3), dtype=np.complex128)
     for s in range(0, len(directions), DIRECTION_CHUNK):
         d = directions[s : s + DIRECTION_CHUNK]
-        dbuf = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=d)
-        obuf = cl.Buffer(ctx.context, mf.WRITE_ONLY, len(d) * S * 3 * 16)
+        dbuf = ctx.to_device(d)
+        obuf = cl.Buffer(ctx.context, cl.mem_flags.WRITE_ONLY, len(d) * S * 3 * 16)
         knl(ctx.queue, *launch_size(ctx, len(d)), dbuf, np.int32(len(d)), pts, wbuf, np.int32(Q), np.float64(k), obuf)
         cl.enqueue_copy(ctx.queue, out[s : s + len(d)], obuf)
     ctx.queue.finish()
@@ -87,12 +88,19 @@ def radiated_fields(ctx, mesh: BEMMesh, media: Media, x: np.ndarray, directions:
         F = radiation_integrals_opencl(ctx, directions, points, weights, k1)
     FJ = np.moveaxis(F[:, :n_sol], 1, 0)  # (P, M, 3)
     FM = np.moveaxis(F[:, n_sol:], 1, 0)
-    rhat = np.asarray(directions, dtype=float)[None]
+    return fields_from_integrals(media, np.asarray(directions, dtype=float)[None], FJ, FM)
+
+
+def fields_from_integrals(media: Media, directions: np.ndarray, FJ: np.ndarray, FM: np.ndarray):
+    """E, H (e^{−jk₁r}/r removed) from the radiation integrals F_J, F_M (M = η₀M̃) in ``directions``
+    (the formulas of the module docstring); shapes (…, 3), broadcast."""
+    rhat = np.asarray(directions, dtype=float)
 
     def transverse(F):
         return F - rhat * np.sum(rhat * F, axis=-1, keepdims=True)
 
     k0, n1 = media.k0, media.exterior_index
+    k1 = k0 * n1
     c = 1.0 / (4.0 * np.pi)
     E = -1j * ETA0 * k0 * c * transverse(FJ) + 1j * k1 * c * np.cross(rhat, FM)
     H = -1j * k1 * c * np.cross(rhat, FJ) - 1j * k0 * n1**2 / ETA0 * c * transverse(FM)

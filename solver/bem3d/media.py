@@ -84,6 +84,3 @@ class Media:
             "mm_div": np.full(2, 1j * ETA0 / k0),
             "em": ETA0,
         }
-
-    def describe(self) -> str:
-        return f"λ = {self.wavelength_um:g} µm, n₁ = {self.exterior_index:g}, n₂ = {self.index:.6g}"

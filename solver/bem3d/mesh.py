@@ -25,6 +25,12 @@ Rooftops (unknowns) live on interior edges only; the current has no normal flow 
 
 Geometric basis index g ∈ [0, N_b), N_b = 2N(N−1) (horizontal first). The unknown vector is
 **[J_h | J_v | M̃_h | M̃_v]**: J coefficient of basis g at position g, M̃ = M/η₀ at N_b + g.
+
+Rooftop index spaces (NumPy twins of kernels/near_index.h): rooftop (x, y) of orientation o
+(0 horizontal, 1 vertical) has the block-local *row* :func:`near_row` and the geometric index
+:func:`near_first` (o) + row; :func:`near_coords` inverts it, :func:`near_valid` tells which (x, y)
+exist. The AIM near field, its preconditioner tiles and the flat continuation count rooftops
+through these.
 """
 
 from __future__ import annotations
@@ -39,7 +45,18 @@ from wavebrdf.solver.surface import HeightField
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["BEMMesh", "SLOT_SIGN", "SLOT_TANGENT", "slot_weight"]
+__all__ = [
+    "BEMMesh",
+    "SLOT_SIGN",
+    "SLOT_TANGENT",
+    "embedded_bases",
+    "near_coords",
+    "near_first",
+    "near_row",
+    "near_valid",
+    "slot_weight",
+    "unknown_indices",
+]
 
 SLOT_SIGN = np.array([-1.0, 1.0, -1.0, 1.0])  # divergence sign of each half-basis slot
 SLOT_TANGENT = np.array([0, 0, 1, 1])  # 0: r_u, 1: r_v
@@ -192,12 +209,6 @@ class BEMMesh:
         r, _, _ = self.points(plus, u, v)
         return r
 
-    def describe(self) -> str:
-        return (
-            f"{self.cells}x{self.cells} bilinear elements, d = {self.spacing_um:g} µm, "
-            f"{self.n_bases} rooftops, {self.n_unknowns} unknowns [J_h|J_v|M~_h|M~_v]"
-        )
-
 
 def bilinear_frame(geometry: np.ndarray, half: float, u, v):
     """r, r_u, r_v of bilinear elements with coefficients ``geometry`` (..., 8) at (u, v)."""
@@ -216,3 +227,47 @@ def bilinear_frame(geometry: np.ndarray, half: float, u, v):
     ru = np.stack(np.broadcast_arrays(hh, zero, zu), axis=-1)
     rv = np.stack(np.broadcast_arrays(zero, hh, zv), axis=-1)
     return r, ru, rv
+
+
+# ---------------------------------------------------------------------------------------------
+# Rooftop index spaces (NumPy twins of kernels/near_index.h; see the module docstring)
+
+
+def near_valid(o, N, x, y):
+    """Whether rooftop (x, y) of orientation o exists on an N-cell mesh."""
+    x, y = np.asarray(x), np.asarray(y)
+    if o == 0:
+        return (x >= 0) & (x <= N - 2) & (y >= 0) & (y <= N - 1)
+    return (x >= 0) & (x <= N - 1) & (y >= 0) & (y <= N - 2)
+
+
+def near_row(o, N, x, y):
+    """Block-local row of rooftop (x, y) of orientation o."""
+    return (N - 1) * np.asarray(y) + np.asarray(x) if o == 0 else (N - 1) * np.asarray(x) + np.asarray(y)
+
+
+def near_first(o, N) -> int:
+    """Geometric index of the first rooftop of orientation o (0 or N(N−1))."""
+    return 0 if o == 0 else N * (N - 1)
+
+
+def near_coords(o, N, row):
+    """(x, y) of block-local rows of orientation o (inverse of :func:`near_row`)."""
+    row = np.asarray(row)
+    return (row % (N - 1), row // (N - 1)) if o == 0 else (row // (N - 1), row % (N - 1))
+
+
+def embedded_bases(cells: int, margin: int) -> np.ndarray:
+    """Geometric index of every rooftop of an N-cell mesh in the mesh grown by ``margin`` cells on
+    every side (both in this numbering)."""
+    n, N = cells, cells + 2 * margin
+    out = []
+    for o in (0, 1):  # horizontal, vertical
+        x, y = near_coords(o, n, np.arange(n * (n - 1)))
+        out.append(near_first(o, N) + near_row(o, N, x + margin, y + margin))
+    return np.concatenate(out)
+
+
+def unknown_indices(bases: np.ndarray, n_bases: int) -> np.ndarray:
+    """Positions of the J and M̃ coefficients of ``bases`` in a [J | M̃] vector of n_bases rooftops."""
+    return np.concatenate([bases, n_bases + bases])

@@ -1,94 +1,112 @@
 """Registry adapter of the full-wave BEM: ``[model] name = "bem"``, ``method = "dense" | "aim"``.
 
 * ``dense`` (bem3d/dense.py): the LU factorization of Z, the ground truth up to ~3·10⁴ unknowns;
-* ``aim`` (bem3d/aim.py): the Adaptive Integral Method with a Krylov solve, 10⁵–10⁶ unknowns;
-  options from the config table ``[model.aim]``; ``[model] precision = "single"`` selects its
-  single-precision kernels and FFTs unless ``[model.aim] precision`` says otherwise.
+* ``aim`` (bem3d/aim/): the Adaptive Integral Method with a Krylov solve, 10⁵–10⁶ unknowns;
+  its settings are the table ``[model.aim]`` (:class:`~wavebrdf.solver.bem3d.aim.options.AIMOptions`);
+  ``[model] precision = "single"`` selects its single-precision kernels and FFTs.
 
 The operator of one (surface, wavelength, material) serves every incident direction and both
 polarizations (the LU factors, or the AIM near-field matrix, grid spectra and preconditioner), so
-the last one is kept per process and reused while consecutive tasks share it (the planner orders
-tasks case → wavelength → direction, and steered patches patch → basic direction, to make that
-the common case).
+a model instance keeps the last one and reuses it while consecutive scenes share it (the planner
+orders tasks case → wavelength → direction, and steered patches patch → basic direction, to make
+that the common case).
 """
 
 from __future__ import annotations
 
 import hashlib
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from wavebrdf.solver.beams import make_beam
+from wavebrdf.solver.bem3d.aim.options import AIMOptions
 from wavebrdf.solver.farfield import FarField
-from wavebrdf.solver.models import Estimate, Model, SurfaceScene
+from wavebrdf.solver.models import Capabilities, Estimate, Model, SurfaceScene
+from wavebrdf.solver.options import OptionsError, option
 
-__all__ = ["BEMModel"]
+__all__ = ["BEMModel", "BEMOptions"]
 
 LU_FLOPS_PER_SECOND = 1.5e10  # complex LU throughput measured on the 2-core machine (scipy/OpenBLAS)
 ASSEMBLY_SECONDS_PER_ENTRY = 2e-7  # dense assembly on PoCL, per complex matrix entry
 
-_cache: dict = {}
 
+@dataclass(frozen=True)
+class BEMOptions:
+    """``[model]`` keys of the bem model (besides name and precision)."""
 
-def _operator_key(scene: SurfaceScene, method: str, aim: dict | None) -> tuple:
-    z = np.ascontiguousarray(scene.surface.z)
-    digest = hashlib.sha1(z.tobytes()).hexdigest()
-    return (digest, scene.surface.size_um, scene.wavelength_um, complex(scene.index), scene.exterior_index,
-            scene.z_reference, repr(sorted((scene.options.get("quadrature") or {}).items())), method,
-            repr(sorted((aim or {}).items())))
+    method: str = option("dense", choices=("dense", "aim"),
+                         doc="dense LU (small patches, the reference) or the Adaptive Integral Method")
+    aim: AIMOptions = option(AIMOptions(), doc="[model.aim]: settings of method \"aim\" (docs/aim.md)")
 
-
-def _aim_options(scene: SurfaceScene) -> dict:
-    aim = dict(scene.options.get("aim") or {})
-    if scene.precision == "single":
-        aim.setdefault("precision", "single")
-    return aim
+    def __post_init__(self):
+        if self.method != "aim" and self.aim != AIMOptions():
+            raise ValueError('[model.aim] applies to name = "bem", method = "aim" only')
 
 
 class BEMModel(Model):
     """PMCHWT boundary elements on the height field (solver/bem3d)."""
 
     name = "bem"
-    methods = ("dense", "aim")
+    Options = BEMOptions
+    capabilities = Capabilities(takes="height_field", returns="fields", polarized=True, steerable=True,
+                                reciprocal=True, conserves_energy=True)
 
-    def _method(self, scene: SurfaceScene) -> str:
-        method = scene.options.get("method") or self.methods[0]
-        if method not in self.methods:
-            raise ValueError(f"[model] method = {method!r}: the bem model offers {self.methods}")
-        return method
+    def __init__(self, options=None):
+        super().__init__(options)
+        self._kept: tuple | None = None  # (key, BEMSolver) of the last scene
 
-    def _solver(self, ctx, scene: SurfaceScene):
-        """The operator of this scene's surface, wavelength and material (built or reused)."""
-        method = self._method(scene)
-        aim = _aim_options(scene) if method == "aim" else None
-        key = _operator_key(scene, method, aim)
-        if _cache.get("key") != key:
-            _cache.clear()  # free the previous operator before building the next one
-            common = dict(exterior_index=scene.exterior_index, quadrature=scene.options.get("quadrature"),
-                          z_reference=scene.z_reference)
-            if method == "aim":
-                from wavebrdf.solver.bem3d.aim import AIMBEM
+    def aim_options(self, scene: SurfaceScene) -> AIMOptions:
+        """[model.aim] with [model] precision = "single" applied."""
+        aim = self.options.aim
+        return replace(aim, precision="single") if scene.precision == "single" else aim
 
-                solver = AIMBEM(ctx, scene.surface, scene.wavelength_um, scene.index, aim=aim, **common)
-            else:
-                from wavebrdf.solver.bem3d.dense import DenseBEM
+    def _key(self, ctx, scene: SurfaceScene) -> tuple:
+        z = np.ascontiguousarray(scene.surface.z)
+        return (id(ctx), hashlib.sha1(z.tobytes()).hexdigest(), scene.surface.size_um, scene.wavelength_um,
+                complex(scene.index), scene.exterior_index, scene.z_reference, self.options.method,
+                self.aim_options(scene) if self.options.method == "aim" else None)
 
-                solver = DenseBEM(ctx, scene.surface, scene.wavelength_um, scene.index, **common)
-            _cache["solver"] = solver
-            _cache["key"] = key
-        return _cache["solver"]
+    def solver(self, ctx, scene: SurfaceScene):
+        """The BEMSolver of this scene's surface, wavelength and material (built or reused)."""
+        from wavebrdf.solver.bem3d.driver import BEMSolver
 
-    def farfield(self, ctx, scene: SurfaceScene) -> FarField:
-        solver = self._solver(ctx, scene)
-        return solver.farfield(scene.theta_i, scene.phi_i, scene.grid, waist_um=scene.waist_um, beam=scene.beam,
-                               focus_um=scene.footprint_centre_um)
+        key = self._key(ctx, scene)
+        if self._kept is None or self._kept[0] != key:
+            self._kept = None  # free the previous operator before building the next one
+            aim = self.aim_options(scene) if self.options.method == "aim" else None
+            solver = BEMSolver(ctx, scene.surface, scene.wavelength_um, scene.index, method=self.options.method,
+                               exterior_index=scene.exterior_index, z_reference=scene.z_reference, aim=aim)
+            self._kept = (key, solver)
+        return self._kept[1]
+
+    def release(self) -> None:
+        self._kept = None
+
+    def check(self, scene: SurfaceScene) -> None:
+        """Refuse, before anything runs, what the flat edge continuation cannot do."""
+        if self.options.method != "aim" or self.options.aim.edge != "flat":
+            return
+        if scene.beam != "exact":
+            raise OptionsError(f'[model.aim] edge = "flat": needs illumination.beam = "exact" (the continued '
+                               f'currents come from its plane waves), got "{scene.beam}"')
+        from wavebrdf.solver.bem3d.aim.continuation import border_height, check_flat_border
+
+        try:
+            check_flat_border(scene.surface.z - border_height(scene.surface), scene.surface.spacing_um)
+        except ValueError as exc:
+            raise OptionsError(f"[model.aim] {exc}") from None
+
+    def run(self, ctx, scene: SurfaceScene) -> FarField:
+        return self.solver(ctx, scene).farfield(scene.theta_i, scene.phi_i, scene.grid, waist_um=scene.waist_um,
+                                                beam=scene.beam, focus_um=scene.footprint_centre_um)
 
     def estimate(self, scene: SurfaceScene) -> Estimate:
-        if self._method(scene) == "aim":
-            from wavebrdf.solver.bem3d.aim import estimate_aim
+        if self.options.method == "aim":
+            from wavebrdf.solver.bem3d.aim.estimate import estimate_aim
 
             est = estimate_aim(scene.surface, scene.wavelength_um, scene.index, exterior_index=scene.exterior_index,
-                               aim=_aim_options(scene), resolution=scene.grid.resolution, waist_um=scene.waist_um)
+                               aim=self.aim_options(scene), waist_um=scene.waist_um)
             return Estimate(est["bytes"], est["seconds"],
                             f"aim {est['unknowns']} unknowns, near {est['near_bytes'] / 2**30:.2f} GiB, "
                             f"FFT {'x'.join(map(str, est['fft']))}")

@@ -251,16 +251,10 @@ class FiberAssembler:
         self.quadrature = quadrature
         self.real = ctx.real_dtype(precision)
         self.cplx = np.dtype(np.complex128 if self.real == np.float64 else np.complex64)
-        self.defines = {
-            "WB_FP64": int(self.real == np.float64),
-            "Q_FAR": quadrature.far_points,
-            "Q_NEAR": quadrature.near_points,
-        }
+        self.defines = ctx.defines(precision, Q_FAR=quadrature.far_points, Q_NEAR=quadrature.near_points)
         mf = cl.mem_flags
         n = shape.segments
-
-        def upload(arr):
-            return cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(arr))
+        upload = ctx.to_device
 
         self._nodes = upload(shape.nodes.astype(self.real))
         self._gl_far = upload(np.stack(gauss_legendre_unit(quadrature.far_points), axis=1).astype(self.real))

@@ -28,6 +28,7 @@ import numpy as np
 import scipy.special as sp
 
 from wavebrdf.solver.fiber.farfield import angular_oversampling, bin_average, bin_centres, bin_samples
+from wavebrdf.solver.fiber.results import power_balance_error
 
 logger = logging.getLogger(__name__)
 
@@ -152,11 +153,6 @@ class BCSDFTable:
     polarizations: tuple = ("parallel", "perpendicular")
 
     @property
-    def phi_i_width(self) -> float:
-        """Width of a φ_i bin (radians; meaningful when ``phi_i_binned``)."""
-        return 2.0 * np.pi / self.phi_i.size
-
-    @property
     def phi_r_width(self) -> float:
         return 2.0 * np.pi / self.phi_r.size
 
@@ -169,7 +165,7 @@ class BCSDFTable:
     @property
     def power_balance_error(self) -> np.ndarray:
         """|C_ext - C_sca - C_abs| / C_ext, (L, T, 2, P)."""
-        return np.abs(self.C_ext - self.C_sca - self.C_abs) / np.abs(self.C_ext)
+        return power_balance_error(self.C_ext, self.C_sca, self.C_abs)
 
     @property
     def C_eff(self) -> np.ndarray:

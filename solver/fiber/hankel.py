@@ -188,10 +188,10 @@ def hankel2_01_cl(ctx, z, precision: str = "double"):
         empty = np.zeros(np.shape(z), dtype=cplx)
         return empty, empty.copy()
     mf = cl.mem_flags
-    z_dev = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=z_host)
+    z_dev = ctx.to_device(z_host)
     h0_dev = cl.Buffer(ctx.context, mf.WRITE_ONLY, z_host.nbytes)
     h1_dev = cl.Buffer(ctx.context, mf.WRITE_ONLY, z_host.nbytes)
-    knl = ctx.kernel("hankel.cl", "hankel2_eval", {"WB_FP64": int(real == np.float64)})
+    knl = ctx.kernel("hankel.cl", "hankel2_eval", ctx.defines(precision))
     knl(ctx.queue, (n,), None, z_dev, h0_dev, h1_dev, np.int32(n))
     h0 = np.empty_like(z_host)
     h1 = np.empty_like(z_host)

@@ -13,7 +13,12 @@ import numpy as np
 
 from wavebrdf.solver.fiber.incidence import POLARIZATIONS
 
-__all__ = ["ScatteringResult"]
+__all__ = ["ScatteringResult", "power_balance_error"]
+
+
+def power_balance_error(C_ext, C_sca, C_abs) -> np.ndarray:
+    """|C_ext − C_sca − C_abs| / |C_ext|: how far a fiber solve is from conserving power."""
+    return np.abs(np.asarray(C_ext) - C_sca - C_abs) / np.abs(C_ext)
 
 
 @dataclass
@@ -39,7 +44,7 @@ class ScatteringResult:
     @property
     def power_balance_error(self) -> np.ndarray:
         """|C_ext - C_sca - C_abs| / C_ext, shape (2, P)."""
-        return np.abs(self.C_ext - self.C_sca - self.C_abs) / np.abs(self.C_ext)
+        return power_balance_error(self.C_ext, self.C_sca, self.C_abs)
 
     @property
     def dCs_dphi_unpolarized(self) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Flat continuation of a patch (aim.edge = "flat", continuation.py) against independent references.
+"""Flat continuation of a patch (aim.edge = "flat", aim/continuation.py) against independent references.
 
 * the closed-form flat-interface currents (Fresnel per plane wave of the exact beam) against the
   currents an ordinary pinned-edge solve finds in the middle of a wide flat patch;
@@ -16,9 +16,9 @@ import warnings
 import numpy as np
 import pytest
 
-from wavebrdf.solver.bem3d.aim import AIMBEM, AIMOptions
+from wavebrdf.solver.bem3d import AIMOptions, BEMSolver
+from wavebrdf.solver.bem3d.aim.continuation import flat_interface_coefficients
 from wavebrdf.solver.bem3d.checks import BEMWarning
-from wavebrdf.solver.bem3d.continuation import flat_interface_coefficients
 from wavebrdf.solver.bem3d.excitation import beam_excitation
 from wavebrdf.solver.farfield import HemisphereGrid, albedo
 from wavebrdf.solver.surface import HeightField, generate
@@ -45,7 +45,7 @@ def test_flat_interface_currents_match_a_wide_pinned_solve(cl_ctx, lam, index, t
     size = cells * d
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BEMWarning)
-        solver = AIMBEM(cl_ctx, generate("flat", cells=cells, size_um=size), lam, index)
+        solver = BEMSolver(cl_ctx, generate("flat", cells=cells, size_um=size), lam, index, method="aim")
     waist = size / 5  # margin 2.5 w: the pinned edge is harmless
     exc = beam_excitation(solver.mesh, solver.media, theta, 0.3, waist_um=waist, beam="exact", focus_um=(0.0, 0.0),
                           rhs_order=solver.quadrature.rhs_order)
@@ -69,7 +69,8 @@ def test_flat_continuation_meets_fresnel_where_the_pinned_edge_does_not(cl_ctx, 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BEMWarning)
         for edge in ("flat", "pinned"):
-            ff = AIMBEM(cl_ctx, surface, 0.5, index, aim={"edge": edge}).farfield(theta, 0.0, grid, waist_um=1.6)
+            solver = BEMSolver(cl_ctx, surface, 0.5, index, method="aim", aim={"edge": edge})
+            ff = solver.farfield(theta, 0.0, grid, waist_um=1.6)
             errors[edge] = albedo(ff.brdf(), grid) / ff.diagnostics["beam_reflectance"] - 1
     print(f"n = {index}, θ = {theta}: albedo error: flat continuation {errors['flat']}, pinned {errors['pinned']}")
     assert np.all(np.abs(errors["flat"]) < 0.005)
@@ -87,7 +88,7 @@ def test_continued_bump_matches_a_wide_pinned_patch(cl_ctx, theta):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BEMWarning)
         for name, size, edge in (("wide", 4.0, "pinned"), ("continued", 2.0, "flat"), ("pinned", 2.0, "pinned")):
-            solver = AIMBEM(cl_ctx, _bump(size, d), lam, 1.5, z_reference=0.0, aim={"edge": edge})
+            solver = BEMSolver(cl_ctx, _bump(size, d), lam, 1.5, method="aim", z_reference=0.0, aim={"edge": edge})
             brdf[name] = solver.farfield(theta, 0.0, grid, waist_um=waist).brdf()
     continued, pinned = (_lobe_error(brdf[k], brdf["wide"]) for k in ("continued", "pinned"))
     print(f"θ = {theta}: BRDF vs the wide patch over the lobe: continued {continued:.2e}, pinned {pinned:.2e}")
@@ -100,9 +101,10 @@ def test_flat_edge_refuses_bad_input(cl_ctx):
         AIMOptions(edge="open")
     rough = generate("gaussian", cells=12, size_um=0.6, seed=1, rms_height_um=0.05, correlation_um=0.2)
     with pytest.raises(ValueError, match="border heights leave that plane"):
-        AIMBEM(cl_ctx, rough, 0.5, 1.5, aim={"edge": "flat"})
+        BEMSolver(cl_ctx, rough, 0.5, 1.5, method="aim", aim={"edge": "flat"})
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BEMWarning)
-        solver = AIMBEM(cl_ctx, generate("flat", cells=12, size_um=0.6), 0.5, 1.5, aim={"edge": "flat"})
+        solver = BEMSolver(cl_ctx, generate("flat", cells=12, size_um=0.6), 0.5, 1.5, method="aim",
+                           aim={"edge": "flat"})
     with pytest.raises(ValueError, match="needs illumination.beam = 'exact'"):
         solver.farfield(0.0, 0.0, HemisphereGrid(16), waist_um=0.2, beam="paraxial")

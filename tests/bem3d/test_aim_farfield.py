@@ -9,9 +9,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from wavebrdf.solver.bem3d.aim.farfield import GridFarField
 from wavebrdf.solver.bem3d.excitation import SurfaceRule
 from wavebrdf.solver.bem3d.farfield import radiated_fields
-from wavebrdf.solver.bem3d.fft_farfield import GridFarField
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.farfield import HemisphereGrid

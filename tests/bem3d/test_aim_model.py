@@ -83,7 +83,7 @@ def test_unconverged_aim_solve_is_a_failed_task(tmp_path):
 
 @pytest.mark.parametrize("aim, message", [
     ("[model.aim]\nnear_cell = 4\n", "near_cell"),
-    ("[model.aim]\nsolver = \"cg\"\n", "'cg'"),
+    ("[model.aim]\nsolver = \"cg\"\n", r'\[model.aim\] solver = "cg": must be one of "gmres", "csym", "bicgstab"'),
     ("aim = 3\n", "must be a table"),
 ])
 def test_bad_aim_options_name_the_key(tmp_path, aim, message):

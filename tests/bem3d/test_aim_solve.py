@@ -15,10 +15,10 @@ import warnings
 import numpy as np
 import pytest
 
-from wavebrdf.solver.bem3d import DenseBEM
-from wavebrdf.solver.bem3d.aim import AIM_QUADRATURE, AIMBEM, NearPreconditioner, aim_farfield, preconditioner_tiles
-from wavebrdf.solver.bem3d.checks import BEMWarning
-from wavebrdf.solver.bem3d.nearfield import NearPattern
+from wavebrdf.solver.bem3d import BEMSolver, BEMWarning, bem_farfield
+from wavebrdf.solver.bem3d.aim.nearfield import NearPattern
+from wavebrdf.solver.bem3d.aim.options import AIM_QUADRATURE
+from wavebrdf.solver.bem3d.aim.preconditioner import NearPreconditioner, preconditioner_tiles
 from wavebrdf.solver.farfield import HemisphereGrid, albedo
 from wavebrdf.solver.krylov import KrylovNotConverged
 from wavebrdf.solver.surface import generate
@@ -42,9 +42,9 @@ def test_aim_brdf_matches_dense(cl_ctx, lam, index, per_wavelength):
     waist = cells * d / 5
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BEMWarning)
-        ff_aim = aim_farfield(cl_ctx, surface, lam, index, 0.3, 0.7, waist, grid)
-        ff_dense = DenseBEM(cl_ctx, surface, lam, index, quadrature=AIM_QUADRATURE).farfield(0.3, 0.7, grid,
-                                                                                           waist_um=waist)
+        ff_aim = bem_farfield(cl_ctx, surface, lam, index, 0.3, 0.7, waist, grid, method="aim")
+        ff_dense = BEMSolver(cl_ctx, surface, lam, index, quadrature=AIM_QUADRATURE).farfield(0.3, 0.7, grid,
+                                                                                            waist_um=waist)
     err = _lobe_error(ff_aim, ff_dense)
     diag = ff_aim.diagnostics
     print(f"n = {index}: BRDF rel. L2 over the lobe {err:.2e}; {diag['iterations']} iterations, "
@@ -57,7 +57,7 @@ def test_non_converged_solve_raises_with_diagnostics(cl_ctx):
     surface = generate("flat", cells=12, size_um=0.6)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BEMWarning)
-        solver = AIMBEM(cl_ctx, surface, 0.5, 1.5, aim={"max_iterations": 2, "tolerance": 1e-9})
+        solver = BEMSolver(cl_ctx, surface, 0.5, 1.5, method="aim", aim={"max_iterations": 2, "tolerance": 1e-9})
         with pytest.raises(KrylovNotConverged) as info:
             solver.farfield(0.0, 0.0, HemisphereGrid(16), waist_um=0.12)
     diag = info.value.diagnostics
@@ -75,7 +75,7 @@ def test_flat_20_wavelength_patch_matches_exact_beam_reflectance(cl_ctx, index):
     grid = HemisphereGrid(256)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BEMWarning)
-        ff = aim_farfield(cl_ctx, surface, lam, index, 0.0, 0.0, surface.size_um / 5, grid)
+        ff = bem_farfield(cl_ctx, surface, lam, index, 0.0, 0.0, surface.size_um / 5, grid, method="aim")
     measured = albedo(ff.brdf(), grid)
     expected = ff.diagnostics["beam_reflectance"]
     print(f"n = {index}: albedo {measured}, exact beam {expected}, error {measured / expected - 1}, "
@@ -93,7 +93,7 @@ def test_near_preconditioner_inverts_the_near_block_and_cuts_iterations(cl_ctx):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BEMWarning)
         for preconditioner in ("near", "none"):
-            solver = AIMBEM(cl_ctx, surface, lam, 1.5, aim={"preconditioner": preconditioner})
+            solver = BEMSolver(cl_ctx, surface, lam, 1.5, method="aim", aim={"preconditioner": preconditioner})
             if preconditioner == "near":
                 near = solver.operator.near.exact_sparse(np.complex128)
                 x = np.random.default_rng(1).standard_normal(near.shape[0]) + 0j
@@ -129,7 +129,7 @@ def test_tiled_preconditioner_still_cuts_iterations(cl_ctx):
     grid = HemisphereGrid(32)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BEMWarning)
-        solver = AIMBEM(cl_ctx, surface, lam, 1.5)
+        solver = BEMSolver(cl_ctx, surface, lam, 1.5, method="aim")
         whole = solver.operator.preconditioner
         x = np.random.default_rng(2).standard_normal((1, whole.scale.size)) + 0j
         assert np.array_equal(NearPreconditioner(solver.operator.near, cells)(x), whole(x))

@@ -14,7 +14,7 @@ import warnings
 import numpy as np
 import pytest
 
-from wavebrdf.solver.bem3d import BEMWarning, DenseBEM
+from wavebrdf.solver.bem3d import BEMSolver, BEMWarning
 from wavebrdf.solver.farfield import HemisphereGrid
 from wavebrdf.solver.surface import HeightField, generate
 
@@ -34,7 +34,7 @@ def _difference(cl_ctx, scale, cells=48):
     surface = HeightField(scale * shape.z, size)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
-        bem = DenseBEM(cl_ctx, surface, LAMBDA, AL).farfield(0.0, 0.0, grid, waist_um=size / 5)
+        bem = BEMSolver(cl_ctx, surface, LAMBDA, AL).farfield(0.0, 0.0, grid, waist_um=size / 5)
         kir = kirchhoff_farfield(cl_ctx, surface, LAMBDA, AL, 0.0, 0.0, grid, waist_um=size / 5)
     fb = 0.5 * (bem.brdf()[0] + bem.brdf()[1])
     fk = 0.5 * (kir.brdf()[0] + kir.brdf()[1])

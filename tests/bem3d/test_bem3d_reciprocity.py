@@ -16,7 +16,7 @@ import warnings
 import numpy as np
 import pytest
 
-from wavebrdf.solver.bem3d import BEMWarning, DenseBEM
+from wavebrdf.solver.bem3d import BEMSolver, BEMWarning
 from wavebrdf.solver.farfield import ETA0, direction
 from wavebrdf.solver.surface import generate
 
@@ -27,7 +27,7 @@ AL = 0.46582 - 4.7119j
 def _solver(cl_ctx, surface, index):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BEMWarning)
-        return DenseBEM(cl_ctx, surface, LAMBDA, index)
+        return BEMSolver(cl_ctx, surface, LAMBDA, index)
 
 
 def exact_flat_beam_brdf(beam, index, directions, fresnel_power):

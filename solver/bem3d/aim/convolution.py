@@ -16,7 +16,8 @@ That is 8 forward and 8 inverse FFTs per group and right-hand side (the referenc
 22 per medium). FFT backend: ``"host"`` (scipy.fft on host memory that the OpenCL buffers
 share, zero-copy on CPU devices) or ``"vkfft"`` (pyvkfft on the device, for GPUs). ``"auto"``
 picks the host FFT on CPU devices, where it was measured faster (docs/aim.md), and VkFFT on GPUs
-when pyvkfft is installed.
+when pyvkfft is installed. Host FFTs run on ``solver.opencl.fft_workers()`` threads (the
+``WAVEBRDF_FFT_WORKERS`` cap of the batch layer, else the CPUs this process may use).
 
 NumPy twins: :func:`scatter_numpy`, :func:`fourier_numpy`, :func:`gather_numpy` and
 :meth:`BaseOperator.apply_numpy`.
@@ -25,7 +26,6 @@ NumPy twins: :func:`scatter_numpy`, :func:`fourier_numpy`, :func:`gather_numpy` 
 from __future__ import annotations
 
 import logging
-import os
 import time
 from dataclasses import dataclass
 
@@ -33,11 +33,11 @@ import numpy as np
 import scipy.fft
 import scipy.sparse
 
-from wavebrdf.solver.bem3d.aim_green import KernelSpectra
-from wavebrdf.solver.bem3d.elements import vector_lanes
+from wavebrdf.solver.bem3d.aim.green import KernelSpectra
+from wavebrdf.solver.bem3d.aim.projection import Projection
 from wavebrdf.solver.bem3d.media import Media
-from wavebrdf.solver.bem3d.projection import Projection
 from wavebrdf.solver.farfield import ETA0
+from wavebrdf.solver.opencl import fft_workers
 
 logger = logging.getLogger(__name__)
 
@@ -47,7 +47,6 @@ __all__ = [
     "batch_chunks",
     "BaseOperator",
     "GridGroup",
-    "fft_workers",
     "forward_pruned",
     "fourier_coefficients",
     "fourier_numpy",
@@ -66,14 +65,6 @@ PACKED_BATCHES = (1, 2, 4)  # right-hand sides per launch that aim.cl packs into
 def batch_chunks(n: int):
     """Slices of n right-hand sides in packed batch sizes: pairs and, for odd n, a last single."""
     return [slice(i, min(n, i + 2)) for i in range(0, n, 2)]
-
-
-def fft_workers() -> int:
-    """Threads for scipy.fft: the CPUs this process may use."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # pragma: no cover - non-Linux
-        return max(1, os.cpu_count() or 1)
 
 
 def forward_pruned(q: np.ndarray, padded, workers: int | None = None) -> np.ndarray:
@@ -192,8 +183,7 @@ def gather_numpy(mats, F: np.ndarray) -> np.ndarray:
 class BaseOperator:
     """y = B x on the device (see the module docstring); ``apply_numpy`` is the reference."""
 
-    def __init__(self, ctx, mesh, groups: list[GridGroup], *, precision: str = "double", fft: str = "auto",
-                 workers: int | None = None):
+    def __init__(self, ctx, mesh, groups: list[GridGroup], *, precision: str = "double", fft: str = "auto"):
         if fft not in FFT_BACKENDS:
             raise ValueError(f"aim fft must be one of {FFT_BACKENDS}, got {fft!r}")
         self.ctx = ctx
@@ -201,7 +191,7 @@ class BaseOperator:
         self.groups = groups
         self.grid = groups[0].projection.grid
         self.precision = precision
-        self.workers = workers or fft_workers()
+        self.workers = fft_workers()
         self.n_b = mesh.n_bases
         self.n_h = mesh.n_horizontal
         self.real = np.dtype(np.float64 if precision == "double" else np.float32)
@@ -211,7 +201,7 @@ class BaseOperator:
             self.complex = np.result_type(self.real, np.complex64)
         self.fft = self._choose_fft(fft)
         # samples per work-item of aim_fourier (measured: docs/aim.md)
-        self.fourier_lanes = 1 if ctx is None else vector_lanes(ctx) * (1 if self.real == np.float64 else 2)
+        self.fourier_lanes = 1 if ctx is None else ctx.vector_lanes(precision)
         self.timings = {"scatter_s": 0.0, "fft_s": 0.0, "fourier_s": 0.0, "gather_s": 0.0, "calls": 0}
         self._mats = None
         self._vkfft: dict = {}
@@ -222,7 +212,7 @@ class BaseOperator:
     def _choose_fft(self, fft: str) -> str:
         if fft != "auto":
             return fft
-        if self.ctx is not None and "GPU" in self.ctx.info.kind:
+        if self.ctx is not None and self.ctx.is_gpu:
             try:
                 import pyvkfft.opencl  # noqa: F401
 
@@ -232,14 +222,10 @@ class BaseOperator:
         return "host"
 
     def _upload(self):
-        import pyopencl as cl
-
-        mf = cl.mem_flags
         ctx = self.ctx
         pointer, entries = self.grid.inverse_map()
-        self._map = [cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a) for a in (pointer, entries)]
-        self._origins = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
-                                  hostbuf=np.ascontiguousarray(self.grid.origins, np.int32))
+        self._map = [ctx.to_device(a) for a in (pointer, entries)]
+        self._origins = ctx.to_device(self.grid.origins, np.int32)
         self._device_groups = []
         self._host_weights = []  # arrays behind shared buffers
         for group in self.groups:
@@ -251,13 +237,12 @@ class BaseOperator:
             weights = (shared_buffer(ctx, by_basis), shared_buffer(ctx, by_point))
             green = shared_buffer(ctx, group.green)
             gradient = shared_buffer(ctx, group.gradient)
-            coef = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
-                             hostbuf=np.ascontiguousarray(group.coefficients, self.complex))
+            coef = ctx.to_device(group.coefficients, self.complex)
             self._device_groups.append((weights, green, gradient, coef, np.iscomplexobj(w)))
 
     def _defines(self, batch: int, complex_weights: bool, n_media: int) -> dict:
-        return {"WB_FP64": int(self.real == np.float64), "AIM_BATCH": batch,
-                "AIM_COMPLEX_W": int(complex_weights), "AIM_NMED": n_media}
+        return self.ctx.defines(self.precision, AIM_BATCH=batch, AIM_COMPLEX_W=int(complex_weights),
+                                AIM_NMED=n_media)
 
     # -- application ------------------------------------------------------------------------
     def apply(self, x: np.ndarray, y_buffer=None):
@@ -271,7 +256,7 @@ class BaseOperator:
             if y_buffer is not None:
                 raise ValueError(f"{len(x)} right-hand sides into one buffer: the kernels take {PACKED_BATCHES}")
             return np.concatenate([self.apply(x[c]) for c in batch_chunks(len(x))])
-        x_buf = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
+        x_buf = ctx.to_device(x)
         own_y = y_buffer is None
         if own_y:
             y_host = np.zeros_like(x)
@@ -398,11 +383,6 @@ class BaseOperator:
             y += gather_numpy(mats, F[..., :nx, :ny, :nz])
         return y
 
-    @property
-    def ffts_per_apply(self) -> int:
-        """Forward + inverse 3-D FFTs per right-hand side and application."""
-        return 16 * len(self.groups)
-
     def bytes(self) -> int:
         """Device/host memory held by the operator (spectra, weights, maps)."""
         total = sum(g.green.nbytes + g.gradient.nbytes for g in self.groups)
@@ -412,16 +392,14 @@ class BaseOperator:
         return int(total)
 
 
-def shared_buffer(ctx, array: np.ndarray, writable: bool = False):
-    """Device buffer of a contiguous host array: shares the host memory on CPU devices (no copy,
-    the array must outlive the buffer), copies it on other devices."""
+def shared_buffer(ctx, array: np.ndarray):
+    """Read-only device buffer of a contiguous host array: shares the host memory on CPU devices
+    (no copy, the array must outlive the buffer), copies it on other devices."""
     import pyopencl as cl
 
-    mf = cl.mem_flags
-    access = mf.READ_WRITE if writable else mf.READ_ONLY
     if "CPU" in ctx.info.kind:
-        return cl.Buffer(ctx.context, access | mf.USE_HOST_PTR, hostbuf=array)
-    return cl.Buffer(ctx.context, access | mf.COPY_HOST_PTR, hostbuf=array)
+        return cl.Buffer(ctx.context, cl.mem_flags.READ_ONLY | cl.mem_flags.USE_HOST_PTR, hostbuf=array)
+    return ctx.to_device(array)
 
 
 def int4_arg(values):

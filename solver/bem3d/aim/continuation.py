@@ -26,13 +26,14 @@ half-basis weight 1 + u is 2 there and |r_u| = d/2), so c = d J·t̂ / 4 at the 
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import replace
 
 import numpy as np
 
+from wavebrdf.solver.bem3d.aim.operator import AIMOperator, GridPart
 from wavebrdf.solver.bem3d.media import Media
-from wavebrdf.solver.bem3d.mesh import BEMMesh
-from wavebrdf.solver.bem3d.nearfield import near_coords, near_first, near_row
+from wavebrdf.solver.bem3d.mesh import BEMMesh, embedded_bases, unknown_indices
 from wavebrdf.solver.farfield import ETA0
 from wavebrdf.solver.surface import HeightField
 
@@ -93,22 +94,6 @@ def embedded_mesh(mesh: BEMMesh, margin: int) -> BEMMesh:
     return BEMMesh(HeightField(z, n * s.spacing_um, s.origin_um), z_reference=0.0)
 
 
-def embedded_bases(mesh: BEMMesh, margin: int) -> np.ndarray:
-    """Index in ``embedded_mesh(mesh, margin)`` of every rooftop of ``mesh`` (mesh.py numbering,
-    through the rooftop index spaces of nearfield.py)."""
-    n, N = mesh.cells, mesh.cells + 2 * margin
-    out = []
-    for o in (0, 1):  # horizontal, vertical
-        x, y = near_coords(o, n, np.arange(n * (n - 1)))
-        out.append(near_first(o, N) + near_row(o, N, x + margin, y + margin))
-    return np.concatenate(out)
-
-
-def unknown_indices(bases: np.ndarray, n_bases: int) -> np.ndarray:
-    """Positions of the J and M̃ coefficients of ``bases`` in a [J | M̃] vector of n_bases rooftops."""
-    return np.concatenate([bases, n_bases + bases])
-
-
 def extended_margin(mesh: BEMMesh, beam, minimum: int) -> int:
     """Cells to add on every side so that the beam's flux beyond the extended mesh is ≤ FLUX_LEFT
     (a Gaussian footprint of radius w about the focus: e^{−2R²/w²} at radius R, then checked)."""
@@ -129,26 +114,24 @@ class FlatContinuation:
     """
 
     def __init__(self, ctx, mesh: BEMMesh, media: Media, options, *, quadrature=None):
-        from wavebrdf.solver.bem3d.aim import AIMOperator  # aim.py imports this module
-
+        t0 = time.perf_counter()
         check_flat_border(mesh.heights, mesh.spacing_um)
         self.ctx, self.mesh, self.media, self.options = ctx, mesh, media, options
         self.ring_cells = math.ceil(options.near_cells) + 2
         self.ring_mesh = embedded_mesh(mesh, self.ring_cells)
         self.ring_operator = AIMOperator(ctx, self.ring_mesh, media, replace(options, preconditioner="none"),
                                          quadrature=quadrature)
-        self._patch_in_ring = embedded_bases(mesh, self.ring_cells)
+        self._patch_in_ring = embedded_bases(mesh.cells, self.ring_cells)
         self._extended: dict = {}
+        self.setup_s = time.perf_counter() - t0
 
     def extended(self, margin: int):
         """(mesh, grid part, patch rooftops in it, ring-mesh rooftops in it) for ``margin`` cells."""
         if margin not in self._extended:
-            from wavebrdf.solver.bem3d.aim import GridPart  # aim.py imports this module
-
             ext = embedded_mesh(self.mesh, margin)
             self._extended = {margin: (ext, GridPart.build(self.ctx, ext, self.media, self.options),
-                                       embedded_bases(self.mesh, margin),
-                                       embedded_bases(self.ring_mesh, margin - self.ring_cells))}
+                                       embedded_bases(self.mesh.cells, margin),
+                                       embedded_bases(self.ring_mesh.cells, margin - self.ring_cells))}
         return self._extended[margin]
 
     def margin(self, beam) -> int:

@@ -2,12 +2,12 @@
 
 One function, :func:`lattice_green`, gives g(δ) = e^{−jkR}/(4πR) and ∇g(δ) = R·gk(R),
 gk = −(1 + jkR) e^{−jkR}/(4πR³), at integer lattice offsets δ (R = δ·Δ); the self point δ = 0 is
-0. Both the FFT path (:func:`kernel_spectra`) and the near-field subtraction (nearfield.py) use
+0. Both the FFT path (:func:`kernel_spectra`) and the near-field subtraction (near_assembly.py) use
 it, so C = A − B subtracts exactly what the FFT adds.
 
-Spectra are computed once per wavelength on the zero-padded grid (aim_grid.py): sample δ sits at
+Spectra are computed once per wavelength on the zero-padded grid (grid.py): sample δ sits at
 index δ mod P for |δ| < n, zeros elsewhere. Per grid medium i the FFT of g_i and of the three
-components of ∇g_i; the operator (aim.py) combines them with the PMCHWT coefficients.
+components of ∇g_i; the FFT convolution (convolution.py) combines them with the PMCHWT coefficients.
 
 Interior medium of a lossy material (bem3d.md §6.7, §14.2): its far interactions are left out
 of the grid only when they have decayed, i.e. when w·e^{−|Im k₂| r_near} ≤ tolerance with
@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft
 
-from wavebrdf.solver.bem3d.aim_grid import AIMGrid
+from wavebrdf.solver.bem3d.aim.grid import AIMGrid
 from wavebrdf.solver.bem3d.media import Media
 
 logger = logging.getLogger(__name__)

@@ -12,7 +12,7 @@ the planes with the exact phase e^{jk₁μ z_l}. No fixed periodic box, no paddi
 interpolation: the only approximation is the projection, whose error against the direct
 quadrature sum (bem3d/farfield.py) is measured in the tests (< 1e-3).
 
-E and H follow from F_J, F_M as in bem3d/farfield.py.
+E and H follow from F_J, F_M by bem3d/farfield.py's :func:`fields_from_integrals`.
 """
 
 from __future__ import annotations
@@ -21,33 +21,19 @@ import logging
 
 import numpy as np
 
-from wavebrdf.solver.bem3d.aim_base import fft_workers, projection_matrices
-from wavebrdf.solver.bem3d.aim_grid import AIMGrid, GridOptions, build_grid
+from wavebrdf.solver.bem3d.aim.convolution import projection_matrices
+from wavebrdf.solver.bem3d.aim.grid import GridOptions, build_grid
+from wavebrdf.solver.bem3d.aim.projection import project
+from wavebrdf.solver.bem3d.farfield import fields_from_integrals
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
-from wavebrdf.solver.bem3d.projection import project
 from wavebrdf.solver.czt import ChirpZAxis
 from wavebrdf.solver.farfield import ETA0, FarField, HemisphereGrid
+from wavebrdf.solver.opencl import fft_workers
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["FARFIELD_STENCIL", "GridFarField", "fields_from_integrals"]
-
-
-def fields_from_integrals(media: Media, directions: np.ndarray, FJ: np.ndarray, FM: np.ndarray):
-    """E, H (e^{−jk₁r}/r removed) from the radiation integrals F_J, F_M (M = η₀M̃), shapes (…, 3)."""
-    rhat = np.asarray(directions, dtype=float)
-
-    def transverse(F):
-        return F - rhat * np.sum(rhat * F, axis=-1, keepdims=True)
-
-    k0, n1 = media.k0, media.exterior_index
-    k1 = k0 * n1
-    c = 1.0 / (4.0 * np.pi)
-    E = -1j * ETA0 * k0 * c * transverse(FJ) + 1j * k1 * c * np.cross(rhat, FM)
-    H = -1j * k1 * c * np.cross(rhat, FJ) - 1j * k0 * n1**2 / ETA0 * c * transverse(FM)
-    return E, H
-
+__all__ = ["FARFIELD_STENCIL", "GridFarField"]
 
 FARFIELD_STENCIL = (4, 4, 4)  # with 1.5 S directions, order 3: error ~5e-6 vs the direct sum (docs/aim.md)
 FARFIELD_ORDER = 3
@@ -59,17 +45,17 @@ class GridFarField:
     ``grid_options``: the AIM grid of the point sources (default: Δ = 1.6 d and a 4 × 4 × 4
     stencil; a z stencil helps even on flat patches: the extra planes fit the grazing
     directions); ``directions`` (default 1.5 S), ``regularization``: far-field matching on the
-    upper hemisphere.
+    upper hemisphere. The chirp-z transforms run on ``solver.opencl.fft_workers()`` threads.
     """
 
     def __init__(self, mesh: BEMMesh, media: Media, output: HemisphereGrid, *,
-                 grid: AIMGrid | None = None, grid_options: GridOptions | None = None,
-                 directions: int | None = None, regularization: float = 1e-5, workers: int | None = None):
+                 grid_options: GridOptions | None = None, directions: int | None = None,
+                 regularization: float = 1e-5):
         self.mesh = mesh
         self.media = media
         self.output = output
-        self.workers = workers or fft_workers()
-        self.grid = grid or build_grid(mesh, grid_options or GridOptions(stencil=FARFIELD_STENCIL))
+        self.workers = fft_workers()
+        self.grid = build_grid(mesh, grid_options or GridOptions(stencil=FARFIELD_STENCIL))
         k1 = media.k0 * media.exterior_index
         self.k = k1
         self.projection = project(mesh, self.grid, "farfield", k=k1, hemisphere=True, order=FARFIELD_ORDER,

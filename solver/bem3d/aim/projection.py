@@ -24,7 +24,7 @@ function W_p of the point's position relative to the stencil. Two choices of W:
     pseudo-inverse P is computed once: W_p(r) = Σ_ℓ P_pℓ e^{jk d̂_ℓ·(r − o)}. Λ is complex and
     depends on k (one projection per medium).
 
-The far field (fft_farfield.py) uses far-field matching on the upper hemisphere, which is
+The far field (aim/farfield.py) uses far-field matching on the upper hemisphere, which is
 exactly the property it needs.
 """
 
@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wavebrdf.solver.bem3d.aim_grid import AIMGrid
+from wavebrdf.solver.bem3d.aim.grid import AIMGrid
 from wavebrdf.solver.bem3d.mesh import SLOT_SIGN, SLOT_TANGENT, BEMMesh, slot_weight
 from wavebrdf.solver.bem3d.quadrature import tensor_rule
 

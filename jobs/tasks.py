@@ -1,0 +1,169 @@
+"""Task kinds: what each kind of task runs, estimates, saves in the parts folder and writes into
+the dataset — one table, :data:`KINDS`, read by the plan, the scheduler and the store.
+
+=========  ====================================  ===========================  ==================
+kind       run                                   saved (``<output>.parts/``)  written (dataset)
+=========  ====================================  ===========================  ==================
+direct     the model on the whole surface        BRDF per polarization        brdf, albedo slot
+patch      the model on one steering sub-area    its far field (global phase) task row only
+synth      beam steering of the patch fields     BRDF per polarization        brdf, albedo slot
+fiber      the fiber model, every φ_i at once    dC_s/dφ and cross sections   BCSDF slice
+=========  ====================================  ===========================  ==================
+
+Models are taken from a :class:`ModelPool`: one instance per model configuration and worker
+process, so what a model keeps between scenes (an LU, an AIM operator, a fiber assembler) is
+reused by the next task of the same worker and never shared across contexts or processes.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from wavebrdf.jobs.steering import estimate_synthesis, synthesize_task
+from wavebrdf.solver.farfield import BRDFResult, albedo, combine_polarizations
+from wavebrdf.solver.models import Estimate, Model
+from wavebrdf.solver.resources import peak_memory_mb
+
+__all__ = ["KINDS", "ModelPool", "TaskKind", "execute_task", "plain"]
+
+
+class ModelPool:
+    """Model instances of one worker process, one per (name, options)."""
+
+    def __init__(self):
+        self._models: dict[tuple, Model] = {}
+
+    def get(self, spec) -> Model:
+        """The instance for a :class:`~wavebrdf.jobs.config.ModelSpec` (built on first use)."""
+        key = (spec.name, spec.options)
+        model = self._models.get(key)
+        if model is None:
+            for other in self._models.values():  # one model's kept operator at a time per worker
+                other.release()
+            model = self._models[key] = spec.build()
+        return model
+
+
+def plain(diagnostics: dict) -> dict:
+    """Diagnostics with JSON-ready values (numbers, strings, lists of numbers; anything else as repr)."""
+    def value(v):
+        if isinstance(v, (bool, int, float, str)):
+            return v
+        if isinstance(v, (list, tuple)) and all(isinstance(x, (bool, int, float, str)) for x in v):
+            return list(v)
+        return repr(v)
+
+    return {k: value(v) for k, v in diagnostics.items()}
+
+
+@dataclass(frozen=True)
+class TaskKind:
+    """run(ctx, plan, task, pool, parts) → output; estimate(plan, task) → Estimate;
+    save(plan, task, parts, output, extra) → diagnostics; write(writer, plan, task, parts) →
+    diagnostics, or None when the kind has no slot in the dataset (its row only)."""
+
+    run: Callable
+    estimate: Callable[[Any, Any], Estimate]
+    save: Callable
+    write: Callable | None
+
+    @property
+    def writes_result(self) -> bool:
+        return self.write is not None
+
+
+# --- run ----------------------------------------------------------------------------------------
+
+
+def _run_model(ctx, plan, task, pool, parts):
+    """The task's model on the task's scene (surface or fiber)."""
+    scene = plan.fiber_scene(task) if plan.is_fiber else plan.scene(task)
+    return pool.get(plan.model_spec(task)).run(ctx, scene)
+
+
+def _run_patch(ctx, plan, task, pool, parts):
+    """A sub-area's far field, its phase moved to the global origin (e^{+jk p·ω_o})."""
+    ff = _run_model(ctx, plan, task, pool, parts)
+    return ff.translated(plan.steering[task.case].layout.centre(task.patch))
+
+
+def _estimate_model(plan, task) -> Estimate:
+    scene = plan.fiber_scene(task) if plan.is_fiber else plan.scene(task)
+    return plan.model_spec(task).build().estimate(scene)
+
+
+# --- save (parts folder) -----------------------------------------------------------------------
+
+
+def _save_brdf(plan, task, parts, result: BRDFResult, extra: dict) -> dict:
+    """BRDF per polarization (float32) and its albedo; NaN/inf inside the disk is a failure."""
+    brdf_sp = result.brdf()
+    if not np.all(np.isfinite(brdf_sp[:, plan.grid.inside])):
+        raise FloatingPointError(f"{task.label}: NaN/inf inside the unit disk")
+    diagnostics = {**plain(result.diagnostics), **extra}
+    parts.save_arrays(task, diagnostics, brdf_sp=brdf_sp.astype(np.float32), albedo_sp=albedo(brdf_sp, plan.grid))
+    return diagnostics
+
+
+def _save_farfield(plan, task, parts, ff, extra: dict) -> dict:
+    ff.diagnostics.update(extra)
+    diagnostics = plain(ff.diagnostics)
+    parts.save_farfield(task, ff, diagnostics)
+    return {**diagnostics, **extra}
+
+
+def _save_fiber(plan, task, parts, result, extra: dict) -> dict:
+    diagnostics = {**result.diagnostics, **extra}
+    parts.save_arrays(task, diagnostics, **{k: np.asarray(v) for k, v in result.arrays().items()})
+    return diagnostics
+
+
+# --- write (dataset) ---------------------------------------------------------------------------
+
+
+def _write_brdf(writer, plan, task, parts) -> dict:
+    arrays, diagnostics = parts.load_arrays(task)
+    brdf_sp = arrays["brdf_sp"]
+    brdf = combine_polarizations(brdf_sp, plan.config.cases[task.case].illumination.polarization)
+    writer.write_result(task.case_index, task.wavelength, task.incidence, brdf_sp, brdf, arrays["albedo_sp"],
+                        float(albedo(brdf, plan.grid)))
+    return diagnostics
+
+
+def _write_fiber(writer, plan, task, parts) -> dict:
+    arrays, diagnostics = parts.load_arrays(task)
+    writer.write_slice(task.case_index, task.wavelength, task.incidence, **arrays)
+    return diagnostics
+
+
+KINDS: dict[str, TaskKind] = {
+    "direct": TaskKind(run=_run_model, estimate=_estimate_model, save=_save_brdf, write=_write_brdf),
+    "patch": TaskKind(run=_run_patch, estimate=_estimate_model, save=_save_farfield, write=None),
+    "synth": TaskKind(run=synthesize_task, estimate=estimate_synthesis, save=_save_brdf, write=_write_brdf),
+    "fiber": TaskKind(run=_run_model, estimate=_estimate_model, save=_save_fiber, write=_write_fiber),
+}
+
+
+def execute_task(ctx, plan, task, parts, pool: ModelPool) -> dict:
+    """Run ``task``, save its output in ``parts`` and return its diagnostics (the warnings it
+    raised, wall time, peak memory and device included)."""
+    kind = KINDS[task.kind]
+    t0 = time.perf_counter()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        output = kind.run(ctx, plan, task, pool, parts)
+    messages = sorted({f"{w.category.__name__}: {w.message}" for w in caught})
+    extra = {
+        "kind": task.kind,
+        "model": plan.model_spec(task).name,
+        "wall_time_s": time.perf_counter() - t0,
+        "peak_memory_mb": peak_memory_mb(),
+        "device": ctx.describe() if ctx is not None else "",
+        "warnings": "; ".join(messages),
+    }
+    return kind.save(plan, task, parts, output, extra)

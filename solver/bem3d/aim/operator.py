@@ -1,0 +1,165 @@
+"""The AIM operator: Z x = (B + C) x without the dense matrix, and its Krylov solve (bem3d.md §6–§7).
+
+* B, the grid part (:class:`GridPart`): far interactions through grid point sources (grid.py),
+  projections Λ (projection.py), sampled kernels (green.py), FFT convolution (convolution.py);
+* C (nearfield.py, assembled by near_assembly.py): exact minus grid entries of near pairs,
+  diagonal (offset) storage on the rooftop lattice;
+* a Krylov solve (solver/krylov.py) for both polarizations at once, right-preconditioned by the
+  sparse LU of the exact near entries within ``preconditioner_cells`` (preconditioner.py);
+  without a preconditioner, on the rescaled system S Z S y = S b with S = diag(I, jI)
+  (complex-symmetric like Z, but with its spectrum in the right half-plane, which roughly halves
+  the GMRES iterations). Both measured in docs/aim.md.
+
+The driver (bem3d/driver.py) puts it behind the same far-field template as the dense LU.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from wavebrdf.solver.bem3d.aim.convolution import PACKED_BATCHES, BaseOperator, GridGroup, batch_chunks
+from wavebrdf.solver.bem3d.aim.green import grid_media, interior_decay, kernel_spectra
+from wavebrdf.solver.bem3d.aim.grid import build_grid
+from wavebrdf.solver.bem3d.aim.near_assembly import assemble_near
+from wavebrdf.solver.bem3d.aim.nearfield import NearPattern
+from wavebrdf.solver.bem3d.aim.options import AIM_QUADRATURE, AIMOptions
+from wavebrdf.solver.bem3d.aim.preconditioner import NearPreconditioner, symmetric_scaling
+from wavebrdf.solver.bem3d.aim.projection import project
+from wavebrdf.solver.bem3d.elements import ElementIntegrals
+from wavebrdf.solver.bem3d.media import Media
+from wavebrdf.solver.bem3d.mesh import BEMMesh
+from wavebrdf.solver.bem3d.quadrature import QuadratureOptions
+from wavebrdf.solver.krylov import KrylovResult, solve
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["PROJECTION_ORDER", "AIMOperator", "GridPart"]
+
+PROJECTION_ORDER = 3  # Gauss order per element of the projection integrals (order 4: same AIM error)
+
+
+@dataclass
+class GridPart:
+    """The grid part B of an AIM operator: the media on the grid, the grid, the projections
+    (each with the media it serves) and the BaseOperator that applies B."""
+
+    media: tuple
+    grid: object
+    groups: list
+    base: BaseOperator
+    projection_s: float
+
+    @classmethod
+    def build(cls, ctx, mesh: BEMMesh, media: Media, options: AIMOptions) -> "GridPart":
+        t0 = time.perf_counter()
+        on_grid = grid_media(media, options.near_cells * mesh.spacing_um, options.interior_decay_tolerance)
+        grid = build_grid(mesh, options.grid_options(media, mesh.spacing_um, on_grid))
+        cdtype = np.complex128 if options.precision == "double" else np.complex64
+        if options.projection == "moments":
+            groups = [(project(mesh, grid, "moments", order=PROJECTION_ORDER), on_grid)]
+        else:
+            groups = [(project(mesh, grid, "farfield", k=media.wavenumbers[i].real, order=PROJECTION_ORDER,
+                               directions=options.directions or None, regularization=options.regularization), (i,))
+                      for i in on_grid]
+        t1 = time.perf_counter()
+        spectra = kernel_spectra(grid, media, on_grid, dtype=cdtype)
+        base = BaseOperator(ctx, mesh, [GridGroup.build(p, spectra, media, m, cdtype) for p, m in groups],
+                            precision=options.precision, fft=options.fft)
+        return cls(on_grid, grid, groups, base, t1 - t0)
+
+
+class AIMOperator:
+    """Z x ≈ (B + C) x for one mesh, wavelength and material (see the module docstring)."""
+
+    def __init__(self, ctx, mesh: BEMMesh, media: Media, options: AIMOptions | None = None, *,
+                 quadrature: QuadratureOptions | None = None, progress=None):
+        t0 = time.perf_counter()
+        self.ctx = ctx
+        self.mesh = mesh
+        self.media = media
+        self.options = options = options or AIMOptions()
+        self.precision = options.precision
+        self.dtype = np.complex128 if options.precision == "double" else np.complex64
+        grid_part = GridPart.build(ctx, mesh, media, options)
+        self.grid_media, self.grid, self.base = grid_part.media, grid_part.grid, grid_part.base
+        groups = grid_part.groups
+        t1, t2 = t0 + grid_part.projection_s, time.perf_counter()
+        self.pattern = NearPattern.build(mesh.cells, options.near_cells)
+        self.integrals = ElementIntegrals(mesh, quadrature or AIM_QUADRATURE, ctx)
+        precondition = options.preconditioner == "near"
+        self.near = assemble_near(ctx, mesh, media, self.pattern, groups, integrals=self.integrals,
+                                  storage=options.near_storage, progress=progress,
+                                  exact_cells=options.preconditioner_cells if precondition else None)
+        if ctx is not None:
+            self.near.upload(ctx)
+        t3 = time.perf_counter()
+        self.preconditioner = NearPreconditioner(self.near, options.preconditioner_tile_cells) if precondition else None
+        self.setup = {
+            "projection_s": t1 - t0, "spectra_s": t2 - t1, "near_s": t3 - t2,
+            "near_detail": dict(self.near.timings), "grid": self.grid.describe(),
+            "grid_media": list(self.grid_media),
+            "interior_decay": interior_decay(media, options.near_cells * mesh.spacing_um),
+            "preconditioner_s": 0.0 if self.preconditioner is None else self.preconditioner.seconds,
+            "preconditioner_fill": 0.0 if self.preconditioner is None else
+            self.preconditioner.factor_nnz / self.preconditioner.nnz,
+        }
+        self.setup_s = time.perf_counter() - t0
+        logger.info("AIM operator: %s; near %d offsets, %.1f MB; set-up %.1f s", self.grid.describe(),
+                    len(self.pattern.same) * 2 + len(self.pattern.cross), self.near.bytes() / 2**20, self.setup_s)
+
+    def matvec(self, x: np.ndarray) -> np.ndarray:
+        """Z x for x (P, 2N_b) or (2N_b,) on the device."""
+        import pyopencl as cl
+
+        single = np.ndim(x) == 1
+        x = np.ascontiguousarray(np.atleast_2d(x), dtype=self.dtype)
+        if len(x) not in PACKED_BATCHES:
+            return np.concatenate([self.matvec(x[c]) for c in batch_chunks(len(x))])
+        ctx = self.ctx
+        y = np.zeros_like(x)
+        x_buf = ctx.to_device(x)
+        y_buf = ctx.to_device(y, writable=True)
+        t0 = time.perf_counter()
+        self.near.apply(ctx, x_buf, y_buf, len(x), self.precision)
+        ctx.queue.finish()
+        self.base.timings["near_s"] = self.base.timings.get("near_s", 0.0) + time.perf_counter() - t0
+        self.base.apply(x, y_buf)
+        cl.enqueue_copy(ctx.queue, y, y_buf)
+        ctx.queue.finish()
+        return y[0] if single else y
+
+    def matvec_numpy(self, x: np.ndarray) -> np.ndarray:
+        """NumPy reference of :meth:`matvec`."""
+        return self.near.apply_numpy(x) + self.base.apply_numpy(x)
+
+    def solve(self, rhs: np.ndarray, diagnostics: dict | None = None) -> KrylovResult:
+        """Krylov solve of Z x = b for right-hand sides (P, 2N_b); returns a KrylovResult (x unscaled)
+        and records its figures and the matvec timings so far into ``diagnostics`` (if given).
+        Raises KrylovNotConverged (with ``diagnostics``) when the tolerance is missed."""
+        o = self.options
+        apply = self.matvec if self.ctx is not None else self.matvec_numpy
+        if self.preconditioner is not None:
+            result = solve(apply, rhs, method=o.solver, tol=o.tolerance, max_iterations=o.max_iterations,
+                           restart=o.restart, preconditioner=self.preconditioner)
+        else:
+            s = symmetric_scaling(self.mesh.n_bases, self.dtype)
+            result = solve(lambda Y: s * apply(s * Y), s * rhs, method=o.solver, tol=o.tolerance,
+                           max_iterations=o.max_iterations, restart=o.restart)
+            result.x = s * result.x
+        if diagnostics is not None:
+            diagnostics.update(result.diagnostics(), matvec_timings=dict(self.base.timings))
+        return result
+
+    def diagnostics(self) -> dict:
+        """Set-up figures of the operator (for the run's diagnostics)."""
+        return {"setup_s": self.setup_s, "aim_setup": self.setup, "near_bytes": self.near.bytes(),
+                "near_bytes_per_unknown": self.near.bytes() / self.mesh.n_unknowns,
+                "operator_bytes": self.bytes(), "aim_options": asdict(self.options)}
+
+    def bytes(self) -> int:
+        extra = 0 if self.preconditioner is None else self.preconditioner.bytes()
+        return self.near.bytes() + self.base.bytes() + extra

@@ -1,0 +1,239 @@
+"""The one driver of the 3D BEM: an operator (dense LU or AIM) behind a single far-field template.
+
+:class:`BEMSolver` builds, for one surface, wavelength and material, the media, the mesh, the
+checks and the operator of the chosen ``method``, then serves any number of incident directions
+and both polarizations:
+
+    excitation (excitation.py)
+    → with the flat continuation (aim/continuation.py, AIM ``edge = "flat"``): b − Z_SF c_F
+    → operator.solve (dense.py: LU; aim/operator.py: Krylov)
+    → radiation: dense — direct quadrature sum and the hemisphere-quadrature radiated power
+      (farfield.py); AIM — chirp-z transforms of grid point sources (aim/farfield.py), on the
+      extended mesh when the patch is continued
+    → diagnostics.
+
+An operator has ``mesh``, ``solve(b, diagnostics)`` → a result with ``x`` (P, 2N_b) that records
+its figures (residual, iterations, times) into ``diagnostics``, and ``diagnostics()`` (set-up
+figures). :func:`bem_farfield` is the one-shot entry point of both methods.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import NamedTuple
+
+import numpy as np
+
+from wavebrdf.solver.beams import make_beam
+from wavebrdf.solver.bem3d.aim.continuation import FlatContinuation, border_height
+from wavebrdf.solver.bem3d.aim.farfield import GridFarField
+from wavebrdf.solver.bem3d.aim.grid import GridOptions
+from wavebrdf.solver.bem3d.aim.operator import AIMOperator
+from wavebrdf.solver.bem3d.aim.options import AIM_QUADRATURE, AIMOptions
+from wavebrdf.solver.bem3d.checks import check_material, check_resolution, check_surface_plasmons
+from wavebrdf.solver.bem3d.dense import DenseOperator
+from wavebrdf.solver.bem3d.excitation import BeamExcitation, SurfaceRule, beam_excitation, power_into_material
+from wavebrdf.solver.bem3d.farfield import farfield_on_grid, radiated_fields, radiated_power
+from wavebrdf.solver.bem3d.media import Media
+from wavebrdf.solver.bem3d.mesh import BEMMesh
+from wavebrdf.solver.bem3d.quadrature import QuadratureOptions
+from wavebrdf.solver.farfield import FarField, HemisphereGrid
+from wavebrdf.solver.resources import peak_memory_mb
+from wavebrdf.solver.surface import HeightField
+
+__all__ = ["METHODS", "BEMSolver", "bem_farfield"]
+
+METHODS = ("dense", "aim")
+
+
+class Solution(NamedTuple):
+    """One solve: the excitation, the patch's solution x (P, 2N_b), and the mesh and solution that
+    radiate (the extended mesh and [x_S, c_F] when the patch is continued)."""
+
+    excitation: BeamExcitation
+    x: np.ndarray
+    radiating_mesh: BEMMesh
+    radiating_x: np.ndarray
+
+
+class BEMSolver:
+    """The PMCHWT operator of one surface, wavelength and material; far fields for any incidence.
+
+    Parameters: ``ctx`` (ComputeContext; None runs the dense NumPy reference path on tiny meshes),
+    ``surface`` (HeightField), ``wavelength_um``, ``index`` (n − jκ), ``method`` ("dense" | "aim"),
+    ``exterior_index``, ``quadrature`` (QuadratureOptions or a mapping; default the dense default,
+    or AIM_QUADRATURE for AIM), ``z_reference`` (height subtracted from the surface, default its
+    mean, or the border's with the flat continuation), ``aim`` (AIMOptions or a mapping; method
+    "aim" only), ``residual`` ("auto" | "copy" | "reassemble" | "none") and ``memory_limit_bytes``
+    (default 85% of MemAvailable) of the dense path, ``progress`` (callable(stage, fraction)).
+    """
+
+    def __init__(self, ctx, surface: HeightField, wavelength_um: float, index: complex, *, method: str = "dense",
+                 exterior_index: float = 1.0, quadrature=None, z_reference: float | None = None, aim=None,
+                 residual: str = "auto", memory_limit_bytes: float | None = None, progress=None):
+        if method not in METHODS:
+            raise ValueError(f"bem method must be one of {METHODS}, got {method!r}")
+        if method == "aim" and ctx is None:
+            raise ValueError("the AIM solver needs an OpenCL context (ctx)")
+        if method == "dense" and aim:
+            raise ValueError(f"aim options {aim!r} given for the bem method 'dense' (set method = 'aim')")
+        self.ctx = ctx
+        self.method = method
+        self.media = Media(wavelength_um, index, exterior_index)
+        self.aim = None
+        if method == "aim":
+            self.aim = aim if isinstance(aim, AIMOptions) else AIMOptions.from_mapping(aim)
+        continued = self.aim is not None and self.aim.edge == "flat"
+        if continued and z_reference is None:
+            z_reference = border_height(surface)  # the continuation plane is z = 0
+        self.mesh = BEMMesh(surface, z_reference)
+        if quadrature is None and method == "aim":
+            quadrature = AIM_QUADRATURE
+        if not isinstance(quadrature, QuadratureOptions):
+            quadrature = QuadratureOptions.from_mapping(quadrature)
+        self.quadrature = quadrature
+        self.progress = progress or (lambda stage, fraction: None)
+        self.diagnostics: dict = {"model": "bem", "method": method, "warnings": []}
+        check_material(self.media, surface.size_um, self.diagnostics)
+        check_resolution(self.media, surface.spacing_um, self.diagnostics)
+        if method == "dense":
+            self.operator = DenseOperator(ctx, self.mesh, self.media, quadrature, residual=residual,
+                                          memory_limit_bytes=memory_limit_bytes, progress=self.progress)
+        else:
+            self.operator = AIMOperator(ctx, self.mesh, self.media, self.aim, quadrature=quadrature,
+                                        progress=self.progress)
+        setup = self.operator.diagnostics()
+        self.continuation = None
+        if continued:
+            self.continuation = FlatContinuation(ctx, self.mesh, self.media, self.aim, quadrature=quadrature)
+            setup["setup_s"] += self.continuation.setup_s
+            if np.ptp(self.mesh.heights) > 0:
+                check_surface_plasmons(self.media, surface.size_um, self.diagnostics)
+        self.diagnostics.update(
+            unknowns=self.mesh.n_unknowns, cells=self.mesh.cells, spacing_um=self.mesh.spacing_um, **setup,
+            quadrature=self.quadrature.__dict__.copy(), device=None if ctx is None else ctx.describe(),
+            index=complex(self.media.index),
+        )
+        self._grid_farfields: dict = {}
+
+    # ------------------------------------------------------------------------------------------
+    def farfield(self, theta_i: float, phi_i: float, grid: HemisphereGrid, *, waist_um: float | None,
+                 beam: str = "exact", focus_um=(0.0, 0.0)) -> FarField:
+        """Far field for incidence (θ_i, φ_i) (toward the light) with the named beam.
+
+        Raises :class:`~wavebrdf.solver.krylov.KrylovNotConverged` (with ``diagnostics``) when an
+        AIM solve misses its tolerance: such a result is never returned.
+        """
+        t0 = time.perf_counter()
+        diag = {k: v for k, v in self.diagnostics.items() if k != "warnings"}
+        diag["warnings"] = list(self.diagnostics["warnings"])
+        solution = self._solve(theta_i, phi_i, waist_um=waist_um, beam=beam, focus_um=focus_um, diagnostics=diag)
+        t_solve = time.perf_counter()
+        self.progress("far field", 0.0)
+        inc, power = solution.excitation.beam, solution.excitation.incident_power
+        rule = SurfaceRule.build(self.mesh, self.quadrature.farfield_order)
+        if self.method == "dense":  # direct quadrature sum; the hemisphere-quadrature albedo is cheap here
+            ff = farfield_on_grid(self.ctx, solution.radiating_mesh, self.media, solution.radiating_x, grid, rule,
+                                  theta_i=theta_i, phi_i=phi_i, incident_power=power, diagnostics=diag)
+            extra = {"reflected_fraction": radiated_power(self.ctx, self.mesh, self.media, solution.x, rule) / power}
+        else:  # grid point sources, chirp-z transforms
+            ff = self._grid_farfield(grid, solution.radiating_mesh).farfield(
+                solution.radiating_x, theta_i=theta_i, phi_i=phi_i, incident_power=power, diagnostics=diag)
+            extra = {}
+        into = power_into_material(self.mesh, solution.x, rule)  # through the patch only
+        if not (np.all(np.isfinite(ff.E)) and np.all(np.isfinite(ff.H))):
+            raise FloatingPointError(f"BEM far field ({self.method}) contains NaN/inf")
+        ff.diagnostics.update(beam=beam, waist_um=waist_um, farfield_s=time.perf_counter() - t_solve)
+        if self.method == "aim":
+            ff.diagnostics["total_direction_s"] = time.perf_counter() - t0
+        ff.diagnostics.update(into_material_fraction=into / power, **extra,
+                              peak_memory_bytes=peak_memory_mb() * 2**20)
+        if beam == "exact":
+            ff.diagnostics["beam_reflectance"] = inc.reflectance(self.media.index)
+            if self.method == "dense":
+                ff.diagnostics["beam_plane_waves"] = len(inc.plane_waves["kvec"])
+        return ff
+
+    def brdf_at(self, theta_i: float, phi_i: float, directions: np.ndarray, *, waist_um: float | None,
+                beam: str = "exact", focus_um=(0.0, 0.0)) -> np.ndarray:
+        """BRDF (sr⁻¹) per polarization (s, p) at arbitrary outgoing unit ``directions`` (M, 3), by
+        the direct quadrature sum."""
+        solution = self._solve(theta_i, phi_i, waist_um=waist_um, beam=beam, focus_um=focus_um)
+        directions = np.atleast_2d(np.asarray(directions, dtype=float))
+        mesh = solution.radiating_mesh
+        rule = SurfaceRule.build(mesh, self.quadrature.farfield_order)
+        E, H = radiated_fields(self.ctx, mesh, self.media, solution.radiating_x, directions, rule)
+        intensity = np.linalg.norm(0.5 * np.real(np.cross(E, np.conj(H))), axis=-1)
+        return intensity / (solution.excitation.incident_power[:, None] * directions[None, :, 2])
+
+    # ------------------------------------------------------------------------------------------
+    def _solve(self, theta_i: float, phi_i: float, *, waist_um: float | None, beam: str, focus_um,
+               diagnostics: dict | None = None) -> Solution:
+        """Excitation → (continuation: the fixed currents' field off the rhs) → operator.solve.
+        ``diagnostics`` (if given) receives the footprint check and the solve's figures."""
+        record = diagnostics if diagnostics is not None else {}
+        margin = extent = None
+        if self.continuation is not None:
+            if beam != "exact":
+                raise ValueError(f"aim.edge = 'flat' needs illumination.beam = 'exact' (the continued currents "
+                                 f"come from its plane waves), got {beam!r}")
+            footprint = make_beam(beam, self.media.wavelength_um, theta_i, phi_i, waist_um,
+                                  exterior_index=self.media.exterior_index, focus_um=(*focus_um, 0.0),
+                                  patch_size_um=self.mesh.surface.size_um)
+            margin = self.continuation.margin(footprint)
+            extent = self.mesh.surface.size_um + 2 * margin * self.mesh.spacing_um
+        excitation = beam_excitation(self.mesh, self.media, theta_i, phi_i, waist_um=waist_um, beam=beam,
+                                     focus_um=focus_um, rhs_order=self.quadrature.rhs_order, diagnostics=diagnostics,
+                                     extent_um=extent)
+        b = excitation.rhs
+        if margin is not None:
+            t_fixed = time.perf_counter()
+            fixed, field = self.continuation.fixed_currents(excitation.beam, margin)
+            b = b - field
+            record.update(edge="flat", continuation_cells=margin, continuation_s=time.perf_counter() - t_fixed,
+                          extended_unknowns=fixed.shape[1])
+        self.progress("solve", 0.0)
+        try:
+            result = self.operator.solve(b, record)
+        except Exception as exc:  # keep the set-up diagnostics with the failure
+            extra = getattr(exc, "diagnostics", None)
+            if isinstance(extra, dict):
+                extra.update({k: v for k, v in record.items() if k not in extra and k != "aim_options"})
+            raise
+        mesh, x = self.mesh, result.x
+        if margin is not None:  # the far field of the patch's and the continued currents
+            mesh, x = self.continuation.extended_solution(margin, fixed, result.x)
+            record["continuation_bytes"] = self.continuation.bytes()
+        return Solution(excitation, result.x, mesh, x)
+
+    def _grid_farfield(self, grid: HemisphereGrid, mesh: BEMMesh) -> GridFarField:
+        """The far-field transform of ``mesh`` (the patch's or an extended one) onto ``grid``, kept
+        (one extended mesh at a time: its size follows the beam)."""
+        key = (grid.resolution, mesh.cells)
+        if key not in self._grid_farfields:
+            if mesh is not self.mesh:
+                self._grid_farfields = {k: v for k, v in self._grid_farfields.items() if k[1] == self.mesh.cells}
+            o = self.aim
+            self._grid_farfields[key] = GridFarField(
+                mesh, self.media, grid, grid_options=GridOptions(stencil=o.farfield_stencil),
+                directions=o.farfield_directions or None, regularization=o.farfield_regularization)
+        return self._grid_farfields[key]
+
+
+def bem_farfield(ctx, surface: HeightField, wavelength_um: float, index: complex, theta_i: float, phi_i: float,
+                 waist_um: float | None, grid: HemisphereGrid, *, method: str = "dense", aim=None,
+                 exterior_index: float = 1.0, beam: str = "exact", quadrature=None,
+                 z_reference: float | None = None, focus_um=(0.0, 0.0), residual: str = "auto",
+                 memory_limit_bytes: float | None = None, progress=None) -> FarField:
+    """Full-wave BEM far field of ``surface`` (model "bem"); angles in radians, lengths in µm.
+
+    ``method`` "dense" (LU) or "aim" (with ``aim``: AIMOptions or a mapping); the other arguments
+    are those of :class:`BEMSolver` and :meth:`BEMSolver.farfield`. ``diagnostics`` of the result:
+    unknowns, residual per polarization, set-up/solve/far-field times, peak memory, warnings, the
+    fraction of incident power entering the material, and for the exact beam its flat-interface
+    reflectance; dense adds the hemisphere-quadrature albedo, AIM the Krylov figures.
+    """
+    solver = BEMSolver(ctx, surface, wavelength_um, index, method=method, exterior_index=exterior_index,
+                       quadrature=quadrature, z_reference=z_reference, aim=aim, residual=residual,
+                       memory_limit_bytes=memory_limit_bytes, progress=progress)
+    return solver.farfield(theta_i, phi_i, grid, waist_um=waist_um, beam=beam, focus_um=focus_um)

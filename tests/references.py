@@ -1,0 +1,155 @@
+"""Independent reference formulas for the tests, written from the textbooks.
+
+Nothing here imports wavebrdf: a test that compares a model with these formulas compares it with
+something the model's own code did not produce. Conventions are those of ARCHITECTURE.md: time
+dependence e^{+jωt}, complex index n − jκ with κ ≥ 0 meaning loss, angles in radians.
+
+Sources: Born & Wolf, *Principles of Optics* (7th ed.), §1.5.2 (Fresnel formulas) and §14.2
+(absorbing media: Snell's law with a complex index, the transmitted wave must decay);
+Hecht, *Optics*, §4.6 (reflectances, Brewster angle, total internal reflection).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "ALUMINIUM_400NM",
+    "beam_fresnel_reflectance",
+    "brewster_angle",
+    "coulomb_squares",
+    "fresnel_coefficients",
+    "fresnel_reflectance",
+    "fresnel_transmittance",
+    "normal_reflectance",
+    "transmitted_normal_wavenumber",
+]
+
+ALUMINIUM_400NM = 0.46582 - 4.7119j  # aluminium at 0.4 µm (the reference simulator's examples)
+
+
+def transmitted_normal_wavenumber(n1: float, n2: complex, sin_i) -> np.ndarray:
+    """q = n₂ cos θ_t = √(n₂² − n₁² sin²θ_i) on the physical branch (in units of k₀).
+
+    Below the interface (z < 0) the transmitted wave varies as e^{+j k₀ q z} (e^{+jωt}, wave
+    e^{−j k·r} travelling toward −z), so it decays into medium 2 iff Im q < 0, and carries power
+    away from the interface iff Re q > 0. The branch is therefore Im q ≤ 0 and, where Im q = 0
+    (a lossless medium without total reflection), Re q ≥ 0. This one rule covers metals
+    (Re n₂² < 0), weak absorbers and total internal reflection (q = −j|q|).
+    """
+    sin_i = np.asarray(sin_i, dtype=float)
+    q = np.sqrt(np.asarray(n2, dtype=complex) ** 2 - (n1 * sin_i) ** 2 + 0j)
+    flip = (q.imag > 0) | ((q.imag == 0) & (q.real < 0))
+    return np.where(flip, -q, q)
+
+
+def fresnel_coefficients(n1: float, n2: complex, theta_i) -> tuple[np.ndarray, np.ndarray]:
+    """Amplitude reflection coefficients (r_s, r_p) from medium n₁ (real) onto n₂ = n − jκ.
+
+    r_s = (n₁ cos θ_i − n₂ cos θ_t) / (n₁ cos θ_i + n₂ cos θ_t)                 (E ⟂ plane)
+    r_p = (n₂ cos θ_i − n₁ cos θ_t) / (n₂ cos θ_i + n₁ cos θ_t)                 (E ∥ plane)
+
+    (Born & Wolf's sign convention for r_p; only |r|² is used by the tests.) With
+    q = n₂ cos θ_t the p coefficient is written (n₂² cos θ_i − n₁ q)/(n₂² cos θ_i + n₁ q), which
+    needs no division by n₂.
+    """
+    if n1 <= 0 or np.imag(n1) != 0:
+        raise ValueError(f"the incident medium must be real and positive, got {n1!r}")
+    n2 = complex(n2)
+    if n2.imag > 0:
+        raise ValueError(f"n2 = n - j*kappa needs kappa >= 0 (loss), got {n2!r}")
+    theta_i = np.asarray(theta_i, dtype=float)
+    c = np.cos(theta_i)
+    q = transmitted_normal_wavenumber(n1, n2, np.sin(theta_i))
+    r_s = (n1 * c - q) / (n1 * c + q)
+    r_p = (n2 * n2 * c - n1 * q) / (n2 * n2 * c + n1 * q)
+    return r_s, r_p
+
+
+def fresnel_reflectance(n1: float, n2: complex, theta_i) -> tuple[np.ndarray, np.ndarray]:
+    """Power reflectances (|r_s|², |r_p|²); their mean is the unpolarized reflectance."""
+    r_s, r_p = fresnel_coefficients(n1, n2, theta_i)
+    return np.abs(r_s) ** 2, np.abs(r_p) ** 2
+
+
+def fresnel_transmittance(n1: float, n2: float, theta_i) -> tuple[np.ndarray, np.ndarray]:
+    """Power transmittances (T_s, T_p) into a *lossless* medium n₂ (real), from the transmission
+    coefficients t_s = 2n₁cos θ_i/(n₁cos θ_i + n₂cos θ_t), t_p = 2n₁cos θ_i/(n₂cos θ_i + n₁cos θ_t)
+    and the flux ratio Re(n₂ cos θ_t)/(n₁ cos θ_i) (Born & Wolf §1.5.3). Zero beyond the critical
+    angle. Used to check R + T = 1, an identity the reflectances alone do not contain."""
+    if np.imag(n2) != 0:
+        raise ValueError("fresnel_transmittance is for a lossless second medium")
+    n2 = float(np.real(n2))
+    theta_i = np.asarray(theta_i, dtype=float)
+    c = np.cos(theta_i)
+    q = transmitted_normal_wavenumber(n1, n2, np.sin(theta_i))
+    cos_t = q / n2
+    t_s = 2 * n1 * c / (n1 * c + q)
+    t_p = 2 * n1 * c / (n2 * c + n1 * cos_t)
+    flux = np.real(q) / (n1 * c)
+    return flux * np.abs(t_s) ** 2, flux * np.abs(t_p) ** 2
+
+
+def normal_reflectance(n1: float, n2: complex) -> float:
+    """|(n₁ − n₂)/(n₁ + n₂)|², the reflectance at normal incidence (both polarizations)."""
+    return float(abs((n1 - n2) / (n1 + n2)) ** 2)
+
+
+def brewster_angle(n1: float, n2: float) -> float:
+    """tan θ_B = n₂/n₁ (real indices): the angle where r_p vanishes."""
+    return float(np.arctan2(n2, n1))
+
+
+def beam_fresnel_reflectance(kvec: np.ndarray, E: np.ndarray, n1: float, n2: complex) -> np.ndarray:
+    """Reflectance (s, p) of a beam given as a sum of propagating plane waves on the flat interface
+    z = 0 between n₁ (above) and n₂ (below): Σ_m |k_z,m| (|E_m·ŝ_m|² R_s(θ_m) + |E_m·p̂_m|² R_p(θ_m))
+    / Σ_m |k_z,m| |E_m|².
+
+    kvec: (M, 3) wave vectors (k_z < 0, travelling down); E: (2, M, 3) amplitudes of the beam's
+    two polarizations. Each plane wave is reflected with the Fresnel coefficients of its own angle
+    θ_m (cos θ_m = |k_z|/|k|), ŝ = ẑ × k̂ normalised (any transverse pair at normal incidence,
+    where R_s = R_p), p̂ = ŝ × k̂; the power a wave carries through a plane z = const is
+    proportional to |E|²|k_z| (plane waves are orthogonal over the period cell of a lattice
+    spectrum). The plane waves are the model's input, the Fresnel factors are this module's.
+    """
+    kvec = np.asarray(kvec, dtype=float)
+    E = np.asarray(E, dtype=complex)
+    k = np.linalg.norm(kvec, axis=1)
+    khat = kvec / k[:, None]
+    if np.any(khat[:, 2] >= 0):
+        raise ValueError("beam_fresnel_reflectance: every plane wave must travel toward -z")
+    s_hat = np.cross([0.0, 0.0, 1.0], khat)
+    norm = np.linalg.norm(s_hat, axis=1)
+    s_hat = np.where(norm[:, None] > 1e-12, s_hat / np.where(norm > 0, norm, 1.0)[:, None], [0.0, 1.0, 0.0])
+    p_hat = np.cross(s_hat, khat)
+    weight = np.abs(khat[:, 2])
+    R_s, R_p = fresnel_reflectance(n1, n2, np.arccos(np.clip(weight, 0.0, 1.0)))
+    e_s = np.abs(np.einsum("pmc,mc->pm", E, s_hat)) ** 2
+    e_p = np.abs(np.einsum("pmc,mc->pm", E, p_hat)) ** 2
+    reflected = np.sum(weight * (e_s * R_s + e_p * R_p), axis=1)
+    incident = np.sum(weight * np.sum(np.abs(E) ** 2, axis=2), axis=1)
+    return reflected / incident
+
+
+def coulomb_squares(a: tuple, b: tuple) -> float:
+    """∫_A ∫_B dA dA'/|r − r'| for coplanar axis-aligned rectangles A, B = ((x0, x1), (y0, y1)).
+
+    Closed form: Σ ± F(x_i − x'_k, y_j − y'_l) with ∂²_X∂²_Y F = 1/√(X² + Y²),
+    F = X²Y/2 asinh(Y/X) + XY²/2 asinh(X/Y) − r³/6 (even in X and Y).
+    """
+
+    def F(X, Y):
+        X, Y = abs(X), abs(Y)
+        r = np.hypot(X, Y)
+        t1 = 0.5 * X * X * Y * np.arcsinh(Y / X) if X > 0 else 0.0
+        t2 = 0.5 * X * Y * Y * np.arcsinh(X / Y) if Y > 0 else 0.0
+        return t1 + t2 - r**3 / 6.0
+
+    total = 0.0
+    for i, xa in enumerate(a[0]):
+        for k, xb in enumerate(b[0]):
+            for j, ya in enumerate(a[1]):
+                for m, yb in enumerate(b[1]):
+                    sign = (-(-1) ** (i + k)) * (-(-1) ** (j + m))
+                    total += sign * F(xa - xb, ya - yb)
+    return total
