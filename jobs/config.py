@@ -553,6 +553,10 @@ def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: di
     steering = None
     if "steering" in data and fiber is not None:
         raise ConfigError("[steering] applies to height fields, not to fibers")
+    if not model.capabilities.polarized and (illumination.polarization != "unpolarized" or out.per_polarization):
+        raise ConfigError(f"[illumination] polarization = \"{illumination.polarization}\" / [output] per_polarization: "
+                          f"model {model.name!r} does not resolve polarization (its s and p are the same); "
+                          "use polarization = \"unpolarized\" and per_polarization = false")
     if "steering" in data and not model.capabilities.steerable:
         raise ConfigError(f"[steering]: model {model.name!r} cannot be steered (it returns "
                           f"{model.capabilities.returns}, not coherent fields with their incident beam); "

@@ -659,8 +659,7 @@ def test_intensity_only_model_runs_end_to_end(tmp_path, capsys, lambertian):
     grid's pixel error (the disk's pixel area against π), for every wavelength and direction."""
     rho = 0.37
     resolution = 64
-    cfg = write_study(tmp_path, "lambert", lambertian, model_extra=f"albedo = {rho}", resolution=resolution,
-                      extra="per_polarization = true")
+    cfg = write_study(tmp_path, "lambert", lambertian, model_extra=f"albedo = {rho}", resolution=resolution)
     code = main(["run", str(cfg), "-q", "--no-render"])
     assert code == 0, capsys.readouterr().err
     capsys.readouterr()
@@ -682,3 +681,6 @@ def test_intensity_only_model_runs_end_to_end(tmp_path, capsys, lambertian):
     refused(capsys, ["plan", str(bad)], "albedoo")
     bad = write_study(tmp_path, "lambert-range", lambertian, model_extra="albedo = 1.5")
     refused(capsys, ["plan", str(bad)], "albedo", "1.5")
+    # a model that does not resolve polarization cannot be asked for s, p or per-polarization images
+    bad = write_study(tmp_path, "lambert-pol", lambertian, extra="per_polarization = true")
+    refused(capsys, ["plan", str(bad)], "does not resolve polarization", repr(lambertian))
