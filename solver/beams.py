@@ -29,12 +29,12 @@ iff ∇²U + k²U = 0.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
 
-from wavebrdf.solver.farfield import ETA0, direction
+from wavebrdf.solver.farfield import ETA0
 from wavebrdf.solver.fresnel import fresnel_rs_rp
 
 logger = logging.getLogger(__name__)

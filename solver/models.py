@@ -30,7 +30,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from wavebrdf.solver.farfield import BRDFResult, HemisphereGrid
+from wavebrdf.solver.farfield import HemisphereGrid
 from wavebrdf.solver.options import NoOptions, parse_options
 from wavebrdf.solver.surface import HeightField
 

@@ -16,7 +16,7 @@ from wavebrdf.jobs.plan import plan_study
 from wavebrdf.jobs.steering import HexagonTiling, PatchLayout, aliasing_limit
 from wavebrdf.solver.approx.kirchhoff import kirchhoff_farfield
 from wavebrdf.solver.footprint import gaussian_footprint
-from wavebrdf.solver.farfield import albedo, combine_polarizations
+from wavebrdf.solver.farfield import combine_polarizations
 from wavebrdf.solver.fresnel import fresnel_reflectance
 from wavebrdf.solver.surface import generate
 

@@ -21,6 +21,8 @@ import scipy.linalg
 from wavebrdf.solver.bem3d.assembly import assemble_dense, dense_blocks
 from wavebrdf.solver.bem3d.checks import RESIDUAL, SolverWarning, emit
 from wavebrdf.solver.bem3d.elements import ElementIntegrals
+from wavebrdf.solver.bem3d.excitation import SurfaceRule
+from wavebrdf.solver.bem3d.farfield import farfield_on_grid, radiated_power
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.bem3d.quadrature import QuadratureOptions
@@ -157,6 +159,16 @@ class DenseOperator:
                 emit(diagnostics, SolverWarning, f"relative residual {residual} of the LU solve exceeds {RESIDUAL:g}")
             diagnostics.update(result.diagnostics())
         return result
+
+    def farfield(self, mesh: BEMMesh, x: np.ndarray, grid, rule: SurfaceRule, *, theta_i: float, phi_i: float,
+                 incident_power: np.ndarray, diagnostics: dict):
+        """The far field of the currents ``x`` on ``mesh`` by the direct quadrature sum over the
+        output grid (farfield.py), with the hemisphere-quadrature radiated power as
+        ``reflected_fraction`` (cheap at dense sizes)."""
+        ff = farfield_on_grid(self.ctx, mesh, self.media, x, grid, rule, theta_i=theta_i, phi_i=phi_i,
+                              incident_power=incident_power, diagnostics=diagnostics)
+        ff.diagnostics["reflected_fraction"] = radiated_power(self.ctx, mesh, self.media, x, rule) / incident_power
+        return ff
 
     def _streamed_product(self, x: np.ndarray) -> np.ndarray:
         """Z x in the blocked ordering by re-assembling Z in blocks (no stored matrix)."""

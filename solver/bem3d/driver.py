@@ -7,13 +7,14 @@ and both polarizations:
     excitation (excitation.py)
     → with the flat continuation (aim/continuation.py, AIM ``edge = "flat"``): b − Z_SF c_F
     → operator.solve (dense.py: LU; aim/operator.py: Krylov)
-    → radiation: dense — direct quadrature sum and the hemisphere-quadrature radiated power
-      (farfield.py); AIM — chirp-z transforms of grid point sources (aim/farfield.py), on the
-      extended mesh when the patch is continued
+    → operator.farfield (radiation): dense — direct quadrature sum and the hemisphere-quadrature
+      radiated power (farfield.py); AIM — chirp-z transforms of grid point sources
+      (aim/farfield.py), on the extended mesh when the patch is continued
     → diagnostics.
 
 An operator has ``mesh``, ``solve(b, diagnostics)`` → a result with ``x`` (P, 2N_b) that records
-its figures (residual, iterations, times) into ``diagnostics``, and ``diagnostics()`` (set-up
+its figures (residual, iterations, times) into ``diagnostics``, ``farfield(mesh, x, grid, rule,
+theta_i=, phi_i=, incident_power=, diagnostics=)`` → FarField, and ``diagnostics()`` (set-up
 figures). :func:`bem_farfield` is the one-shot entry point of both methods.
 """
 
@@ -26,14 +27,12 @@ import numpy as np
 
 from wavebrdf.solver.beams import make_beam
 from wavebrdf.solver.bem3d.aim.continuation import FlatContinuation, border_height
-from wavebrdf.solver.bem3d.aim.farfield import GridFarField
-from wavebrdf.solver.bem3d.aim.grid import GridOptions
 from wavebrdf.solver.bem3d.aim.operator import AIMOperator
 from wavebrdf.solver.bem3d.aim.options import AIM_QUADRATURE, AIMOptions
 from wavebrdf.solver.bem3d.checks import check_material, check_resolution, check_surface_plasmons
 from wavebrdf.solver.bem3d.dense import DenseOperator
 from wavebrdf.solver.bem3d.excitation import BeamExcitation, SurfaceRule, beam_excitation, power_into_material
-from wavebrdf.solver.bem3d.farfield import farfield_on_grid, radiated_fields, radiated_power
+from wavebrdf.solver.bem3d.farfield import radiated_fields
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.bem3d.quadrature import QuadratureOptions
@@ -114,7 +113,6 @@ class BEMSolver:
             quadrature=self.quadrature.__dict__.copy(), device=None if ctx is None else ctx.describe(),
             index=complex(self.media.index),
         )
-        self._grid_farfields: dict = {}
 
     # ------------------------------------------------------------------------------------------
     def farfield(self, theta_i: float, phi_i: float, grid: HemisphereGrid, *, waist_um: float | None,
@@ -132,26 +130,17 @@ class BEMSolver:
         self.progress("far field", 0.0)
         inc, power = solution.excitation.beam, solution.excitation.incident_power
         rule = SurfaceRule.build(self.mesh, self.quadrature.farfield_order)
-        if self.method == "dense":  # direct quadrature sum; the hemisphere-quadrature albedo is cheap here
-            ff = farfield_on_grid(self.ctx, solution.radiating_mesh, self.media, solution.radiating_x, grid, rule,
-                                  theta_i=theta_i, phi_i=phi_i, incident_power=power, diagnostics=diag)
-            extra = {"reflected_fraction": radiated_power(self.ctx, self.mesh, self.media, solution.x, rule) / power}
-        else:  # grid point sources, chirp-z transforms
-            ff = self._grid_farfield(grid, solution.radiating_mesh).farfield(
-                solution.radiating_x, theta_i=theta_i, phi_i=phi_i, incident_power=power, diagnostics=diag)
-            extra = {}
+        ff = self.operator.farfield(solution.radiating_mesh, solution.radiating_x, grid, rule, theta_i=theta_i,
+                                    phi_i=phi_i, incident_power=power, diagnostics=diag)
         into = power_into_material(self.mesh, solution.x, rule)  # through the patch only
         if not (np.all(np.isfinite(ff.E)) and np.all(np.isfinite(ff.H))):
             raise FloatingPointError(f"BEM far field ({self.method}) contains NaN/inf")
-        ff.diagnostics.update(beam=beam, waist_um=waist_um, farfield_s=time.perf_counter() - t_solve)
-        if self.method == "aim":
-            ff.diagnostics["total_direction_s"] = time.perf_counter() - t0
-        ff.diagnostics.update(into_material_fraction=into / power, **extra,
+        ff.diagnostics.update(beam=beam, waist_um=waist_um, farfield_s=time.perf_counter() - t_solve,
+                              total_direction_s=time.perf_counter() - t0, into_material_fraction=into / power,
                               peak_memory_bytes=peak_memory_mb() * 2**20)
         if beam == "exact":
             ff.diagnostics["beam_reflectance"] = inc.reflectance(self.media.index)
-            if self.method == "dense":
-                ff.diagnostics["beam_plane_waves"] = len(inc.plane_waves["kvec"])
+            ff.diagnostics["beam_plane_waves"] = len(inc.plane_waves["kvec"])
         return ff
 
     def brdf_at(self, theta_i: float, phi_i: float, directions: np.ndarray, *, waist_um: float | None,
@@ -205,19 +194,6 @@ class BEMSolver:
             mesh, x = self.continuation.extended_solution(margin, fixed, result.x)
             record["continuation_bytes"] = self.continuation.bytes()
         return Solution(excitation, result.x, mesh, x)
-
-    def _grid_farfield(self, grid: HemisphereGrid, mesh: BEMMesh) -> GridFarField:
-        """The far-field transform of ``mesh`` (the patch's or an extended one) onto ``grid``, kept
-        (one extended mesh at a time: its size follows the beam)."""
-        key = (grid.resolution, mesh.cells)
-        if key not in self._grid_farfields:
-            if mesh is not self.mesh:
-                self._grid_farfields = {k: v for k, v in self._grid_farfields.items() if k[1] == self.mesh.cells}
-            o = self.aim
-            self._grid_farfields[key] = GridFarField(
-                mesh, self.media, grid, grid_options=GridOptions(stencil=o.farfield_stencil),
-                directions=o.farfield_directions or None, regularization=o.farfield_regularization)
-        return self._grid_farfields[key]
 
 
 def bem_farfield(ctx, surface: HeightField, wavelength_um: float, index: complex, theta_i: float, phi_i: float,

@@ -14,7 +14,7 @@ import warnings
 import numpy as np
 import pytest
 
-from wavebrdf.solver.bem3d import BEMSolver, BEMWarning
+from wavebrdf.solver.bem3d import BEMSolver
 from wavebrdf.solver.farfield import HemisphereGrid
 from wavebrdf.solver.surface import HeightField, generate
 

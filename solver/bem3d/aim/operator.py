@@ -22,8 +22,9 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from wavebrdf.solver.bem3d.aim.convolution import PACKED_BATCHES, BaseOperator, GridGroup, batch_chunks
+from wavebrdf.solver.bem3d.aim.farfield import GridFarField
 from wavebrdf.solver.bem3d.aim.green import grid_media, interior_decay, kernel_spectra
-from wavebrdf.solver.bem3d.aim.grid import build_grid
+from wavebrdf.solver.bem3d.aim.grid import GridOptions, build_grid
 from wavebrdf.solver.bem3d.aim.near_assembly import assemble_near
 from wavebrdf.solver.bem3d.aim.nearfield import NearPattern
 from wavebrdf.solver.bem3d.aim.options import AIM_QUADRATURE, AIMOptions
@@ -108,6 +109,7 @@ class AIMOperator:
             self.preconditioner.factor_nnz / self.preconditioner.nnz,
         }
         self.setup_s = time.perf_counter() - t0
+        self._grid_farfields: dict = {}
         logger.info("AIM operator: %s; near %d offsets, %.1f MB; set-up %.1f s", self.grid.describe(),
                     len(self.pattern.same) * 2 + len(self.pattern.cross), self.near.bytes() / 2**20, self.setup_s)
 
@@ -153,6 +155,27 @@ class AIMOperator:
         if diagnostics is not None:
             diagnostics.update(result.diagnostics(), matvec_timings=dict(self.base.timings))
         return result
+
+    def farfield(self, mesh: BEMMesh, x: np.ndarray, grid, rule=None, *, theta_i: float, phi_i: float,
+                 incident_power: np.ndarray, diagnostics: dict):
+        """The far field of the currents ``x`` on ``mesh`` (the patch's, or the extended mesh of the
+        flat continuation) from grid point sources by chirp-z transforms (farfield.py); ``rule``
+        is not used (the dense operator's direct sum needs it)."""
+        return self._grid_farfield(grid, mesh).farfield(x, theta_i=theta_i, phi_i=phi_i,
+                                                        incident_power=incident_power, diagnostics=diagnostics)
+
+    def _grid_farfield(self, grid, mesh: BEMMesh) -> GridFarField:
+        """The far-field transform of ``mesh`` onto ``grid``, kept (one extended mesh at a time:
+        its size follows the beam)."""
+        key = (grid.resolution, mesh.cells)
+        if key not in self._grid_farfields:
+            if mesh is not self.mesh:
+                self._grid_farfields = {k: v for k, v in self._grid_farfields.items() if k[1] == self.mesh.cells}
+            o = self.options
+            self._grid_farfields[key] = GridFarField(
+                mesh, self.media, grid, grid_options=GridOptions(stencil=o.farfield_stencil),
+                directions=o.farfield_directions or None, regularization=o.farfield_regularization)
+        return self._grid_farfields[key]
 
     def diagnostics(self) -> dict:
         """Set-up figures of the operator (for the run's diagnostics)."""
