@@ -75,7 +75,7 @@ def _choose_executor(requested: str, launch: MpiLaunch | None) -> str:
 def cmd_run(args) -> int:
     from wavebrdf.jobs.config import load_config
     from wavebrdf.jobs.plan import check_memory, plan_study
-    from wavebrdf.jobs.scheduler import worker_environment
+    from wavebrdf.jobs.scheduler import apply_worker_environment, worker_environment
 
     config = load_config(args.config, output=args.output)
     study = config.cases[0]
@@ -84,7 +84,7 @@ def cmd_run(args) -> int:
     workers = args.workers or study.run.workers or (os.cpu_count() or 1)
     comm = None
     if executor == "mpi":
-        os.environ.update(worker_environment(launch.local_size, launch.rank))
+        apply_worker_environment(worker_environment(launch.local_size, launch.rank))
         from mpi4py import MPI
 
         comm = MPI.COMM_WORLD

@@ -43,6 +43,7 @@ __all__ = [
     "ResumeError",
     "RunSummary",
     "TaskBoard",
+    "apply_worker_environment",
     "run_plan",
     "worker_environment",
 ]
@@ -73,6 +74,17 @@ def worker_environment(workers_on_node: int, rank: int, cores: int | None = None
         "MKL_NUM_THREADS": threads,
         "POCL_CACHE_DIR": str(base / f"rank-{rank}"),
     }
+
+
+def apply_worker_environment(env: dict[str, str]) -> None:
+    """Apply :func:`worker_environment` to this process: the variables for what starts later
+    (PoCL, host FFTs, libraries not loaded yet), and the same thread cap on the BLAS/OpenMP
+    pools already loaded (numpy's and scipy's OpenBLAS start their threads at import, before any
+    variable set here is read; an uncapped pool spins on the other workers' cores)."""
+    os.environ.update(env)
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(int(env["OMP_NUM_THREADS"]))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -185,7 +197,7 @@ _WORKER: dict = {}
 
 
 def _process_init(config_path, output, env):
-    os.environ.update(env)
+    apply_worker_environment(env)
     from wavebrdf.jobs.config import load_config
     from wavebrdf.jobs.plan import plan_study
     from wavebrdf.solver.opencl import create_context

@@ -41,8 +41,6 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from wavebrdf.solver.fiber.results import power_balance_error
-
 __all__ = [
     "FORMAT",
     "FORMAT_VERSION",
@@ -328,6 +326,8 @@ class FiberDatasetWriter(_Writer):
         where = tuple(case_index) + (wl, theta)
         self.h5["dCs_dphi"][where] = dCs_dphi.astype(np.float32)
         self.h5["C_ext"][where], self.h5["C_sca"][where], self.h5["C_abs"][where] = C_ext, C_sca, C_abs
+        from wavebrdf.solver.fiber.results import power_balance_error  # the fiber package imports scipy
+
         self.h5["power_balance_error"][where] = power_balance_error(C_ext, C_sca, C_abs)
         self.h5["bcsdf"][where] = (dCs_dphi.mean(axis=0) / C_ext.mean(axis=0)[:, None]).astype(np.float32)
 
