@@ -83,6 +83,7 @@ def test_a_worker_uses_the_fft_threads_it_was_given(workers_on_node):
     from wavebrdf.jobs.scheduler import worker_environment
 
     env = {**os.environ, **worker_environment(workers_on_node, 0, cores=2)}
+    env["POCL_CACHE_DIR"] = os.environ["POCL_CACHE_DIR"]  # the suite's kernel cache: no rebuild
     out = subprocess.run([sys.executable, "-c", WORKER_FFT_PROBE], env=env, capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     expected = str(2 // workers_on_node)

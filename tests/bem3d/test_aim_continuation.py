@@ -77,7 +77,8 @@ def test_flat_continuation_meets_fresnel_where_the_pinned_edge_does_not(cl_ctx, 
     assert np.max(np.abs(errors["pinned"])) > 0.005  # the case does need the continuation
 
 
-@pytest.mark.parametrize("theta", [0.4, pytest.param(0.0, marks=pytest.mark.slow)])
+@pytest.mark.slow  # ~2 min (a 4 µm pinned reference); CI keeps the continuation's Fresnel and current cases
+@pytest.mark.parametrize("theta", [0.4, 0.0])
 def test_continued_bump_matches_a_wide_pinned_patch(cl_ctx, theta):
     """Glass bump (0.1 µm high, radius 0.3 µm), waist 0.8 µm: a 2 µm continued patch (border at
     1.25 w) against a 4 µm pinned one (2.5 w), d = λ/8. (On aluminium, surface plasmons make
