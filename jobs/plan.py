@@ -199,6 +199,10 @@ class Plan:
             precision=study.model.precision,
         )
 
+    def model_scene(self, task: Task) -> SurfaceScene | FiberScene:
+        """What the task's model simulates: a fiber scene, or the (patch) surface scene."""
+        return self.fiber_scene(task) if self.is_fiber else self.scene(task)
+
     def model_spec(self, task: Task) -> ModelSpec:
         return self.config.cases[task.case].model
 

@@ -82,8 +82,7 @@ class TaskKind:
 
 def _run_model(ctx, plan, task, pool, parts):
     """The task's model on the task's scene (surface or fiber)."""
-    scene = plan.fiber_scene(task) if plan.is_fiber else plan.scene(task)
-    return pool.get(plan.model_spec(task)).run(ctx, scene)
+    return pool.get(plan.model_spec(task)).run(ctx, plan.model_scene(task))
 
 
 def _run_patch(ctx, plan, task, pool, parts):
@@ -93,8 +92,7 @@ def _run_patch(ctx, plan, task, pool, parts):
 
 
 def _estimate_model(plan, task) -> Estimate:
-    scene = plan.fiber_scene(task) if plan.is_fiber else plan.scene(task)
-    return plan.model_spec(task).build().estimate(scene)
+    return plan.model_spec(task).build().estimate(plan.model_scene(task))
 
 
 # --- save (parts folder) -----------------------------------------------------------------------
