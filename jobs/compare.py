@@ -1,0 +1,293 @@
+"""The speed/accuracy trade, measured (``wavebrdf compare``; approx.md §4–§6).
+
+Every listed surface model runs on the same scenes — the (case, wavelength, incident direction)
+slices of a study config, so one footprint, one output grid and one BRDF normalization — each run
+in a fresh process, which gives its wall time, CPU time (all threads, OpenCL's included) and peak
+memory over the process's baseline after imports. Each BRDF is then compared with the reference
+model's on the same scene (solver/metrics.py):
+
+* ``rel_l2``: relative L2 over the reference's lobe of the unpolarized BRDF (the raw slices);
+* ``rel_l2_smooth``: the same after a Gaussian blur of the speckle width on both (the
+  speckle-averaged variant; statistical models such as ``stam`` are meant to be read here);
+* ``misplaced``: E₁ = ½∫|f − f_ref| d²u (fraction of the incident power);
+* ``albedo_diff``: albedo − the reference's albedo (unpolarized);
+* ``peak_offset_deg``: angle between the blurred lobes' peak centroids;
+* ``retro``: share of the reflected power within :data:`RETRO_CONE_DEG` of ω_i.
+
+The reference is ``--reference`` or the most accurate registered model of :data:`LADDER` whose
+estimate fits the memory budget; a lower rung as reference is said so in the table. Results: a
+CSV and a Markdown table, a log-log plot of error vs time (one marker per model, one colour per
+scene) and an HDF5 file with the same numbers and every BRDF.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import time
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from wavebrdf.solver.farfield import HemisphereGrid, albedo
+from wavebrdf.solver.metrics import (
+    angular_distance_deg,
+    blur,
+    cone_fraction,
+    misplaced_energy,
+    peak_direction,
+    relative_l2,
+)
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["LADDER", "Comparison", "Measurement", "choose_reference", "compare_scenes", "measure", "speckle_sigma_u"]
+
+# The rungs from the cheapest to the most accurate (approx.md §2); models not listed rank below.
+LADDER = ("gs", "gm", "ohs", "ghs", "kirchhoff", "stam", "ws-v", "wm", "po", "bem")
+RETRO_CONE_DEG = 5.0
+COLUMNS = ("scene", "model", "reference", "wall_s", "cpu_s", "peak_mb", "albedo", "albedo_diff", "rel_l2",
+           "rel_l2_smooth", "misplaced", "peak_offset_deg", "retro", "failure")
+
+
+@dataclass
+class Measurement:
+    """One model on one scene: cost, unpolarized and per-polarization BRDF, diagnostics."""
+
+    model: str
+    scene: str
+    wall_s: float = float("nan")
+    cpu_s: float = float("nan")
+    peak_mb: float = float("nan")
+    brdf: np.ndarray | None = None  # (2, res, res), NaN outside the disk
+    diagnostics: dict = field(default_factory=dict)
+    failure: str | None = None
+
+
+def _vmhwm_bytes() -> float:
+    with open("/proc/self/status") as fh:
+        for line in fh:
+            if line.startswith("VmHWM:"):
+                return float(line.split()[1]) * 1024.0
+    return float("nan")
+
+
+def _child_main() -> None:
+    """Entry of the measuring process: read (name, options, scene) pickled from stdin, run the
+    model once and pickle what was measured into the file named by argv[1]."""
+    import os
+    import pickle
+    import sys
+    import warnings
+
+    from wavebrdf.jobs.tasks import plain
+    from wavebrdf.solver.models import get_model
+    from wavebrdf.solver.opencl import create_context
+
+    name, options, scene = pickle.load(sys.stdin.buffer)
+    try:
+        ctx = create_context()
+        model = get_model(name, options)
+        baseline = _vmhwm_bytes()
+        t0, c0 = time.perf_counter(), os.times()
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            result = model.run(ctx, scene)
+        wall = time.perf_counter() - t0
+        c1 = os.times()
+        diagnostics = plain(result.diagnostics)
+        if caught:
+            diagnostics["warnings"] = "; ".join(sorted({str(w.message) for w in caught}))
+        out = dict(wall_s=wall, cpu_s=(c1.user - c0.user) + (c1.system - c0.system),
+                   peak_mb=max(_vmhwm_bytes() - baseline, 0.0) / 2**20, brdf=result.brdf(), diagnostics=diagnostics)
+    except Exception as exc:  # noqa: BLE001 - reported in the table, the comparison goes on
+        out = dict(failure=f"{type(exc).__name__}: {exc}", trace=traceback.format_exc())
+    with open(sys.argv[1], "wb") as fh:
+        pickle.dump(out, fh)
+
+
+def measure(name: str, options, scene, label: str) -> Measurement:
+    """Run model ``name`` (Options or mapping) on ``scene`` in a fresh interpreter."""
+    import pickle
+    import subprocess
+    import sys
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="wavebrdf-compare-") as tmp:
+        result = Path(tmp) / "result.pickle"
+        proc = subprocess.run([sys.executable, "-c", "from wavebrdf.jobs.compare import _child_main; _child_main()",
+                               str(result)], input=pickle.dumps((name, options, scene)), capture_output=True)
+        if result.is_file():
+            with open(result, "rb") as fh:
+                out = pickle.load(fh)
+        else:
+            tail = proc.stderr.decode(errors="replace").strip().splitlines()[-1:] or ["no output"]
+            out = {"failure": f"the measuring process exited with {proc.returncode}: {tail[0]}"}
+    if "trace" in out:
+        logger.debug("%s on %s failed:\n%s", name, label, out.pop("trace"))
+    return Measurement(model=name, scene=label, **out)
+
+
+def speckle_sigma_u(wavelength_um: float, waist_um: float, grid: HemisphereGrid, exterior_index: float = 1.0) -> float:
+    """Blur width (u units) of the speckle-averaged metrics: the footprint's angular spread
+    λ₁/(π w), at least one pixel."""
+    return max(2.0 / grid.resolution, wavelength_um / exterior_index / (np.pi * waist_um))
+
+
+def choose_reference(models: list[str], scene, memory_budget_bytes: float) -> tuple[str, str]:
+    """(reference model, why): the highest rung of :data:`LADDER` among ``models`` whose estimate
+    fits ``memory_budget_bytes``."""
+    from wavebrdf.solver.models import get_model
+
+    ranked = sorted(models, key=lambda n: LADDER.index(n) if n in LADDER else -1, reverse=True)
+    needs = {name: get_model(name).estimate(scene).memory_bytes for name in ranked}
+    for name in ranked:
+        if needs[name] <= memory_budget_bytes:
+            top = ranked[0]
+            why = "the most accurate rung" if name == top else (
+                f"{top} needs {needs[top] / 2**30:.2f} GiB > budget {memory_budget_bytes / 2**30:.2f} GiB")
+            return name, why
+    raise ValueError(f"no model fits the memory budget of {memory_budget_bytes / 2**30:.2f} GiB")
+
+
+@dataclass
+class Comparison:
+    """The rows of one comparison (one per scene × model) and the BRDFs they came from."""
+
+    rows: list[dict]
+    measurements: list[Measurement]
+    grid: HemisphereGrid
+
+    def write(self, stem: Path) -> list[Path]:
+        """``stem``.csv, .md, .png and .h5 (returns the paths written)."""
+        stem = Path(stem)
+        paths = [stem.with_suffix(".csv"), stem.with_suffix(".md"), stem.with_suffix(".png"), stem.with_suffix(".h5")]
+        with open(paths[0], "w", newline="") as fh:
+            writer = csv.DictWriter(fh, COLUMNS)
+            writer.writeheader()
+            for row in self.rows:
+                writer.writerow({k: row.get(k, "") for k in COLUMNS})
+        paths[1].write_text(self.markdown())
+        self.plot(paths[2])
+        self._write_h5(paths[3])
+        return paths
+
+    def markdown(self) -> str:
+        def cell(v):
+            if isinstance(v, float):
+                return "" if not np.isfinite(v) else f"{v:.3g}"
+            return "" if v is None else str(v)
+
+        lines = ["| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
+        lines += ["| " + " | ".join(cell(r.get(k)) for k in COLUMNS) + " |" for r in self.rows]
+        return "\n".join(lines) + "\n"
+
+    def plot(self, path: Path) -> None:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        scenes = list(dict.fromkeys(r["scene"] for r in self.rows))
+        models = list(dict.fromkeys(r["model"] for r in self.rows))
+        markers = "os^vD<>pX*hP"
+        colours = plt.get_cmap("tab10")
+        fig, ax = plt.subplots(figsize=(7.5, 5.0), dpi=120)
+        for r in self.rows:
+            err, t = r.get("rel_l2_smooth", np.nan), r.get("wall_s", np.nan)
+            if r["model"] == r["reference"].split(" ")[0] or not (np.isfinite(err) and np.isfinite(t)) or err <= 0:
+                continue
+            ax.loglog(t, err, linestyle="none", marker=markers[models.index(r["model"]) % len(markers)],
+                      color=colours(scenes.index(r["scene"]) % 10), markersize=7, alpha=0.85)
+        for i, m in enumerate(models):
+            ax.plot([], [], linestyle="none", marker=markers[i % len(markers)], color="0.3", label=m)
+        for j, s in enumerate(scenes):
+            ax.plot([], [], linestyle="-", color=colours(j % 10), label=s)
+        ax.set_xlabel("wall time per scene (s)")
+        ax.set_ylabel("relative L2 over the lobe vs reference (speckle-averaged)")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=6, loc="best", ncol=2)
+        fig.tight_layout()
+        fig.savefig(path)
+        plt.close(fig)
+
+    def _write_h5(self, path: Path) -> None:
+        import h5py
+
+        with h5py.File(path, "w") as h5:
+            h5.attrs["wavebrdf_compare"] = 1
+            table = h5.create_group("table")
+            for key in COLUMNS:
+                values = [r.get(key) for r in self.rows]
+                if all(isinstance(v, (int, float)) for v in values):
+                    table.create_dataset(key, data=np.array(values, dtype=float))
+                else:
+                    table.create_dataset(key, data=np.array(["" if v is None else str(v) for v in values],
+                                                            dtype=h5py.string_dtype()))
+            brdfs = h5.create_group("brdf")
+            brdfs.attrs["grid_resolution"] = self.grid.resolution
+            for i, m in enumerate(self.measurements):
+                if m.brdf is not None:
+                    ds = brdfs.create_dataset(f"{i:04d}", data=m.brdf.astype(np.float32), compression="gzip")
+                    ds.attrs.update({"model": m.model, "scene": m.scene,
+                                     "diagnostics": json.dumps(m.diagnostics, default=repr)})
+
+
+def _metrics(m: Measurement, ref: Measurement, grid: HemisphereGrid, sigma_u: float, theta: float, phi: float) -> dict:
+    f = 0.5 * (m.brdf[0] + m.brdf[1])
+    f_ref = 0.5 * (ref.brdf[0] + ref.brdf[1])
+    smooth, smooth_ref = blur(f, grid, sigma_u), blur(f_ref, grid, sigma_u)
+    a, a_ref = albedo(f, grid), albedo(f_ref, grid)
+    return {
+        "albedo": float(a),
+        "albedo_diff": float(a - a_ref),
+        "rel_l2": float(relative_l2(f, f_ref, grid)),
+        "rel_l2_smooth": float(relative_l2(smooth, smooth_ref, grid)),
+        "misplaced": float(misplaced_energy(f, f_ref, grid)),
+        "peak_offset_deg": angular_distance_deg(peak_direction(smooth, grid), peak_direction(smooth_ref, grid)),
+        "retro": cone_fraction(f, grid, theta, phi, RETRO_CONE_DEG),
+    }
+
+
+def compare_scenes(scenes: list[tuple[str, object]], models: list[str], options: dict | None = None,
+                   reference: str | None = None, memory_budget_bytes: float | None = None,
+                   progress=None) -> Comparison:
+    """Run ``models`` (and the reference) on every (label, SurfaceScene) of ``scenes``.
+
+    ``options``: model name → Options mapping; ``reference``: a model name, or None to choose
+    (:func:`choose_reference`) per scene within ``memory_budget_bytes`` (default: available RAM).
+    """
+    from wavebrdf.solver.resources import meminfo_bytes
+
+    options = options or {}
+    budget = memory_budget_bytes if memory_budget_bytes is not None else 0.8 * meminfo_bytes("MemAvailable")
+    rows: list[dict] = []
+    kept: list[Measurement] = []
+    grid = scenes[0][1].grid
+    for label, scene in scenes:
+        if reference is None:
+            ref_name, why = choose_reference(models, scene, budget)
+        else:
+            ref_name, why = reference, "given"
+        logger.info("%s: reference %s (%s)", label, ref_name, why)
+        runs = {}
+        for name in [ref_name] + [n for n in models if n != ref_name]:
+            if progress:
+                progress(f"{label}: {name}")
+            runs[name] = measure(name, options.get(name), scene, label)
+            kept.append(runs[name])
+            logger.info("%s: %s %.3g s wall, %.3g s CPU, %.0f MB%s", label, name, runs[name].wall_s,
+                        runs[name].cpu_s, runs[name].peak_mb, f" — {runs[name].failure}" if runs[name].failure else "")
+        ref = runs[ref_name]
+        sigma_u = speckle_sigma_u(scene.wavelength_um, scene.waist_um, grid, scene.exterior_index)
+        for name, m in runs.items():
+            row = {"scene": label, "model": name, "reference": ref_name if reference else f"{ref_name} ({why})",
+                   "wall_s": m.wall_s, "cpu_s": m.cpu_s, "peak_mb": m.peak_mb, "failure": m.failure}
+            if m.failure is None and ref.failure is None:
+                row.update(_metrics(m, ref, grid, sigma_u, scene.theta_i, scene.phi_i))
+            rows.append(row)
+    return Comparison(rows, kept, grid)
+

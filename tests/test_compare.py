@@ -1,0 +1,56 @@
+"""``wavebrdf compare`` machinery (jobs/compare.py): measured runs, metrics against the reference,
+failures reported in the table, and the files written."""
+
+from __future__ import annotations
+
+import csv
+
+import h5py
+import numpy as np
+import pytest
+
+from references import fresnel_reflectance
+from wavebrdf.jobs.compare import LADDER, choose_reference, compare_scenes
+from wavebrdf.solver.farfield import HemisphereGrid
+from wavebrdf.solver.models import SurfaceScene
+from wavebrdf.solver.surface import generate
+
+
+@pytest.fixture(scope="module")
+def flat_scene():
+    surface = generate("flat", cells=100, size_um=20.0)
+    return SurfaceScene(surface, 0.5, 1.5 + 0j, np.deg2rad(30.0), 0.2, 4.0, HemisphereGrid(96))
+
+
+def test_a_model_against_itself_and_a_failing_one(flat_scene, tmp_path):
+    """kirchhoff as its own reference: every error 0 and its albedo Fresnel's; a model that fails
+    on the scene (an option the scene cannot satisfy) becomes a row with its failure, not a crash."""
+    comparison = compare_scenes([("flat glass 30°", flat_scene)], ["kirchhoff", "bem"], reference="kirchhoff",
+                                options={"bem": {"method": "dense", "no_such_key": 1}})
+    rows = {r["model"]: r for r in comparison.rows}
+    ref = rows["kirchhoff"]
+    assert ref["rel_l2"] == 0 and ref["misplaced"] == 0 and ref["albedo_diff"] == 0
+    assert ref["albedo"] == pytest.approx(np.mean(fresnel_reflectance(1.0, 1.5, np.deg2rad(30.0))), rel=5e-3)
+    assert ref["wall_s"] > 0 and ref["cpu_s"] >= 0 and ref["peak_mb"] >= 0
+    assert rows["bem"]["failure"] and "no_such_key" in rows["bem"]["failure"]
+    paths = comparison.write(tmp_path / "trade")
+    assert [p.suffix for p in paths] == [".csv", ".md", ".png", ".h5"] and all(p.stat().st_size > 0 for p in paths)
+    with open(paths[0]) as fh:
+        table = list(csv.DictReader(fh))
+    assert [r["model"] for r in table] == ["kirchhoff", "bem"]
+    with h5py.File(paths[3]) as h5:
+        assert list(h5["table/model"].asstr()) == ["kirchhoff", "bem"]
+        assert h5["brdf"]["0000"].shape == (2, 96, 96)
+
+
+def test_the_reference_is_the_highest_rung_that_fits(flat_scene):
+    name, why = choose_reference(["kirchhoff", "bem"], flat_scene, 64 * 2**30)
+    assert name == "bem" and LADDER.index("bem") > LADDER.index("kirchhoff")
+    from wavebrdf.solver.models import get_model
+
+    needs = {n: get_model(n).estimate(flat_scene).memory_bytes for n in ("kirchhoff", "bem")}
+    assert needs["kirchhoff"] < needs["bem"]
+    name, why = choose_reference(["kirchhoff", "bem"], flat_scene, 0.5 * (needs["kirchhoff"] + needs["bem"]))
+    assert name == "kirchhoff" and "bem needs" in why
+    with pytest.raises(ValueError, match="no model fits"):
+        choose_reference(["kirchhoff"], flat_scene, 1.0)
