@@ -162,9 +162,11 @@ class Comparison:
     grid: HemisphereGrid
 
     def write(self, stem: Path) -> list[Path]:
-        """``stem``.csv, .md, .png and .h5 (returns the paths written)."""
+        """``stem``.csv, .md, .png (error vs time), _gallery.png (every model's BRDF side by side)
+        and .h5 (returns the paths written)."""
         stem = Path(stem)
-        paths = [stem.with_suffix(".csv"), stem.with_suffix(".md"), stem.with_suffix(".png"), stem.with_suffix(".h5")]
+        paths = [stem.with_suffix(".csv"), stem.with_suffix(".md"), stem.with_suffix(".png"), stem.with_suffix(".h5"),
+                 stem.with_name(stem.name + "_gallery.png")]
         with open(paths[0], "w", newline="") as fh:
             writer = csv.DictWriter(fh, COLUMNS)
             writer.writeheader()
@@ -173,6 +175,7 @@ class Comparison:
         paths[1].write_text(self.markdown())
         self.plot(paths[2])
         self._write_h5(paths[3])
+        self.gallery(paths[4])
         return paths
 
     def markdown(self) -> str:
@@ -210,6 +213,53 @@ class Comparison:
         ax.set_ylabel("relative L2 over the lobe vs reference (speckle-averaged)")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=6, loc="best", ncol=2)
+        fig.tight_layout()
+        fig.savefig(path)
+        plt.close(fig)
+
+    def gallery(self, path: Path, decades: float = 5.0) -> None:
+        """One row per scene, one hemisphere per model: log₁₀ of the unpolarized BRDF over
+        ``decades`` below the scene's highest value (shared colour scale within a row)."""
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        scenes = list(dict.fromkeys(m.scene for m in self.measurements))
+        models = list(dict.fromkeys(m.model for m in self.measurements))
+        rows = {(r["scene"], r["model"]): r for r in self.rows}
+        fig, axes = plt.subplots(len(scenes), len(models), figsize=(2.3 * len(models), 2.5 * len(scenes)),
+                                 dpi=110, squeeze=False)
+        t = np.linspace(0, 2 * np.pi, 361)
+        for i, scene in enumerate(scenes):
+            runs = {m.model: m for m in self.measurements if m.scene == scene}
+            logs = {}
+            for name, m in runs.items():
+                if m.brdf is not None:
+                    with np.errstate(divide="ignore", invalid="ignore"):
+                        logs[name] = np.log10(0.5 * (m.brdf[0] + m.brdf[1]))
+            finite = [v[np.isfinite(v)] for v in logs.values() if np.any(np.isfinite(v))]
+            top = max(v.max() for v in finite) if finite else 0.0
+            for j, name in enumerate(models):
+                ax = axes[i, j]
+                ax.set_facecolor("black")
+                ax.set_xticks([])
+                ax.set_yticks([])
+                ax.set_aspect("equal")
+                row = rows.get((scene, name), {})
+                if name in logs:
+                    ax.imshow(logs[name], origin="lower", extent=(-1, 1, -1, 1), cmap="magma", vmin=top - decades,
+                              vmax=top, interpolation="nearest")
+                    err = row.get("rel_l2_smooth", np.nan)
+                    label = f"{name}\n{row.get('wall_s', np.nan):.3g} s" + (
+                        "" if row.get("model") == row.get("reference", "").split(" ")[0] else f", L2 {err:.2g}")
+                else:
+                    label = f"{name}\nfailed"
+                ax.plot(np.cos(t), np.sin(t), color="white", lw=0.5)
+                ax.set_title(label, fontsize=7)
+                if j == 0:
+                    ax.set_ylabel(scene, fontsize=6)
+        fig.suptitle(f"unpolarized BRDF, log₁₀ over {decades:g} decades (axes: v horizontal, u vertical)", fontsize=8)
         fig.tight_layout()
         fig.savefig(path)
         plt.close(fig)
