@@ -1,14 +1,18 @@
 """Command line: ``wavebrdf run | plan | submit | inspect | render | devices | bench``.
 
-Errors in user input (config, surface files, output paths, datasets) are printed as one line
-``wavebrdf: error: ...`` with exit status 2; nothing is written in that case.
+Errors in user input (config, surface files, output paths, datasets, command-line flags), an
+output held by another run (``run`` without ``--wait``) and a failed write (disk full: the previous
+state is kept) are printed as one line ``wavebrdf: error: ...`` with exit status 2; nothing is
+written in that case. Exit status 1: a run finished with failed tasks; 130: interrupted.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import math
 import os
+import re
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,14 +26,15 @@ logger = logging.getLogger("wavebrdf")
 
 def _user_errors():
     from wavebrdf.jobs.config import ConfigError
+    from wavebrdf.jobs.parts import OutputBusy, ResumeError
     from wavebrdf.jobs.plan import PlanError
-    from wavebrdf.jobs.scheduler import ResumeError
     from wavebrdf.jobs.store import StoreError
     from wavebrdf.solver.materials import MaterialError
     from wavebrdf.solver.opencl import OpenCLUnavailable
     from wavebrdf.solver.surface import SurfaceError
 
-    return (ConfigError, PlanError, ResumeError, StoreError, MaterialError, OpenCLUnavailable, SurfaceError, OSError)
+    return (ConfigError, PlanError, ResumeError, OutputBusy, StoreError, MaterialError, OpenCLUnavailable,
+            SurfaceError, OSError)
 
 
 @dataclass(frozen=True)
@@ -73,8 +78,9 @@ def _choose_executor(requested: str, launch: MpiLaunch | None) -> str:
 
 
 def cmd_run(args) -> int:
-    from wavebrdf.jobs.config import load_config
-    from wavebrdf.jobs.plan import check_memory, plan_study
+    from wavebrdf.jobs.config import load_config, make_output_folder
+    from wavebrdf.jobs.parts import OutputLock
+    from wavebrdf.jobs.plan import check_memory, device_info, plan_study
     from wavebrdf.jobs.scheduler import apply_worker_environment, worker_environment
 
     config = load_config(args.config, output=args.output)
@@ -90,23 +96,50 @@ def cmd_run(args) -> int:
         comm = MPI.COMM_WORLD
     plan = plan_study(config)
     per_node = {"mpi": launch.local_size if launch else 1, "processes": workers}.get(executor, 1)
-    check_memory(plan, per_node, study.run.memory_gb)
+    check_memory(plan, per_node, study.run.memory_gb, device=device_info(args.device))
+    make_output_folder(config.output)
+    lock = OutputLock(config.output)
     if comm is None:
-        return _run_and_report(args, plan, executor, workers, None)
+        with lock.acquire(args.wait):  # held until the dataset and its PNGs are written
+            return _run_and_report(args, plan, executor, workers, None)
     try:
+        if not _mpi_lock(comm, lock, args.wait):
+            return 2
         return _run_and_report(args, plan, executor, workers, comm)
     except BaseException as exc:  # one failing rank must not leave the others waiting forever
         print(f"wavebrdf: error on rank {comm.Get_rank()}: {type(exc).__name__}: {exc}", file=sys.stderr)
         comm.Abort(2)
         raise
+    finally:
+        lock.release()
+
+
+def _mpi_lock(comm, lock, wait: bool) -> bool:
+    """Rank 0 takes the output's lock before any rank works and tells every rank the outcome
+    (False: refused, said once by rank 0)."""
+    from wavebrdf.jobs.parts import OutputBusy, StorageError
+    from wavebrdf.jobs.scheduler import share_from_root
+
+    refusal = None
+    if comm.Get_rank() == 0:
+        try:
+            lock.acquire(wait)
+        except (OutputBusy, StorageError) as exc:
+            refusal = str(exc)
+    refusal = share_from_root(comm, refusal)
+    if refusal is not None and comm.Get_rank() == 0:
+        print(f"wavebrdf: error: {refusal}", file=sys.stderr)
+    return refusal is None
 
 
 def _run_and_report(args, plan, executor: str, workers: int, comm) -> int:
     from wavebrdf.jobs.render import render_dataset
-    from wavebrdf.jobs.scheduler import run_plan
+    from wavebrdf.jobs.scheduler import prepare_output, run_plan
     from wavebrdf.solver.opencl import create_context
 
     rank = comm.Get_rank() if comm is not None else 0
+    if rank == 0:
+        prepare_output(plan)  # a parts folder that cannot be used is refused before anything starts
     ctx = create_context(args.device)
     if rank == 0:
         how = {"mpi": f"{comm.Get_size() if comm else 1} MPI ranks", "processes": f"{workers} worker processes",
@@ -129,14 +162,15 @@ def _run_and_report(args, plan, executor: str, workers: int, comm) -> int:
 
 def cmd_plan(args) -> int:
     from wavebrdf.jobs.config import load_config
-    from wavebrdf.jobs.plan import check_memory, plan_study
+    from wavebrdf.jobs.plan import check_memory, device_info, plan_study
 
     config = load_config(args.config)
     study = config.cases[0]
     plan = plan_study(config)
     workers = args.workers or study.run.workers or 1
     estimates = [plan.estimate(t) for t in plan.tasks]
-    budget = check_memory(plan, workers, args.memory_gb or study.run.memory_gb)
+    budget = check_memory(plan, workers, args.memory_gb or study.run.memory_gb, device=device_info(),
+                          estimates=estimates)
     print(f"study {config.name!r} -> {config.output}")
     for case, st in plan.steering.items():
         layout = st.layout
@@ -146,10 +180,11 @@ def cmd_plan(args) -> int:
     print(f"{'id':>6} {'kind':6} {'case':>4} {'λ (µm)':>7} {'θ (°)':>7} {'φ (°)':>7} {'patch':>6} "
           f"{'memory (GiB)':>12} {'time (s)':>9}  model")
     rows = list(zip(plan.tasks, estimates))
-    shown = rows if len(rows) <= args.rows else rows[: args.rows - 5] + [None] + rows[-5:]
+    tail = min(5, args.rows // 2)
+    shown = rows if len(rows) <= args.rows else rows[: args.rows - tail] + [None] + rows[len(rows) - tail:]
     for row in shown:
         if row is None:
-            print(f"{'...':>6} ({len(rows) - args.rows + 1} more)")
+            print(f"{'...':>6} ({len(rows) - args.rows} more)")
             continue
         task, est = row
         theta, phi = np.rad2deg(plan.direction_rad(task))
@@ -165,6 +200,41 @@ def cmd_plan(args) -> int:
     print(f"total: {len(plan.tasks)} tasks, {total:.1f} s of compute ({total / 3600:.2f} h); about "
           f"{total / workers:.1f} s wall on {workers} worker(s); peak {peak / 2**30:.2f} GiB per worker "
           f"(node budget {budget / 2**30:.1f} GiB)")
+    return 0
+
+
+def cmd_compare(args) -> int:
+    from wavebrdf.jobs.compare import compare_config
+    from wavebrdf.jobs.config import load_config
+
+    config = load_config(args.config)
+    models = [m.strip() for m in args.models.split(",") if m.strip()] if args.models else None
+    stem = args.out or Path(config.output).with_suffix("").with_name(Path(config.output).stem + "_compare")
+
+    def progress(what: str) -> None:
+        if not args.quiet:
+            print(f"  running {what}", file=sys.stderr, flush=True)
+
+    comparison = compare_config(config, models, args.reference, args.memory_gb, progress)
+    print(comparison.markdown(), end="")
+    for path in comparison.write(stem):
+        print(f"wrote {path}")
+    return 0
+
+
+def cmd_models(args) -> int:
+    """Every registered model: what it takes and returns, its flags and its options."""
+    from wavebrdf.solver.models import model_class, model_names
+    from wavebrdf.solver.options import describe_options
+
+    for name in model_names():
+        cls = model_class(name)
+        caps = cls.capabilities
+        flags = [f for f in ("polarized", "steerable", "reciprocal", "conserves_energy") if getattr(caps, f)]
+        summary = " ".join((cls.__doc__ or "").strip().split("\n\n")[0].split())
+        print(f"{name}: {summary}\n    takes {caps.takes}, returns {caps.returns}; {', '.join(flags) or 'no flags'}")
+        for key, kind, default, doc in describe_options(cls.Options):
+            print(f"    {key} = {default!r} ({kind}): {doc}")
     return 0
 
 
@@ -197,8 +267,6 @@ def cmd_submit(args) -> int:
 
     if not re.fullmatch(r"(\d+-)?\d{1,3}:\d{2}(:\d{2})?", args.time):
         raise ConfigError(f"--time {args.time!r}: use HH:MM, HH:MM:SS or D-HH:MM")
-    if args.nodes < 1 or args.ntasks_per_node < 1:
-        raise ConfigError("--nodes and --ntasks-per-node must be >= 1")
     config = load_config(args.config)
     plan = plan_study(config)
     check_memory(plan, args.ntasks_per_node, args.memory_gb or config.cases[0].run.memory_gb)
@@ -220,7 +288,7 @@ def cmd_submit(args) -> int:
 def cmd_inspect(args) -> int:
     from wavebrdf.jobs.store import Dataset
 
-    with Dataset(args.file) as ds:
+    with Dataset(args.file) as ds, ds.reading():
         attrs = ds.attrs
         print(f"{ds.path}: {ds.kind} study {attrs.get('study')!r}, wavebrdf {attrs.get('software_version')}, "
               f"format v{attrs.get('format_version')}, created {attrs.get('created')}")
@@ -238,8 +306,9 @@ def cmd_inspect(args) -> int:
         if tasks:
             wall = np.asarray(tasks.get("wall_time_s", []), dtype=float)
             status = [x.decode() if isinstance(x, bytes) else str(x) for x in tasks.get("status", [])]
+            longest = np.nanmax(wall) if np.any(np.isfinite(wall)) else float("nan")
             print(f"tasks: {status.count('done')} done, {status.count('failed')} failed, wall time total "
-                  f"{np.nansum(wall):.2f} s, max {np.nanmax(wall):.2f} s")
+                  f"{np.nansum(wall):.2f} s, max {longest:.2f} s")
             errors = [x.decode() if isinstance(x, bytes) else str(x) for x in tasks.get("error", [])]
             for i, (st, err) in enumerate(zip(status, errors)):
                 if st == "failed":
@@ -283,6 +352,18 @@ def _print_summary_table(ds, coords) -> None:
 def cmd_render(args) -> int:
     from wavebrdf.jobs.render import render_dataset
 
+    if getattr(args, "scene", None):
+        try:
+            from wavebrdf.mitsuba import render_scene
+
+            out = Path(args.out) / f"{Path(args.file).stem}_{args.scene}.png" if args.out else None
+            result = render_scene(args.file, args.scene, out)
+        except (ImportError, ValueError) as exc:
+            print(f"wavebrdf: error: {exc}", file=sys.stderr)
+            return 2
+        print(f"wrote {result['path']} (Mitsuba {result['variant']}: load {result['load_s']:.1f} s, "
+              f"render {result['render_s']:.1f} s)")
+        return 0
     for png in render_dataset(args.file, args.out):
         print(f"wrote {png}")
     return 0
@@ -316,10 +397,51 @@ def cmd_bench(args) -> int:
     return 0
 
 
+def one_line(text: str) -> str:
+    """``text`` on one line: line breaks become spaces, other unprintable characters escapes."""
+    text = " ".join(text.splitlines())
+    return "".join(c if c.isprintable() else ascii(c)[1:-1] for c in text)
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with the CLI's one-line errors (``wavebrdf: error: ...``, exit 2)."""
+
+    def error(self, message: str):
+        message = re.sub(r"^argument (\S+): (?=\1 )", "", message)  # the type check names the flag itself
+        print(f"wavebrdf: error: {one_line(message)}; see '{self.prog} --help'", file=sys.stderr)
+        sys.exit(2)
+
+
+def _number_flag(flag: str, *, integer: bool, low: float, low_open: bool = False):
+    """argparse type: a finite number (integer) >= low (> low when ``low_open``), refused with one
+    line naming the flag and the value."""
+    what = "an integer" if integer else "a number"
+    bound = f"{'>' if low_open else '>='} {low:g}"
+
+    def parse(text: str):
+        try:
+            value = int(text) if integer else float(text)
+        except ValueError:
+            value = None
+        if value is None or not math.isfinite(value) or value < low or (low_open and value == low):
+            raise argparse.ArgumentTypeError(f"{flag} {text}: must be {what} {bound}")
+        return value
+
+    return parse
+
+
+def _count(flag: str):
+    return _number_flag(flag, integer=True, low=1)
+
+
+def _gib(flag: str):
+    return _number_flag(flag, integer=False, low=0, low_open=True)
+
+
 def build_parser() -> argparse.ArgumentParser:
     from wavebrdf import __version__
 
-    parser = argparse.ArgumentParser(prog="wavebrdf", description="Wave-optics BRDFs of microgeometry.")
+    parser = _Parser(prog="wavebrdf", description="Wave-optics BRDFs of microgeometry.")
     parser.add_argument("--version", action="version", version=f"wavebrdf {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="log every task")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -330,28 +452,48 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", help="OpenCL device (overrides WAVEBRDF_DEVICE)")
     p.add_argument("--executor", choices=["auto", "serial", "processes", "mpi"],
                    help="override [run] executor (auto: MPI under mpiexec/srun, else serial)")
-    p.add_argument("--workers", type=int, help="worker processes for --executor processes")
+    p.add_argument("--workers", type=_count("--workers"), help="worker processes for --executor processes")
+    p.add_argument("--wait", action="store_true",
+                   help="if another run holds the output, wait for it to end (default: exit with status 2)")
     p.add_argument("--no-render", action="store_true", help="do not write PNGs")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("plan", help="list a study's tasks with memory/time estimates (runs nothing)")
     p.add_argument("config", type=Path)
-    p.add_argument("--workers", type=int, help="concurrent tasks per node (default [run] workers or 1)")
-    p.add_argument("--memory-gb", type=float, help="node memory (default: [run] memory_gb or this machine)")
-    p.add_argument("--rows", type=int, default=40, help="maximum task rows to print")
+    p.add_argument("--workers", type=_count("--workers"), help="concurrent tasks per node (default [run] workers or 1)")
+    p.add_argument("--memory-gb", type=_gib("--memory-gb"),
+                   help="node memory (default: [run] memory_gb or this machine)")
+    p.add_argument("--rows", type=_count("--rows"), default=40, help="maximum task rows to print")
     p.set_defaults(func=cmd_plan)
+
+    p = sub.add_parser("compare", help="run several models on a study's scenes: time, memory and error vs a "
+                                       "reference (CSV, Markdown, plots, HDF5)")
+    p.add_argument("config", type=Path)
+    p.add_argument("--models", help="comma-separated model names (default: [compare] models, else every "
+                                    "surface model that fits the scenes)")
+    p.add_argument("--reference", help="the reference model (default: [compare] reference, else the most "
+                                       "accurate rung that fits the memory budget, per scene)")
+    p.add_argument("--memory-gb", type=_gib("--memory-gb"), help="memory budget for the reference (default: 80%% "
+                                                                  "of the available memory)")
+    p.add_argument("--out", type=Path, help="output stem (default: <output stem>_compare)")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress lines")
+    p.set_defaults(func=cmd_compare)
+
+    p = sub.add_parser("models", help="list the registered models, their capabilities and options")
+    p.set_defaults(func=cmd_models)
 
     p = sub.add_parser("submit", help="write a SLURM batch script that runs the study with srun")
     p.add_argument("config", type=Path)
-    p.add_argument("--nodes", type=int, required=True)
+    p.add_argument("--nodes", type=_count("--nodes"), required=True)
     p.add_argument("--time", required=True, help="wall-clock limit HH:MM")
-    p.add_argument("--ntasks-per-node", type=int, default=os.cpu_count() or 1, help="MPI ranks per node")
-    p.add_argument("--cpus-per-task", type=int, default=1)
+    p.add_argument("--ntasks-per-node", type=_count("--ntasks-per-node"), default=os.cpu_count() or 1,
+                   help="MPI ranks per node")
+    p.add_argument("--cpus-per-task", type=_count("--cpus-per-task"), default=1)
     p.add_argument("--partition")
     p.add_argument("--account")
     p.add_argument("--mpi", default="pmi2", help="srun --mpi plugin ('' to omit); pmi2 suits the PyPI mpich")
-    p.add_argument("--memory-gb", type=float, help="node memory for the fit check")
+    p.add_argument("--memory-gb", type=_gib("--memory-gb"), help="node memory for the fit check")
     p.add_argument("--script", help="output path (default <study>.slurm.sh)")
     p.set_defaults(func=cmd_submit)
 
@@ -363,6 +505,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("render", help="write PNGs of a dataset's BRDF slices")
     p.add_argument("file", type=Path)
     p.add_argument("--out", type=Path, help="output folder (default: <file stem>_png)")
+    p.add_argument("--scene", choices=["sphere", "plate"],
+                   help="render the material with Mitsuba 3 (extra 'render') under a sky instead: "
+                        "<file stem>_<scene>.png")
     p.set_defaults(func=cmd_render)
 
     p = sub.add_parser("devices", help="list OpenCL platforms/devices and their fp64 support")
@@ -376,13 +521,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:  # --help, --version, or a flag refused in one line
+        return exc.code if isinstance(exc.code, int) else 0
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     try:
         return args.func(args)
     except _user_errors() as exc:
-        print(f"wavebrdf: error: {exc}", file=sys.stderr)
+        print(f"wavebrdf: error: {one_line(str(exc))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("wavebrdf: interrupted; finished tasks are kept, re-run the same command to resume", file=sys.stderr)

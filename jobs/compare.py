@@ -341,3 +341,65 @@ def compare_scenes(scenes: list[tuple[str, object]], models: list[str], options:
             rows.append(row)
     return Comparison(rows, kept, grid)
 
+
+
+def surface_models(config) -> list[str]:
+    """Registered surface models that can run the study's scenes: height-field models, and
+    statistics models when every case's surface carries its ensemble."""
+    from wavebrdf.solver.models import model_names
+
+    names = list(model_names("height_field"))
+    surfaces = [case.surface.build() for case in config.cases]
+    if all(s.ensemble is not None for s in surfaces):
+        names += list(model_names("statistics"))
+    return sorted(names, key=lambda n: LADDER.index(n) if n in LADDER else -1)
+
+
+def compare_config(config, models: list[str] | None = None, reference: str | None = None,
+                   memory_gb: float | None = None, progress=None) -> Comparison:
+    """Every (case, wavelength, incident direction) of a surface study config through ``models``
+    (default: ``[compare] models``, else :func:`surface_models`) against ``reference`` (default:
+    ``[compare] reference``, else chosen per scene). Options: ``[model]`` for the study's model,
+    ``[compare.<name>]`` tables for the others."""
+    import tomllib
+
+    from wavebrdf.jobs.config import ConfigError
+    from wavebrdf.jobs.plan import plan_study
+    from wavebrdf.solver.models import model_class, model_names
+    from wavebrdf.solver.options import parse_options
+
+    study = config.cases[0]
+    if study.is_fiber:
+        raise ConfigError("wavebrdf compare: a surface study is needed (fiber models have no rungs to compare)")
+    if study.steering is not None:
+        raise ConfigError("[steering]: wavebrdf compare runs whole-surface scenes; remove [steering]")
+    section = tomllib.loads(config.text).get("compare", {})
+    options = {study.model.name: study.model.options}
+    for name, table in section.items():
+        if isinstance(table, dict):
+            if name not in model_names():
+                raise ConfigError(f"[compare.{name}]: not a registered model (available: {', '.join(model_names())})")
+            try:
+                options[name] = parse_options(model_class(name).Options, table, f"compare.{name}")
+            except ValueError as exc:
+                raise ConfigError(str(exc)) from None
+    models = list(models or section.get("models") or surface_models(config))
+    for name in models:
+        if name not in model_names():
+            raise ConfigError(f"--models {name}: not a registered model (available: {', '.join(model_names())})")
+    reference = reference or section.get("reference")
+    if reference is not None and reference not in models:
+        models = [reference] + models
+    plan = plan_study(config)
+    scenes = []
+    for task in plan.tasks:
+        if task.kind != "direct":
+            continue
+        scene = plan.scene(task)
+        case = config.cases[task.case]
+        where = ", ".join(f"{k}={v}" for k, v in case.sweep_values.items())
+        label = (f"{case.name}{' (' + where + ')' if where else ''} λ={scene.wavelength_um:g} µm "
+                 f"θi={np.rad2deg(scene.theta_i):.0f}°")
+        scenes.append((label, scene))
+    budget = None if memory_gb is None else memory_gb * 2**30
+    return compare_scenes(scenes, models, options, reference, budget, progress)

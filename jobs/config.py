@@ -8,8 +8,10 @@ against the working directory.
 Sections (see configs/*.toml and the README for a full example)::
 
     [study]        name, output
-    [surface]      file + size_um | generator ("flat"|"gaussian"|"sinusoid") + size_um, cells,
-                   seed, rms_height_um, correlation_um, amplitude_um, period_um, angle_deg
+    [surface]      file + size_um | generator ("flat"|"gaussian"|"brushed"|"sinusoid"|"corner-cubes"|
+                   "spherical-pits"|"hemispheres") + size_um, cells, seed, rms_height_um,
+                   correlation_um (T or [T_x', T_y']), amplitude_um, period_um, angle_deg, radius_um,
+                   depth_um, fill, placement ("square"|"random")
     [material]     name | table = [[λ_um, n, κ], ...] | n (+ kappa); exterior_index (default 1)
     [illumination] wavelengths_um, directions_deg = [[θ, φ], ...], waist_um,
                    polarization ("unpolarized"|"s"|"p"), beam ("exact"|"paraxial"|"plane")
@@ -53,6 +55,8 @@ __all__ = [
     "register_section",
 ]
 
+# solver/surface.py GENERATORS (listed here so that loading a config imports no solver module)
+SURFACE_GENERATORS = ("flat", "gaussian", "brushed", "sinusoid", "corner-cubes", "spherical-pits", "hemispheres")
 POLARIZATION_CHOICES = ("unpolarized", "s", "p")
 BEAM_CHOICES = ("exact", "paraxial", "plane")
 PRECISION_CHOICES = ("double", "single")
@@ -91,6 +95,8 @@ def _number(section, key, value, *, integer=False, low=None, high=None, low_open
     ok_type = isinstance(value, int) if integer else isinstance(value, (int, float))
     if isinstance(value, bool) or not ok_type:
         raise _fail(section, key, value, f"must be {'an integer' if integer else 'a number'}")
+    if integer and abs(value) >= 2**63:  # TOML integers are unbounded; numpy and HDF5 are not
+        raise _fail(section, key, value, "is too large (integers must lie within ±2**63)")
     if not integer and not math.isfinite(value):
         raise _fail(section, key, value, "must be finite (not NaN/inf)")
     if low is not None and (value <= low if low_open else value < low):
@@ -115,6 +121,30 @@ def _integer_at_least(minimum: int) -> Callable:
 def _string(section, key, value):
     if not isinstance(value, str) or not value.strip():
         raise _fail(section, key, value, "must be a non-empty string")
+    return value
+
+
+def _study_name(section, key, value):
+    """A study name: it names the default output ``<name>.h5`` and the SLURM script, so it must be
+    a plain file name (no folders, no "..", no control characters)."""
+    name = _string(section, key, value)
+    if any(sep in name for sep in ("/", "\\")) or ".." in name or not name.isprintable() or len(name) > 200:
+        raise _fail(section, key, value, "must be a plain name (no '/', '\\', '..' or control characters, at "
+                    "most 200 characters); choose the output path with [study] output")
+    return name
+
+
+def _model_names(section, key, value):
+    """A registered model name, or a non-empty list of them."""
+    from wavebrdf.solver.models import model_names
+
+    names = value if isinstance(value, list) else [value]
+    if not names or not all(isinstance(n, str) for n in names):
+        raise _fail(section, key, value, "must be a model name or a non-empty list of model names")
+    unknown = [n for n in names if n not in model_names()]
+    if unknown:
+        raise _fail(section, key, value, f"{unknown[0]!r} is not a registered model "
+                                         f"(available: {', '.join(model_names())})")
     return value
 
 
@@ -194,6 +224,11 @@ def _positive_pair(section, key, value):
     return (float(value[0]), float(value[1]))
 
 
+def _positive_or_pair(section, key, value):
+    """A number > 0, or [a, b] with two numbers > 0 (e.g. anisotropic correlation lengths)."""
+    return _positive_pair(section, key, value) if isinstance(value, list) else _positive(section, key, value)
+
+
 def _patches(section, key, value):
     if value == "auto":
         return value
@@ -221,20 +256,24 @@ class Spec:
 
 SCHEMA: dict[str, dict[str, Spec]] = {
     "study": {
-        "name": Spec(_string),
+        "name": Spec(_study_name),
         "output": Spec(_string),
     },
     "surface": {
         "file": Spec(_string),
         "size_um": Spec(_positive, required=True),
-        "generator": Spec(_choice("flat", "gaussian", "sinusoid")),
+        "generator": Spec(_choice(*SURFACE_GENERATORS)),
         "cells": Spec(_integer_at_least(3), default=256),
         "seed": Spec(_integer_at_least(0), default=0),
         "rms_height_um": Spec(_nonnegative),
-        "correlation_um": Spec(_positive),
+        "correlation_um": Spec(_positive_or_pair),
         "amplitude_um": Spec(lambda s, k, v: _number(s, k, v)),
         "period_um": Spec(_positive),
         "angle_deg": Spec(lambda s, k, v: _number(s, k, v)),
+        "radius_um": Spec(_positive),
+        "depth_um": Spec(_positive),
+        "fill": Spec(lambda s, k, v: _number(s, k, v, low=0, low_open=True, high=1)),
+        "placement": Spec(_choice("square", "random")),
     },
     "material": {
         "name": Spec(_string),
@@ -262,6 +301,10 @@ SCHEMA: dict[str, dict[str, Spec]] = {
         "shift_um": Spec(_positive),  # default: the waist
         "hexagon_fill": Spec(lambda s, k, v: _number(s, k, v, low=0.05, high=10.0), default=0.97),
     },
+    "compare": {  # `wavebrdf compare` only; [compare.<model>] tables hold other models' options
+        "models": Spec(_model_names),
+        "reference": Spec(_model_names),
+    },
     "run": {
         "executor": Spec(_choice("auto", "serial", "processes", "mpi"), default="auto"),
         "workers": Spec(_integer_at_least(1)),
@@ -284,10 +327,11 @@ SCHEMA: dict[str, dict[str, Spec]] = {
     },
 }
 REQUIRED_SECTIONS = ("material", "illumination", "model")  # + exactly one of [surface] / [fiber]
-OPEN_SECTIONS = ("model",)  # sections whose other keys belong to a plug-in (the model's Options)
+OPEN_SECTIONS = ("model", "compare")  # sections whose other keys belong to a plug-in (a model's Options)
 SURFACE_ONLY_KEYS = ("directions_deg", "waist_um", "beam")
 FIBER_ONLY_KEYS = ("theta_i_deg", "phi_i_deg")
-GENERATOR_KEYS = ("rms_height_um", "correlation_um", "amplitude_um", "period_um", "angle_deg")
+GENERATOR_KEYS = ("rms_height_um", "correlation_um", "amplitude_um", "period_um", "angle_deg", "radius_um",
+                  "depth_um", "fill", "placement")
 
 
 def register_section(name: str, keys: dict[str, Spec]) -> None:
@@ -503,22 +547,64 @@ def _exactly_one(section: str, values: dict, keys: tuple[str, ...]) -> str:
     return given[0]
 
 
+MAX_CONFIG_BYTES = 16 * 2**20
+
+
+def input_file_problem(path: Path) -> str | None:
+    """Why ``path`` cannot be read as an input file ("does not exist", "is a folder, not a file",
+    "is not a regular file (a character device)", ...); None for a readable regular file."""
+    import stat
+
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return "does not exist"
+    except OSError as exc:
+        return f"cannot be read ({exc.strerror})"
+    if stat.S_ISDIR(st.st_mode):
+        return "is a folder, not a file"
+    if not stat.S_ISREG(st.st_mode):
+        kinds = ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                 (stat.S_ISFIFO, "a named pipe"), (stat.S_ISSOCK, "a socket"))
+        kind = next((name for test, name in kinds if test(st.st_mode)), "not a file")
+        return f"is not a regular file ({kind})"
+    if not os.access(path, os.R_OK):
+        return "is not readable (permission denied)"
+    return None
+
+
 def _check_output_path(raw_output: str) -> Path:
+    """The dataset path: a .h5/.hdf5/.nc file name in a writable folder. The folder may be missing
+    if its parent exists (``wavebrdf run`` creates that one level, as ``mkdir`` would: the shipped
+    configs write to out/); deeper missing folders are refused, nothing is created here."""
     path = Path(raw_output).expanduser()
     if path.suffix not in (".h5", ".hdf5", ".nc"):
         raise _fail("study", "output", raw_output, "must end in .h5 (or .hdf5/.nc)")
     parent = path.resolve().parent
     probe = parent
-    while not probe.exists():
+    while not probe.exists() and not probe.is_symlink():
         probe = probe.parent
-    if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
+    if not probe.is_dir():
+        raise _fail("study", "output", raw_output, f"folder {str(parent)!r} is not writable: {str(probe)!r} is "
+                    "not a folder")
+    if probe != parent and probe != parent.parent:
+        raise _fail("study", "output", raw_output, f"folder {str(parent)!r} does not exist, nor does "
+                    f"{str(parent.parent)!r}; create the folder first")
+    if not os.access(probe, os.W_OK | os.X_OK):
         raise _fail("study", "output", raw_output, f"folder {str(probe)!r} is not writable")
     if path.exists() and path.is_dir():
         raise _fail("study", "output", raw_output, "is a folder")
     return path
 
 
-def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: dict) -> Study:
+def make_output_folder(output: Path) -> None:
+    """Create the output's folder when it is the one missing level :func:`_check_output_path`
+    allows (``wavebrdf run`` only, right before it takes the output's lock)."""
+    Path(output).resolve().parent.mkdir(exist_ok=True)
+
+
+def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: dict,
+                 output: str | Path | None = None) -> Study:
     for section in data:
         if section not in SCHEMA and section != "sweep":
             raise ConfigError(f"[{section}]: unknown section{_suggest(section, SCHEMA)} (allowed: {', '.join(SCHEMA)})")
@@ -528,7 +614,7 @@ def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: di
     v = {s: _validate_section(s, data.get(s, {}), s in data) for s in SCHEMA}
 
     name = v["study"]["name"] or default_name
-    output = _check_output_path(v["study"]["output"] or f"{name}.h5")
+    output = _check_output_path(str(output or v["study"]["output"] or f"{name}.h5"))
     if ("surface" in data) == ("fiber" in data):
         raise ConfigError("give exactly one of [surface] (a height field) or [fiber] (a fiber cross section)")
     surface = _surface_spec(v["surface"], base_dir) if "surface" in data else None
@@ -660,10 +746,13 @@ def _check_physics(study: Study) -> None:
     if np.any(np.imag(index) > 0):  # pragma: no cover - Material guarantees κ >= 0
         raise ConfigError("[material]: negative kappa (gain medium)")
     if study.surface is not None:
+        _check_surface_size(study)
         try:
             surface = study.surface.build()
         except SurfaceError as exc:
-            raise ConfigError(f"[surface] {exc}") from None
+            file = study.surface.file
+            where = f" (file = {_fmt(str(file))})" if file is not None and str(file) not in str(exc) else ""
+            raise ConfigError(f"[surface] {exc}{where}") from None
         if study.steering is None:
             _check_model_scene(study, surface, index[0])
     if study.fiber is not None:
@@ -673,6 +762,55 @@ def _check_physics(study: Study) -> None:
             study.fiber.build()
         except (ShapeError, OSError) as exc:
             raise ConfigError(f"[fiber] {exc}") from None
+
+
+SURFACE_BYTES_PER_NODE = 96  # peak while a height field is built and analysed (measured: gaussian 90)
+
+
+def height_file_shape(path: Path) -> tuple[int, ...] | None:
+    """The shape of a height file without loading it: from a .npy header, or for text the length
+    of the first row (the matrix must be square). None when the file has no readable header (the
+    loader then says what is wrong)."""
+    try:
+        with open(path, "rb") as fh:
+            if path.suffix == ".npy":
+                version = np.lib.format.read_magic(fh)
+                read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+                return tuple(read(fh)[0])
+            for line in iter(lambda: fh.readline(2**26), b""):
+                text = line.decode("utf-8", "replace").strip()
+                if text and not text.startswith("#"):
+                    n = len(text.replace(",", " ").split())  # a lower bound if the row is over 64 MiB
+                    return (n, n)
+    except (OSError, ValueError):
+        return None
+    return None
+
+
+def _check_surface_size(study: Study) -> None:
+    """Refuse a height field that cannot fit in memory before anything is allocated: its node
+    count from [surface] cells, or from the file's header."""
+    from wavebrdf.solver.resources import meminfo_bytes
+
+    spec = study.surface
+    if spec.file is not None:
+        problem = input_file_problem(spec.file)
+        if problem is not None:
+            raise _fail("surface", "file", str(spec.file), problem)
+        shape = height_file_shape(spec.file)
+        if shape is None or len(shape) != 2:
+            return  # the loader names what is wrong with it
+        key, value, what = "file", str(spec.file), f"its {shape[0]}×{shape[1]} heights need"
+    else:
+        shape = (spec.cells + 1, spec.cells + 1)
+        key, value, what = "cells", spec.cells, f"a {shape[0]}×{shape[1]} height field needs"
+    need = float(shape[0]) * shape[1] * SURFACE_BYTES_PER_NODE
+    memory_gb = study.run.memory_gb
+    budget = memory_gb * 2**30 if memory_gb else float(meminfo_bytes("MemTotal"))
+    if need > budget:
+        raise _fail("surface", key, value, f"{what} about {need / 2**30:.3g} GiB to build and analyse "
+                    f"({SURFACE_BYTES_PER_NODE} bytes per node), more than the node's {budget / 2**30:.1f} GiB "
+                    "([run] memory_gb)")
 
 
 def _check_model_scene(study: Study, surface, index: complex) -> None:
@@ -696,8 +834,9 @@ def _set_dotted(data: dict, dotted: str, value: Any) -> None:
     data.setdefault(section, {})[key] = value
 
 
-def parse_config(text: str, path: Path | None = None) -> StudyConfig:
-    """Parse and validate config ``text`` (from ``path`` if given, for relative file paths)."""
+def parse_config(text: str, path: Path | None = None, output: str | Path | None = None) -> StudyConfig:
+    """Parse and validate config ``text`` (from ``path`` if given, for relative file paths);
+    ``output`` replaces ``[study] output`` (it alone is checked)."""
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -720,6 +859,9 @@ def parse_config(text: str, path: Path | None = None) -> StudyConfig:
             raise ConfigError(f"[sweep] {dotted} = {_fmt(values)}: must be a non-empty list of values")
         if len(set(map(repr, values))) != len(values):
             raise ConfigError(f"[sweep] {dotted} = {_fmt(values)}: values must be distinct")
+        if any(isinstance(v, (list, dict)) for v in values):  # e.g. correlation_um = [T_x, T_y]
+            raise ConfigError(f"[sweep] {dotted} = {_fmt(values)}: values must be single numbers or strings "
+                              "(each becomes a point of a 1-D dataset coordinate); run one study per list value")
         axes[dotted] = tuple(values)
 
     cases = []
@@ -729,7 +871,7 @@ def parse_config(text: str, path: Path | None = None) -> StudyConfig:
         for dotted, value in values.items():
             _set_dotted(case_data, dotted, value)
         try:
-            cases.append(_build_study(case_data, base_dir, default_name, values))
+            cases.append(_build_study(case_data, base_dir, default_name, values, output))
         except ConfigError as exc:
             if values:
                 where = ", ".join(f"{k} = {_fmt(x)}" for k, x in values.items())
@@ -757,19 +899,19 @@ def _all_keys() -> list[str]:
 def load_config(path: str | Path, output: str | Path | None = None) -> StudyConfig:
     """Read and validate a config file; ``output`` overrides ``[study] output``."""
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"config file {str(path)!r} does not exist")
-    text = path.read_text()
-    if output is not None:
-        data_override = f"\n# --output given on the command line: {output}\n"
-        cfg = parse_config(text, path)
-        out = _check_output_path(str(output))
-        cases = tuple(_replace_output(c, out) for c in cfg.cases)
-        return StudyConfig(text=text + data_override, path=path, sweep_axes=cfg.sweep_axes, cases=cases)
-    return parse_config(text, path)
-
-
-def _replace_output(study: Study, output: Path) -> Study:
-    from dataclasses import replace
-
-    return replace(study, output=output)
+    problem = input_file_problem(path)
+    if problem is None and path.stat().st_size > MAX_CONFIG_BYTES:
+        problem = f"is {path.stat().st_size / 2**20:.0f} MiB; a config is a small TOML text file"
+    if problem is not None:
+        raise ConfigError(f"config file {str(path)!r} {problem}")
+    raw = path.read_bytes()
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"config file {str(path)!r} is not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset "
+                          f"{exc.start}); a config is a TOML text file") from None
+    if output is None:
+        return parse_config(text, path)
+    cfg = parse_config(text, path, output=output)
+    note = f"\n# --output given on the command line: {output}\n"
+    return StudyConfig(text=text + note, path=path, sweep_axes=cfg.sweep_axes, cases=cfg.cases)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import os
 from dataclasses import dataclass, field
 from functools import cached_property, lru_cache
 
@@ -29,7 +30,7 @@ from wavebrdf.solver.resources import meminfo_bytes
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Plan", "PlanError", "Task", "check_memory", "node_memory_bytes", "plan_study"]
+__all__ = ["Plan", "PlanError", "Task", "check_memory", "device_info", "node_memory_bytes", "plan_study"]
 
 DEFAULT_PHI_I_BINS = 72  # fiber tables of non-circular cross sections
 
@@ -62,6 +63,14 @@ class Task:
     @property
     def writes_result(self) -> bool:
         return KINDS[self.kind].writes_result
+
+    @property
+    def key(self) -> str:
+        """What the task computes, as stored in its part file: kind, case, wavelength, incidence,
+        basic direction, patch (indices)."""
+        patch = "x".join(map(str, self.patch)) or "-"
+        return (f"{self.kind}:case={self.case}:wl={self.wavelength}:inc={self.incidence}:basic={self.basic}"
+                f":patch={patch}")
 
 
 @dataclass
@@ -313,14 +322,61 @@ def node_memory_bytes() -> float:
     return float(meminfo_bytes("MemTotal"))
 
 
-def check_memory(plan: Plan, workers_per_node: int, memory_gb: float | None = None) -> float:
-    """Refuse a plan whose tasks cannot fit in a node's memory; return the node budget (bytes)."""
+def device_info(spec: str | None = None):
+    """The OpenCL device a run would use (``spec``, else WAVEBRDF_DEVICE, else auto) as a
+    :class:`~wavebrdf.solver.opencl.DeviceInfo`, without creating a context; None without OpenCL."""
+    from wavebrdf.solver.opencl import OpenCLUnavailable, choose_device, list_devices
+
+    try:
+        return choose_device(spec or os.environ.get("WAVEBRDF_DEVICE", "auto"), list_devices())
+    except OpenCLUnavailable:
+        return None
+
+
+def _largest(rows, value):
+    """(value, task) of the largest reported ``value(estimate)`` (None when no task reports it)."""
+    found = [(value(e), t) for e, t in rows if value(e) is not None]
+    return max(found, key=lambda x: x[0]) if found else None
+
+
+def check_memory(plan: Plan, workers_per_node: int, memory_gb: float | None = None, device=None,
+                 estimates: list[Estimate] | None = None) -> float:
+    """Refuse a plan whose tasks cannot fit; return the node's host memory budget (bytes).
+
+    Host: the largest task times the tasks at once per node against ``memory_gb`` (default:
+    this machine's RAM). ``device`` (a DeviceInfo, shared by the node's workers): the largest
+    single buffer a task reports (``Estimate.largest_buffer_bytes``) against the device's max
+    allocation, and its device memory (``Estimate.device_bytes``, else that buffer) times the
+    tasks at once against the device's global memory. ``estimates``: those of ``plan.tasks``
+    when already computed."""
     budget = (memory_gb * 2**30) if memory_gb else node_memory_bytes()
-    need, task = max(((plan.estimate(t).memory_bytes, t) for t in plan.tasks), key=lambda e: e[0])
+    rows = list(zip(estimates or [plan.estimate(t) for t in plan.tasks], plan.tasks))
+    need, task = _largest(rows, lambda e: e.memory_bytes)
+    gib = 2**30
     if need * workers_per_node > budget:
         raise PlanError(
-            f"{task.label} needs about {need / 2**30:.1f} GiB; with {workers_per_node} task(s) at once per node "
-            f"that is {need * workers_per_node / 2**30:.1f} GiB, more than the node's {budget / 2**30:.1f} GiB "
+            f"{task.label} needs about {need / gib:.1f} GiB; with {workers_per_node} task(s) at once per node "
+            f"that is {need * workers_per_node / gib:.1f} GiB, more than the node's {budget / gib:.1f} GiB "
             "([run] memory_gb). Use fewer workers/ranks per node, a coarser grid or smaller patches."
+        )
+    if device is None:
+        return budget
+    where = f"device {device.name!r}"
+    largest = _largest(rows, lambda e: e.largest_buffer_bytes)
+    if largest is not None and largest[0] > device.max_alloc_gib * gib:
+        size, task = largest
+        raise PlanError(
+            f"{task.label} needs one device buffer of {size / gib:.2f} GiB, more than the max allocation of the "
+            f"{where} ({device.max_alloc_gib:.2f} GiB). Use a coarser grid or smaller patches, or another device "
+            "(WAVEBRDF_DEVICE; 'wavebrdf devices' lists them)."
+        )
+    held = _largest(rows, lambda e: e.device_bytes or e.largest_buffer_bytes)
+    if held is not None and held[0] * workers_per_node > device.global_mem_gib * gib:
+        size, task = held
+        raise PlanError(
+            f"{task.label} holds about {size / gib:.2f} GiB on the device; with {workers_per_node} task(s) at once "
+            f"that is {size * workers_per_node / gib:.2f} GiB, more than the global memory of the {where} "
+            f"({device.global_mem_gib:.2f} GiB). Use fewer workers/ranks per node, a coarser grid or smaller "
+            "patches, or another device (WAVEBRDF_DEVICE)."
         )
     return budget

@@ -11,11 +11,15 @@ decades); with one wavelength a false-colour log₁₀ map with a colour bar.
 
 from __future__ import annotations
 
+import os
+import re
+import shutil
 from pathlib import Path
 
 import numpy as np
 
-from wavebrdf.jobs.store import Dataset
+from wavebrdf.jobs.parts import storage_error
+from wavebrdf.jobs.store import Dataset, StoreError
 from wavebrdf.solver.spectrum import spectral_weights, srgb_encode, xyz_to_linear_srgb
 
 __all__ = ["render_dataset", "log_tone_map"]
@@ -84,25 +88,68 @@ def _case_label(keys: list[str], coords: dict, case_index: tuple) -> str:
 
 
 def render_dataset(path: str | Path, out_dir: str | Path | None = None, *, max_images: int = 200) -> list[Path]:
-    """Write the PNGs of dataset ``path`` into ``out_dir`` (default ``<stem>_png``); return paths."""
+    """Write the PNGs of dataset ``path`` into ``out_dir`` (default ``<stem>_png``); return paths.
+
+    The dataset is opened and checked before anything is created. The pictures are drawn into a
+    temporary folder beside ``out_dir`` and moved into place only when all of them are written,
+    so a failure (a damaged dataset, a full disk) leaves no partial set and an existing folder as
+    it was."""
     path = Path(path)
     out_dir = Path(out_dir) if out_dir else path.with_name(path.stem + "_png")
-    out_dir.mkdir(parents=True, exist_ok=True)
-    with Dataset(path) as ds:
+    with Dataset(path) as ds, ds.reading():
+        if out_dir.exists() and not out_dir.is_dir():
+            raise StoreError(f"cannot write PNGs into {str(out_dir)!r}: it is not a folder")
+        if not out_dir.parent.is_dir():
+            raise StoreError(f"cannot write PNGs into {str(out_dir)!r}: folder {str(out_dir.parent)!r} does not exist")
+        _remove_abandoned(out_dir)
         pictures = _fiber_pictures(ds) if ds.kind == "fiber" else _surface_pictures(ds)
-        written = []
-        for suffix, title, cube, extent, unit, hemisphere in pictures:
-            if len(written) >= max_images:
-                break
-            wl = ds.coords["wavelength_um"]
-            fig, ax, plt = _figure(f"{title}\n{_spectral_note(wl)}", hemisphere)
-            _draw(fig, ax, cube, wl, extent, unit)
-            fig.tight_layout()
-            target = out_dir / f"{path.stem}{suffix}.png"
-            fig.savefig(target)
-            plt.close(fig)
-            written.append(target)
-    return written
+        wl = ds.coords["wavelength_um"]
+        staging = out_dir.with_name(f".{out_dir.name}.{os.getpid()}.tmp")
+        names = []
+        try:
+            staging.mkdir()
+            for suffix, title, cube, extent, unit, hemisphere in pictures:
+                if len(names) >= max_images:
+                    break
+                fig, ax, plt = _figure(f"{title}\n{_spectral_note(wl)}", hemisphere)
+                try:
+                    _draw(fig, ax, cube, wl, extent, unit)
+                    fig.tight_layout()
+                    names.append(f"{path.stem}{suffix}.png")
+                    fig.savefig(staging / names[-1])
+                finally:
+                    plt.close(fig)
+            if out_dir.is_dir():
+                for name in names:
+                    os.replace(staging / name, out_dir / name)
+                staging.rmdir()
+            else:
+                os.rename(staging, out_dir)
+        except BaseException as exc:
+            shutil.rmtree(staging, ignore_errors=True)
+            if isinstance(exc, OSError):
+                raise storage_error(out_dir, exc) from None
+            raise
+    return [out_dir / name for name in names]
+
+
+def _remove_abandoned(out_dir: Path) -> None:
+    """Remove the staging folders of renders into ``out_dir`` whose process is gone."""
+    pattern = re.compile(rf"\.{re.escape(out_dir.name)}\.(\d+)\.tmp")
+    for entry in out_dir.parent.iterdir():
+        found = pattern.fullmatch(entry.name)
+        if found and entry.is_dir() and not _alive(int(found.group(1))):
+            shutil.rmtree(entry, ignore_errors=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def _cases(ds: Dataset, variable: str):

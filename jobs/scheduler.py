@@ -3,8 +3,11 @@ task on disk, and assemble the dataset with one writer.
 
 Finished tasks are saved atomically in ``<output>.parts/`` (jobs/parts.py); a run that dies loses
 only the tasks in flight; re-running the same command runs only what is missing. A changed config
-is refused (the folder records the plan's fingerprint). What a task runs and saves is its kind's
-entry in jobs/tasks.py; every worker process keeps its own :class:`~wavebrdf.jobs.tasks.ModelPool`. A task that raises is recorded with its
+is refused (the folder records the plan's fingerprint); every part is verified (identity and
+checksum) before any new work starts, and a bad one is recomputed. The caller holds the output's
+lock (:class:`~wavebrdf.jobs.parts.OutputLock`) for the whole run. A write that fails (disk
+full) stops the run with :class:`~wavebrdf.jobs.parts.StorageError`; finished parts are kept.
+What a task runs and saves is its kind's entry in jobs/tasks.py; every worker process keeps its own :class:`~wavebrdf.jobs.tasks.ModelPool`. A task that raises is recorded with its
 diagnostics and retried ``[run] retries`` times; if it still fails, its slot stays NaN, the
 dataset is written with ``status = "failed"`` for it, the parts folder is kept (a re-run retries
 it) and the command exits non-zero.
@@ -13,7 +16,8 @@ Executors share one :class:`TaskBoard` (dependencies, retries, progress):
 
 - ``serial``: tasks run in this process.
 - ``processes``: a pool of local worker processes (spawned; PoCL threads and FFT workers bounded
-  to cores / workers each, one kernel cache folder per worker).
+  to cores / workers each, one kernel cache folder per worker); they die with their parent
+  (``PR_SET_PDEATHSIG`` on Linux, a watchdog thread elsewhere).
 - ``mpi``: under ``mpiexec``/``srun`` every rank works; rank 0 also runs the coordinator in a
   thread that hands out tasks on request (so slow tasks never idle the other ranks), shows the
   progress bar and writes the dataset. Waiting uses polling with sleeps, not busy MPI receives,
@@ -24,6 +28,7 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
 import sys
 import threading
 import time
@@ -32,7 +37,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 from pathlib import Path
 
-from wavebrdf.jobs.parts import PartsFolder, ResumeError
+from wavebrdf.jobs.parts import PartsFolder, ResumeError, StorageError, remove_leftovers
 from wavebrdf.jobs.plan import Plan, Task
 from wavebrdf.jobs.store import write_dataset
 from wavebrdf.jobs.tasks import ModelPool, execute_task, plain
@@ -44,7 +49,10 @@ __all__ = [
     "RunSummary",
     "TaskBoard",
     "apply_worker_environment",
+    "die_with_parent",
+    "prepare_output",
     "run_plan",
+    "share_from_root",
     "worker_environment",
 ]
 
@@ -98,7 +106,7 @@ class TaskBoard:
         self.plan = plan
         self.parts = parts
         self.retries = retries
-        self.done = {t.id for t in plan.tasks if parts.done(t)}
+        self.done = parts.verify()  # every part checked before any new work starts
         self.failed: dict[int, dict] = {}
         self.run_info: dict[int, dict] = {}  # per-task scheduling facts (rank, dispatch wait) for the table
         self.attempts: dict[int, int] = {}
@@ -172,9 +180,12 @@ class TaskBoard:
 
 
 def _run_guarded(ctx, plan: Plan, task: Task, parts: PartsFolder, pool: ModelPool) -> tuple[bool, dict]:
-    """Execute a task, turning any exception into failure diagnostics."""
+    """Execute a task, turning any exception into failure diagnostics (except a failed write of
+    the parts folder: a full disk is not the task's failure, it stops the run)."""
     try:
         return True, execute_task(ctx, plan, task, parts, pool)
+    except StorageError:
+        raise
     except Exception as exc:  # a task failure is data, not a crash of the run
         diag = {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(limit=8)}
         diag.update(plain(getattr(exc, "diagnostics", {}) or {}))
@@ -194,15 +205,39 @@ def _run_serial(board: TaskBoard, ctx) -> None:
 # --- local processes ---------------------------------------------------------------------------
 
 _WORKER: dict = {}
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
-def _process_init(config_path, output, env):
+def die_with_parent(parent_pid: int) -> None:
+    """End this process when its parent dies: ``PR_SET_PDEATHSIG`` (SIGKILL) on Linux, a watchdog
+    thread polling the parent elsewhere. A worker killed so loses only its task in flight."""
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0) == 0:
+            if os.getppid() != parent_pid:  # the parent died before the request
+                os._exit(1)
+            return
+
+    def watch():
+        while os.getppid() == parent_pid:
+            time.sleep(1.0)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True, name="parent-watchdog").start()
+
+
+def _process_init(config_text, config_path, output, env, parent_pid):
+    """A worker: dies with its parent, bounded threads, the parent's config text (not the file,
+    which may have been edited since), its own context and model pool."""
+    die_with_parent(parent_pid)
     apply_worker_environment(env)
-    from wavebrdf.jobs.config import load_config
+    from wavebrdf.jobs.config import parse_config
     from wavebrdf.jobs.plan import plan_study
     from wavebrdf.solver.opencl import create_context
 
-    plan = plan_study(load_config(config_path, output=output))
+    plan = plan_study(parse_config(config_text, Path(config_path), output=output))
     _WORKER.update(plan=plan, parts=PartsFolder(plan), ctx=create_context(), pool=ModelPool())
 
 
@@ -219,7 +254,8 @@ def _run_processes(board: TaskBoard, workers: int) -> None:
     envs = [worker_environment(workers, r) for r in range(workers)]
     # one pool per worker keeps each worker's environment (threads, cache folder) its own
     pools = [ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"), initializer=_process_init,
-                                 initargs=(str(config.path), str(config.output), envs[r])) for r in range(workers)]
+                                 initargs=(config.text, str(config.path), str(config.output), envs[r], os.getpid()))
+             for r in range(workers)]
     running: dict = {}
     try:
         while not board.finished:
@@ -247,6 +283,7 @@ def _run_processes(board: TaskBoard, workers: int) -> None:
 class Tag(IntEnum):
     REQUEST = 1  # worker -> coordinator: (rank, finished task id or None, ok, diagnostics)
     TASK = 2  # coordinator -> worker: task id, or None = stop
+    SHARE = 3  # rank 0 -> every rank: a value decided by rank 0 (share_from_root)
 
 
 def _poll_recv(comm, source: int, tag: int, stop: threading.Event | None = None):
@@ -258,6 +295,16 @@ def _poll_recv(comm, source: int, tag: int, stop: threading.Event | None = None)
         time.sleep(delay)
         delay = min(delay * 2, 0.002)
     return comm.recv(source=source, tag=tag)
+
+
+def share_from_root(comm, value):
+    """Rank 0's ``value`` on every rank (a broadcast that waits by polling, so ranks waiting while
+    rank 0 blocks, e.g. on the output's lock, do not spin)."""
+    if comm.Get_rank() == 0:
+        for rank in range(1, comm.Get_size()):
+            comm.send(value, dest=rank, tag=Tag.SHARE)
+        return value
+    return _poll_recv(comm, source=0, tag=Tag.SHARE)
 
 
 def _mpi_coordinator(board: TaskBoard, comm, size: int, error: list) -> None:
@@ -325,17 +372,26 @@ def _run_mpi(board: TaskBoard | None, comm, ctx, plan: Plan, parts: PartsFolder)
 # Entry point
 
 
+def prepare_output(plan: Plan) -> PartsFolder:
+    """Remove what killed runs on the output left behind, then open (or create) the parts folder;
+    :class:`ResumeError` if it cannot be used. The caller holds the output's lock."""
+    for path in remove_leftovers(plan.config.output):
+        logger.info("removed %s (left by a run that was killed)", path)
+    parts = PartsFolder(plan)
+    parts.open()
+    return parts
+
+
 def run_plan(plan: Plan, ctx, *, executor: str = "serial", workers: int | None = None, comm=None,
              progress: bool = True) -> RunSummary | None:
-    """Run every missing task of ``plan`` and write the dataset (rank 0 only under MPI).
+    """Run every missing task of ``plan`` and write the dataset (rank 0 only under MPI). The caller
+    holds the output's lock (rank 0 under MPI).
 
     Returns the summary on the writing process, None on other MPI ranks.
     """
     study = plan.study
-    parts = PartsFolder(plan)
     rank = comm.Get_rank() if comm is not None else 0
-    if rank == 0:
-        parts.open()
+    parts = prepare_output(plan) if rank == 0 else PartsFolder(plan)
     if comm is not None:
         comm.Barrier()
     board = TaskBoard(plan, parts, study.run.retries, progress) if rank == 0 else None

@@ -23,23 +23,29 @@ is a 1-D dataset registered as an HDF5 dimension scale, so
     tasks/                    one row per task: case, wavelength/incidence index, model, status,
                               wall_time_s, peak_memory_mb, device, message (diagnostics)
 
-Writing is atomic: the file is assembled under a temporary name in the target folder and
-renamed into place only when complete, so a crash never leaves a half-written dataset. This
+Writing is atomic: the file is assembled under a temporary name in the target folder (with the
+mode any new file gets from the umask) and renamed into place only when complete, so a crash
+never leaves a half-written dataset, and a write that fails (disk full, I/O error, file too large)
+leaves the previous file as it was and raises a one-line
+:class:`~wavebrdf.jobs.parts.StorageError` naming the path. Reading (:class:`Dataset`) checks
+the format, its version and the variables of its layout before anything is read. This
 module owns every HDF5 write: :func:`write_dataset` assembles a run's dataset (surface or fiber
 layout) from its parts folder, each task's slot written by its kind (jobs/tasks.py ``KINDS``).
 """
 
 from __future__ import annotations
 
+import io
 import json
 import os
-import tempfile
 from contextlib import contextmanager
 from datetime import datetime, timezone
 from pathlib import Path
 
 import h5py
 import numpy as np
+
+from wavebrdf.jobs.parts import StorageError, fsync_folder, storage_error, temporary_path
 
 __all__ = [
     "FORMAT",
@@ -67,21 +73,144 @@ class StoreError(RuntimeError):
     """The file is not a readable wavebrdf dataset."""
 
 
+# kind: (main variable, its trailing dimensions, their letters, {other variable: its dimensions as
+# letters, "*" = the sweep dimensions, a digit = that size}); polarization holds strings, the rest numbers
+LAYOUTS = {
+    "surface": ("brdf", ("wavelength_um", "incidence", "u", "v"), "LIUV",
+                {"albedo": "*LI", "albedo_sp": "*LI2", "theta_i": "I", "phi_i": "I", "polarization": "2"}),
+    "fiber": ("bcsdf", ("wavelength_um", "theta_i", "phi_i", "phi_r"), "LTPR",
+              {"dCs_dphi": "*LT2PR", "C_ext": "*LT2P", "C_sca": "*LT2P", "C_abs": "*LT2P", "polarization": "2"}),
+}
+
+
+class _GuardedFile(io.RawIOBase):
+    """The file HDF5 writes through (h5py's file-object driver; unbuffered ``pwrite``/``pread``).
+
+    The first failed write (disk full, I/O error, file too large) is recorded; that write and
+    every later one are kept in memory instead (``shadow``) and reads see them, so the HDF5
+    library finishes and closes the doomed file consistently, without the error cascade that
+    crashed it after a failed write. :func:`atomic_h5` then raises the recorded error and removes
+    the file; :func:`write_dataset` stops writing data as soon as ``error`` is set, so the shadow
+    holds little more than the closing metadata."""
+
+    def __init__(self, fd: int):
+        super().__init__()
+        self.fd = fd
+        self.pos = 0
+        self.error: OSError | None = None
+        self.shadow: list[tuple[int, bytes]] = []  # (offset, data) written after the failure
+
+    def readable(self) -> bool:
+        return True
+
+    def writable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def _size(self) -> int:
+        return max([os.fstat(self.fd).st_size] + [offset + len(data) for offset, data in self.shadow])
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        if whence == 1:
+            offset += self.pos
+        elif whence == 2:
+            offset += self._size()
+        self.pos = offset
+        return self.pos
+
+    def tell(self) -> int:
+        return self.pos
+
+    def readinto(self, buffer) -> int:
+        """Bytes at the position (zeros past the end), the shadowed writes laid over them."""
+        view = memoryview(buffer).cast("B")
+        data = os.pread(self.fd, len(view), self.pos)
+        view[: len(data)] = data
+        view[len(data):] = bytes(len(view) - len(data))
+        for offset, written in self.shadow:
+            lo, hi = max(offset, self.pos), min(offset + len(written), self.pos + len(view))
+            if lo < hi:
+                view[lo - self.pos: hi - self.pos] = written[lo - offset: hi - offset]
+        self.pos += len(view)
+        return len(view)
+
+    def write(self, data) -> int:
+        view = memoryview(data).cast("B")
+        if self.error is None:
+            try:
+                done = 0
+                while done < len(view):
+                    done += os.pwrite(self.fd, view[done:], self.pos + done)
+            except OSError as exc:
+                self.error = exc
+        if self.error is not None:
+            self.shadow.append((self.pos, bytes(view)))
+        self.pos += len(view)
+        return len(view)
+
+    def truncate(self, size: int | None = None) -> int:
+        size = self.pos if size is None else size
+        if self.error is None:
+            try:
+                os.ftruncate(self.fd, size)
+            except OSError as exc:
+                self.error = exc
+        return size
+
+    def sync(self) -> None:
+        """fsync (a failure is recorded like a failed write)."""
+        if self.error is None:
+            try:
+                os.fsync(self.fd)
+            except OSError as exc:
+                self.error = exc
+
+    def close(self) -> None:
+        if not self.closed:
+            super().close()
+            os.close(self.fd)
+
+
+@contextmanager
+def _guarded_h5(path: Path):
+    """(h5py file, its :class:`_GuardedFile`) written atomically (see :func:`atomic_h5`)."""
+    path = Path(path)
+    tmp = temporary_path(path)
+    try:
+        fd = os.open(tmp, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o666)  # mode from the umask
+    except OSError as exc:
+        raise storage_error(path, exc) from None
+    guard = _GuardedFile(fd)
+    try:
+        with h5py.File(guard, "w", track_order=True) as h5:
+            yield h5, guard
+        guard.sync()
+        guard.close()
+        if guard.error is not None:
+            raise guard.error
+        os.replace(tmp, path)
+        fsync_folder(path.parent)
+    except BaseException as exc:
+        guard.close()
+        try:
+            os.remove(tmp)
+        except OSError:
+            pass
+        if guard.error is not None or isinstance(exc, OSError):
+            raise storage_error(path, guard.error or exc) from None
+        raise
+
+
 @contextmanager
 def atomic_h5(path: Path):
-    """Open a temporary HDF5 file next to ``path``; rename it to ``path`` on success."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        with h5py.File(tmp, "w", track_order=True) as h5:
-            yield h5
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
+    """An HDF5 file written atomically: assembled under ``.<name>.<pid>.<thread>.tmp`` next to
+    ``path`` and renamed to ``path`` when complete. On failure the temporary file is removed and
+    ``path`` is left as it was; a failed write raises :class:`~wavebrdf.jobs.parts.StorageError`
+    naming ``path``. The folder must exist (nothing is created but the file)."""
+    with _guarded_h5(path) as (h5, _):
+        yield h5
 
 
 def _coordinate(h5: h5py.File, name: str, values, attrs: dict | None = None) -> h5py.Dataset:
@@ -232,11 +361,17 @@ class SurfaceDatasetWriter(_Writer):
         h5.create_group("surface")
 
     def write_case(self, case_index: tuple[int, ...], case_id: str, heights: np.ndarray, size_um: float,
-                   stats: dict, index: np.ndarray) -> None:
-        """Per-case data: surface heights and the material index at every wavelength."""
+                   stats: dict, index: np.ndarray, parameters: dict | None = None, ensemble=None) -> None:
+        """Per-case data: surface heights with their measured statistics, the generator's
+        parameters (``generator``, ``generator_<key>``) and ensemble (``ensemble_<key>``) when it
+        has them, and the material index at every wavelength."""
         ds = self.h5["surface"].create_dataset(case_id, data=heights, compression="gzip", shuffle=True)
         ds.attrs.update({"size_um": size_um, "spacing_um": size_um / (heights.shape[0] - 1), "units": "um",
                          "case_index": list(case_index), **stats})
+        if parameters:
+            ds.attrs.update({k if k == "generator" else f"generator_{k}": v for k, v in parameters.items()})
+        if ensemble is not None:
+            ds.attrs.update(ensemble.attributes())
         self.write_index(case_index, index)
 
     def write_steering(self, case_index: tuple[int, ...], steering) -> None:
@@ -359,7 +494,8 @@ def _write_case(writer, plan, case: int, case_index: tuple) -> None:
                           plan.index(case))
         return
     surface = plan.surface(case)
-    writer.write_case(case_index, str(case), surface.z, surface.size_um, surface.statistics(), plan.index(case))
+    writer.write_case(case_index, str(case), surface.z, surface.size_um, surface.statistics(), plan.index(case),
+                      surface.parameters, surface.ensemble)
     if case in plan.steering:
         writer.write_steering(case_index, plan.steering[case])
 
@@ -381,7 +517,7 @@ def write_dataset(plan, parts, device: str, run_info: dict | None = None) -> Pat
     from wavebrdf.jobs.tasks import KINDS
 
     output = Path(plan.config.output)
-    with atomic_h5(output) as h5:
+    with _guarded_h5(output) as (h5, guard):
         writer = (_fiber_writer if plan.is_fiber else _surface_writer)(h5, plan)
         writer.create(config_text=plan.config.text, study=plan.study.name, software_version=__version__,
                       device=device)
@@ -389,6 +525,8 @@ def write_dataset(plan, parts, device: str, run_info: dict | None = None) -> Pat
             _write_case(writer, plan, case, tuple(case_index))
         rows = []
         for task in plan.tasks:
+            if guard.error is not None:  # the disk is full: stop; the file is removed
+                break
             row = {**_task_row(plan, task), **(run_info or {}).get(task.id, {})}
             failure = parts.failure(task)
             if failure is not None or not parts.done(task):
@@ -397,7 +535,8 @@ def write_dataset(plan, parts, device: str, run_info: dict | None = None) -> Pat
             write = KINDS[task.kind].write
             diagnostics = parts.load_diagnostics(task) if write is None else write(writer, plan, task, parts)
             rows.append({**row, "status": "done", **diagnostics})
-        writer.write_tasks(rows)
+        if guard.error is None:
+            writer.write_tasks(rows)
     return output
 
 
@@ -410,16 +549,75 @@ class Dataset:
     """
 
     def __init__(self, path: str | Path):
+        from wavebrdf.jobs.config import input_file_problem
+
         self.path = Path(path)
-        if not self.path.is_file():
-            raise StoreError(f"{str(self.path)!r} does not exist")
+        problem = input_file_problem(self.path)
+        if problem is not None:
+            raise StoreError(f"{str(self.path)!r} {problem}")
         try:
             self._h5 = h5py.File(self.path, "r")
         except OSError as exc:
             raise StoreError(f"{str(self.path)!r} is not a readable HDF5 file: {exc}") from None
-        if self._h5.attrs.get("format") != FORMAT:
+        try:
+            with self.reading():
+                self._validate()
+        except StoreError:
             self._h5.close()
-            raise StoreError(f"{str(self.path)!r} is not a wavebrdf dataset (no format=\"wavebrdf\" attribute)")
+            raise
+
+    def _fail(self, problem: str) -> StoreError:
+        return StoreError(f"{str(self.path)!r} {problem}")
+
+    def _validate(self) -> None:
+        """Format, version and the variables of the layout, before anything else is read."""
+        attrs = self._h5.attrs
+        if attrs.get("format") != FORMAT:
+            raise self._fail("is not a wavebrdf dataset (no format=\"wavebrdf\" attribute)")
+        version = attrs.get("format_version")
+        if not isinstance(version, (int, np.integer)) or isinstance(version, (bool, np.bool_)):
+            raise self._fail(f"has no valid format_version attribute (found {version!r})")
+        if version != FORMAT_VERSION:
+            newer = "by a newer wavebrdf; update wavebrdf to read it" if version > FORMAT_VERSION else "unsupported"
+            raise self._fail(f"is in format version {version} ({newer}); this wavebrdf reads format version "
+                             f"{FORMAT_VERSION}")
+        if self.kind not in LAYOUTS:
+            raise self._fail(f"has an unknown kind {self.kind!r} (known: {', '.join(LAYOUTS)})")
+        main, trailing, letters, others = LAYOUTS[self.kind]
+        for name in (main, *others, *trailing):
+            if not isinstance(self._h5.get(name), h5py.Dataset):
+                raise self._fail(f"is not a complete wavebrdf dataset: variable {name!r} is missing")
+        dims, shape = self._dims(main), self._h5[main].shape
+        if len(dims) < len(trailing) or tuple(dims[-len(trailing):]) != trailing:
+            raise self._fail(f"is damaged: variable {main!r} has dimensions {dims}, expected [..., "
+                             f"{', '.join(trailing)}]")
+        for dim, n in zip(dims, shape):
+            coordinate = self._h5.get(dim)
+            if not isinstance(coordinate, h5py.Dataset) or coordinate.shape != (n,):
+                raise self._fail(f"is damaged: variable {main!r} has {n} {dim!r} values but its coordinate "
+                                 f"has shape {getattr(coordinate, 'shape', None)}")
+            if dim in trailing and coordinate.dtype.kind not in "fiu":
+                raise self._fail(f"is damaged: coordinate {dim!r} holds {coordinate.dtype}, not numbers")
+        lead = shape[: len(shape) - len(trailing)]
+        size = dict(zip(letters, shape[len(lead):]))
+        for name, spec in {main: "*" + letters, **others}.items():
+            expected = tuple(n for c in spec for n in (lead if c == "*" else [int(c)] if c.isdigit() else [size[c]]))
+            found = self._h5[name]
+            numeric = found.dtype.kind in "fiu"
+            if found.shape != expected or numeric == (name == "polarization"):
+                raise self._fail(f"is damaged: variable {name!r} is {found.dtype} {found.shape}, expected "
+                                 f"{'strings' if name == 'polarization' else 'numbers'} {expected}")
+
+    @contextmanager
+    def reading(self):
+        """Turn what a damaged file raises while it is read into a one-line :class:`StoreError`."""
+        try:
+            yield self
+        except StorageError:
+            raise
+        except (KeyError, ValueError, IndexError, TypeError, OSError) as exc:
+            text = " ".join(str(exc).split())[:200]
+            raise self._fail(f"is damaged or incomplete ({type(exc).__name__}: {text})") from None
 
     def __enter__(self):
         return self
@@ -440,7 +638,7 @@ class Dataset:
 
     @property
     def config(self) -> str:
-        return self.attrs["config"]
+        return self.attrs.get("config", "")
 
     @property
     def kind(self) -> str:

@@ -1,10 +1,15 @@
-/* Scalar Kirchhoff (by-parts form, approx.md §3.3) on OpenCL.
+/* Scalar Kirchhoff (by-parts form, approx.md §3.3) on OpenCL, and the transform shared by the
+ * Kirchhoff-family rungs (Harvey–Shack, physical optics: kernels/harvey_shack.cl,
+ * kernels/physical_optics.cl).
  *
- * The far-field integral I(s) = Σ W e^{+jk[s·x + (μ_i+μ_o) z]} (e^{+jωt}; s = u_i + u_o) has a
- * μ_o-dependent phase. It is expanded exactly (Jacobi–Anger in Chebyshev polynomials,
- * t = 2μ_o − 1):  e^{jkμ_o z} = e^{jkz/2} Σ_n ε_n j^n J_n(kz/2) T_n(t),  ε_0 = 1, ε_n = 2.
+ * The far-field integral I(s) = Σ g e^{+jk[s·x + (μ_i+μ_o) z]} (e^{+jωt}; s = u_i + u_o) of an
+ * aperture g on the nodes has a μ_o-dependent phase. It is expanded exactly (Jacobi–Anger in
+ * Chebyshev polynomials, t = 2μ_o − 1):
+ *   e^{jkμ_o z} = e^{jkz/2} Σ_n ε_n j^n J_n(kz/2) T_n(t),  ε_0 = 1, ε_n = 2.
  *
- *   kirchhoff_fields:      g_n(a,b) = W e^{jk(μ_i + 1/2) z} ε_n j^n J_n(kz/2) · pre_x[a] pre_y[b]
+ *   kirchhoff_fields:      g_n(a,b) = g e^{jk(μ_i + 1/2) z} ε_n j^n J_n(kz/2) · pre_x[a] pre_y[b]
+ *                          for one aperture g (Kirchhoff's footprint Δ²W, or one of the six current
+ *                          components × two polarizations of PO)
  *   (host: chirp-z convolution of every g_n along x and y, see solver/czt.py)
  *   kirchhoff_accumulate:  acc(j,l) += Σ_n T_n(t(j,l)) A_n(j,l)
  *   kirchhoff_farfield:    E of both polarizations from acc, Ω_K and Fresnel at the half vector.
@@ -56,7 +61,7 @@ void bessel_j_sequence(real_t x, int nmax, real_t *out)
 
 __kernel void kirchhoff_fields(
     __global const real_t *z,        /* (na, nb) heights − mid-height, µm */
-    __global const cplx_t *window,   /* (na, nb) Δ² W (complex footprint) */
+    __global const cplx_t *window,   /* (na, nb) aperture, e.g. Δ² W (complex footprint) */
     __global const cplx_t *pre_x,    /* (na) chirp-z pre-factors along x */
     __global const cplx_t *pre_y,    /* (nb) */
     const int na, const int nb, const int nmax,
@@ -108,6 +113,54 @@ __kernel void kirchhoff_accumulate(
 }
 
 
+/* Scalar far field of both polarizations at pixel gid: s ↔ φ̂_o (amplitude amp·r_s), p ↔ θ̂_o
+ * (amp·r_p); φ = 0 at the pole. E: (2 pol, 3, res, res). */
+inline void store_scalar_farfield(__global cplx_t *E, const int gid, const size_t plane, const real_t u,
+                                  const real_t v, const real_t rho2, const real_t mu_o, const cplx_t amp,
+                                  const cplx_t rs, const cplx_t rp)
+{
+    const real_t rho = sqrt(rho2);
+    const real_t cphi = rho > R(0.0) ? u / rho : R(1.0), sphi = rho > R(0.0) ? v / rho : R(0.0);
+    const real_t phat[3] = {-sphi, cphi, R(0.0)};
+    const real_t that[3] = {mu_o * cphi, mu_o * sphi, -rho};
+    cplx_t es = c_mul(amp, rs), ep = c_mul(amp, rp);
+    for (int c = 0; c < 3; ++c) {
+        E[(0 * 3 + c) * plane + gid] = c_scale(es, phat[c]);
+        E[(1 * 3 + c) * plane + gid] = c_scale(ep, that[c]);
+    }
+}
+
+/* Zero field outside the unit disk (6 components). */
+inline void store_zero_farfield(__global cplx_t *E, const int gid, const size_t plane)
+{
+    for (int m = 0; m < 6; ++m) E[m * plane + gid] = c_new(R(0.0), R(0.0));
+}
+
+/* Pixel gid of the res × res projected hemisphere: its indices, direction cosines and ρ² = u² + v²;
+ * 0 when its centre lies outside the unit disk. */
+inline int pixel_in_disk(const int gid, const int res, int *i, int *j, real_t *u, real_t *v, real_t *rho2)
+{
+    *i = gid / res;
+    *j = gid % res;
+    *u = pixel_coordinate(*i, res);
+    *v = pixel_coordinate(*j, res);
+    *rho2 = *u * *u + *v * *v;
+    return *rho2 < R(1.0);
+}
+
+/* pixel_in_disk with μ_o, storing a zero field in E for a pixel outside the disk. */
+inline int disk_pixel(__global cplx_t *E, const int gid, const int res, int *i, int *j, real_t *u, real_t *v,
+                      real_t *rho2, real_t *mu_o)
+{
+    if (!pixel_in_disk(gid, res, i, j, u, v, rho2)) {
+        store_zero_farfield(E, gid, (size_t)res * res);
+        return 0;
+    }
+    *mu_o = sqrt(R(1.0) - *rho2);
+    return 1;
+}
+
+
 __kernel void kirchhoff_farfield(
     __global const cplx_t *acc,      /* (res, res) Σ_n T_n A_n (chirp-z post factors not applied) */
     __global const cplx_t *post_x,   /* (res) */
@@ -120,16 +173,9 @@ __kernel void kirchhoff_farfield(
     __global cplx_t *E)              /* (2 pol, 3, res, res) */
 {
     const int gid = get_global_id(0);
-    if (gid >= res * res) return;
-    const int i = gid / res, j = gid % res;
-    const real_t u = pixel_coordinate(i, res), v = pixel_coordinate(j, res);
-    const real_t rho2 = u * u + v * v;
-    const size_t plane = (size_t)res * res;
-    if (rho2 >= R(1.0)) {
-        for (int m = 0; m < 6; ++m) E[m * plane + gid] = c_new(R(0.0), R(0.0));
-        return;
-    }
-    const real_t mu_o = sqrt(R(1.0) - rho2);
+    int i, j;
+    real_t u, v, rho2, mu_o;
+    if (gid >= res * res || !disk_pixel(E, gid, res, &i, &j, &u, &v, &rho2, &mu_o)) return;
     cplx_t I = c_mul(acc[gid], c_mul(post_x[i], post_y[j]));
     I = c_mul(I, c_expj(k * (mu_i + mu_o) * dz_ref));
 
@@ -140,15 +186,5 @@ __kernel void kirchhoff_farfield(
     cplx_t rs, rp;
     fresnel_rs_rp(eta, cos_h, &rs, &rp);
     cplx_t amp = c_scale(I, sqrt(mu_i * mu_o * omega_k) * inv_lambda1);
-
-    /* s ↔ φ̂_o, p ↔ θ̂_o (at the pole φ = 0) */
-    const real_t rho = sqrt(rho2);
-    const real_t cphi = rho > R(0.0) ? u / rho : R(1.0), sphi = rho > R(0.0) ? v / rho : R(0.0);
-    const real_t phat[3] = {-sphi, cphi, R(0.0)};
-    const real_t that[3] = {mu_o * cphi, mu_o * sphi, -rho};
-    cplx_t es = c_mul(amp, rs), ep = c_mul(amp, rp);
-    for (int c = 0; c < 3; ++c) {
-        E[(0 * 3 + c) * plane + gid] = c_scale(es, phat[c]);
-        E[(1 * 3 + c) * plane + gid] = c_scale(ep, that[c]);
-    }
+    store_scalar_farfield(E, gid, (size_t)res * res, u, v, rho2, mu_o, amp, rs, rp);
 }

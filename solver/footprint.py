@@ -1,5 +1,5 @@
 """Gaussian illumination footprint shared by the surface models; the warning when it reaches the
-patch edge.
+patch edge; the footprint as a locally plane incident wave (the approximate wave rungs' beam).
 
 Every surface model illuminates the patch with the footprint of the full-wave beam (bem3d.md §8):
 amplitude W(r) = exp(−|r − c|²/w²) on the surface nodes (patch coordinates, µm). A footprint that
@@ -11,9 +11,17 @@ from __future__ import annotations
 
 import numpy as np
 
+from wavebrdf.solver.farfield import ETA0
 from wavebrdf.solver.surface import HeightField
 
-__all__ = ["EDGE_AMPLITUDE", "FootprintWarning", "edge_fraction", "gaussian_footprint"]
+__all__ = [
+    "EDGE_AMPLITUDE",
+    "FootprintWarning",
+    "edge_fraction",
+    "footprint_plane_wave",
+    "gaussian_footprint",
+    "incident_basis",
+]
 
 EDGE_AMPLITUDE = 1e-3  # footprint amplitude at the patch edge (relative to its peak) above which models warn
 
@@ -35,3 +43,33 @@ def edge_fraction(window: np.ndarray) -> float:
     magnitude = np.abs(window)
     edge = max(magnitude[0].max(), magnitude[-1].max(), magnitude[:, 0].max(), magnitude[:, -1].max())
     return float(edge / magnitude.max())
+
+
+def incident_basis(theta_i: float, phi_i: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(ω_i, ê_s, ê_p) of the incident wave (radians; ω_i toward the light, k̂ = −ω_i).
+
+    ê_s = (−sin φ_i, cos φ_i, 0) ⟂ plane of incidence, ê_p = ê_s × k̂ (the FarField's s|p order).
+    """
+    st, ct = np.sin(theta_i), np.cos(theta_i)
+    omega = np.array([st * np.cos(phi_i), st * np.sin(phi_i), ct])
+    e_s = np.array([-np.sin(phi_i), np.cos(phi_i), 0.0])
+    return omega, e_s, np.cross(e_s, -omega)
+
+
+def footprint_plane_wave(wavelength_um: float, exterior_index: float, theta_i: float, phi_i: float,
+                         waist_um: float, centre_um, points) -> tuple[np.ndarray, np.ndarray]:
+    """The footprint as a locally plane wave at ``points`` (..., 3), patch coordinates in µm:
+    E = W(r) e^{+jk ω_i·r} ê, H = (n₁/η₀) k̂ × E with W = exp(−|r_⊥ − c|²/w²) (e^{+jωt}).
+
+    Returns (E, H), each (2 pol s|p, 3, ...), for |E₀| = 1 V/µm (H in A/µm), the normalisation of
+    the incident power of the Kirchhoff-family FarFields.
+    """
+    points = np.asarray(points, dtype=float)
+    k = 2 * np.pi * exterior_index / wavelength_um
+    omega, e_s, e_p = incident_basis(theta_i, phi_i)
+    k_hat = -omega
+    r2 = (points[..., 0] - centre_um[0]) ** 2 + (points[..., 1] - centre_um[1]) ** 2
+    amplitude = np.exp(-r2 / waist_um**2) * np.exp(1j * k * (points @ omega))
+    E = np.stack([np.multiply.outer(e, amplitude) for e in (e_s, e_p)])
+    H = np.stack([np.multiply.outer(np.cross(k_hat, e), amplitude) for e in (e_s, e_p)])
+    return E, H * (exterior_index / ETA0)

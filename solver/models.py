@@ -153,6 +153,9 @@ class Estimate:
     memory_bytes: float
     seconds: float
     detail: str = ""
+    # device side, checked by `wavebrdf plan`/`run` against the device (None: not reported)
+    device_bytes: float | None = None  # device memory held at once
+    largest_buffer_bytes: float | None = None  # the largest single device buffer (max allocation)
 
 
 class Model(ABC):
@@ -192,6 +195,14 @@ _REGISTRY: dict[str, str] = {
     "bem": "wavebrdf.solver.bem3d.model:BEMModel",
     "fiber-bem": "wavebrdf.solver.fiber.model:FiberBEMModel",
     "mie": "wavebrdf.solver.fiber.model:MieModel",
+    "po": "wavebrdf.solver.approx.physical_optics:POModel",
+    "ghs": "wavebrdf.solver.approx.harvey_shack:GHSModel",
+    "ohs": "wavebrdf.solver.approx.harvey_shack:OHSModel",
+    "gs": "wavebrdf.solver.approx.geometric:GSModel",
+    "gm": "wavebrdf.solver.approx.geometric:GMModel",
+    "stam": "wavebrdf.solver.approx.stam:StamModel",
+    "ws-v": "wavebrdf.solver.approx.falster:WSVModel",
+    "wm": "wavebrdf.solver.approx.falster:WMModel",
 }
 
 

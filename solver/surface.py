@@ -1,22 +1,40 @@
-"""Height fields: loading, validation, generators and statistics.
+"""Height fields: loading, validation, generators, statistics and the ensembles they come from.
 
 A :class:`HeightField` holds an (N+1)×(N+1) matrix of corner heights z[i, j] in µm on a square
 patch of side L (µm): row index i ↔ x, column index j ↔ y, spacing d = L/N, and node
 coordinates x_i = −L/2 + i·d (the patch is centred on the origin). Between nodes the surface is
 the bilinear interpolant (the representation every model shares).
+
+Generators (:func:`generate`, docs/approx.md "Surface generators") return height fields that are
+periodic on the patch wherever their geometry allows (row N repeats row 0 and column N column 0
+exactly), so periodic ray tracing and FFTs see no seam: "flat", "gaussian", "brushed",
+"sinusoid" (when the period divides the patch along its direction), "spherical-pits",
+"hemispheres"; "corner-cubes" is periodic along x only (its hexagonal lattice has the period
+√3·a along y, which no square patch fits). Random generators also record the
+:class:`GaussianEnsemble` they draw from (``HeightField.ensemble``), which the statistical
+models (``stam``) take instead of the realization.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["HeightField", "SurfaceError", "generate", "load_heights", "GENERATORS"]
+__all__ = [
+    "GENERATORS",
+    "OPTIONAL_PARAMETERS",
+    "GaussianEnsemble",
+    "HeightField",
+    "SurfaceError",
+    "generate",
+    "load_heights",
+]
 
 MIN_NODES = 4  # at least 3×3 cells
+PERIOD_TOLERANCE = 1e-6  # relative: size_um / period_um must be this close to an integer
 
 
 class SurfaceError(ValueError):
@@ -24,12 +42,62 @@ class SurfaceError(ValueError):
 
 
 @dataclass(frozen=True)
+class GaussianEnsemble:
+    """The stationary Gaussian random process a realization was drawn from (µm, degrees)."""
+
+    rms_height_um: float
+    correlation_um: tuple[float, float]  # 1/e lengths (T_x', T_y') of C_h = exp(−x'²/T_x'² − y'²/T_y'²)
+    angle_deg: float = 0.0  # rotation of the x' axis from x
+
+    def __post_init__(self):
+        if not (np.isfinite(self.rms_height_um) and self.rms_height_um >= 0):
+            raise SurfaceError(f"GaussianEnsemble.rms_height_um must be a finite number >= 0, got {self.rms_height_um!r}")
+        pair = tuple(float(c) for c in np.broadcast_to(np.asarray(self.correlation_um, dtype=float), (2,)))
+        if not all(np.isfinite(c) and c > 0 for c in pair):
+            raise SurfaceError(f"GaussianEnsemble.correlation_um must be two finite numbers > 0, got {self.correlation_um!r}")
+        if not np.isfinite(self.angle_deg):
+            raise SurfaceError(f"GaussianEnsemble.angle_deg must be finite, got {self.angle_deg!r}")
+        object.__setattr__(self, "rms_height_um", float(self.rms_height_um))
+        object.__setattr__(self, "correlation_um", pair)
+        object.__setattr__(self, "angle_deg", float(self.angle_deg))
+
+    def rotated(self, x, y) -> tuple[np.ndarray, np.ndarray]:
+        """Coordinates (x', y') of the vectors (x, y) along the ensemble's principal axes."""
+        a = np.deg2rad(self.angle_deg)
+        c, s = np.cos(a), np.sin(a)
+        return c * np.asarray(x) + s * np.asarray(y), -s * np.asarray(x) + c * np.asarray(y)
+
+    def correlation(self, dx, dy) -> np.ndarray:
+        """Normalised height autocorrelation C_h(Δx, Δy) = exp(−x'²/T_x'² − y'²/T_y'²)."""
+        xr, yr = self.rotated(dx, dy)
+        tx, ty = self.correlation_um
+        return np.exp(-((xr / tx) ** 2) - (yr / ty) ** 2)
+
+    @property
+    def slope_rms(self) -> tuple[float, float]:
+        """rms slopes along x' and y': √2 σ/T (the Beckmann roughness is α = 2σ/T = √2 × this)."""
+        return tuple(np.sqrt(2.0) * self.rms_height_um / t for t in self.correlation_um)
+
+    def attributes(self) -> dict:
+        """Flat, HDF5-storable description (prefix ``ensemble_``)."""
+        return {"ensemble": "gaussian", "ensemble_rms_height_um": self.rms_height_um,
+                "ensemble_correlation_um": list(self.correlation_um), "ensemble_angle_deg": self.angle_deg}
+
+
+@dataclass(frozen=True)
 class HeightField:
-    """Corner heights ``z`` (µm, shape (N+1, N+1)) on a square patch of side ``size_um``."""
+    """Corner heights ``z`` (µm, shape (N+1, N+1)) on a square patch of side ``size_um``.
+
+    ``ensemble``: the Gaussian process of a random realization (None for files, deterministic
+    generators and cut patches); ``parameters``: the generator's name, seed and parameters as
+    built (None for files). Neither takes part in comparisons.
+    """
 
     z: np.ndarray
     size_um: float
     origin_um: tuple[float, float] = (0.0, 0.0)  # patch centre in global coordinates
+    ensemble: GaussianEnsemble | None = field(default=None, compare=False)
+    parameters: dict | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self):
         z = np.asarray(self.z, dtype=float)
@@ -47,6 +115,8 @@ class HeightField:
             raise SurfaceError(f"height matrix contains NaN/inf (first at row {bad[0]}, column {bad[1]})")
         if not (np.isfinite(self.size_um) and self.size_um > 0):
             raise SurfaceError(f"surface size_um must be a positive number, got {self.size_um!r}")
+        if self.ensemble is not None and not isinstance(self.ensemble, GaussianEnsemble):
+            raise SurfaceError(f"HeightField.ensemble must be a GaussianEnsemble or None, got {self.ensemble!r}")
         object.__setattr__(self, "z", z)
 
     @property
@@ -69,78 +139,238 @@ class HeightField:
         """Node coordinates along y (columns); the same as :attr:`x` for a square patch."""
         return self.x
 
+    @property
+    def periodic(self) -> tuple[bool, bool]:
+        """Whether the last row (x) / column (y) repeats the first (a seamless tile), to 1e-9 of
+        the peak-to-valley height."""
+        return _periodic_axes(self.z)
+
     def statistics(self) -> dict[str, float]:
-        """rms height, peak-to-valley, rms / max slope of the bilinear surface (cell centres)."""
-        z = self.z - self.z.mean()
+        """rms height and peak-to-valley of the nodes (of the N×N tile when periodic, so that each
+        point counts once), rms / max slope of the bilinear surface (cell centres), and the
+        correlation lengths along x and y (µm; NaN when undefined)."""
+        z = self.z
         d = self.spacing_um
         zx = 0.5 * (z[1:, 1:] + z[1:, :-1] - z[:-1, 1:] - z[:-1, :-1]) / d
         zy = 0.5 * (z[1:, 1:] - z[1:, :-1] + z[:-1, 1:] - z[:-1, :-1]) / d
         slope = np.hypot(zx, zy)
+        heights = self._tile()
+        heights = heights - heights.mean()
+        length_x, length_y = self.correlation_lengths()
         return {
-            "rms_height_um": float(np.sqrt(np.mean(z**2))),
-            "peak_to_valley_um": float(np.ptp(z)),
+            "rms_height_um": float(np.sqrt(np.mean(heights**2))),
+            "peak_to_valley_um": float(np.ptp(heights)),
             "rms_slope": float(np.sqrt(np.mean(slope**2))),
             "max_slope": float(slope.max()),
+            "correlation_length_x_um": length_x,
+            "correlation_length_y_um": length_y,
         }
+
+    def _tile(self) -> np.ndarray:
+        """The nodes that are distinct points: the N×N tile when periodic, else all (N+1)²."""
+        return self.z[:-1, :-1] if all(self.periodic) else self.z
+
+    def autocorrelation(self) -> tuple[np.ndarray, np.ndarray]:
+        """Normalised autocorrelation of the mean-removed heights along x and along y,
+        ACF(τ)/ACF(0) for lags τ = 0, 1, … in units of the spacing (the 2-D ACF on its axes).
+        Periodic along both axes (:attr:`periodic`): the circular ACF of the N×N tile; otherwise
+        the linear (zero-padded, biased) ACF of the nodes. All zeros for a flat surface."""
+        z = self._tile()
+        z = z - z.mean()
+        periodic = all(self.periodic)
+        out = []
+        for axis in (0, 1):
+            n = z.shape[axis] if periodic else 2 * z.shape[axis]
+            spectrum = np.fft.rfft(z, n=n, axis=axis)
+            acf = np.fft.irfft(np.abs(spectrum) ** 2, n=n, axis=axis).sum(axis=1 - axis)
+            out.append(acf / acf[0] if acf[0] > 0 else np.zeros_like(acf))
+        return out[0], out[1]
+
+    def correlation_lengths(self) -> tuple[float, float]:
+        """1/e lengths (µm) of the measured autocorrelation along x and along y (first crossing of
+        1/e, linearly interpolated between lags); NaN where it does not fall to 1/e within half
+        the patch, or for a flat surface."""
+        half = self.cells // 2
+        return tuple(float(_first_crossing(line[: half + 1], np.exp(-1.0)) * self.spacing_um)
+                     for line in self.autocorrelation())
+
+
+def _periodic_axes(z: np.ndarray) -> tuple[bool, bool]:
+    """Whether the last row / column of ``z`` repeats the first (to 1e-9 of its peak-to-valley)."""
+    atol = 1e-9 * max(float(np.ptp(z)), np.finfo(float).tiny)
+    return bool(np.allclose(z[-1], z[0], rtol=0, atol=atol)), bool(np.allclose(z[:, -1], z[:, 0], rtol=0, atol=atol))
+
+
+def _first_crossing(values: np.ndarray, level: float) -> float:
+    """Fractional index where ``values`` (starting above ``level``) first falls to ``level``."""
+    if values[0] <= level:
+        return float("nan")
+    below = np.nonzero(values <= level)[0]
+    if below.size == 0:
+        return float("nan")
+    i = int(below[0])
+    return i - 1 + (values[i - 1] - level) / (values[i - 1] - values[i])
 
 
 def load_heights(path: str | Path) -> np.ndarray:
-    """Read a height matrix (µm) from ``.npy`` or a comma/whitespace-separated ``.txt``/``.csv``."""
+    """Read a height matrix (µm) from ``.npy`` (real numbers: float or integer dtype) or a
+    comma/whitespace-separated ``.txt``/``.csv`` (``#`` comments)."""
     path = Path(path)
     if not path.is_file():
-        raise SurfaceError(f"surface file {str(path)!r} does not exist")
+        what = "is a folder" if path.is_dir() else "is not a regular file" if path.exists() else "does not exist"
+        raise SurfaceError(f"surface file {str(path)!r} {what}")
     try:
         if path.suffix == ".npy":
-            z = np.load(path, allow_pickle=False)
+            with open(path, "rb") as fh:
+                if fh.read(6) != b"\x93NUMPY":
+                    raise SurfaceError(f"surface file {str(path)!r} is not a .npy file (no NumPy header); "
+                                       "name a text matrix .txt or .csv")
+            z = np.load(path, mmap_mode="r", allow_pickle=False)  # the dtype is checked before reading
+            if z.dtype.kind not in "fiu":
+                kind = f"structured ({', '.join(z.dtype.names)})" if z.dtype.names else str(z.dtype)
+                raise SurfaceError(f"surface file {str(path)!r} holds {kind} values; heights must be real numbers "
+                                   "(a float or integer dtype)")
         else:
-            text = path.read_text().replace(",", " ")
-            rows = [r.split() for r in text.splitlines() if r.strip() and not r.lstrip().startswith("#")]
+            rows = []  # one row at a time: no list of strings for the whole file
+            with open(path, encoding="utf-8") as fh:
+                for line in fh:
+                    line = line.strip()
+                    if line and not line.startswith("#"):
+                        rows.append(np.array(line.replace(",", " ").split(), dtype=float))
             lengths = {len(r) for r in rows}
             if len(lengths) > 1:
                 raise SurfaceError(
                     f"surface file {str(path)!r}: rows have different lengths {sorted(lengths)}"
                 )
-            z = np.array(rows, dtype=float)
+            z = np.array(rows)
     except SurfaceError:
         raise
     except (ValueError, OSError) as exc:
         raise SurfaceError(f"surface file {str(path)!r} cannot be read as a height matrix: {exc}") from exc
-    return np.asarray(z, dtype=float)
+    return np.array(z, dtype=float)
 
 
 # ---------------------------------------------------------------------------------------------
-# Generators. Each returns an (N+1)x(N+1) height matrix for a patch of side L with N cells.
+# Generators. Each returns an (N+1)x(N+1) height matrix for a patch of side L with N cells, or a
+# (matrix, GaussianEnsemble | None, extra parameters) triple.
+
+
+def _periodic_nodes(tile: np.ndarray) -> np.ndarray:
+    """(N+1)² nodes from an N×N periodic tile: row N repeats row 0, column N column 0 (exactly)."""
+    n = tile.shape[0]
+    z = np.empty((n + 1, n + 1))
+    z[:n, :n] = tile
+    z[n, :n] = tile[0]
+    z[:, n] = z[:, 0]
+    return z
+
+
+def _tile_coordinates(cells: int, size_um: float) -> tuple[np.ndarray, np.ndarray]:
+    """(X, Y) of the N×N tile nodes measured from the patch corner (−L/2, −L/2), µm."""
+    t = size_um / cells * np.arange(cells)
+    return np.meshgrid(t, t, indexing="ij")
+
+
+def _cells_per_period(size_um: float, period_um: float, key: str = "period_um") -> int:
+    """The whole number of periods on the patch; refuses a period that does not divide it."""
+    ratio = size_um / period_um
+    count = int(round(ratio))
+    if count < 1 or abs(ratio - count) > PERIOD_TOLERANCE * max(ratio, 1.0):
+        low, high = max(1, int(np.floor(ratio))), int(np.floor(ratio)) + 1
+        raise SurfaceError(
+            f"surface.{key} = {period_um:g} does not divide surface.size_um = {size_um:g} "
+            f"({ratio:.4g} periods); the patch must hold whole periods to be periodic: use "
+            f"{key} = {size_um / high:.6g} or {size_um / low:.6g}"
+        )
+    return count
+
+
+def _correlation_pair(value, key: str = "correlation_um") -> tuple[float, float] | float:
+    """A scalar correlation length (isotropic) or a pair [T_x', T_y'], each finite and > 0."""
+    if np.ndim(value) == 0:
+        values, scalar = (value,), True
+    else:
+        values, scalar = tuple(np.asarray(value, dtype=float).ravel()), False
+        if len(values) != 2:
+            raise SurfaceError(f"surface.{key} = {value!r}: must be a number or [a, b] with two numbers")
+    if not all(np.isfinite(v) and v > 0 for v in values):
+        raise SurfaceError(f"surface.{key} = {value!r}: must be > 0")
+    return float(values[0]) if scalar else (float(values[0]), float(values[1]))
+
+
+def _gaussian_tile(cells: int, size_um: float, rng, rms_height_um: float, correlation, angle_deg: float):
+    """Periodic N×N Gaussian random field with the Gaussian autocorrelation of ``correlation``
+    (a scalar T: exp(−r²/T²); a pair (T_x', T_y') on axes rotated by ``angle_deg``), scaled to
+    the requested rms height exactly. Spectral synthesis: white noise filtered by √PSD,
+    PSD ∝ exp(−(k_x'² T_x'² + k_y'² T_y'²)/4). The exact rms is that of the patch after its mean
+    (the PSD's k = 0 share, ε ≈ πT_x'T_y'/L²) is removed, so the realization's small-scale height
+    variance exceeds the ensemble's σ² by about ε: keep L ≫ T when comparing with the ensemble."""
+    if rms_height_um < 0:
+        raise SurfaceError(f"surface.rms_height_um must be >= 0, got {rms_height_um}")
+    n = cells
+    d = size_um / cells
+    k = 2 * np.pi * np.fft.fftfreq(n, d)
+    kx, ky = np.meshgrid(k, k, indexing="ij")
+    if np.ndim(correlation) == 0 or correlation[0] == correlation[1]:
+        t = correlation if np.ndim(correlation) == 0 else correlation[0]
+        psd = np.exp(-(kx**2 + ky**2) * t**2 / 4.0)  # isotropic (the original generator, bit for bit)
+    else:
+        a = np.deg2rad(angle_deg)
+        kr = np.cos(a) * kx + np.sin(a) * ky
+        ks = -np.sin(a) * kx + np.cos(a) * ky
+        psd = np.exp(-(kr**2 * correlation[0] ** 2 + ks**2 * correlation[1] ** 2) / 4.0)
+    noise = rng.standard_normal((n, n))
+    tile = np.real(np.fft.ifft2(np.fft.fft2(noise) * np.sqrt(psd)))
+    tile -= tile.mean()
+    std = tile.std()
+    return tile * (rms_height_um / std) if std > 0 else tile
 
 
 def _flat(cells: int, size_um: float, rng) -> np.ndarray:
     return np.zeros((cells + 1, cells + 1))
 
 
-def _gaussian(cells: int, size_um: float, rng, *, rms_height_um: float, correlation_um: float) -> np.ndarray:
-    """Gaussian random surface with Gaussian autocorrelation exp(−r²/T²), periodic on the patch.
+def _gaussian(cells: int, size_um: float, rng, *, rms_height_um: float, correlation_um,
+              angle_deg: float | None = None):
+    """Gaussian random surface, autocorrelation exp(−r²/T²) (scalar ``correlation_um``) or
+    exp(−x'²/T_x'² − y'²/T_y'²) (``correlation_um = [T_x', T_y']``, x' rotated by ``angle_deg``
+    from x), periodic on the patch; the rms height is exact."""
+    correlation = _correlation_pair(correlation_um)
+    if angle_deg is not None and np.ndim(correlation) == 0:
+        raise SurfaceError(f"surface.angle_deg = {angle_deg:g} has no effect with a scalar surface.correlation_um "
+                           f"= {correlation:g} (isotropic); give correlation_um = [T_x, T_y] to rotate")
+    angle = 0.0 if angle_deg is None else float(angle_deg)
+    pair = (correlation, correlation) if np.ndim(correlation) == 0 else correlation
+    tile = _gaussian_tile(cells, size_um, rng, rms_height_um, correlation, angle)
+    return _periodic_nodes(tile), GaussianEnsemble(rms_height_um, pair, angle), {}
 
-    Spectral synthesis: white noise filtered by the square root of the Gaussian PSD, then
-    scaled to the requested rms height exactly.
+
+BRUSHED_ASPECT = 10.0  # default along/across ratio of the brushed generator
+BRUSHED_ALONG_FRACTION = 0.25  # default along-groove correlation length, as a fraction of the patch
+
+
+def _brushed(cells: int, size_um: float, rng, *, rms_height_um: float, correlation_um=None,
+             angle_deg: float = 0.0):
+    """Brushed grooves: a Gaussian random surface elongated along the groove direction.
+
+    ``correlation_um = [along, across]`` (default [L/4, L/40]: grooves a quarter of the patch long,
+    ten times narrower, so the patch holds ≥ 4 correlation lengths along them);
+    ``angle_deg``: groove direction from x (default 0: grooves along x).
     """
-    if rms_height_um < 0:
-        raise SurfaceError(f"surface.rms_height_um must be >= 0, got {rms_height_um}")
-    if correlation_um <= 0:
-        raise SurfaceError(f"surface.correlation_um must be > 0, got {correlation_um}")
-    n = cells
-    d = size_um / cells
-    k = 2 * np.pi * np.fft.fftfreq(n, d)
-    kx, ky = np.meshgrid(k, k, indexing="ij")
-    psd = np.exp(-(kx**2 + ky**2) * correlation_um**2 / 4.0)
-    noise = rng.standard_normal((n, n))
-    field = np.real(np.fft.ifft2(np.fft.fft2(noise) * np.sqrt(psd)))
-    field -= field.mean()
-    std = field.std()
-    field = field * (rms_height_um / std) if std > 0 else field
-    z = np.empty((n + 1, n + 1))
-    z[:n, :n] = field
-    z[n, :n] = field[0]
-    z[:, n] = z[:, 0]
-    return z
+    if correlation_um is None:
+        along = BRUSHED_ALONG_FRACTION * size_um
+        pair = (along, along / BRUSHED_ASPECT)
+    else:
+        pair = _correlation_pair(correlation_um)
+        if np.ndim(pair) == 0:
+            raise SurfaceError(f"surface.correlation_um = {correlation_um!r}: the brushed generator takes "
+                               "[along, across] (two lengths), or nothing for the default [L/4, L/40]")
+        if pair[0] < pair[1]:
+            raise SurfaceError(f"surface.correlation_um = {list(pair)}: brushed grooves are [along, across] "
+                               "with along >= across (turn them with angle_deg)")
+    tile = _gaussian_tile(cells, size_um, rng, rms_height_um, pair, angle_deg)
+    return (_periodic_nodes(tile), GaussianEnsemble(rms_height_um, pair, angle_deg),
+            {"correlation_um": list(pair), "angle_deg": float(angle_deg)})
 
 
 def _sinusoid(
@@ -155,16 +385,165 @@ def _sinusoid(
     return amplitude_um * np.cos(2 * np.pi * (X * np.cos(a) + Y * np.sin(a)) / period_um)
 
 
+CUBE_FACE_SLOPE = np.sqrt(2.0)  # tan of the 54.74° (arccos 1/√3) between a face normal and the cube axis ẑ
+
+
+def corner_cube_normals() -> np.ndarray:
+    """Unit normals (3, 3) of the three faces of an up-pointing triangular cube corner of the
+    "corner-cubes" generator: horizontal parts along the triangle's inward side normals (120°
+    apart), each at arccos(1/√3) from ẑ — mutually perpendicular."""
+    inward = np.array([[0.0, 1.0], [-np.sqrt(3) / 2, -0.5], [np.sqrt(3) / 2, -0.5]])
+    return np.column_stack([CUBE_FACE_SLOPE * inward, np.ones(3)]) / np.sqrt(3.0)
+
+
+def _corner_cubes(cells: int, size_um: float, rng, *, period_um: float):
+    """Array of triangular cube corners (retroreflectors): three families of ridges at 0°, 60°
+    and 120° through common points cut the plane into equilateral triangles of side a =
+    ``period_um`` (the hexagonal lattice constant; ridge spacing P = a√3/2); in each triangle the
+    surface is the trihedral corner whose three faces rise from the apex at slope √2 (normals at
+    arccos(1/√3) = 54.74° from ẑ, mutually perpendicular):
+
+        z = −√2 · min_j dist(x, ridge lines of family j),
+
+    ridges at z = 0, apexes at −√2 P/3 = −a/√6 (the depth follows from the period: the face
+    angles are fixed by orthogonality). Up and down triangles are both cube corners (rotated by
+    60°). Periodic along x when a divides the patch (required); not periodic along y (period
+    √3 a).
+    """
+    n_x = _cells_per_period(size_um, period_um)
+    ridge = period_um * np.sqrt(3.0) / 2.0
+    X, Y = np.meshgrid(*(size_um / cells * np.arange(cells + 1),) * 2, indexing="ij")
+    normals = corner_cube_normals()[:, :2] / np.sqrt(2.0 / 3.0)  # unit horizontal directions
+    distance = np.full(X.shape, np.inf)
+    for d in normals:
+        t = d[0] * X + d[1] * Y
+        distance = np.minimum(distance, np.abs(t - ridge * np.round(t / ridge)))
+    z = -CUBE_FACE_SLOPE * distance
+    z[-1] = z[0]  # exact period along x (a divides the patch)
+    return z, None, {"cubes_along_x": n_x, "depth_um": float(CUBE_FACE_SLOPE * ridge / 3.0), "periodic": "x"}
+
+
+def _spherical_pits(cells: int, size_um: float, rng, *, radius_um: float, depth_um: float, period_um: float):
+    """Square lattice (period Λ = ``period_um``, dividing the patch) of spherical caps of radius R
+    cut to depth D ≤ R into the plane z = 0: z = (R − D) − √(R² − ρ²) inside the rim radius
+    a = √(2RD − D²), 0 outside; the rim must fit the cell (2a ≤ Λ). Periodic."""
+    if radius_um <= 0:
+        raise SurfaceError(f"surface.radius_um must be > 0, got {radius_um}")
+    if not 0 < depth_um <= radius_um:
+        raise SurfaceError(f"surface.depth_um = {depth_um:g}: must be > 0 and <= radius_um = {radius_um:g} "
+                           "(a spherical cap no deeper than a hemisphere)")
+    count = _cells_per_period(size_um, period_um)
+    rim = np.sqrt(2 * radius_um * depth_um - depth_um**2)
+    if 2 * rim > period_um * (1 + 1e-12):
+        raise SurfaceError(f"surface.period_um = {period_um:g}: the pits' rim diameter 2√(2RD − D²) = {2 * rim:.6g} µm "
+                           f"(radius_um = {radius_um:g}, depth_um = {depth_um:g}) does not fit the cell")
+    X, Y = _tile_coordinates(cells, size_um)
+    rho2 = _cell_offset(X, period_um) ** 2 + _cell_offset(Y, period_um) ** 2
+    cap = (radius_um - depth_um) - np.sqrt(np.clip(radius_um**2 - rho2, 0.0, None))
+    tile = np.where(rho2 < rim**2, np.minimum(cap, 0.0), 0.0)
+    return _periodic_nodes(tile), None, {"rim_radius_um": float(rim), "pits_per_side": count,
+                                         "fill": float(np.pi * rim**2 / period_um**2)}
+
+
+def _cell_offset(t: np.ndarray, period_um: float) -> np.ndarray:
+    """Offset of coordinate ``t`` (from the patch corner) from the centre of its lattice cell."""
+    return np.mod(t, period_um) - 0.5 * period_um
+
+
+HEMISPHERE_RANDOM_MAX_FILL = 0.5  # random sequential placement jams near 0.547
+HEMISPHERE_FILL_SLACK = 0.05  # square lattice: largest relative change of fill to fit whole cells
+
+
+def _hemispheres(cells: int, size_um: float, rng, *, radius_um: float, fill: float, placement: str = "square"):
+    """Hemispheres of radius r standing on the plane z = 0, covering the area fraction ``fill``
+    (Falster et al.'s HEMISPHERES-like microsurface): z = √(r² − ρ²) within each footprint.
+
+    ``placement = "square"``: a square lattice whose period Λ = r√(π/fill) is rounded so that whole
+    cells fill the patch (refused when that changes the fill by more than 5%; fill ≤ π/4, the
+    touching limit); ``"random"``: round(fill·L²/(πr²)) non-overlapping hemispheres placed uniformly
+    at random (``seed``) with periodic wrap (fill ≤ 0.5). The realized fill is recorded. Periodic.
+    """
+    if radius_um <= 0:
+        raise SurfaceError(f"surface.radius_um must be > 0, got {radius_um}")
+    X, Y = _tile_coordinates(cells, size_um)
+    if placement == "square":
+        if not 0 < fill <= np.pi / 4:
+            raise SurfaceError(f"surface.fill = {fill:g}: must be in (0, π/4 = 0.7854] for placement = \"square\" "
+                               "(π/4: touching hemispheres)")
+        per_side = max(1, int(round(size_um / (radius_um * np.sqrt(np.pi / fill)))))
+        options = sorted({max(1, per_side - 1), per_side, per_side + 1})
+        fills = {n: np.pi * (radius_um * n / size_um) ** 2 for n in options}
+        realized = fills[per_side]
+        if realized > np.pi / 4 * (1 + 1e-12) or abs(realized / fill - 1) > HEMISPHERE_FILL_SLACK:
+            valid = ", ".join(f"{f:.4g} ({n}x{n})" for n, f in fills.items() if f <= np.pi / 4)
+            raise SurfaceError(f"surface.fill = {fill:g}: whole lattice cells of radius_um = {radius_um:g} on "
+                               f"size_um = {size_um:g} give fill {realized:.4g}; choose one of {valid or 'none'}"
+                               " (or placement = \"random\")")
+        period = size_um / per_side
+        rho2 = _cell_offset(X, period) ** 2 + _cell_offset(Y, period) ** 2
+        centres = per_side**2
+    elif placement == "random":
+        if not 0 < fill <= HEMISPHERE_RANDOM_MAX_FILL:
+            raise SurfaceError(f"surface.fill = {fill:g}: must be in (0, {HEMISPHERE_RANDOM_MAX_FILL}] for "
+                               "placement = \"random\" (random non-overlapping placement jams near 0.55)")
+        if 2 * radius_um > size_um:
+            raise SurfaceError(f"surface.radius_um = {radius_um:g}: a hemisphere does not fit the "
+                               f"{size_um:g} µm patch")
+        centres = max(1, int(round(fill * size_um**2 / (np.pi * radius_um**2))))
+        points = _random_disks(rng, centres, radius_um, size_um)
+        rho2 = np.full(X.shape, np.inf)
+        for cx, cy in points:
+            dx = X - cx - size_um * np.round((X - cx) / size_um)
+            dy = Y - cy - size_um * np.round((Y - cy) / size_um)
+            rho2 = np.minimum(rho2, dx**2 + dy**2)
+    else:
+        raise SurfaceError(f"surface.placement = {placement!r}: must be \"square\" or \"random\"")
+    tile = np.sqrt(np.clip(radius_um**2 - rho2, 0.0, None))
+    return _periodic_nodes(tile), None, {"hemispheres": int(centres),
+                                         "fill_realized": float(centres * np.pi * radius_um**2 / size_um**2)}
+
+
+def _random_disks(rng, count: int, radius_um: float, size_um: float, attempts: int = 5000) -> np.ndarray:
+    """Centres of ``count`` non-overlapping disks on the periodic square [0, L)² (random sequential
+    addition); SurfaceError when it jams."""
+    points = np.empty((0, 2))
+    for _ in range(count):
+        for _ in range(attempts):
+            p = rng.uniform(0.0, size_um, 2)
+            delta = points - p
+            delta -= size_um * np.round(delta / size_um)
+            if not len(points) or np.min(np.sum(delta**2, axis=1)) >= (2 * radius_um) ** 2:
+                points = np.vstack([points, p])
+                break
+        else:
+            raise SurfaceError(f"surface.fill: cannot place {count} non-overlapping hemispheres of radius_um = "
+                               f"{radius_um:g} on size_um = {size_um:g} (placed {len(points)}); lower the fill")
+    return points
+
+
 GENERATORS = {
     "flat": (_flat, ()),
     "gaussian": (_gaussian, ("rms_height_um", "correlation_um")),
+    "brushed": (_brushed, ("rms_height_um",)),
     "sinusoid": (_sinusoid, ("amplitude_um", "period_um")),
+    "corner-cubes": (_corner_cubes, ("period_um",)),
+    "spherical-pits": (_spherical_pits, ("radius_um", "depth_um", "period_um")),
+    "hemispheres": (_hemispheres, ("radius_um", "fill")),
 }
-OPTIONAL_PARAMETERS = {"sinusoid": ("angle_deg",)}
+OPTIONAL_PARAMETERS = {
+    "gaussian": ("angle_deg",),
+    "brushed": ("correlation_um", "angle_deg"),
+    "sinusoid": ("angle_deg",),
+    "hemispheres": ("placement",),
+}
 
 
 def generate(name: str, *, cells: int, size_um: float, seed: int = 0, **params) -> HeightField:
-    """Build a :class:`HeightField` with generator ``name`` ("flat" | "gaussian" | "sinusoid")."""
+    """Build a :class:`HeightField` with generator ``name`` (a key of :data:`GENERATORS`).
+
+    The result records the generator's name, seed and parameters (``parameters``) and, for random
+    generators, its :class:`GaussianEnsemble` (``ensemble``).
+    """
     if name not in GENERATORS:
         raise SurfaceError(f"surface.generator must be one of {sorted(GENERATORS)}, got {name!r}")
     if int(cells) != cells or cells < MIN_NODES - 1:
@@ -182,4 +561,14 @@ def generate(name: str, *, cells: int, size_um: float, seed: int = 0, **params) 
             f"surface.generator = {name!r} does not take {', '.join('surface.' + u for u in unknown)}"
         )
     rng = np.random.default_rng(seed)
-    return HeightField(func(int(cells), float(size_um), rng, **params), float(size_um))
+    out = func(int(cells), float(size_um), rng, **params)
+    z, ensemble, extra = out if isinstance(out, tuple) else (out, None, {})
+    periodic = extra.pop("periodic", "".join(a for a, p in zip("xy", _periodic_axes(z)) if p))
+    recorded = {"generator": name, "seed": int(seed), **{k: _plain(v) for k, v in params.items()}, **extra,
+                "periodic": periodic}
+    return HeightField(z, float(size_um), ensemble=ensemble, parameters=recorded)
+
+
+def _plain(value):
+    """Parameter values as HDF5-storable plain types (lists for pairs)."""
+    return list(map(float, value)) if np.ndim(value) else value

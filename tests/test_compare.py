@@ -55,3 +55,60 @@ def test_the_reference_is_the_highest_rung_that_fits(flat_scene):
     assert name == "kirchhoff" and "bem needs" in why
     with pytest.raises(ValueError, match="no model fits"):
         choose_reference(["kirchhoff"], flat_scene, 1.0)
+
+
+COMPARE_STUDY = """
+[study]
+name = "trade"
+output = "{out}"
+
+[surface]
+generator = "gaussian"
+size_um = 8.0
+cells = 64
+rms_height_um = 0.05
+correlation_um = 1.0
+
+[material]
+n = 1.5
+
+[illumination]
+wavelengths_um = [0.5]
+directions_deg = [[20, 0]]
+waist_um = 1.4
+
+[model]
+name = "kirchhoff"
+
+[output]
+resolution = 48
+
+[compare]
+models = ["gs", "kirchhoff", "stam"]
+reference = "kirchhoff"
+
+[compare.gs]
+rays = 65536
+"""
+
+
+def test_compare_command_end_to_end(tmp_path, capsys):
+    """`wavebrdf compare CONFIG`: [compare] models, reference and per-model options; every file
+    written next to the output; a bad [compare.<model>] option refused in one line, exit 2."""
+    from wavebrdf.jobs.cli import main
+
+    cfg = tmp_path / "trade.toml"
+    cfg.write_text(COMPARE_STUDY.format(out=tmp_path / "trade.h5"))
+    assert main(["compare", str(cfg), "-q"]) == 0
+    out = capsys.readouterr().out
+    assert "| trade λ=0.5 µm θi=20° | gs | kirchhoff |" in out
+    for suffix in (".csv", ".md", ".png", ".h5", "_gallery.png"):
+        assert (tmp_path / f"trade_compare{suffix}").is_file()
+    with h5py.File(tmp_path / "trade_compare.h5") as h5:
+        models = list(h5["table/model"].asstr())
+        assert models == ["kirchhoff", "gs", "stam"]
+        assert np.all(np.isfinite(h5["table/rel_l2"][1:]))
+    cfg.write_text(COMPARE_STUDY.format(out=tmp_path / "trade.h5").replace("rays = 65536", "rays = 0"))
+    assert main(["compare", str(cfg), "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "[compare.gs] rays = 0" in err[0]

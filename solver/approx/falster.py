@@ -1,0 +1,314 @@
+"""Falster et al. 2020: Kirchhoff with ray-traced shadowing and masking (``ws-v``, their
+single-scattering term) and that term plus path-traced secondary bounces (``wm``; approx.md §3.4–3.5,
+seed 002 Eqs. 17 and 19).
+
+WS-V is the per-facet Kirchhoff form of approx.md §3.3 with Sancer's visibility flags (e^{+jωt}):
+
+    I(ω_o) = Σ_nodes Δ² W V_i V_o a e^{+jk[s·x + (μ_i+μ_o) z]},   s = u_i + u_o,
+    a = m̃·[(ω_i + ω_o) r(θ_l) + (ω_o − ω_i)]
+      = (m̃·ω_i)(r − 1) + (m̃·ω_o)(r + 1),     m̃ = (−h_x, −h_y, 1),  cos θ_l = ω_i·m,
+    f = |I|² / (4 μ_i μ_o λ₁² Δ² Σ W²),
+
+per polarization (a scalar s pass with r_s(θ_l) and a p pass with r_p(θ_l); Fresnel at the local
+angle, so the (ω_o − ω_i) term is not reciprocal). On a plane it is Fresnel's mirror exactly.
+With m̃·ω_o = −h_x u_o − h_y v_o + μ_o the amplitude splits into four apertures that do not depend
+on ω_o — (m̃·ω_i)(r − 1), −h_x(r + 1), −h_y(r + 1), (r + 1) — each transformed exactly onto the
+pixels by the Kirchhoff family's Chebyshev/chirp-z transform (kirchhoff.chebyshev_transform) and
+recombined per pixel with (1, u_o, v_o, μ_o). This is the deterministic grid sum: no Monte Carlo
+|Σ|² bias (approx.md §3.4 caveat).
+
+V_i is ray traced once per incidence (raytrace.node_visibility, back-facing nodes included).
+V_o depends on the output direction: it is ray traced at ``masking_classes``² directions (the mean
+directions of square blocks of output pixels) and each pixel takes its block's mask (approx.md
+§3.4, "masking classes": the error sits at block borders). The masked far field is the unmasked
+transform minus a direct sum over the lit nodes its class masks (kernels/falster.cl), exact for
+the class mask and cheap where few nodes are masked.
+
+WM adds the incoherent depth ≥ 2 part of geometric-optics path tracing (raytrace.trace_paths,
+``multiple``) to the WS-V BRDF, per incident polarization: f_WM = f_WS-V + f_GM⁺ (Falster Eq. 19).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from wavebrdf.solver.approx.geometric import RAYS_DEFAULT
+from wavebrdf.solver.approx.kirchhoff import (
+    KirchhoffSetup,
+    albedo_excess,
+    chebyshev_cost,
+    chebyshev_transform,
+    chebyshev_transform_numpy,
+    check_incidence,
+    transform_orders,
+)
+from wavebrdf.solver.approx.physical_optics import lit_nodes, node_slopes
+from wavebrdf.solver.approx.raytrace import BORDERS, node_visibility, trace_paths
+from wavebrdf.solver.farfield import FarField, HemisphereGrid, IntensityResult, albedo, transverse_basis
+from wavebrdf.solver.fresnel import fresnel_rs_rp
+from wavebrdf.solver.models import Capabilities, Estimate, Model, SurfaceScene
+from wavebrdf.solver.options import option
+
+__all__ = ["WMModel", "WMOptions", "WSVModel", "WSVOptions", "masking_blocks", "wsv_farfield"]
+
+APERTURES = 4  # (m̃·ω_i)(r − 1), −h_x(r + 1), −h_y(r + 1), (r + 1): per polarization
+
+
+@dataclass(frozen=True)
+class WSVOptions:
+    masking: str = option("rays", choices=("rays", "none"),
+                          doc="V_o: 'rays' = ray traced per block of output directions; 'none' = every lit node "
+                              "radiates into every direction (Kirchhoff with shadowing only)")
+    masking_classes: int = option(16, low=1, high=512,
+                                  doc="blocks of output pixels per axis; V_o is ray traced at each block's centre "
+                                      "direction and shared by its pixels")
+    border: str = option("periodic", choices=BORDERS,
+                         doc="surface beyond the patch for the visibility rays (raytrace.py)")
+
+
+@dataclass(frozen=True)
+class WMOptions(WSVOptions):
+    """WS-V's options and the path tracer's for the depth ≥ 2 part."""
+
+    rays: int = option(RAYS_DEFAULT, low=1, high=2**32 - 1, doc="equal-power rays of the depth ≥ 2 part (as gm)")
+    max_depth: int = option(64, low=2, high=255, doc="reflections per path before it is truncated (reported)")
+    seed: int = option(0, low=0, high=2**63 - 1, doc="seed of the ray-origin lattice")
+
+
+def masking_blocks(grid: HemisphereGrid, classes: int) -> tuple[np.ndarray, np.ndarray]:
+    """(block index per pixel (res, res), −1 outside the disk; unit direction per block (B, 3)):
+    ``classes``² square blocks of pixels, each represented by the mean direction of its pixels
+    inside the disk (blocks without such pixels are dropped)."""
+    res = grid.resolution
+    edges = np.linspace(0, res, min(classes, res) + 1).astype(int)
+    which = np.searchsorted(edges, np.arange(res), side="right") - 1
+    raw = which[:, None] * (len(edges) - 1) + which[None, :]
+    raw = np.where(grid.inside, raw, -1)
+    used, block = np.unique(raw[grid.inside], return_inverse=True)
+    index = np.full((res, res), -1)
+    index[grid.inside] = block
+    U, V = grid.uv
+    directions = np.empty((used.size, 3))
+    for b in range(used.size):
+        sel = index == b
+        u, v = U[sel].mean(), V[sel].mean()
+        rho = np.hypot(u, v)
+        if rho >= 1.0:  # (cannot happen for a mean of points inside the disk; kept exact anyway)
+            u, v = u / rho * (1 - 1e-9), v / rho * (1 - 1e-9)
+        directions[b] = (u, v, np.sqrt(max(0.0, 1.0 - u * u - v * v)))
+    return index, directions
+
+
+def _apertures(setup: KirchhoffSetup, slopes: np.ndarray, lit: np.ndarray, omega_i: np.ndarray) -> np.ndarray:
+    """The eight apertures (2 pol × 4) on the nodes, Δ² W included, shape (8, na, nb)."""
+    hx, hy = slopes
+    m_dot_i = omega_i[2] - omega_i[0] * hx - omega_i[1] * hy  # m̃·ω_i
+    cos_local = np.clip(m_dot_i / np.sqrt(1.0 + hx * hx + hy * hy), 0.0, 1.0)
+    r = fresnel_rs_rp(setup.eta, cos_local)
+    window = np.where(lit, setup.window, 0.0)
+    out = np.empty((2, APERTURES) + hx.shape, dtype=complex)
+    for p in range(2):
+        out[p, 0] = window * m_dot_i * (r[p] - 1.0)
+        out[p, 1] = window * -hx * (r[p] + 1.0)
+        out[p, 2] = window * -hy * (r[p] + 1.0)
+        out[p, 3] = window * (r[p] + 1.0)
+    return out.reshape(2 * APERTURES, *hx.shape)
+
+
+def _transform(ctx, setup: KirchhoffSetup, windows: np.ndarray, precision: str) -> np.ndarray:
+    """The transforms of ``windows`` on the pixels, chirp-z post factors and the reference-height
+    phase applied, shape (channels, res, res)."""
+    grid = setup.grid
+    if ctx is None:
+        out = np.stack(chebyshev_transform_numpy(setup, windows))
+    else:
+        import pyopencl as cl
+
+        buffers, _ = chebyshev_transform(ctx, setup, windows, precision)
+        res = grid.resolution
+        cplx = np.complex128 if ctx.real_dtype(precision) == np.float64 else np.complex64
+        out = np.empty((len(buffers), res, res), dtype=cplx)
+        for c, buf in enumerate(buffers):
+            cl.enqueue_copy(ctx.queue, out[c].reshape(-1), buf)
+        ctx.queue.finish()
+        out = out.astype(complex) * (setup.czt_x.post[:, None] * setup.czt_y.post[None, :])[None]
+    return out * np.exp(1j * setup.k * (setup.mu_i + grid.mu) * setup.dz_ref)[None]
+
+
+def _masked_sums(ctx, setup: KirchhoffSetup, apertures: np.ndarray, block: np.ndarray, masked: list,
+                 surface, omega_i: np.ndarray, precision: str) -> np.ndarray:
+    """Σ over the nodes masked for each pixel's class of aperture × e^{+jk[s·x + (μ_i+μ_o) z]}
+    (z about the mid-height), shape (8, res, res) (kernels/falster.cl; ``ctx`` None: NumPy)."""
+    grid = setup.grid
+    res = grid.resolution
+    X, Y = np.meshgrid(surface.x, surface.y, indexing="ij")
+    x, y, z = X.ravel(), Y.ravel(), setup.z_mid.ravel()
+    ap = apertures.reshape(apertures.shape[0], -1)
+    k, mu_i = setup.k, setup.mu_i
+    if ctx is None:
+        out = np.zeros((ap.shape[0], res, res), dtype=complex)
+        U, V = grid.uv
+        for c, nodes in enumerate(masked):
+            pixels = np.flatnonzero((block == c).ravel())
+            if not nodes.size or not pixels.size:
+                continue
+            u, v = U.ravel()[pixels], V.ravel()[pixels]
+            mu_o = grid.mu.ravel()[pixels]
+            phase = k * (np.outer(omega_i[0] + u, x[nodes]) + np.outer(omega_i[1] + v, y[nodes])
+                         + np.outer(mu_i + mu_o, z[nodes]))
+            out.reshape(ap.shape[0], -1)[:, pixels] = (np.exp(1j * phase) @ ap[:, nodes].T).T
+        return out
+    import pyopencl as cl
+
+    real = ctx.real_dtype(precision)
+    cplx = np.dtype(np.complex128 if real == np.float64 else np.complex64)
+    starts = np.concatenate([[0], np.cumsum([m.size for m in masked])]).astype(np.int32)
+    nodes = np.concatenate(masked).astype(np.int32)
+    out_dev = cl.Buffer(ctx.context, cl.mem_flags.WRITE_ONLY, ap.shape[0] * res * res * cplx.itemsize)
+    knl = ctx.kernel("falster.cl", "wsv_masked_sum", ctx.defines(precision))
+    to_device = ctx.to_device
+    knl(ctx.queue, (res * res,), None, to_device(block.astype(np.int32).ravel(), np.int32),
+        to_device(starts, np.int32), to_device(nodes, np.int32), to_device(x, real), to_device(y, real),
+        to_device(z, real), to_device(ap, cplx), np.int32(res), np.int32(ap.shape[1]), real.type(k),
+        real.type(omega_i[0]), real.type(omega_i[1]), real.type(mu_i), out_dev)
+    out = np.empty((ap.shape[0], res, res), dtype=cplx)
+    cl.enqueue_copy(ctx.queue, out, out_dev)
+    ctx.queue.finish()
+    return out.astype(complex)
+
+
+def wsv_farfield(ctx, scene: SurfaceScene, masking: str = "rays", masking_classes: int = 16,
+                 border: str = "periodic") -> FarField:
+    """WS-V far field of ``scene`` (module docstring); ``ctx`` None: NumPy twins (double)."""
+    t0 = time.perf_counter()
+    check_incidence(scene.theta_i, scene.index)
+    precision = scene.precision
+    if ctx is None and precision != "double":
+        raise ValueError(f"the NumPy reference runs in double precision only, got precision = {precision!r}")
+    setup = KirchhoffSetup.from_scene(scene)
+    surface, grid = scene.surface, scene.grid
+    flat = not setup.z_mid.any()
+    if flat:  # a plane: e^{jkμ_o z} = 1 and nothing shadows or masks
+        setup = setup.flattened(setup.window)
+    st, ct = np.sin(scene.theta_i), np.cos(scene.theta_i)
+    omega_i = np.array([st * np.cos(scene.phi_i), st * np.sin(scene.phi_i), ct])
+    slopes = node_slopes(surface)
+    front, lit, _ = lit_nodes(ctx, surface, omega_i, slopes, "none" if flat else "rays", border, precision)
+    apertures = _apertures(setup, slopes, lit, omega_i)
+    t_vis = time.perf_counter()
+
+    weight = np.abs(setup.window) ** 2
+    total = weight.sum()
+    relevant = lit & (weight > 1e-12 * weight.max())  # nodes that radiate at all
+    block, directions = masking_blocks(grid, masking_classes)
+    if masking == "none" or flat:
+        masked = [np.zeros(0, dtype=np.int32) for _ in directions]
+    else:
+        visible = node_visibility(ctx, surface, directions, border=border, precision=precision)
+        masked = [np.flatnonzero((relevant & ~v).ravel()).astype(np.int32) for v in visible]
+    t_mask = time.perf_counter()
+
+    channels = _transform(ctx, setup, apertures, precision)
+    if any(m.size for m in masked):
+        correction = _masked_sums(ctx, setup, apertures, block, masked, surface, omega_i, precision)
+        channels = channels - correction * np.exp(1j * setup.k * (setup.mu_i + grid.mu) * setup.dz_ref)[None]
+    masked_weight = np.array([weight.ravel()[m].sum() / total for m in masked])
+    t_transform = time.perf_counter()
+
+    res = grid.resolution
+    U, V = grid.uv
+    inside = grid.inside
+    mu_o = np.where(inside, grid.mu, 1.0)
+    ch = channels.reshape(2, APERTURES, res, res)
+    I = ch[:, 0] + U * ch[:, 1] + V * ch[:, 2] + mu_o * ch[:, 3]  # (2 pol, res, res)
+    amp = np.where(inside, I * 0.5 / setup.lambda1, 0.0)  # √(μ_i μ_o Ω) with Ω = 1/(4 μ_i μ_o)
+    theta_hat, phi_hat = transverse_basis(U, V)
+    E = np.empty((2, 3, res, res), dtype=complex)
+    E[0] = np.moveaxis(phi_hat, -1, 0) * amp[0][None]
+    E[1] = np.moveaxis(theta_hat, -1, 0) * amp[1][None]
+    ff = setup.farfield(
+        E, scene.theta_i, scene.phi_i, model="ws-v", device="numpy" if ctx is None else ctx.describe(),
+        precision=precision, back_facing_fraction=float(weight[~front].sum() / total),
+        shadowed_fraction=float(weight[front & ~lit].sum() / total),
+        masking_blocks=len(directions), masked_nodes=int(sum(m.size for m in masked)),
+        masked_fraction_max=float(masked_weight.max()) if masked_weight.size else 0.0,
+        time_visibility_s=t_vis - t0, time_masking_s=t_mask - t_vis, time_transform_s=t_transform - t_mask,
+        wall_time_s=time.perf_counter() - t0,
+    )
+    ff.diagnostics["albedo_excess"] = albedo_excess(ff)
+    return ff
+
+
+def _wsv_estimate(scene: SurfaceScene, options) -> Estimate:
+    nodes = scene.surface.cells + 1
+    res = scene.grid.resolution
+    orders = transform_orders(scene)
+    flat = not np.ptp(scene.surface.z) > 0
+    blocks = min(options.masking_classes, res) ** 2
+    memory, seconds = chebyshev_cost(nodes, res, orders, channels=2 * APERTURES)
+    memory += 16.0 * (4 * 2 * APERTURES) * max(nodes**2, res * res)
+    rays = 0 if flat else (1 + (blocks if options.masking == "rays" else 0)) * nodes**2
+    # masked-node sums: a share of the nodes ~ the rms slope is masked toward the rim directions
+    share = 0.0 if (flat or options.masking == "none") else min(1.0, 0.5 * scene.surface.statistics()["rms_slope"])
+    terms = share * nodes**2 * res * res
+    seconds += 5e-7 * rays + 2e-8 * terms
+    return Estimate(memory, seconds, f"{orders} Chebyshev orders × 8 apertures, {rays:.3g} visibility rays, "
+                                     f"~{terms:.3g} masked-node terms")
+
+
+class WSVModel(Model):
+    """``[model] name = "ws-v"``: Falster's single-scattering term (Kirchhoff + ray-traced V_i V_o)."""
+
+    name = "ws-v"
+    Options = WSVOptions
+    capabilities = Capabilities(takes="height_field", returns="fields", polarized=True, steerable=False,
+                                reciprocal=False, conserves_energy=False)
+
+    def run(self, ctx, scene: SurfaceScene) -> FarField:
+        o = self.options
+        return wsv_farfield(ctx, scene, o.masking, o.masking_classes, o.border)
+
+    def estimate(self, scene: SurfaceScene) -> Estimate:
+        return _wsv_estimate(scene, self.options)
+
+
+class WMModel(Model):
+    """``[model] name = "wm"``: WS-V plus the path-traced depth ≥ 2 part (Falster Eq. 19), an
+    incoherent sum: intensity only."""
+
+    name = "wm"
+    Options = WMOptions
+    capabilities = Capabilities(takes="height_field", returns="intensity", polarized=True, steerable=False,
+                                reciprocal=False, conserves_energy=False)
+
+    def run(self, ctx, scene: SurfaceScene) -> IntensityResult:
+        o = self.options
+        single = wsv_farfield(ctx, scene, o.masking, o.masking_classes, o.border)
+        trace = trace_paths(ctx, scene, rays=o.rays, max_depth=o.max_depth, border=o.border, seed=o.seed, keep=False)
+        grid = scene.grid
+        brdf = np.nan_to_num(single.brdf()) + np.nan_to_num(trace.result("multiple").brdf())
+        power = single.incident_power
+        intensity = np.where(grid.inside, brdf * power[:, None, None] * grid.mu, 0.0)
+        diagnostics = {k: v for k, v in single.diagnostics.items() if k != "model"}
+        diagnostics.update(
+            model=self.name,
+            single_albedo=albedo(single.brdf(), grid).tolist(),
+            multiple_albedo=albedo(trace.result("multiple").brdf(), grid).tolist(),
+            truncated_energy_fraction=trace.truncated.tolist(),
+            rays=o.rays,
+        )
+        result = IntensityResult(grid, scene.wavelength_um, scene.theta_i, scene.phi_i, intensity, power, diagnostics)
+        result.diagnostics["albedo_excess"] = float(max(0.0, albedo(result.brdf(), grid).max() - 1.0))
+        return result
+
+    def estimate(self, scene: SurfaceScene) -> Estimate:
+        from wavebrdf.solver.approx.geometric import GMModel
+
+        wsv = _wsv_estimate(scene, self.options)
+        gm = GMModel({k: getattr(self.options, k) for k in ("rays", "max_depth", "border", "seed")}).estimate(scene)
+        return Estimate(max(wsv.memory_bytes, gm.memory_bytes), wsv.seconds + gm.seconds,
+                        f"{wsv.detail}; {gm.detail}", device_bytes=gm.device_bytes,
+                        largest_buffer_bytes=gm.largest_buffer_bytes)

@@ -1,0 +1,242 @@
+"""Vector physical optics, first order (approx.md §3.6) → FarField (polarization-resolved,
+cross-polarization included).
+
+Conventions: e^{+jωt}, index n − jκ, µm. Incident field: the footprint plane wave of every rung of
+the Kirchhoff family (:func:`~wavebrdf.solver.footprint.footprint_plane_wave`),
+E_i = W e^{+jk ω_i·r} ê, H_i = (n₁/η₀) k̂ × E_i, k̂ = −ω_i, ê_s ⟂ plane of incidence, ê_p = ê_s × k̂,
+W = exp(−|x − c|²/w²), |E₀| = 1 V/µm.
+
+At each lit node (ω_i·m > 0 and V_i = 1) the tangent-plane fields give the currents
+
+    J dS = m̃ × (H_i + H_r) dx dy,   M dS = −m̃ × (E_i + E_r) dx dy,   m̃ = (−h_x, −h_y, 1),
+
+with E_r = r_s (ê·ŝ) ŝ + r_p (ê·p̂_i) p̂_r in the node's local s/p frame (approx.md §1; any ŝ ⟂ m
+at normal local incidence, where r_s = −r_p) and Fresnel r_s, r_p at the exact local angle
+(complex index, kernels/wb_fresnel.h). Node slopes: central differences (the mean of the bilinear
+cells' gradients at the node; one-sided on the patch border). Shadowed or back-facing nodes carry
+no current. The far field (Balanis' radiation integrals for e^{+jωt})
+
+    E_far(ω_o) = (jk/4π) ω_o × (η₁ ω_o × N + L),   N = Σ J Δ² e^{+jk(ω_i + ω_o)·r}, L likewise,
+
+uses the Kirchhoff rung's exact machinery for the μ_o dependence (Chebyshev/Jacobi–Anger
+expansion of e^{+jkμ_o z} and chirp-z transforms onto the pixel centres): 6 current components × 2
+incident polarizations per order. BRDF f = |E_far|²/(|E₀|² μ_i μ_o Δ²ΣW²) (FarField
+normalisation); on a flat patch the mirror direction gets exactly r_s, r_p (peak |r|² A_eff/λ₁²,
+A_eff = (ΣWΔ²)²/ΣW²Δ²).
+
+Shadowing (``shadowing = "rays"``): V_i from the ray tracer of the geometric rungs
+(:func:`wavebrdf.solver.approx.raytrace.node_visibility`: the ray from the node toward ω_i escapes,
+``border`` "periodic" | "clamp" beyond the patch) and the back-facing test; ``"none"``: the local
+back-facing test ω_i·m̃ > 0 only (also, with a warning and ``diagnostics["shadowing"]`` saying so,
+when the ray tracer is not installed). Masking V_o is not applied (classical PO radiates every lit
+current); the footprint-weighted shadowed and back-facing fractions are reported in the
+diagnostics, as is the albedo in excess of 1.
+
+OpenCL kernels in kernels/physical_optics.cl (currents, per-pixel radiation) with host FFTs; NumPy
+twins with ``ctx=None``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from wavebrdf.solver.approx.kirchhoff import (
+    FootprintModel,
+    KirchhoffSetup,
+    albedo_excess,
+    chebyshev_cost,
+    chebyshev_transform,
+    chebyshev_transform_numpy,
+    transform_orders,
+)
+from wavebrdf.solver.approx.raytrace import node_visibility
+from wavebrdf.solver.farfield import FarField
+from wavebrdf.solver.footprint import incident_basis
+from wavebrdf.solver.fresnel import fresnel_rs_rp
+from wavebrdf.solver.models import Capabilities, Estimate, SurfaceScene
+from wavebrdf.solver.options import option
+from wavebrdf.solver.surface import HeightField
+
+__all__ = [
+    "POModel",
+    "POOptions",
+    "lit_nodes",
+    "node_slopes",
+    "po_currents_numpy",
+    "po_farfield",
+]
+
+SHADOWING = ("rays", "none")
+CHANNELS = 12  # 2 polarizations × (J'_x, J'_y, J'_z, M_x, M_y, M_z)
+
+
+def node_slopes(surface: HeightField) -> np.ndarray:
+    """(h_x, h_y) at the nodes, shape (2, N+1, N+1): central differences, i.e. the mean of the
+    gradients of the bilinear cells meeting at the node (one-sided on the patch border)."""
+    d = surface.spacing_um
+    return np.stack(np.gradient(surface.z, d, d, edge_order=1))
+
+
+def lit_nodes(ctx, surface: HeightField, omega_i: np.ndarray, slopes: np.ndarray, shadowing: str,
+              border: str = "periodic", precision: str = "double") -> tuple[np.ndarray, np.ndarray, str]:
+    """(front, lit, how) node masks: front = ω_i·m̃ > 0; lit = front and, for ``shadowing = "rays"``,
+    the ray from the node toward ω_i escapes (raytrace.node_visibility); ``how`` names the test."""
+    if shadowing not in SHADOWING:
+        raise ValueError(f"[model.po] shadowing = {shadowing!r}: must be one of {SHADOWING}")
+    front = omega_i[2] - omega_i[0] * slopes[0] - omega_i[1] * slopes[1] > 0
+    if shadowing == "none":
+        return front, front, "none"
+    visible = node_visibility(ctx, surface, omega_i[None], border=border, precision=precision)[0]
+    return front, front & visible, "rays"
+
+
+def po_currents_numpy(window: np.ndarray, slopes: np.ndarray, lit: np.ndarray, omega_i: np.ndarray,
+                      polarizations: np.ndarray, eta: complex) -> np.ndarray:
+    """Twin of the kernel po_currents: (12, na, nb) apertures Δ²W·(J', M) per polarization, J' = η₁J."""
+    mt = np.stack([-slopes[0], -slopes[1], np.ones_like(slopes[0])], axis=-1)  # m̃ (na, nb, 3)
+    m = mt / np.linalg.norm(mt, axis=-1, keepdims=True)
+    kh = -np.asarray(omega_i, dtype=float)
+    c = -(m @ kh)
+    s = np.cross(kh, m)
+    s2 = np.sum(s * s, axis=-1)
+    degenerate = s2 < 1e-24
+    if np.any(degenerate):
+        md = m[degenerate]
+        a = np.where((np.abs(md[:, 0]) < 0.9)[:, None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+        s[degenerate] = np.cross(md, a)
+        s2 = np.sum(s * s, axis=-1)
+    s = s / np.sqrt(s2)[..., None]
+    p_i = np.cross(s, kh)
+    k_r = kh + 2.0 * c[..., None] * m
+    p_r = np.cross(s, k_r)
+    r_s, r_p = fresnel_rs_rp(eta, np.clip(c, 0.0, 1.0))
+    on = lit & (c > 0)
+    out = np.zeros((CHANNELS,) + slopes.shape[1:], dtype=complex)
+    for p, e in enumerate(polarizations):
+        E_r = (r_s * (s @ e))[..., None] * s + (r_p * (p_i @ e))[..., None] * p_r
+        H = np.cross(kh, e) + np.cross(k_r, E_r)
+        J = np.cross(mt, H)
+        M = -np.cross(mt, e + E_r)
+        currents = np.concatenate([J, M], axis=-1) * np.where(on, window, 0.0)[..., None]
+        out[6 * p : 6 * p + 6] = np.moveaxis(currents, -1, 0)
+    return out
+
+
+def _currents_opencl(ctx, window, slopes, lit, omega_i, polarizations, eta, precision):
+    import pyopencl as cl
+
+    real = ctx.real_dtype(precision)
+    cplx = np.dtype(np.complex128 if real == np.float64 else np.complex64)
+    nodes = window.size
+    knl = ctx.kernel("physical_optics.cl", "po_currents", ctx.defines(precision))
+    out = cl.Buffer(ctx.context, cl.mem_flags.WRITE_ONLY, CHANNELS * nodes * cplx.itemsize)
+    knl(ctx.queue, (nodes,), None, ctx.to_device(slopes, real), ctx.to_device(window, cplx),
+        ctx.to_device(lit, np.uint8), np.int32(nodes), *(real.type(w) for w in omega_i),
+        ctx.to_device(polarizations, real), np.array(eta, dtype=cplx), out)
+    currents = np.empty((CHANNELS,) + window.shape, dtype=cplx)
+    cl.enqueue_copy(ctx.queue, currents, out)
+    return currents
+
+
+def _radiate_numpy(setup: KirchhoffSetup, currents: np.ndarray) -> np.ndarray:
+    """Twin of the transform + kernel po_farfield: E (2, 3, res, res)."""
+    grid = setup.grid
+    mu_o = grid.mu
+    phase = 1j * setup.k / (4 * np.pi) * np.exp(1j * setup.k * (setup.mu_i + mu_o) * setup.dz_ref)
+    I = np.stack(chebyshev_transform_numpy(setup, currents)) * phase
+    o = np.moveaxis(grid.directions, -1, 0)  # (3, res, res)
+    E = np.zeros((2, 3) + mu_o.shape, dtype=complex)
+    for p in range(2):
+        N, L = I[6 * p : 6 * p + 3], I[6 * p + 3 : 6 * p + 6]
+        E[p] = o * np.sum(o * N, axis=0) - N + np.cross(o, L, axis=0)
+    return np.where(grid.inside, E, 0.0)
+
+
+def _radiate_opencl(ctx, setup: KirchhoffSetup, currents: np.ndarray, precision: str) -> np.ndarray:
+    import pyopencl as cl
+
+    real = ctx.real_dtype(precision)
+    cplx = np.dtype(np.complex128 if real == np.float64 else np.complex64)
+    res = setup.grid.resolution
+    acc, _ = chebyshev_transform(ctx, setup, currents, precision)
+    plane = res * res * cplx.itemsize
+    acc_all = cl.Buffer(ctx.context, cl.mem_flags.READ_WRITE, CHANNELS * plane)
+    for c, buf in enumerate(acc):
+        cl.enqueue_copy(ctx.queue, acc_all, buf, dst_offset=c * plane, byte_count=plane)
+    knl = ctx.kernel("physical_optics.cl", "po_farfield", ctx.defines(precision))
+    E_dev = cl.Buffer(ctx.context, cl.mem_flags.WRITE_ONLY, 6 * plane)
+    knl(ctx.queue, (res * res,), None, acc_all, ctx.to_device(setup.czt_x.post, cplx),
+        ctx.to_device(setup.czt_y.post, cplx), np.int32(res), real.type(setup.k), real.type(setup.mu_i),
+        real.type(setup.dz_ref), E_dev)
+    E = np.empty((2, 3, res, res), dtype=cplx)
+    cl.enqueue_copy(ctx.queue, E, E_dev)
+    ctx.queue.finish()
+    return E.astype(np.complex128, copy=False)
+
+
+def po_farfield(ctx, scene: SurfaceScene, shadowing: str = "rays", border: str = "periodic") -> FarField:
+    """Physical-optics far field of ``scene`` (``ctx`` None: NumPy twins, double precision);
+    ``shadowing`` "rays" | "none" and ``border`` "periodic" | "clamp" choose V_i (module docstring)."""
+    t0 = time.perf_counter()
+    precision = scene.precision
+    if ctx is None and precision != "double":
+        raise ValueError(f"the NumPy reference runs in double precision only, got precision = {precision!r}")
+    setup = KirchhoffSetup.from_scene(scene)
+    if not setup.z_mid.any():  # a plane: e^{jkμ_o z} = 1, no expansion
+        setup = setup.flattened(setup.window)
+    surface, theta_i, phi_i = scene.surface, scene.theta_i, scene.phi_i
+    omega_i, e_s, e_p = incident_basis(theta_i, phi_i)
+    polarizations = np.stack([e_s, e_p])
+    slopes = node_slopes(surface)
+    front, lit, shadowing = lit_nodes(ctx, surface, omega_i, slopes, shadowing, border, precision)
+    t_lit = time.perf_counter()
+    if ctx is None:
+        currents = po_currents_numpy(setup.window, slopes, lit, omega_i, polarizations, setup.eta)
+        E = _radiate_numpy(setup, currents)
+    else:
+        currents = _currents_opencl(ctx, setup.window, slopes, lit, omega_i, polarizations, setup.eta, precision)
+        E = _radiate_opencl(ctx, setup, currents, precision)
+    weight = np.abs(setup.window) ** 2
+    total = weight.sum()
+    ff = setup.farfield(
+        E, theta_i, phi_i, model="po", device="numpy" if ctx is None else ctx.describe(), precision=precision,
+        shadowing=shadowing, back_facing_fraction=float(weight[~front].sum() / total),
+        shadowed_fraction=float(weight[front & ~lit].sum() / total), time_visibility_s=t_lit - t0,
+        wall_time_s=time.perf_counter() - t0,
+    )
+    ff.diagnostics["albedo_excess"] = albedo_excess(ff)
+    return ff
+
+
+@dataclass(frozen=True)
+class POOptions:
+    shadowing: str = option("rays", choices=SHADOWING,
+                            doc="V_i: 'rays' = ray-traced (raytrace.node_visibility) and back-facing test; "
+                                "'none' = the local back-facing test ω_i·m > 0 only")
+    border: str = option("periodic", choices=("periodic", "clamp"),
+                         doc="height field beyond the patch for the ray-traced V_i (raytrace.py)")
+
+
+class POModel(FootprintModel):
+    """``[model] name = "po"``: vector physical optics, first order (approx.md §3.6)."""
+
+    name = "po"
+    Options = POOptions
+    capabilities = Capabilities(takes="height_field", returns="fields", polarized=True, steerable=True,
+                                reciprocal=False, conserves_energy=False)
+
+    def run(self, ctx, scene: SurfaceScene) -> FarField:
+        return po_farfield(ctx, scene, self.options.shadowing, self.options.border)
+
+    def estimate(self, scene: SurfaceScene) -> Estimate:
+        nodes = scene.surface.cells + 1
+        res = scene.grid.resolution
+        orders = transform_orders(scene)
+        memory, seconds = chebyshev_cost(nodes, res, orders, channels=CHANNELS)
+        memory += 16.0 * (CHANNELS + 4) * nodes**2
+        seconds += 2e-7 * nodes**2 if self.options.shadowing == "rays" else 0.0
+        return Estimate(memory, seconds, f"{orders} Chebyshev orders × {CHANNELS} currents, {nodes}² nodes, "
+                                         f"{res}² pixels")

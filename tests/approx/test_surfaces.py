@@ -1,0 +1,358 @@
+"""Surface generators of the scenes that separate the ladder's rungs (solver/surface.py): their
+statistics against their parameters, their geometry (cube corners, spherical caps, hemispheres)
+from first principles, periodicity, the ensemble they record, refusals, and the statistics each
+writes into a dataset through the CLI."""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import logging
+import textwrap
+
+import h5py
+import numpy as np
+import pytest
+
+from wavebrdf.jobs.cli import main
+from wavebrdf.jobs.config import SURFACE_GENERATORS, ConfigError, parse_config
+from wavebrdf.solver.surface import GENERATORS, GaussianEnsemble, HeightField, SurfaceError, generate
+
+logger = logging.getLogger(__name__)
+
+
+def cell_slopes(surface: HeightField) -> tuple[np.ndarray, np.ndarray]:
+    """∂z/∂x, ∂z/∂y of the bilinear surface at the cell centres (written here from the bilinear
+    interpolant, not taken from wavebrdf)."""
+    z, d = surface.z, surface.spacing_um
+    zx = 0.5 * (z[1:, 1:] + z[1:, :-1] - z[:-1, 1:] - z[:-1, :-1]) / d
+    zy = 0.5 * (z[1:, 1:] - z[1:, :-1] + z[:-1, 1:] - z[:-1, :-1]) / d
+    return zx, zy
+
+
+def slope_axis_deg(surface: HeightField) -> float:
+    """Direction (degrees, mod 180) of the smallest slope variance: the long correlation axis."""
+    zx, zy = cell_slopes(surface)
+    cov = np.cov(np.stack([zx.ravel(), zy.ravel()]))
+    values, vectors = np.linalg.eigh(cov)
+    v = vectors[:, 0]
+    return float(np.rad2deg(np.arctan2(v[1], v[0])) % 180.0)
+
+
+def angle_difference_deg(a: float, b: float) -> float:
+    return abs((a - b + 90.0) % 180.0 - 90.0)
+
+
+# ============================================================================================
+# Gaussian ensembles: "gaussian" (scalar or [T_x', T_y'] + angle) and "brushed"
+
+
+def original_gaussian(cells, size_um, seed, rms, corr):
+    """The isotropic generator as it was before anisotropy was added (its outputs are in datasets)."""
+    rng = np.random.default_rng(seed)
+    n, d = cells, size_um / cells
+    k = 2 * np.pi * np.fft.fftfreq(n, d)
+    kx, ky = np.meshgrid(k, k, indexing="ij")
+    psd = np.exp(-(kx**2 + ky**2) * corr**2 / 4.0)
+    field = np.real(np.fft.ifft2(np.fft.fft2(rng.standard_normal((n, n))) * np.sqrt(psd)))
+    field -= field.mean()
+    field = field * (rms / field.std())
+    z = np.empty((n + 1, n + 1))
+    z[:n, :n] = field
+    z[n, :n] = field[0]
+    z[:, n] = z[:, 0]
+    return z
+
+
+def test_isotropic_gaussian_is_bit_identical_to_the_original():
+    for cells, size, seed, rms, corr in ((64, 8.0, 3, 0.1, 1.0), (33, 3.0, 0, 0.05, 0.3), (40, 4.0, 2, 0.05, 0.8)):
+        surface = generate("gaussian", cells=cells, size_um=size, seed=seed, rms_height_um=rms, correlation_um=corr)
+        assert np.array_equal(surface.z, original_gaussian(cells, size, seed, rms, corr))
+        assert surface.ensemble == GaussianEnsemble(rms, (corr, corr), 0.0)
+        # an equal pair is the same isotropic surface
+        pair = generate("gaussian", cells=cells, size_um=size, seed=seed, rms_height_um=rms,
+                        correlation_um=[corr, corr])
+        assert np.array_equal(pair.z, surface.z)
+
+
+@pytest.mark.parametrize("correlation,angle", [(1.0, None), ([2.0, 0.6], 30.0), ([0.7, 1.8], -50.0)],
+                         ids=["isotropic", "rotated-30", "rotated-minus-50"])
+def test_gaussian_statistics_match_the_parameters(correlation, angle):
+    """rms height exact; 1/e correlation lengths along x and y (mean of 8 realizations on a 32 µm
+    patch) within 6% of exp(−x'²/T_x'² − y'²/T_y'²) cut along the axes, L_x = (cos²α/T_x'² +
+    sin²α/T_y'²)^(−1/2); the long axis of the slope covariance within 4° of α; rms slope within
+    5% of √(2σ²(1/T_x'² + 1/T_y'²))."""
+    sigma, size, cells = 0.1, 32.0, 256
+    params = dict(rms_height_um=sigma, correlation_um=correlation)
+    if angle is not None:
+        params["angle_deg"] = angle
+    tx, ty = (correlation, correlation) if np.ndim(correlation) == 0 else correlation
+    a = np.deg2rad(angle or 0.0)
+    expected = (1 / np.sqrt(np.cos(a) ** 2 / tx**2 + np.sin(a) ** 2 / ty**2),
+                1 / np.sqrt(np.sin(a) ** 2 / tx**2 + np.cos(a) ** 2 / ty**2))
+    lengths, axes, slopes = [], [], []
+    for seed in range(8):
+        surface = generate("gaussian", cells=cells, size_um=size, seed=seed, **params)
+        stats = surface.statistics()
+        assert stats["rms_height_um"] == pytest.approx(sigma, rel=1e-12)
+        assert surface.ensemble == GaussianEnsemble(sigma, (tx, ty), angle or 0.0)
+        assert surface.periodic == (True, True) and surface.parameters["periodic"] == "xy"
+        lengths.append((stats["correlation_length_x_um"], stats["correlation_length_y_um"]))
+        axes.append(slope_axis_deg(surface))
+        slopes.append(stats["rms_slope"])
+    measured = np.mean(lengths, axis=0)
+    logger.info("T = %s, α = %s: correlation lengths %s (spread %s) vs %s; slope axis %s; rms slope %.4f vs %.4f",
+                correlation, angle, measured, np.std(lengths, axis=0), expected, np.round(axes, 1),
+                np.mean(slopes), np.sqrt(2 * sigma**2 * (1 / tx**2 + 1 / ty**2)))
+    assert np.all(np.abs(measured / np.array(expected) - 1) < 0.06)
+    assert np.mean(slopes) == pytest.approx(np.sqrt(2 * sigma**2 * (1 / tx**2 + 1 / ty**2)), rel=0.05)
+    if tx != ty:
+        long_axis = np.rad2deg(a) if tx > ty else np.rad2deg(a) + 90.0
+        assert all(angle_difference_deg(x, long_axis) < 4.0 for x in axes), axes
+
+
+def test_brushed_grooves():
+    """Along/across lengths and the groove direction; defaults [L/4, L/40] along x; an ensemble."""
+    surface = generate("brushed", cells=256, size_um=32.0, seed=1, rms_height_um=0.05,
+                       correlation_um=[4.0, 0.4], angle_deg=70.0)
+    assert surface.ensemble == GaussianEnsemble(0.05, (4.0, 0.4), 70.0)
+    assert angle_difference_deg(slope_axis_deg(surface), 70.0) < 3.0
+    assert surface.statistics()["rms_height_um"] == pytest.approx(0.05, rel=1e-12)
+    default = generate("brushed", cells=256, size_um=32.0, seed=1, rms_height_um=0.05)
+    assert default.ensemble == GaussianEnsemble(0.05, (8.0, 0.8), 0.0)
+    assert default.parameters["correlation_um"] == [8.0, 0.8] and default.parameters["angle_deg"] == 0.0
+    assert angle_difference_deg(slope_axis_deg(default), 0.0) < 3.0
+    stats = default.statistics()
+    assert stats["correlation_length_x_um"] > 5 * stats["correlation_length_y_um"]
+
+
+# ============================================================================================
+# Deterministic microsurfaces
+
+
+def face_normals(surface: HeightField, slope: float, tol: float = 1e-9) -> np.ndarray:
+    """Distinct unit normals (−h_x, −h_y, 1)/|…| of the planar cells (no bilinear twist) whose
+    slope is ``slope``."""
+    z = surface.z
+    zx, zy = cell_slopes(surface)
+    twist = np.abs(z[1:, 1:] + z[:-1, :-1] - z[1:, :-1] - z[:-1, 1:])
+    planar = (twist < tol) & (np.abs(np.hypot(zx, zy) - slope) < 1e-9)
+    m = np.stack([-zx[planar], -zy[planar], np.ones(planar.sum())], axis=1)
+    m /= np.linalg.norm(m, axis=1, keepdims=True)
+    return np.unique(np.round(m, 9), axis=0)
+
+
+def reflect(direction: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    return direction - 2 * np.dot(direction, normal) * normal
+
+
+def test_corner_cubes_are_retroreflectors():
+    """Faces at arccos(1/√3) = 54.74° from ẑ; six face orientations (up and down triangles) that
+    form two triples of mutually perpendicular normals; a ray reflected by the three faces of a
+    triple, in any order, leaves along −its direction; ridges at 0 and apexes at −a/√6;
+    periodic along x, not along y."""
+    a = 2.0
+    surface = generate("corner-cubes", cells=240, size_um=12.0, period_um=a)
+    normals = face_normals(surface, np.sqrt(2.0))
+    assert len(normals) == 6
+    assert np.allclose(normals[:, 2], 1 / np.sqrt(3.0))
+    triples = [t for t in itertools.combinations(range(6), 3)
+               if all(abs(np.dot(normals[i], normals[j])) < 1e-9 for i, j in itertools.combinations(t, 2))]
+    assert len(triples) == 2 and set(triples[0]) | set(triples[1]) == set(range(6))
+    rng = np.random.default_rng(1)
+    for triple in triples:
+        for _ in range(5):
+            d = rng.normal(size=3)
+            d[2] = -abs(d[2]) - 0.5  # travelling down toward the surface
+            d /= np.linalg.norm(d)
+            for order in itertools.permutations(triple):
+                out = d
+                for i in order:
+                    out = reflect(out, normals[i])
+                assert np.allclose(out, -d, atol=1e-12)
+    assert surface.z.max() == pytest.approx(0.0, abs=1e-12)
+    stats = surface.statistics()
+    logger.info("corner cubes a = %g: %s, parameters %s", a, stats, surface.parameters)
+    assert stats["peak_to_valley_um"] == pytest.approx(a / np.sqrt(6.0), rel=0.02)  # apexes between nodes
+    assert surface.parameters["depth_um"] == pytest.approx(a / np.sqrt(6.0), rel=1e-12)
+    assert stats["max_slope"] == pytest.approx(np.sqrt(2.0), rel=1e-9)
+    assert surface.periodic == (True, False) and surface.parameters["periodic"] == "x"
+    assert surface.ensemble is None
+
+
+def test_spherical_pits():
+    """Caps of the sphere of radius R centred R − D above the plane: depth D, rim radius
+    √(2RD − D²) (pit area fraction π a²/Λ²), flat between pits; periodic."""
+    R, D, period, size, cells = 1.5, 0.6, 2.5, 10.0, 200  # pit centres on nodes: Λ/2 = 25 d
+    surface = generate("spherical-pits", cells=cells, size_um=size, radius_um=R, depth_um=D, period_um=period)
+    z = surface.z
+    assert z.min() == pytest.approx(-D, abs=1e-12) and z.max() == 0.0
+    X, Y = np.meshgrid(surface.x, surface.y, indexing="ij")
+    cx = (np.floor((X + size / 2) / period) + 0.5) * period - size / 2
+    cy = (np.floor((Y + size / 2) / period) + 0.5) * period - size / 2
+    inside = z < 0
+    rho2 = (X - cx) ** 2 + (Y - cy) ** 2
+    assert np.allclose(rho2[inside] + (z[inside] - (R - D)) ** 2, R**2, atol=1e-12)
+    rim = np.sqrt(2 * R * D - D**2)
+    assert np.all(rho2[inside] < rim**2) and np.all(rho2[~inside] >= rim**2 - 1e-9)
+    tile = z[:-1, :-1]
+    assert np.mean(tile < 0) == pytest.approx(np.pi * rim**2 / period**2, rel=0.03)
+    assert surface.parameters["rim_radius_um"] == pytest.approx(rim)
+    assert surface.periodic == (True, True) and surface.ensemble is None
+
+
+@pytest.mark.parametrize("placement", ["square", "random"])
+def test_hemispheres(placement):
+    """Hemispheres z = √(r² − ρ²) on z = 0: the covered fraction of the tile equals the recorded
+    fill (so random ones do not overlap) and is within 5% of the requested fill; periodic."""
+    r, fill, size, cells = 0.8, 0.4, 16.0, 320
+    surface = generate("hemispheres", cells=cells, size_um=size, seed=5, radius_um=r, fill=fill, placement=placement)
+    params = surface.parameters
+    tile = surface.z[:-1, :-1]
+    covered = float(np.mean(tile > 0))
+    logger.info("%s: %s, covered %.4f", placement, params, covered)
+    assert params["fill_realized"] == pytest.approx(params["hemispheres"] * np.pi * r**2 / size**2)
+    assert covered == pytest.approx(params["fill_realized"], rel=0.03)
+    assert params["fill_realized"] == pytest.approx(fill, rel=0.05)
+    assert 0 <= tile.min() and tile.max() <= r
+    assert surface.periodic == (True, True) and surface.ensemble is None
+    if placement == "square":
+        period = size / np.sqrt(params["hemispheres"])
+        assert period == pytest.approx(r * np.sqrt(np.pi / params["fill_realized"]))
+
+
+def test_sinusoid_correlation_length_is_analytic():
+    """The ACF of a cos(2πx/Λ) is cos(2πτ/Λ): 1/e at τ = Λ arccos(1/e)/(2π); none along y."""
+    surface = generate("sinusoid", cells=400, size_um=8.0, amplitude_um=0.1, period_um=2.0)
+    stats = surface.statistics()
+    assert stats["correlation_length_x_um"] == pytest.approx(2.0 * np.arccos(np.exp(-1)) / (2 * np.pi), rel=1e-3)
+    assert np.isnan(stats["correlation_length_y_um"])
+    assert np.isnan(generate("flat", cells=8, size_um=1.0).statistics()["correlation_length_x_um"])
+
+
+# ============================================================================================
+# The HeightField seam and refusals
+
+
+def test_height_field_keeps_its_contract():
+    z = np.zeros((5, 5))
+    plain = HeightField(z, 1.0)
+    assert plain.ensemble is None and plain.parameters is None
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        plain.ensemble = GaussianEnsemble(0.1, (1.0, 1.0))
+    ens = HeightField(z, 1.0, ensemble=GaussianEnsemble(0.1, (1.0, 2.0), 10.0))
+    assert ens == plain  # the ensemble is not part of the comparison
+    with pytest.raises(SurfaceError, match="correlation_um"):
+        GaussianEnsemble(0.1, (1.0, -1.0))
+    with pytest.raises(SurfaceError, match="rms_height_um"):
+        GaussianEnsemble(-0.1, (1.0, 1.0))
+    assert set(SURFACE_GENERATORS) == set(GENERATORS)
+
+
+BAD = [
+    ("corner-cubes", dict(period_um=3.0), "surface.period_um = 3"),
+    ("spherical-pits", dict(radius_um=1.0, depth_um=1.2, period_um=2.5), "surface.depth_um = 1.2"),
+    ("spherical-pits", dict(radius_um=2.0, depth_um=1.5, period_um=2.5), "rim diameter"),
+    ("hemispheres", dict(radius_um=1.0, fill=0.9), "surface.fill = 0.9"),
+    ("hemispheres", dict(radius_um=1.0, fill=0.6), "surface.fill = 0.6"),
+    ("hemispheres", dict(radius_um=0.5, fill=0.6, placement="random"), "surface.fill = 0.6"),
+    ("hemispheres", dict(radius_um=0.5, fill=0.3, placement="hexagonal"), "surface.placement"),
+    ("gaussian", dict(rms_height_um=0.1, correlation_um=[1.0, 2.0, 3.0]), "surface.correlation_um"),
+    ("gaussian", dict(rms_height_um=0.1, correlation_um=1.0, angle_deg=20.0), "surface.angle_deg = 20"),
+    ("brushed", dict(rms_height_um=0.1, correlation_um=[0.2, 2.0]), "surface.correlation_um"),
+    ("brushed", dict(rms_height_um=0.1, correlation_um=0.5), "surface.correlation_um"),
+    ("gaussian", dict(rms_height_um=0.1, correlation_um=1.0, fill=0.2), "surface.fill"),
+]
+
+
+@pytest.mark.parametrize("generator,params,message", BAD)
+def test_bad_generator_values_are_refused(generator, params, message):
+    with pytest.raises(SurfaceError, match=message.replace("[", r"\[").replace(".", r"\.")):
+        generate(generator, cells=40, size_um=10.0, **params)
+
+
+def _config(surface: str, tmp_path, model="kirchhoff", resolution=16) -> str:
+    return textwrap.dedent(f"""
+        [study]
+        output = "{tmp_path / 'out.h5'}"
+        [surface]
+        size_um = 10.0
+        cells = 40
+        {surface}
+        [material]
+        n = 1.5
+        [illumination]
+        wavelengths_um = [0.5]
+        directions_deg = [[20, 0]]
+        waist_um = 1.5
+        [model]
+        name = "{model}"
+        [output]
+        resolution = {resolution}
+        """)
+
+
+@pytest.mark.parametrize("surface,message", [
+    ('generator = "corner-cubes"\nperiod_um = 3.0', "[surface] surface.period_um = 3"),
+    ('generator = "hemispheres"\nradius_um = 1.0\nfill = 1.5', "[surface] fill = 1.5"),
+    ('generator = "hemispheres"\nradius_um = 1.0\nfill = 0.3\nplacement = "hex"', "[surface] placement = \"hex\""),
+    ('generator = "gaussian"\nrms_height_um = 0.1\ncorrelation_um = [1.0, -2.0]', "[surface] correlation_um"),
+    ('generator = "gaussian"\nrms_height_um = 0.1\ncorrelation_um = 1.0\nradius_um = 2.0', "surface.radius_um"),
+    ('generator = "spherical-pits"\nradius_um = 1.0\nperiod_um = 2.5', "surface.depth_um"),
+    ('generator = "pyramids"', "[surface] generator = \"pyramids\""),
+])
+def test_config_refuses_bad_surface_keys(tmp_path, surface, message):
+    with pytest.raises(ConfigError) as info:
+        parse_config(_config(surface, tmp_path))
+    assert message in str(info.value), str(info.value)
+
+
+# ============================================================================================
+# Every generator reports its statistics in the dataset (through the CLI)
+
+DATASET_CASES = {
+    "gaussian": 'rms_height_um = 0.05\ncorrelation_um = [1.2, 0.6]\nangle_deg = 30.0',
+    "brushed": 'rms_height_um = 0.05\ncorrelation_um = [2.0, 0.4]\nangle_deg = 45.0',
+    "corner-cubes": 'period_um = 2.0',
+    "spherical-pits": 'radius_um = 1.0\ndepth_um = 0.3\nperiod_um = 2.5',
+    "hemispheres": 'radius_um = 0.5\nfill = 0.2',
+}
+STAT_KEYS = ("rms_height_um", "peak_to_valley_um", "rms_slope", "max_slope", "correlation_length_x_um",
+             "correlation_length_y_um")
+
+
+@pytest.mark.parametrize("generator", list(DATASET_CASES))
+def test_dataset_records_statistics_and_parameters(tmp_path, capsys, generator):
+    """wavebrdf run → surface/0 attributes: the measured statistics (those of the HeightField the
+    study used), the generator's name and parameters, and the ensemble of random generators."""
+    cfg = tmp_path / f"{generator}.toml"
+    cfg.write_text(_config(f'generator = "{generator}"\nseed = 3\n' + DATASET_CASES[generator], tmp_path))
+    assert main(["run", str(cfg), "-q", "--no-render"]) == 0, capsys.readouterr().err
+    capsys.readouterr()
+    with h5py.File(tmp_path / "out.h5", "r") as h5:
+        attrs = dict(h5["surface/0"].attrs)
+        heights = h5["surface/0"][()]
+    params = dict(line.split(" = ") for line in DATASET_CASES[generator].splitlines())
+    surface = generate(generator, cells=40, size_um=10.0, seed=3,
+                       **{k: eval(v) if not v.startswith('"') else v.strip('"') for k, v in params.items()})
+    assert np.array_equal(heights, surface.z)
+    expected = surface.statistics()
+    for key in STAT_KEYS:
+        assert np.isfinite(attrs[key]) and attrs[key] == pytest.approx(expected[key], rel=1e-12), key
+    assert attrs["generator"] == generator and attrs["generator_seed"] == 3
+    for key, value in params.items():
+        assert np.allclose(attrs[f"generator_{key}"], eval(value)), key
+    assert attrs["generator_periodic"] == surface.parameters["periodic"]
+    if generator in ("gaussian", "brushed"):
+        assert attrs["ensemble"] == "gaussian" and attrs["ensemble_rms_height_um"] == 0.05
+        assert list(attrs["ensemble_correlation_um"]) == list(surface.ensemble.correlation_um)
+    else:
+        assert "ensemble" not in attrs
+
+
+def test_list_values_cannot_be_swept(tmp_path):
+    """A sweep coordinate is 1-D: correlation pairs are refused in [sweep] (scalars still sweep)."""
+    base = _config('generator = "gaussian"\nrms_height_um = 0.05\ncorrelation_um = 1.0', tmp_path)
+    with pytest.raises(ConfigError, match=r"\[sweep\] surface.correlation_um"):
+        parse_config(base + '[sweep]\n"surface.correlation_um" = [[1.0, 0.5], [2.0, 0.5]]\n')
+    assert len(parse_config(base + '[sweep]\n"surface.correlation_um" = [1.0, 2.0]\n').cases) == 2

@@ -1,0 +1,387 @@
+"""A surface dataset turned into the tables the ``"wavebrdf"`` Mitsuba plugin evaluates (NumPy).
+
+Nothing here imports Mitsuba: :func:`load_tables` reads one sweep case of a surface dataset
+(``jobs/store.py`` layout) and returns a :class:`Tables`:
+
+* ``f[k, c, i, j]``: the BRDF (1/sr) of table ``k`` in channel ``c`` at pixel centre
+  (u_i, v_j) of the dataset's projected-hemisphere grid (u = x, v = y direction cosine of ω_o,
+  pixel side 2/res); 0 at pixel centres outside the disk (missing values inside it take the
+  nearest finite pixel's).
+  Channels: the dataset's wavelengths ("spectral"), linear sRGB through the dataset's own
+  spectrum → XYZ → sRGB path of ``solver/spectrum.py`` ("rgb", negatives clipped to 0 and
+  reported), or its luminance Y ("mono").
+* incidence of each table (θ_k, φ_k) and the interpolation ``scheme``: "isotropic" (tables
+  rotated to φ = 0, those with equal θ averaged, mirror-symmetrised v → −v, the θ = 0 table
+  averaged over rotations; linear in θ), "grid" (a θ × φ product grid: bilinear, φ periodic),
+  "nearest" (any other direction set: the nearest tabulated direction).
+* sampling tables: per table a piecewise-constant density over the cells between pixel centres
+  (:func:`cell_edges`) proportional to the integral of the bilinear channel-mean f times the
+  cell's largest μ_o (so positive wherever f is), plus 1 % spread over the disk, as a row
+  marginal CDF and per-row conditional CDFs.
+* ``shift_gain[k]``: for a table translated by s in (u, v) (the plugin's lobe alignment over
+  incidence), A_k(0)/A_k(s), where A_k(s) is the channel-mean albedo of the translated table
+  that stays inside the unit disk; on a lattice s = m·h, |m| < SHIFT_BINS, h = 2/SHIFT_BINS,
+  capped at MAX_GAIN. Multiplying a translated table by it restores its albedo, so the
+  interpolated BRDF's albedo is the interpolation of the tabulated albedos.
+
+Speckle: a computed BRDF of one surface realization under a finite footprint is speckled; the
+tables are blurred by a Gaussian of standard deviation ``smooth_sigma`` (u units, per wavelength).
+Default: λ/(2π w) with w the config's ``illumination.waist_um``, the angular spread of the
+footprint's own far-field intensity (exp(−r²/w²) amplitude → exp(−k²w²Δu²/2) intensity); 0 when
+the config names no waist.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from wavebrdf.jobs.store import Dataset
+from wavebrdf.solver.spectrum import spectral_weights, xyz_to_linear_srgb
+
+__all__ = ["CHANNELS", "SCHEMES", "Tables", "cell_edges", "isotropy_from_config", "load_tables"]
+
+logger = logging.getLogger("wavebrdf")
+
+CHANNELS = ("spectral", "rgb", "mono")
+SCHEMES = ("isotropic", "grid", "nearest")
+DEFENSIVE = 0.01  # fraction of the sampling density spread over the disk
+ANGLE_TOL_DEG = 1e-6
+SHIFT_BINS = 64  # coarse grid of the translated-albedo table (per axis over the disk's diameter)
+MAX_GAIN = 4.0
+
+
+@dataclass
+class Tables:
+    """What the plugin evaluates; see the module docstring. Angles in radians."""
+
+    f: np.ndarray  # (n_tab, C, res, res) float32, 1/sr
+    channels: str
+    wavelengths_um: np.ndarray  # dataset wavelengths (the channel axis when channels == "spectral")
+    theta: np.ndarray  # (n_tab,) incidence polar angle of each table
+    phi: np.ndarray  # (n_tab,) incidence azimuth (0 for every isotropic table)
+    scheme: str
+    grid_theta: np.ndarray  # (n_T,) sorted θ rows (scheme "grid"; the θ of each table for "isotropic")
+    grid_phi: np.ndarray  # (n_P,) sorted φ columns in [0, 2π) (scheme "grid")
+    grid_index: np.ndarray  # (n_T, n_P) table index of each grid node (scheme "grid")
+    pmf: np.ndarray  # (n_tab, res + 1, res + 1) probability of each sampling cell (sums to 1)
+    row_cdf: np.ndarray  # (n_tab, res + 2)
+    col_cdf: np.ndarray  # (n_tab, res + 1, res + 2)
+    shift_gain: np.ndarray  # (n_tab, 2 SHIFT_BINS − 1, 2 SHIFT_BINS − 1)
+    diagnostics: dict = field(default_factory=dict)
+
+    @property
+    def shift_step(self) -> float:
+        """Lattice step h of ``shift_gain`` (u units); entry (a, b) is s = ((a, b) − (M − 1)) h."""
+        return 2.0 / SHIFT_BINS
+
+    @property
+    def resolution(self) -> int:
+        return self.f.shape[-1]
+
+    @property
+    def pixel(self) -> float:
+        """Pixel side Δu = Δv = 2/res."""
+        return 2.0 / self.resolution
+
+    @property
+    def incident_uv(self) -> np.ndarray:
+        """(n_tab, 2) projected incident directions a_k = sin θ_k (cos φ_k, sin φ_k)."""
+        return np.sin(self.theta)[:, None] * np.stack([np.cos(self.phi), np.sin(self.phi)], axis=-1)
+
+
+def isotropy_from_config(config_text: str) -> tuple[bool, str]:
+    """Whether the study's surface is declared statistically isotropic, and why.
+
+    Isotropic: ``generator = "flat"``, or ``"gaussian"`` with a scalar ``correlation_um`` (or two
+    equal lengths). Everything else (files, sinusoids, gratings, anisotropic ensembles) is not.
+    """
+    try:
+        surface = tomllib.loads(config_text).get("surface", {})
+    except tomllib.TOMLDecodeError:
+        return False, "config unreadable: not declared isotropic"
+    generator = surface.get("generator")
+    if generator == "flat":
+        return True, "config: flat surface"
+    if generator == "gaussian":
+        corr = surface.get("correlation_um")
+        if corr is None or np.ndim(corr) == 0 or (len(corr) == 2 and np.isclose(corr[0], corr[1])):
+            return True, "config: gaussian ensemble with isotropic correlation"
+        return False, "config: anisotropic gaussian correlation"
+    return False, f"config: surface {('generator ' + repr(generator)) if generator else 'from a file'} " \
+                  "not declared isotropic"
+
+
+def _waist_um(config_text: str) -> float | None:
+    try:
+        waist = tomllib.loads(config_text).get("illumination", {}).get("waist_um")
+    except tomllib.TOMLDecodeError:
+        return None
+    return float(waist) if waist else None
+
+
+def _pixel_centres(res: int) -> np.ndarray:
+    return 2.0 * (np.arange(res) + 0.5) / res - 1.0
+
+
+def _fill_outside(cube: np.ndarray, where: str) -> tuple[np.ndarray, int]:
+    """Replace non-finite pixels of each (…, res, res) image by the nearest finite pixel (one
+    distance transform per distinct mask: usually just the disk's)."""
+    from scipy.ndimage import distance_transform_edt
+
+    out = np.array(cube, dtype=np.float64)
+    filled = 0
+    flat = out.reshape(-1, *out.shape[-2:])
+    nearest: dict[bytes, tuple] = {}
+    for n, image in enumerate(flat):
+        bad = ~np.isfinite(image)
+        if not bad.any():
+            continue
+        if bad.all():
+            raise ValueError(f"{where}: image {np.unravel_index(n, out.shape[:-2])} (wavelength, incidence) "
+                             "holds no finite value (a failed task?)")
+        key = np.packbits(bad).tobytes()
+        if key not in nearest:
+            nearest[key] = tuple(distance_transform_edt(bad, return_distances=False, return_indices=True))
+        flat[n] = image[nearest[key]]
+        filled += int(bad.sum())
+    return out, filled
+
+
+def _rotate(image: np.ndarray, phi: float) -> np.ndarray:
+    """Image re-expressed in a frame rotated by −φ: g(p) = f(R(φ) p) (bilinear, edge-clamped)."""
+    from scipy.ndimage import map_coordinates
+
+    if abs(np.remainder(phi + np.pi, 2 * np.pi) - np.pi) < 1e-12:
+        return image
+    res = image.shape[-1]
+    U, V = np.meshgrid(_pixel_centres(res), _pixel_centres(res), indexing="ij")
+    c, s = np.cos(phi), np.sin(phi)
+    su, sv = c * U - s * V, s * U + c * V
+    coords = np.stack([(su + 1.0) * res / 2.0 - 0.5, (sv + 1.0) * res / 2.0 - 0.5])
+    return np.stack([map_coordinates(ch, coords, order=1, mode="nearest") for ch in image])
+
+
+def _radial_average(image: np.ndarray) -> np.ndarray:
+    """Average of each channel over rotations about the pole (binned in the radius)."""
+    res = image.shape[-1]
+    U, V = np.meshgrid(_pixel_centres(res), _pixel_centres(res), indexing="ij")
+    r = np.hypot(U, V)
+    bins = np.minimum((r / (2.0 / res)).astype(int), int(np.ceil(np.sqrt(2) * res / 2)))
+    counts = np.bincount(bins.ravel())
+    out = np.empty_like(image)
+    for c, ch in enumerate(image):
+        profile = np.bincount(bins.ravel(), weights=ch.ravel()) / np.maximum(counts, 1)
+        out[c] = profile[bins]
+    return out
+
+
+def _smooth(cube: np.ndarray, sigma_u: np.ndarray) -> np.ndarray:
+    """Gaussian blur of each wavelength's images (cube: n_tab, L, res, res) by σ (u units)."""
+    from scipy.ndimage import gaussian_filter
+
+    res = cube.shape[-1]
+    out = cube.copy()
+    for wl, sigma in enumerate(sigma_u):
+        if sigma > 0:
+            for k in range(cube.shape[0]):
+                out[k, wl] = gaussian_filter(cube[k, wl], sigma * res / 2.0, mode="nearest")
+    return out
+
+
+def _to_channels(cube: np.ndarray, wavelengths_um: np.ndarray, channels: str) -> tuple[np.ndarray, float]:
+    """(n_tab, L, res, res) spectra → (n_tab, C, res, res); returns the clipped (negative) fraction."""
+    if channels == "spectral":
+        return cube, 0.0
+    weights = spectral_weights(wavelengths_um)  # XYZ = W @ spectrum
+    matrix = weights[1:2] if channels == "mono" else xyz_to_linear_srgb(weights.T).T  # (C, L)
+    out = np.einsum("cl,klij->kcij", matrix, cube)
+    negative = float(np.mean(out < 0))
+    return np.maximum(out, 0.0), negative
+
+
+def _grid_layout(theta_deg: np.ndarray, phi_deg: np.ndarray):
+    """θ rows, φ columns and the table of each node when the directions form a θ × φ product grid
+    (one θ = 0 direction may stand for every φ); None otherwise."""
+    phi_deg = np.remainder(phi_deg, 360.0)
+    polar = theta_deg > ANGLE_TOL_DEG
+    thetas = np.unique(np.round(theta_deg[polar], 9))
+    phis = np.unique(np.round(phi_deg[polar], 9))
+    normal = np.flatnonzero(~polar)
+    if len(normal) > 1 or len(thetas) == 0:
+        return None
+    index = np.full((len(thetas), len(phis)), -1, dtype=np.int64)
+    for k in np.flatnonzero(polar):
+        t = np.searchsorted(thetas, np.round(theta_deg[k], 9))
+        p = np.searchsorted(phis, np.round(phi_deg[k], 9))
+        if index[t, p] >= 0:
+            return None
+        index[t, p] = k
+    if (index < 0).any():
+        return None
+    if len(normal):
+        thetas = np.concatenate([[0.0], thetas])
+        index = np.concatenate([np.full((1, len(phis)), normal[0]), index])
+    return np.deg2rad(thetas), np.deg2rad(phis), index
+
+
+def cell_edges(res: int) -> np.ndarray:
+    """Edges (res + 2,) of the sampling cells along u (or v): −1, the res pixel centres, +1.
+    Cell i spans [edges[i], edges[i+1]]; on it the bilinear f interpolates its corner nodes."""
+    return np.concatenate([[-1.0], _pixel_centres(res), [1.0]])
+
+
+def _sampling(f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cell pmf and its row-marginal and per-row conditional CDFs.
+
+    The cells lie between pixel centres (:func:`cell_edges`, (res + 1)² per table), where the
+    bilinear f is spanned by the four corner nodes: weight = channel-mean corner average × cell
+    area × the largest μ in the cell (positive wherever f is), plus DEFENSIVE spread over the
+    cells that touch the disk."""
+    n_tab, res = f.shape[0], f.shape[-1]
+    edges = cell_edges(res)
+    width = np.diff(edges)
+    near = np.where(edges[:-1] * edges[1:] <= 0, 0.0, np.minimum(np.abs(edges[:-1]), np.abs(edges[1:])))
+    r_min2 = near[:, None] ** 2 + near[None, :] ** 2
+    touches = r_min2 < 1.0
+    mu_max = np.sqrt(np.clip(1.0 - r_min2, 0.0, None))
+    padded = np.pad(f.mean(axis=1), ((0, 0), (1, 1), (1, 1)), mode="edge")  # nodes, edge-clamped
+    corners = 0.25 * (padded[:, :-1, :-1] + padded[:, 1:, :-1] + padded[:, :-1, 1:] + padded[:, 1:, 1:])
+    weight = corners * (width[:, None] * width[None, :]) * mu_max * touches
+    total = weight.sum(axis=(1, 2), keepdims=True)
+    if np.any(total <= 0):
+        raise ValueError("a table has no positive value on the disk: nothing to sample")
+    area = (width[:, None] * width[None, :]) * touches
+    pmf = (1.0 - DEFENSIVE) * weight / total + DEFENSIVE * area / area.sum()
+    row_cdf = np.concatenate([np.zeros((n_tab, 1)), np.cumsum(pmf.sum(axis=2), axis=1)], axis=1)
+    row_cdf /= row_cdf[:, -1:]
+    col_cdf = np.concatenate([np.zeros((n_tab, res + 1, 1)), np.cumsum(pmf, axis=2)], axis=2)
+    col_cdf /= np.where(col_cdf[:, :, -1:] > 0, col_cdf[:, :, -1:], 1.0)
+    return pmf, row_cdf, col_cdf
+
+
+def _shift_gain(f: np.ndarray) -> np.ndarray:
+    """A_k(0)/A_k(s) on the lattice s = m·h (see the module docstring), from the channel-mean
+    tables binned onto SHIFT_BINS² cells: A(m) = Σ_c G[c] · [cell c − m lies in the disk]."""
+    from scipy.signal import fftconvolve
+
+    n_tab, res = f.shape[0], f.shape[-1]
+    centres = _pixel_centres(res)
+    cell = np.minimum(((centres + 1.0) / 2.0 * SHIFT_BINS).astype(int), SHIFT_BINS - 1)
+    mass = f.mean(axis=1) * (2.0 / res) ** 2  # (n_tab, res, res), zero outside the disk
+    coarse = np.zeros((n_tab, SHIFT_BINS, SHIFT_BINS))
+    np.add.at(coarse, (slice(None), cell[:, None], cell[None, :]), mass)
+    c = _pixel_centres(SHIFT_BINS)
+    disk = (c[:, None] ** 2 + c[None, :] ** 2 < 1.0).astype(float)
+    # correlate: A[m] = Σ_i G[i] D[i − m], m = −(B − 1)…B − 1  ⇔  full convolution with D flipped
+    albedo = np.stack([fftconvolve(g, disk[::-1, ::-1], mode="full") for g in coarse])
+    albedo = np.maximum(albedo, 0.0)
+    centre = albedo[:, SHIFT_BINS - 1, SHIFT_BINS - 1][:, None, None]
+    return np.minimum(centre / np.maximum(albedo, centre / MAX_GAIN), MAX_GAIN)
+
+
+def load_tables(path: str | Path, *, case: int = 0, channels: str = "rgb", smooth_sigma: float | None = None,
+                isotropic: bool | None = None) -> Tables:
+    """Read sweep case ``case`` (flat C-order index over the sweep axes) of surface dataset
+    ``path`` into :class:`Tables` (see the module docstring).
+
+    ``smooth_sigma``: speckle blur in u units (None: λ/(2π w) from the config, 0: none).
+    ``isotropic``: use rotation invariance in φ (None: as the config declares it).
+    """
+    start = time.perf_counter()
+    if channels not in CHANNELS:
+        raise ValueError(f"[wavebrdf plugin] channels = {channels!r}: expected one of {', '.join(CHANNELS)}")
+    where = f"[wavebrdf plugin] filename = {str(path)!r}"
+    with Dataset(path) as ds:
+        if ds.kind != "surface":
+            raise ValueError(f"{where}: a {ds.kind} dataset; the \"wavebrdf\" plugin reads surface datasets "
+                             "(fibers: \"wavebrdf_fiber\")")
+        coords = ds.coords
+        lead = ds.h5["brdf"].shape[: len(ds.sweep_keys)]
+        n_cases = int(np.prod(lead)) if lead else 1
+        if not 0 <= case < n_cases:
+            raise ValueError(f"[wavebrdf plugin] case = {case}: the dataset has {n_cases} sweep case(s) "
+                             f"(flat index over {ds.sweep_keys or 'no sweep'})")
+        case_index = np.unravel_index(case, lead) if lead else ()
+        brdf = np.asarray(ds.h5["brdf"][tuple(int(i) for i in case_index)], dtype=np.float64)  # (L, n_inc, res, res)
+        config = ds.config
+        polarization = ds.h5["brdf"].attrs.get("polarization", "")
+        albedo = np.asarray(ds.h5["albedo"][tuple(int(i) for i in case_index)], dtype=float)
+    wavelengths = np.asarray(coords["wavelength_um"], dtype=float)
+    order = np.argsort(wavelengths)
+    wavelengths, brdf, albedo = wavelengths[order], brdf[order], albedo[order]
+    theta_deg = np.asarray(coords["theta_i"], dtype=float)
+    phi_deg = np.asarray(coords["phi_i"], dtype=float)
+
+    cube, filled = _fill_outside(brdf, where)
+    cube = np.moveaxis(cube, 1, 0)  # (n_inc, L, res, res)
+
+    if isotropic is None:
+        isotropic, why = isotropy_from_config(config)
+    else:
+        why = "plugin property"
+    if isotropic:
+        cube, theta = _canonical_isotropic(cube, theta_deg, phi_deg)
+        phi = np.zeros_like(theta)
+        scheme, grid_theta, grid_phi, grid_index = "isotropic", theta, np.zeros(1), np.arange(len(theta))[:, None]
+    else:
+        theta, phi = np.deg2rad(theta_deg), np.deg2rad(np.remainder(phi_deg, 360.0))
+        layout = _grid_layout(theta_deg, phi_deg)
+        if layout is None:
+            scheme, grid_theta, grid_phi, grid_index = "nearest", theta, np.zeros(1), np.arange(len(theta))[:, None]
+        else:
+            scheme, (grid_theta, grid_phi, grid_index) = "grid", layout
+
+    waist = _waist_um(config)
+    if smooth_sigma is None:
+        sigma = wavelengths / (2 * np.pi * waist) if waist else np.zeros_like(wavelengths)
+    else:
+        if not np.isfinite(smooth_sigma) or smooth_sigma < 0:
+            raise ValueError(f"[wavebrdf plugin] smooth_sigma = {smooth_sigma!r}: must be a finite number >= 0 "
+                             "(u units)")
+        sigma = np.full_like(wavelengths, float(smooth_sigma))
+    cube = _smooth(cube, sigma)
+    f, clipped = _to_channels(cube, wavelengths, channels)
+    centres = _pixel_centres(f.shape[-1])
+    f[..., centres[:, None] ** 2 + centres[None, :] ** 2 >= 1.0] = 0.0
+    pmf, row_cdf, col_cdf = _sampling(f)
+    diagnostics = {
+        "scheme": scheme,
+        "isotropic": bool(isotropic),
+        "isotropy_source": why,
+        "tables": len(f),
+        "resolution": f.shape[-1],
+        "wavelengths_um": wavelengths.tolist(),
+        "polarization": polarization.decode() if isinstance(polarization, bytes) else str(polarization),
+        "smooth_sigma_u": sigma.tolist(),
+        "filled_pixels": filled,
+        "rgb_negative_fraction": clipped,
+        "albedo_max": float(np.nanmax(albedo)) if np.isfinite(albedo).any() else float("nan"),
+        "albedo_above_one": int(np.sum(albedo > 1.0)),
+        "load_seconds": time.perf_counter() - start,
+    }
+    if diagnostics["albedo_above_one"]:
+        logger.warning("%s: %d stored albedo(s) exceed 1 (max %.4f): the model's energy bound is violated",
+                       where, diagnostics["albedo_above_one"], diagnostics["albedo_max"])
+    return Tables(f=f.astype(np.float32), channels=channels, wavelengths_um=wavelengths, theta=theta, phi=phi,
+                  scheme=scheme, grid_theta=grid_theta, grid_phi=grid_phi, grid_index=grid_index, pmf=pmf,
+                  row_cdf=row_cdf, col_cdf=col_cdf, shift_gain=_shift_gain(f), diagnostics=diagnostics)
+
+
+def _canonical_isotropic(cube: np.ndarray, theta_deg: np.ndarray, phi_deg: np.ndarray):
+    """Tables of an isotropic surface rotated to φ_i = 0, averaged per θ, symmetrised (v → −v;
+    rotation average at θ = 0); returns (tables sorted by θ, θ in radians)."""
+    keys = np.round(theta_deg, 9)
+    thetas = np.unique(keys)
+    out = np.empty((len(thetas),) + cube.shape[1:])
+    for t, value in enumerate(thetas):
+        members = np.flatnonzero(keys == value)
+        mean = np.mean([_rotate(cube[k], np.deg2rad(phi_deg[k])) for k in members], axis=0)
+        mean = 0.5 * (mean + mean[..., ::-1])
+        out[t] = _radial_average(mean) if value <= ANGLE_TOL_DEG else mean
+    return out, np.deg2rad(thetas)
