@@ -218,7 +218,7 @@ class Comparison:
         plt.close(fig)
 
     def gallery(self, path: Path, decades: float = 5.0) -> None:
-        """One row per scene, one hemisphere per model: log₁₀ of the unpolarized BRDF over
+        """One row per scene (a single scene: rows of five), one hemisphere per model: log₁₀ of the unpolarized BRDF over
         ``decades`` below the scene's highest value (shared colour scale within a row)."""
         import matplotlib
 
@@ -228,8 +228,12 @@ class Comparison:
         scenes = list(dict.fromkeys(m.scene for m in self.measurements))
         models = list(dict.fromkeys(m.model for m in self.measurements))
         rows = {(r["scene"], r["model"]): r for r in self.rows}
-        fig, axes = plt.subplots(len(scenes), len(models), figsize=(2.3 * len(models), 2.5 * len(scenes)),
+        columns = len(models) if len(scenes) > 1 else min(5, len(models))  # one scene: rows of 5
+        per_scene = -(-len(models) // columns)
+        fig, axes = plt.subplots(len(scenes) * per_scene, columns, figsize=(2.3 * columns, 2.5 * len(scenes) * per_scene),
                                  dpi=110, squeeze=False)
+        for ax in axes.ravel():
+            ax.set_axis_off()
         t = np.linspace(0, 2 * np.pi, 361)
         for i, scene in enumerate(scenes):
             runs = {m.model: m for m in self.measurements if m.scene == scene}
@@ -241,7 +245,8 @@ class Comparison:
             finite = [v[np.isfinite(v)] for v in logs.values() if np.any(np.isfinite(v))]
             top = max(v.max() for v in finite) if finite else 0.0
             for j, name in enumerate(models):
-                ax = axes[i, j]
+                ax = axes[i * per_scene + j // columns, j % columns]
+                ax.set_axis_on()
                 ax.set_facecolor("black")
                 ax.set_xticks([])
                 ax.set_yticks([])
@@ -257,7 +262,7 @@ class Comparison:
                     label = f"{name}\nfailed"
                 ax.plot(np.cos(t), np.sin(t), color="white", lw=0.5)
                 ax.set_title(label, fontsize=7)
-                if j == 0:
+                if j % columns == 0:
                     ax.set_ylabel(scene, fontsize=6)
         fig.suptitle(f"unpolarized BRDF, log₁₀ over {decades:g} decades (axes: v horizontal, u vertical)", fontsize=8)
         fig.tight_layout()

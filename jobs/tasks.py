@@ -97,6 +97,23 @@ def _estimate_model(plan, task) -> Estimate:
 
 # --- save (parts folder) -----------------------------------------------------------------------
 
+ENERGY_SLACK = 1e-3  # an albedo above 1 by more than this is energy the model created
+
+
+def _energy_check(plan, task, albedo_sp: np.ndarray, diagnostics: dict) -> None:
+    """Record ``albedo_excess`` and, beyond :data:`ENERGY_SLACK`, a warning naming the model and the
+    incidence: no model may return more power than falls on the surface (κ ≥ 0)."""
+    excess = float(np.max(albedo_sp)) - 1.0
+    diagnostics["albedo_excess"] = max(0.0, excess)
+    if excess > ENERGY_SLACK:
+        theta, _ = np.rad2deg(plan.direction_rad(task))
+        model = plan.model_spec(task).name
+        message = (f"EnergyWarning: albedo (s, p) = ({albedo_sp[0]:.4g}, {albedo_sp[1]:.4g}) > 1 at θ_i = "
+                   f"{theta:g}°: {model} returns {excess:.3g} of the incident power that does not exist "
+                   "(outside the model's validity, e.g. no shadowing at grazing incidence; a rung with "
+                   "shadowing such as ws-v, or bem, models it)")
+        diagnostics["warnings"] = "; ".join(w for w in (diagnostics.get("warnings", ""), message) if w)
+
 
 def _save_brdf(plan, task, parts, result: BRDFResult, extra: dict) -> dict:
     """BRDF per polarization (float32) and its albedo; NaN/inf inside the disk is a failure."""
@@ -104,7 +121,9 @@ def _save_brdf(plan, task, parts, result: BRDFResult, extra: dict) -> dict:
     if not np.all(np.isfinite(brdf_sp[:, plan.grid.inside])):
         raise FloatingPointError(f"{task.label}: NaN/inf inside the unit disk")
     diagnostics = {**plain(result.diagnostics), **extra}
-    parts.save_arrays(task, diagnostics, brdf_sp=brdf_sp.astype(np.float32), albedo_sp=albedo(brdf_sp, plan.grid))
+    albedo_sp = albedo(brdf_sp, plan.grid)
+    _energy_check(plan, task, albedo_sp, diagnostics)
+    parts.save_arrays(task, diagnostics, brdf_sp=brdf_sp.astype(np.float32), albedo_sp=albedo_sp)
     return diagnostics
 
 

@@ -650,3 +650,47 @@ def test_parts_carry_their_identity(tmp_path, monkeypatch):
         assert "checksum" in data.files
     assert identity["task"] == 4 and identity["fingerprint"] == manifest["fingerprint"]
     assert identity["key"].startswith("direct:")
+
+
+# --- defect 5: energy beyond a model's bound is loud ---------------------------------------------------
+
+GRAZING_STUDY = """
+[study]
+name = "graze"
+output = "{out}"
+[surface]
+generator = "gaussian"
+size_um = 20.0
+cells = 200
+rms_height_um = 0.05
+correlation_um = 1.0
+[material]
+name = "aluminium"
+[illumination]
+wavelengths_um = [0.4]
+directions_deg = [[0, 0], [88, 0], [89.9, 0]]
+waist_um = 3.5
+[model]
+name = "kirchhoff"
+[output]
+resolution = 256
+"""
+
+
+def test_defect5_energy_beyond_the_model_bound_is_warned(tmp_path, capsys):
+    """Kirchhoff (no shadowing) on gently rough aluminium: albedo > 1 at 88° and 89.9° is recorded
+    as an EnergyWarning in the task table and shown by `inspect`; the 0° slice (albedo < 1) is not."""
+    import wavebrdf
+
+    cfg = tmp_path / "graze.toml"
+    cfg.write_text(GRAZING_STUDY.format(out=tmp_path / "graze.h5"))
+    assert main(["run", str(cfg), "-q", "--no-render"]) == 0
+    with wavebrdf.open(tmp_path / "graze.h5") as ds:
+        albedo = np.asarray(ds.albedo).ravel()
+        warns = [w.decode() if isinstance(w, bytes) else str(w) for w in ds.tasks["warnings"]]
+    assert albedo[0] < 1 and np.all(albedo[1:] > 1)
+    assert "EnergyWarning" not in warns[0]
+    assert all("EnergyWarning" in w and "kirchhoff" in w for w in warns[1:])
+    capsys.readouterr()
+    assert main(["inspect", str(tmp_path / "graze.h5")]) == 0
+    assert "warning: EnergyWarning" in capsys.readouterr().out
