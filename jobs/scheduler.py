@@ -153,7 +153,7 @@ class TaskBoard:
         if diagnostics.get("warnings"):
             line += f" [warning: {diagnostics['warnings']}]"
         if self.bar.disable:
-            (logger.warning if diagnostics.get("warnings") else logger.info)("%s", line)
+            logger.info("%s", line)
         else:
             self.bar.write(line, file=sys.stderr)
         self.bar.update(1)
