@@ -4,8 +4,8 @@ Every listed surface model runs on the same scenes — the (case, wavelength, in
 slices of a study config, so one footprint, one output grid and one BRDF normalization — each run
 in a fresh process, which gives its wall time, CPU time (all threads, OpenCL's included) and peak
 memory over the process's baseline after imports. Times are of a first run in that process: they
-include loading the model's kernels from the PoCL cache (~0.1–0.5 s per model). Each BRDF is then compared with the reference
-model's on the same scene (solver/metrics.py):
+include loading the model's kernels from the PoCL cache (~0.1–0.5 s per model). Each BRDF is then
+compared with the reference model's on the same scene (solver/metrics.py):
 
 * ``rel_l2``: relative L2 over the reference's lobe of the unpolarized BRDF (the raw slices);
 * ``rel_l2_smooth``: the same after a Gaussian blur of the speckle width on both (the
