@@ -274,6 +274,7 @@ SCHEMA: dict[str, dict[str, Spec]] = {
         "depth_um": Spec(_positive),
         "fill": Spec(lambda s, k, v: _number(s, k, v, low=0, low_open=True, high=1)),
         "placement": Spec(_choice("square", "random")),
+        "shape": Spec(_choice("triangular", "full")),
     },
     "material": {
         "name": Spec(_string),
@@ -331,7 +332,7 @@ OPEN_SECTIONS = ("model", "compare")  # sections whose other keys belong to a pl
 SURFACE_ONLY_KEYS = ("directions_deg", "waist_um", "beam")
 FIBER_ONLY_KEYS = ("theta_i_deg", "phi_i_deg")
 GENERATOR_KEYS = ("rms_height_um", "correlation_um", "amplitude_um", "period_um", "angle_deg", "radius_um",
-                  "depth_um", "fill", "placement")
+                  "depth_um", "fill", "placement", "shape")
 
 
 def register_section(name: str, keys: dict[str, Spec]) -> None:

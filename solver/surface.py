@@ -396,31 +396,58 @@ def corner_cube_normals() -> np.ndarray:
     return np.column_stack([CUBE_FACE_SLOPE * inward, np.ones(3)]) / np.sqrt(3.0)
 
 
-def _corner_cubes(cells: int, size_um: float, rng, *, period_um: float):
-    """Array of triangular cube corners (retroreflectors): three families of ridges at 0°, 60°
-    and 120° through common points cut the plane into equilateral triangles of side a =
-    ``period_um`` (the hexagonal lattice constant; ridge spacing P = a√3/2); in each triangle the
-    surface is the trihedral corner whose three faces rise from the apex at slope √2 (normals at
-    arccos(1/√3) = 54.74° from ẑ, mutually perpendicular):
+def _corner_cubes(cells: int, size_um: float, rng, *, period_um: float, shape: str = "triangular"):
+    """Array of cube corners (retroreflectors) whose three faces rise from the apex at slope √2
+    (normals at arccos(1/√3) = 54.74° from ẑ, mutually perpendicular); a = ``period_um``.
+
+    ``shape = "triangular"``: three families of ridges at 0°, 60° and 120° through common points
+    cut the plane into equilateral triangles of side a (the hexagonal lattice constant; ridge
+    spacing P = a√3/2); in each triangle the trihedral corner
 
         z = −√2 · min_j dist(x, ridge lines of family j),
 
-    ridges at z = 0, apexes at −√2 P/3 = −a/√6 (the depth follows from the period: the face
-    angles are fixed by orthogonality). Up and down triangles are both cube corners (rotated by
-    60°). Periodic along x when a divides the patch (required); not periodic along y (period
-    √3 a).
+    ridges at z = 0, apexes at −√2 P/3 = −a/√6. Up and down triangles are both cube corners
+    (rotated by 60°); an ideal one returns 2/3 of the light at normal incidence.
+
+    ``shape = "full"``: full cube corners with hexagonal apertures, their apexes on a triangular
+    lattice of spacing a; around each apex c (the nearest one) z = √2 max_j(−û_j·(x − c)) − a√(2/3)
+    over the three faces' horizontal normals û_j: rims at 0 and −a/√6 alternating around each
+    hexagon, apexes at −a√(2/3). Neighbouring cubes share their rim edges, so the height field is
+    continuous; an ideal one returns all the light at normal incidence.
+
+    Either is periodic along x when a divides the patch (required); not along y (period √3 a).
+    The depth follows from the period: the face angles are fixed by orthogonality.
     """
+    if shape not in ("triangular", "full"):
+        raise SurfaceError(f"surface.shape = {shape!r}: must be \"triangular\" or \"full\" (corner-cubes)")
     n_x = _cells_per_period(size_um, period_um)
-    ridge = period_um * np.sqrt(3.0) / 2.0
     X, Y = np.meshgrid(*(size_um / cells * np.arange(cells + 1),) * 2, indexing="ij")
     normals = corner_cube_normals()[:, :2] / np.sqrt(2.0 / 3.0)  # unit horizontal directions
-    distance = np.full(X.shape, np.inf)
-    for d in normals:
-        t = d[0] * X + d[1] * Y
-        distance = np.minimum(distance, np.abs(t - ridge * np.round(t / ridge)))
-    z = -CUBE_FACE_SLOPE * distance
+    if shape == "triangular":
+        ridge = period_um * np.sqrt(3.0) / 2.0
+        distance = np.full(X.shape, np.inf)
+        for d in normals:
+            t = d[0] * X + d[1] * Y
+            distance = np.minimum(distance, np.abs(t - ridge * np.round(t / ridge)))
+        z = -CUBE_FACE_SLOPE * distance
+        depth = CUBE_FACE_SLOPE * ridge / 3.0
+    else:
+        basis = np.array([[period_um, 0.5 * period_um], [0.0, 0.5 * np.sqrt(3.0) * period_um]])  # lattice columns
+        points = np.stack([X, Y], axis=-1)
+        cell = np.floor(points @ np.linalg.inv(basis).T)
+        nearest = np.full(X.shape, np.inf)
+        z = np.zeros(X.shape)
+        for corner in ((0, 0), (1, 0), (0, 1), (1, 1)):  # the nearest apex is a corner of the lattice cell
+            offset = points - (cell + np.array(corner)) @ basis.T
+            d2 = np.sum(offset**2, axis=-1)
+            height = CUBE_FACE_SLOPE * np.max([-(offset @ u) for u in normals], axis=0)
+            closer = d2 < nearest
+            nearest = np.where(closer, d2, nearest)
+            z = np.where(closer, height, z)
+        depth = period_um * np.sqrt(2.0 / 3.0)
+        z = z - depth
     z[-1] = z[0]  # exact period along x (a divides the patch)
-    return z, None, {"cubes_along_x": n_x, "depth_um": float(CUBE_FACE_SLOPE * ridge / 3.0), "periodic": "x"}
+    return z, None, {"cubes_along_x": n_x, "depth_um": float(depth), "periodic": "x"}
 
 
 def _spherical_pits(cells: int, size_um: float, rng, *, radius_um: float, depth_um: float, period_um: float):
@@ -535,6 +562,7 @@ OPTIONAL_PARAMETERS = {
     "brushed": ("correlation_um", "angle_deg"),
     "sinusoid": ("angle_deg",),
     "hemispheres": ("placement",),
+    "corner-cubes": ("shape",),
 }
 
 

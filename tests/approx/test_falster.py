@@ -133,20 +133,22 @@ def test_wm_returns_the_energy_single_scattering_loses(cl_ctx, hemispheres):
     assert abs(albedos["wm"] - 1.0) < 0.05
 
 
-@pytest.mark.parametrize("theta_deg", [0.0, 10.0])
-def test_corner_cubes_retroreflect_only_with_multiple_scattering(cl_ctx, theta_deg):
-    """Triangular cube corners (period 2 µm, 64 cells per period): the share of the reflected power
-    within 5° of ω_i is ≥ 0.5 for gm (an ideal triangular corner returns 2/3 of the light at normal
-    incidence; the bilinear facets round ridges and apexes) and < 0.05 for the single-scattering
-    rungs, whose first reflections leave along the face mirror directions."""
-    surface = generate("corner-cubes", cells=512, size_um=16.0, period_um=2.0)
+@pytest.mark.parametrize("shape, theta_deg, minimum", [("triangular", 0.0, 0.5), ("triangular", 10.0, 0.5),
+                                                      ("full", 0.0, 0.85), ("full", 10.0, 0.6)])
+def test_corner_cubes_retroreflect_only_with_multiple_scattering(cl_ctx, shape, theta_deg, minimum):
+    """Cube corners (a = 2 µm, 64 cells per a): the share of the reflected power within 5° of ω_i is
+    at least ``minimum`` for gm (ideal corners return 2/3 (triangular) or all (full) of the light at
+    normal incidence and less when tilted; the bilinear facets round ridges and apexes; measured
+    0.57/0.53 triangular, 0.91/0.66 full at 0°/10°) and < 0.05 for the single-scattering rungs, whose
+    first reflections leave along the face mirror directions."""
+    surface = generate("corner-cubes", cells=512, size_um=16.0, period_um=2.0, shape=shape)
     grid = HemisphereGrid(128)
     scene = SurfaceScene(surface, 0.5, PEC, theta_deg * DEG, 0.3, 4.0, grid)
     fractions = {}
     for name, options in (("gm", {"rays": 1 << 20}), ("gs", {"rays": 1 << 18}), ("kirchhoff", None)):
         f = _quiet(get_model(name, options), cl_ctx, scene).brdf().mean(axis=0)
         fractions[name] = cone_fraction(f, grid, scene.theta_i, scene.phi_i, 5.0)
-    logger.info("corner cubes θ_i = %g°: retroreflected share %s", theta_deg, fractions)
-    print(f"corner cubes θ_i = {theta_deg}°: share of the reflected power within 5° of ω_i", fractions)
-    assert fractions["gm"] >= 0.5
+    logger.info("%s corner cubes θ_i = %g°: retroreflected share %s", shape, theta_deg, fractions)
+    print(f"{shape} corner cubes θ_i = {theta_deg}°: share of the reflected power within 5° of ω_i", fractions)
+    assert fractions["gm"] >= minimum
     assert fractions["gs"] < 0.05 and fractions["kirchhoff"] < 0.05

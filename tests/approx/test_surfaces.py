@@ -180,6 +180,34 @@ def test_corner_cubes_are_retroreflectors():
     assert surface.ensemble is None
 
 
+def test_full_corner_cubes_tile_continuously_with_one_triple_of_faces():
+    """shape = "full": hexagonal-aperture cube corners on a triangular lattice of apexes. One triple
+    of mutually perpendicular faces at 54.74° from ẑ (every cube has the same orientation), a ray
+    reflected by the three leaves along −its direction; the height field is continuous (no step
+    steeper than the faces between neighbouring nodes); apexes at −a√(2/3), rims at 0 and −a/√6."""
+    a = 2.0
+    surface = generate("corner-cubes", cells=240, size_um=12.0, period_um=a, shape="full")
+    normals = face_normals(surface, np.sqrt(2.0))
+    assert len(normals) == 3
+    assert np.allclose(normals[:, 2], 1 / np.sqrt(3.0))
+    assert all(abs(np.dot(normals[i], normals[j])) < 1e-9 for i, j in itertools.combinations(range(3), 2))
+    d = np.array([0.3, -0.2, -0.93])
+    d /= np.linalg.norm(d)
+    for order in itertools.permutations(range(3)):
+        out = d
+        for i in order:
+            out = reflect(out, normals[i])
+        assert np.allclose(out, -d, atol=1e-12)
+    z, step = surface.z, surface.spacing_um
+    assert max(np.abs(np.diff(z, axis=0)).max(), np.abs(np.diff(z, axis=1)).max()) <= np.sqrt(2.0) * step * (1 + 1e-9)
+    assert z.min() == pytest.approx(-a * np.sqrt(2.0 / 3.0), abs=1e-9)  # apexes on nodes (a multiple of d)
+    assert surface.parameters["depth_um"] == pytest.approx(a * np.sqrt(2.0 / 3.0), rel=1e-12)
+    assert -0.02 * a < z.max() <= 0.0
+    assert surface.periodic == (True, False)
+    with pytest.raises(SurfaceError, match="surface.shape = 'round'"):
+        generate("corner-cubes", cells=240, size_um=12.0, period_um=a, shape="round")
+
+
 def test_spherical_pits():
     """Caps of the sphere of radius R centred R − D above the plane: depth D, rim radius
     √(2RD − D²) (pit area fraction π a²/Λ²), flat between pits; periodic."""
