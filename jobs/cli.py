@@ -205,7 +205,7 @@ def cmd_plan(args) -> int:
 
 def cmd_compare(args) -> int:
     from wavebrdf.jobs.compare import compare_config
-    from wavebrdf.jobs.config import ConfigError, load_config
+    from wavebrdf.jobs.config import load_config, make_output_folder
 
     config = load_config(args.config)
     models = [m.strip() for m in args.models.split(",") if m.strip()] if args.models else None
@@ -215,10 +215,7 @@ def cmd_compare(args) -> int:
         if not args.quiet:
             print(f"  running {what}", file=sys.stderr, flush=True)
 
-    if not stem.parent.is_dir():  # like `run`: one missing folder level is created, no more
-        if not stem.parent.parent.is_dir():
-            raise ConfigError(f"--out {stem}: folder {str(stem.parent.parent)!r} does not exist")
-        stem.parent.mkdir()
+    make_output_folder(stem)  # one missing folder level is created, as `run` does; deeper: a one-line error
     comparison = compare_config(config, models, args.reference, args.memory_gb, progress)
     print(comparison.markdown(), end="")
     for path in comparison.write(stem):

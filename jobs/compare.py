@@ -349,14 +349,13 @@ def compare_scenes(scenes: list[tuple[str, object]], models: list[str], options:
 
 
 
-def surface_models(config) -> list[str]:
-    """Registered surface models that can run the study's scenes: height-field models, and
+def surface_models(plan) -> list[str]:
+    """Registered surface models that can run the plan's scenes: height-field models, and
     statistics models when every case's surface carries its ensemble."""
     from wavebrdf.solver.models import model_names
 
     names = list(model_names("height_field"))
-    surfaces = [case.surface.build() for case in config.cases]
-    if all(s.ensemble is not None for s in surfaces):
+    if all(plan.surface(case).ensemble is not None for case in range(len(plan.config.cases))):
         names += list(model_names("statistics"))
     return sorted(names, key=lambda n: LADDER.index(n) if n in LADDER else -1)
 
@@ -389,14 +388,14 @@ def compare_config(config, models: list[str] | None = None, reference: str | Non
                 options[name] = parse_options(model_class(name).Options, table, f"compare.{name}")
             except ValueError as exc:
                 raise ConfigError(str(exc)) from None
-    models = list(models or section.get("models") or surface_models(config))
+    plan = plan_study(config)
+    models = list(models or section.get("models") or surface_models(plan))
     for name in models:
         if name not in model_names():
             raise ConfigError(f"--models {name}: not a registered model (available: {', '.join(model_names())})")
     reference = reference or section.get("reference")
     if reference is not None and reference not in models:
         models = [reference] + models
-    plan = plan_study(config)
     scenes = []
     for task in plan.tasks:
         if task.kind != "direct":

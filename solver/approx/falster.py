@@ -45,9 +45,9 @@ from wavebrdf.solver.approx.kirchhoff import (
     check_incidence,
     transform_orders,
 )
-from wavebrdf.solver.approx.physical_optics import lit_nodes, node_slopes
-from wavebrdf.solver.approx.raytrace import BORDERS, node_visibility, trace_paths
+from wavebrdf.solver.approx.raytrace import BORDERS, lit_nodes, node_slopes, node_visibility, trace_paths
 from wavebrdf.solver.farfield import FarField, HemisphereGrid, IntensityResult, albedo, transverse_basis
+from wavebrdf.solver.footprint import incident_basis
 from wavebrdf.solver.fresnel import fresnel_rs_rp
 from wavebrdf.solver.models import Capabilities, Estimate, Model, SurfaceScene
 from wavebrdf.solver.options import option
@@ -193,8 +193,7 @@ def wsv_farfield(ctx, scene: SurfaceScene, masking: str = "rays", masking_classe
     flat = not setup.z_mid.any()
     if flat:  # a plane: e^{jkμ_o z} = 1 and nothing shadows or masks
         setup = setup.flattened(setup.window)
-    st, ct = np.sin(scene.theta_i), np.cos(scene.theta_i)
-    omega_i = np.array([st * np.cos(scene.phi_i), st * np.sin(scene.phi_i), ct])
+    omega_i, _, _ = incident_basis(scene.theta_i, scene.phi_i)
     slopes = node_slopes(surface)
     front, lit, _ = lit_nodes(ctx, surface, omega_i, slopes, "none" if flat else "rays", border, precision)
     apertures = _apertures(setup, slopes, lit, omega_i)
@@ -289,19 +288,20 @@ class WMModel(Model):
         single = wsv_farfield(ctx, scene, o.masking, o.masking_classes, o.border)
         trace = trace_paths(ctx, scene, rays=o.rays, max_depth=o.max_depth, border=o.border, seed=o.seed, keep=False)
         grid = scene.grid
-        brdf = np.nan_to_num(single.brdf()) + np.nan_to_num(trace.result("multiple").brdf())
+        f_single, f_multiple = single.brdf(), trace.result("multiple").brdf()
+        brdf = np.nan_to_num(f_single) + np.nan_to_num(f_multiple)
         power = single.incident_power
         intensity = np.where(grid.inside, brdf * power[:, None, None] * grid.mu, 0.0)
         diagnostics = {k: v for k, v in single.diagnostics.items() if k != "model"}
         diagnostics.update(
             model=self.name,
-            single_albedo=albedo(single.brdf(), grid).tolist(),
-            multiple_albedo=albedo(trace.result("multiple").brdf(), grid).tolist(),
+            single_albedo=albedo(f_single, grid).tolist(),
+            multiple_albedo=albedo(f_multiple, grid).tolist(),
             truncated_energy_fraction=trace.truncated.tolist(),
             rays=o.rays,
         )
         result = IntensityResult(grid, scene.wavelength_um, scene.theta_i, scene.phi_i, intensity, power, diagnostics)
-        result.diagnostics["albedo_excess"] = float(max(0.0, albedo(result.brdf(), grid).max() - 1.0))
+        result.diagnostics["albedo_excess"] = albedo_excess(result)
         return result
 
     def estimate(self, scene: SurfaceScene) -> Estimate:

@@ -34,7 +34,7 @@ import scipy.fft
 import scipy.special
 
 from wavebrdf.solver.czt import ChirpZAxis
-from wavebrdf.solver.farfield import ETA0, FarField, HemisphereGrid, albedo, transverse_basis
+from wavebrdf.solver.farfield import ETA0, BRDFResult, FarField, HemisphereGrid, albedo, transverse_basis
 from wavebrdf.solver.footprint import (
     EDGE_AMPLITUDE,
     FootprintWarning,
@@ -86,9 +86,9 @@ def check_incidence(theta_i: float, index: complex) -> None:
         raise ValueError(f"index must be n - j*kappa with kappa >= 0, got {index!r}")
 
 
-def albedo_excess(ff: FarField) -> float:
+def albedo_excess(result: BRDFResult) -> float:
     """max(0, albedo − 1) over the polarizations: the energy a rung creates beyond the incident."""
-    return float(max(0.0, albedo(ff.brdf(), ff.grid).max() - 1.0))
+    return float(max(0.0, albedo(result.brdf(), result.grid).max() - 1.0))
 
 
 def scene_footprint(scene: SurfaceScene) -> np.ndarray:

@@ -52,45 +52,21 @@ from wavebrdf.solver.approx.kirchhoff import (
     chebyshev_transform_numpy,
     transform_orders,
 )
-from wavebrdf.solver.approx.raytrace import node_visibility
+from wavebrdf.solver.approx.raytrace import SHADOWING, lit_nodes, node_slopes
 from wavebrdf.solver.farfield import FarField
 from wavebrdf.solver.footprint import incident_basis
 from wavebrdf.solver.fresnel import fresnel_rs_rp
 from wavebrdf.solver.models import Capabilities, Estimate, SurfaceScene
 from wavebrdf.solver.options import option
-from wavebrdf.solver.surface import HeightField
 
 __all__ = [
     "POModel",
     "POOptions",
-    "lit_nodes",
-    "node_slopes",
     "po_currents_numpy",
     "po_farfield",
 ]
 
-SHADOWING = ("rays", "none")
 CHANNELS = 12  # 2 polarizations × (J'_x, J'_y, J'_z, M_x, M_y, M_z)
-
-
-def node_slopes(surface: HeightField) -> np.ndarray:
-    """(h_x, h_y) at the nodes, shape (2, N+1, N+1): central differences, i.e. the mean of the
-    gradients of the bilinear cells meeting at the node (one-sided on the patch border)."""
-    d = surface.spacing_um
-    return np.stack(np.gradient(surface.z, d, d, edge_order=1))
-
-
-def lit_nodes(ctx, surface: HeightField, omega_i: np.ndarray, slopes: np.ndarray, shadowing: str,
-              border: str = "periodic", precision: str = "double") -> tuple[np.ndarray, np.ndarray, str]:
-    """(front, lit, how) node masks: front = ω_i·m̃ > 0; lit = front and, for ``shadowing = "rays"``,
-    the ray from the node toward ω_i escapes (raytrace.node_visibility); ``how`` names the test."""
-    if shadowing not in SHADOWING:
-        raise ValueError(f"[model.po] shadowing = {shadowing!r}: must be one of {SHADOWING}")
-    front = omega_i[2] - omega_i[0] * slopes[0] - omega_i[1] * slopes[1] > 0
-    if shadowing == "none":
-        return front, front, "none"
-    visible = node_visibility(ctx, surface, omega_i[None], border=border, precision=precision)[0]
-    return front, front & visible, "rays"
 
 
 def po_currents_numpy(window: np.ndarray, slopes: np.ndarray, lit: np.ndarray, omega_i: np.ndarray,

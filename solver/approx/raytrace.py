@@ -58,6 +58,8 @@ __all__ = [
     "PathGeometry",
     "RayTrace",
     "cell_visibility",
+    "lit_nodes",
+    "node_slopes",
     "node_visibility",
     "origins",
     "pixel_remap",
@@ -66,6 +68,7 @@ __all__ = [
 ]
 
 BORDERS = ("periodic", "clamp")
+SHADOWING = ("rays", "none")  # V_i of the wave rungs: ray traced, or the back-facing test only
 HIT, ESCAPE, LOST = 0, 1, 2  # hf_trace status (wb_heightfield.h)
 TRUNCATED_CODE, LOST_CODE = -1, -2  # ray outcome codes besides an exit pixel (raytrace.cl)
 BIG = 1e30  # HF_BIG
@@ -915,6 +918,27 @@ def node_visibility(ctx, surface: HeightField, directions, border: str = "period
     X, Y = np.meshgrid(i, i, indexing="ij")
     vis = _visibility(ctx, gs, np.stack([X.ravel(), Y.ravel()], axis=1), _directions(directions), precision)
     return vis.reshape(-1, gs.n + 1, gs.n + 1)
+
+
+def node_slopes(surface: HeightField) -> np.ndarray:
+    """(h_x, h_y) at the nodes, shape (2, N+1, N+1): central differences, i.e. the mean of the
+    gradients of the bilinear cells meeting at the node (one-sided on the patch border)."""
+    d = surface.spacing_um
+    return np.stack(np.gradient(surface.z, d, d, edge_order=1))
+
+
+def lit_nodes(ctx, surface: HeightField, omega_i: np.ndarray, slopes: np.ndarray, shadowing: str,
+              border: str = "periodic", precision: str = "double") -> tuple[np.ndarray, np.ndarray, str]:
+    """(front, lit, how) node masks of the wave rungs' V_i (po, ws-v): front = ω_i·m̃ > 0; lit =
+    front and, for ``shadowing = "rays"``, the ray from the node toward ω_i escapes
+    (:func:`node_visibility`); ``how`` names the test."""
+    if shadowing not in SHADOWING:
+        raise ValueError(f"shadowing = {shadowing!r}: must be one of {SHADOWING}")
+    front = omega_i[2] - omega_i[0] * slopes[0] - omega_i[1] * slopes[1] > 0
+    if shadowing == "none":
+        return front, front, "none"
+    visible = node_visibility(ctx, surface, omega_i[None], border=border, precision=precision)[0]
+    return front, front & visible, "rays"
 
 
 def cell_visibility(ctx, surface: HeightField, directions, border: str = "periodic",
