@@ -17,6 +17,7 @@ models (``stam``) take instead of the realization.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -396,7 +397,42 @@ def corner_cube_normals() -> np.ndarray:
     return np.column_stack([CUBE_FACE_SLOPE * inward, np.ones(3)]) / np.sqrt(3.0)
 
 
-def _corner_cubes(cells: int, size_um: float, rng, *, period_um: float, shape: str = "triangular"):
+def _cant_rotation(cant_deg: float, cant_azimuth_deg: float) -> np.ndarray:
+    """Rotation (3, 3) tilting ẑ by ``cant_deg`` toward the azimuth ``cant_azimuth_deg`` (from +x)."""
+    tau, psi = np.deg2rad(cant_deg), np.deg2rad(cant_azimuth_deg)
+    axis = np.array([-np.sin(psi), np.cos(psi), 0.0])
+    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + np.sin(tau) * k + (1.0 - np.cos(tau)) * k @ k
+
+
+MAX_CANT_DEG = float(np.rad2deg(np.arccos(1.0 / np.sqrt(3.0))))  # 54.74°: a cube edge lies down at 90° − this
+
+
+def _cube_pit_envelope(points: np.ndarray, apexes: np.ndarray, gradients: np.ndarray) -> np.ndarray:
+    """min over apexes c of max over faces j of g_j·(x − c): the lower envelope of cube-corner pits
+    with their apexes at height 0 (``points`` (..., 2), ``apexes`` (M, 2), ``gradients`` (3, 2))."""
+    offsets = points[..., None, :] - apexes  # (..., M, 2)
+    return np.min(np.max(offsets @ gradients.T, axis=-1), axis=-1)
+
+
+def _highest_rim(basis: np.ndarray, gradients: np.ndarray) -> float:
+    """Exact maximum of the pit envelope (the highest rim point above the apexes): the envelope is
+    piecewise linear, so its maximum lies where three of the face planes of nearby pits meet; every
+    such point is evaluated on the envelope and the largest value kept."""
+    near = np.array([(i, j) for i in range(-1, 3) for j in range(-1, 3)], float) @ basis.T
+    around = np.array([(i, j) for i in range(-3, 5) for j in range(-3, 5)], float) @ basis.T
+    planes = [(g, c) for c in near for g in gradients]  # z = g·(x − c)
+    a = np.array([[-g[0], -g[1], 1.0] for g, _ in planes])
+    b = np.array([-g @ c for g, c in planes])
+    idx = np.array(list(itertools.combinations(range(len(planes)), 3)))
+    m = a[idx]
+    solvable = np.abs(np.linalg.det(m)) > 1e-12
+    xyz = np.linalg.solve(m[solvable], b[idx[solvable]][..., None])[..., 0]
+    return float(np.max(_cube_pit_envelope(xyz[:, :2], around, gradients)))
+
+
+def _corner_cubes(cells: int, size_um: float, rng, *, period_um: float, shape: str = "triangular",
+                  cant_deg: float = 0.0, cant_azimuth_deg: float = 0.0):
     """Array of cube corners (retroreflectors) whose three faces rise from the apex at slope √2
     (normals at arccos(1/√3) = 54.74° from ẑ, mutually perpendicular); a = ``period_um``.
 
@@ -409,21 +445,34 @@ def _corner_cubes(cells: int, size_um: float, rng, *, period_um: float, shape: s
     ridges at z = 0, apexes at −√2 P/3 = −a/√6. Up and down triangles are both cube corners
     (rotated by 60°); an ideal one returns 2/3 of the light at normal incidence.
 
-    ``shape = "full"``: full cube corners with hexagonal apertures, their apexes on a triangular
-    lattice of spacing a; around each apex c (the nearest one) z = √2 max_j(−û_j·(x − c)) − a√(2/3)
-    over the three faces' horizontal normals û_j: rims at 0 and −a/√6 alternating around each
-    hexagon, apexes at −a√(2/3). Neighbouring cubes share their rim edges, so the height field is
-    continuous; an ideal one returns all the light at normal incidence.
+    ``shape = "full"``: full cube corners, their apexes on a triangular lattice of spacing a: the
+    lower envelope of the cube-corner pits z = max_j(g_j·(x − c)) − D over the apexes c, with
+    g_j = −n_j,xy / n_j,z from the face normals n_j. Uncanted (g_j = −√2 û_j) the apertures are
+    hexagons with rims at 0 and −a/√6 alternating and apexes at D = a√(2/3); an ideal one returns all
+    the light at normal incidence. ``cant_deg`` tilts every cube's axis by that angle toward the
+    azimuth ``cant_azimuth_deg`` (the canted cube corners of retroreflective sheeting: the
+    retroreflection peaks near θ_i ≈ 2× the cant on that side and widens the entrance angles);
+    the apertures then change shape, the surface stays continuous, and D is the highest rim above
+    the apexes (computed exactly). The cant must stay below 90° − 54.74° = 35.26° so that every cube
+    edge still rises from its apex (a height field).
 
     Either is periodic along x when a divides the patch (required); not along y (period √3 a).
     The depth follows from the period: the face angles are fixed by orthogonality.
     """
     if shape not in ("triangular", "full"):
         raise SurfaceError(f"surface.shape = {shape!r}: must be \"triangular\" or \"full\" (corner-cubes)")
+    cant_limit = 90.0 - MAX_CANT_DEG
+    if not (np.isfinite(cant_deg) and 0.0 <= cant_deg < cant_limit):
+        raise SurfaceError(f"surface.cant_deg = {cant_deg!r}: must be >= 0 and < {cant_limit:.2f} (a cube edge "
+                           "would fall below its apex)")
+    if cant_deg and shape != "full":
+        raise SurfaceError(f"surface.cant_deg = {cant_deg!r}: canted cube corners need surface.shape = \"full\"")
+    if not np.isfinite(cant_azimuth_deg):
+        raise SurfaceError(f"surface.cant_azimuth_deg = {cant_azimuth_deg!r}: must be a finite angle in degrees")
     n_x = _cells_per_period(size_um, period_um)
     X, Y = np.meshgrid(*(size_um / cells * np.arange(cells + 1),) * 2, indexing="ij")
-    normals = corner_cube_normals()[:, :2] / np.sqrt(2.0 / 3.0)  # unit horizontal directions
     if shape == "triangular":
+        normals = corner_cube_normals()[:, :2] / np.sqrt(2.0 / 3.0)  # unit horizontal directions
         ridge = period_um * np.sqrt(3.0) / 2.0
         distance = np.full(X.shape, np.inf)
         for d in normals:
@@ -432,22 +481,21 @@ def _corner_cubes(cells: int, size_um: float, rng, *, period_um: float, shape: s
         z = -CUBE_FACE_SLOPE * distance
         depth = CUBE_FACE_SLOPE * ridge / 3.0
     else:
+        normals = corner_cube_normals() @ _cant_rotation(cant_deg, cant_azimuth_deg).T
+        gradients = -normals[:, :2] / normals[:, 2:]
         basis = np.array([[period_um, 0.5 * period_um], [0.0, 0.5 * np.sqrt(3.0) * period_um]])  # lattice columns
         points = np.stack([X, Y], axis=-1)
         cell = np.floor(points @ np.linalg.inv(basis).T)
-        nearest = np.full(X.shape, np.inf)
-        z = np.zeros(X.shape)
-        for corner in ((0, 0), (1, 0), (0, 1), (1, 1)):  # the nearest apex is a corner of the lattice cell
+        # The lowest pit at a point has its apex within two lattice cells of it (cant < 35.26°).
+        z = np.full(X.shape, np.inf)
+        for corner in itertools.product(range(-2, 4), repeat=2):
             offset = points - (cell + np.array(corner)) @ basis.T
-            d2 = np.sum(offset**2, axis=-1)
-            height = CUBE_FACE_SLOPE * np.max([-(offset @ u) for u in normals], axis=0)
-            closer = d2 < nearest
-            nearest = np.where(closer, d2, nearest)
-            z = np.where(closer, height, z)
-        depth = period_um * np.sqrt(2.0 / 3.0)
+            z = np.minimum(z, np.max(offset @ gradients.T, axis=-1))
+        depth = _highest_rim(basis, gradients)
         z = z - depth
     z[-1] = z[0]  # exact period along x (a divides the patch)
-    return z, None, {"cubes_along_x": n_x, "depth_um": float(depth), "periodic": "x"}
+    extra = {"cubes_along_x": n_x, "depth_um": float(depth), "periodic": "x"}
+    return z, None, extra
 
 
 def _spherical_pits(cells: int, size_um: float, rng, *, radius_um: float, depth_um: float, period_um: float):
@@ -562,7 +610,7 @@ OPTIONAL_PARAMETERS = {
     "brushed": ("correlation_um", "angle_deg"),
     "sinusoid": ("angle_deg",),
     "hemispheres": ("placement",),
-    "corner-cubes": ("shape",),
+    "corner-cubes": ("shape", "cant_deg", "cant_azimuth_deg"),
 }
 
 

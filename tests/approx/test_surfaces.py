@@ -208,6 +208,56 @@ def test_full_corner_cubes_tile_continuously_with_one_triple_of_faces():
         generate("corner-cubes", cells=240, size_um=12.0, period_um=a, shape="round")
 
 
+def test_canted_corner_cubes_tilt_every_cube_axis():
+    """cant_deg = τ toward cant_azimuth_deg = ψ: still one triple of mutually perpendicular faces,
+    whose cube axis (n₁ + n₂ + n₃)/√3 is at τ from ẑ toward ψ; continuous (no step steeper than the
+    steepest face); apexes at the depth D below the highest rim, D checked against a brute-force
+    lower envelope of the pits built here from a scipy rotation; periodic along x. Refusals: a cant
+    that would lay a cube edge below its apex, and a cant on triangular corners."""
+    from scipy.spatial.transform import Rotation
+
+    a, tau, psi = 2.0, 12.0, 40.0
+    surface = generate("corner-cubes", cells=240, size_um=12.0, period_um=a, shape="full", cant_deg=tau,
+                       cant_azimuth_deg=psi)
+    z = surface.z
+    zx, zy = cell_slopes(surface)
+    twist = np.abs(z[1:, 1:] + z[:-1, :-1] - z[1:, :-1] - z[:-1, 1:])
+    m = np.stack([-zx[twist < 1e-9], -zy[twist < 1e-9], np.ones(np.sum(twist < 1e-9))], axis=1)
+    m /= np.linalg.norm(m, axis=1, keepdims=True)
+    normals, counts = np.unique(np.round(m, 9), axis=0, return_counts=True)
+    normals = normals[counts > 0.05 * counts.sum()]  # the faces (not the few cells across a rim)
+    assert len(normals) == 3
+    assert all(abs(np.dot(normals[i], normals[j])) < 1e-8 for i, j in itertools.combinations(range(3), 2))
+    axis = normals.sum(axis=0) / np.sqrt(3.0)
+    assert np.degrees(np.arccos(axis[2])) == pytest.approx(tau, abs=1e-6)
+    assert np.degrees(np.arctan2(axis[1], axis[0])) == pytest.approx(psi, abs=1e-6)
+    steepest = np.max(np.hypot(normals[:, 0], normals[:, 1]) / normals[:, 2])
+    step = surface.spacing_um
+    assert max(np.abs(np.diff(z, axis=0)).max(), np.abs(np.diff(z, axis=1)).max()) <= steepest * step * (1 + 1e-9)
+    # brute force: the untilted cube's faces rotated by τ about the horizontal axis ⟂ ψ
+    up = np.array([[0.0, 1.0], [-np.sqrt(3) / 2, -0.5], [np.sqrt(3) / 2, -0.5]])
+    untilted = np.column_stack([np.sqrt(2.0) * up, np.ones(3)]) / np.sqrt(3.0)
+    rot = Rotation.from_rotvec(np.radians(tau) * np.array([-np.sin(np.radians(psi)), np.cos(np.radians(psi)), 0.0]))
+    n = rot.apply(untilted)
+    g = -n[:, :2] / n[:, 2:]
+    s = np.linspace(0.0, 1.0, 401)
+    lattice = np.array([[a, 0.5 * a], [0.0, 0.5 * np.sqrt(3.0) * a]])
+    cell = np.stack(np.meshgrid(s, s, indexing="ij"), axis=-1) @ lattice.T
+    envelope = np.full(cell.shape[:2], np.inf)
+    for i, j in itertools.product(range(-4, 6), repeat=2):
+        envelope = np.minimum(envelope, np.max((cell - lattice @ np.array([i, j])) @ g.T, axis=-1))
+    depth = surface.parameters["depth_um"]
+    assert envelope.max() <= depth * (1 + 1e-12) and envelope.max() == pytest.approx(depth, rel=2e-3)
+    assert z.min() == pytest.approx(-depth, abs=1e-9)  # apexes on nodes along y = 0
+    assert -0.02 * a < z.max() <= 0.0
+    assert surface.periodic == (True, False)
+    assert surface.parameters["cant_deg"] == tau and surface.parameters["cant_azimuth_deg"] == psi
+    with pytest.raises(SurfaceError, match="surface.cant_deg = 36"):
+        generate("corner-cubes", cells=240, size_um=12.0, period_um=a, shape="full", cant_deg=36)
+    with pytest.raises(SurfaceError, match="shape = \"full\""):
+        generate("corner-cubes", cells=240, size_um=12.0, period_um=a, cant_deg=5)
+
+
 def test_spherical_pits():
     """Caps of the sphere of radius R centred R − D above the plane: depth D, rim radius
     √(2RD − D²) (pit area fraction π a²/Λ²), flat between pits; periodic."""
