@@ -81,13 +81,19 @@ def cmd_run(args) -> int:
     from wavebrdf.jobs.config import load_config, make_output_folder
     from wavebrdf.jobs.parts import OutputLock
     from wavebrdf.jobs.plan import check_memory, device_info, plan_study
+    from wavebrdf.jobs.batch import run_scope, stop_on_sigterm, workers_per_node
+
+    scope = run_scope(args, load_config(args.config, output=args.output, overrides=args.set))  # None: up to date
+    if scope is None:
+        return 0
     from wavebrdf.jobs.scheduler import apply_worker_environment, worker_environment
 
-    config = load_config(args.config, output=args.output)
+    stop_on_sigterm()
+    args.scope, config = scope, scope.config
     study = config.cases[0]
     launch = detect_mpi_launch()
     executor = _choose_executor(args.executor or study.run.executor, launch)
-    workers = args.workers or study.run.workers or (os.cpu_count() or 1)
+    workers = workers_per_node("processes", args.workers, study)
     comm = None
     if executor == "mpi":
         apply_worker_environment(worker_environment(launch.local_size, launch.rank))
@@ -134,20 +140,25 @@ def _mpi_lock(comm, lock, wait: bool) -> bool:
 
 def _run_and_report(args, plan, executor: str, workers: int, comm) -> int:
     from wavebrdf.jobs.render import render_dataset
+    from wavebrdf.jobs.node import local_rank
     from wavebrdf.jobs.scheduler import prepare_output, run_plan
     from wavebrdf.solver.opencl import create_context
 
     rank = comm.Get_rank() if comm is not None else 0
     if rank == 0:
         prepare_output(plan)  # a parts folder that cannot be used is refused before anything starts
-    ctx = create_context(args.device)
+    ctx = create_context(args.device, local_rank=local_rank())  # one GPU per local rank
     if rank == 0:
         how = {"mpi": f"{comm.Get_size() if comm else 1} MPI ranks", "processes": f"{workers} worker processes",
                "serial": "this process"}[executor]
         print(f"study {plan.config.name!r}: {len(plan.tasks)} task(s) on {ctx.describe()}, {how}", file=sys.stderr)
-    summary = run_plan(plan, ctx, executor=executor, workers=workers, comm=comm,
-                       progress=not args.quiet and rank == 0)
+    summary = run_plan(plan, ctx, executor=executor, workers=workers, comm=comm, progress=rank == 0,
+                       quiet=args.quiet, only=args.scope.only)
     if summary is None:
+        return 0
+    if args.scope.shard is not None and not summary.failed:
+        print(f"shard {args.scope.shard[0]}/{args.scope.shard[1]}: {summary.done} task(s) done in {summary.path}; "
+              f"when every shard is done: wavebrdf merge {args.config}")
         return 0
     print(f"wrote {summary.path}")
     if summary.failed:
@@ -164,10 +175,14 @@ def cmd_plan(args) -> int:
     from wavebrdf.jobs.config import load_config
     from wavebrdf.jobs.plan import check_memory, device_info, plan_study
 
-    config = load_config(args.config)
+    config = load_config(args.config, overrides=args.set)
     study = config.cases[0]
     plan = plan_study(config)
-    workers = args.workers or study.run.workers or 1
+    from wavebrdf.jobs.batch import workers_per_node
+    from wavebrdf.jobs.progress import phi_text
+
+    executor = "serial" if study.run.executor == "auto" else study.run.executor
+    workers = args.workers or workers_per_node(executor, None, study)  # what `run` would use
     estimates = [plan.estimate(t) for t in plan.tasks]
     budget = check_memory(plan, workers, args.memory_gb or study.run.memory_gb, device=device_info(),
                           estimates=estimates)
@@ -193,13 +208,20 @@ def cmd_plan(args) -> int:
         model = "steering synthesis" if task.kind == "synth" else plan.model_name(task)
         if est.detail:
             model += f" ({est.detail})"
-        print(f"{task.id:6d} {task.kind:6} {task.case:4d} {lam:7.3f} {theta:7.2f} {phi:7.2f} {patch:>6} "
+        phi = phi_text(plan, task).rstrip("°")
+        print(f"{task.id:6d} {task.kind:6} {task.case:4d} {lam:7.3f} {theta:7.2f} {phi:>7} {patch:>6} "
               f"{est.memory_bytes / 2**30:12.2f} {est.seconds:9.2f}  {model}")
     total = sum(e.seconds for e in estimates)
     peak = max(e.memory_bytes for e in estimates)
     print(f"total: {len(plan.tasks)} tasks, {total:.1f} s of compute ({total / 3600:.2f} h); about "
           f"{total / workers:.1f} s wall on {workers} worker(s); peak {peak / 2**30:.2f} GiB per worker "
           f"(node budget {budget / 2**30:.1f} GiB)")
+    if study.model.name == "auto":  # what auto chose per scene and the full-wave cost it avoids
+        from wavebrdf.solver.auto import plan_summary
+
+        direct = [(t, e) for t, e in zip(plan.tasks, estimates) if t.kind == "direct"]
+        auto = plan.model_spec(direct[0][0]).build() if direct else None
+        print(plan_summary([auto.choice(plan.model_scene(t)) for t, _ in direct], [e.seconds for _, e in direct]))
     return 0
 
 
@@ -236,53 +258,6 @@ def cmd_models(args) -> int:
         print(f"{name}: {summary}\n    takes {caps.takes}, returns {caps.returns}; {', '.join(flags) or 'no flags'}")
         for key, kind, default, doc in describe_options(cls.Options):
             print(f"    {key} = {default!r} ({kind}): {doc}")
-    return 0
-
-
-SLURM_TEMPLATE = """#!/bin/bash
-# SLURM batch script written by `wavebrdf submit` for study {study!r}.
-# Submit with: sbatch {script}
-# A run that hits the time limit keeps its finished tasks in {parts}/;
-# submitting the same script again completes only what is missing.
-#SBATCH --job-name={job}
-#SBATCH --nodes={nodes}
-#SBATCH --ntasks-per-node={per_node}
-#SBATCH --cpus-per-task={cpus}
-#SBATCH --time={time}
-#SBATCH --output={job}-%j.log
-{extra}
-set -euo pipefail
-cd {cwd}
-export PATH={bindir}:$PATH
-export OMP_NUM_THREADS={cpus} OPENBLAS_NUM_THREADS={cpus}
-# each rank bounds its PoCL threads to its CPUs and uses its own kernel cache (set by wavebrdf)
-srun {srun_options}{wavebrdf} run {config} --quiet
-"""
-
-
-def cmd_submit(args) -> int:
-    import re
-
-    from wavebrdf.jobs.config import ConfigError, load_config
-    from wavebrdf.jobs.plan import check_memory, plan_study
-
-    if not re.fullmatch(r"(\d+-)?\d{1,3}:\d{2}(:\d{2})?", args.time):
-        raise ConfigError(f"--time {args.time!r}: use HH:MM, HH:MM:SS or D-HH:MM")
-    config = load_config(args.config)
-    plan = plan_study(config)
-    check_memory(plan, args.ntasks_per_node, args.memory_gb or config.cases[0].run.memory_gb)
-    script = Path(args.script or f"{config.name}.slurm.sh")
-    extra = "\n".join(f"#SBATCH --{k}={v}" for k, v in (("partition", args.partition), ("account", args.account)) if v)
-    text = SLURM_TEMPLATE.format(
-        study=config.name, script=script, parts=str(config.output) + ".parts", job=re.sub(r"\W", "_", config.name),
-        nodes=args.nodes, per_node=args.ntasks_per_node, cpus=args.cpus_per_task, time=args.time, extra=extra,
-        cwd=Path.cwd(), bindir=Path(sys.executable).parent, srun_options=f"--mpi={args.mpi} " if args.mpi else "",
-        wavebrdf=Path(sys.executable).parent / "wavebrdf", config=Path(args.config).resolve(),
-    )
-    script.write_text(text)
-    script.chmod(0o755)
-    print(f"wrote {script}: {len(plan.tasks)} tasks on {args.nodes} node(s) x {args.ntasks_per_node} rank(s)")
-    print(f"submit with: sbatch {script}")
     return 0
 
 
@@ -365,7 +340,9 @@ def cmd_render(args) -> int:
         print(f"wrote {result['path']} (Mitsuba {result['variant']}: load {result['load_s']:.1f} s, "
               f"render {result['render_s']:.1f} s)")
         return 0
-    for png in render_dataset(args.file, args.out):
+    from wavebrdf.jobs.render import render_options
+
+    for png in render_dataset(args.file, args.out, **render_options(args)):
         print(f"wrote {png}")
     return 0
 
@@ -439,6 +416,22 @@ def _gib(flag: str):
     return _number_flag(flag, integer=False, low=0, low_open=True)
 
 
+def _assignment(text: str):
+    """argparse type of ``--set key=value`` (jobs/overrides.py)."""
+    from wavebrdf.jobs.overrides import parse_assignment
+
+    try:
+        return parse_assignment(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _add_set_flag(p) -> None:
+    p.add_argument("--set", action="append", type=_assignment, metavar="KEY=VALUE",
+                   help="override a config key (dotted, e.g. surface.rms_height_um=0.1; the value is TOML: "
+                        "[0.45, 0.55], {start = 0.4, stop = 0.7, count = 4}, a bare word is a string); repeatable")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from wavebrdf import __version__
 
@@ -449,6 +442,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("run", help="run a study from a TOML config into an HDF5 dataset (+ PNGs)")
     p.add_argument("config", type=Path)
+    _add_set_flag(p)
     p.add_argument("--output", "-o", type=Path, help="override [study] output")
     p.add_argument("--device", help="OpenCL device (overrides WAVEBRDF_DEVICE)")
     p.add_argument("--executor", choices=["auto", "serial", "processes", "mpi"],
@@ -457,11 +451,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--wait", action="store_true",
                    help="if another run holds the output, wait for it to end (default: exit with status 2)")
     p.add_argument("--no-render", action="store_true", help="do not write PNGs")
-    p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", "-q", action="store_true",
+                   help="no progress bar (a log file keeps one line per task)")
+    p.add_argument("--force", action="store_true", help="recompute a study whose output is up to date, or overwrite "
+                                                       "another configuration's results")
+    p.add_argument("--shard", metavar="I/K", help="run shard I of K (array jobs; see 'wavebrdf merge')")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("plan", help="list a study's tasks with memory/time estimates (runs nothing)")
     p.add_argument("config", type=Path)
+    _add_set_flag(p)
     p.add_argument("--workers", type=_count("--workers"), help="concurrent tasks per node (default [run] workers or 1)")
     p.add_argument("--memory-gb", type=_gib("--memory-gb"),
                    help="node memory (default: [run] memory_gb or this machine)")
@@ -484,31 +483,27 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("models", help="list the registered models, their capabilities and options")
     p.set_defaults(func=cmd_models)
 
-    p = sub.add_parser("submit", help="write a SLURM batch script that runs the study with srun")
-    p.add_argument("config", type=Path)
-    p.add_argument("--nodes", type=_count("--nodes"), required=True)
-    p.add_argument("--time", required=True, help="wall-clock limit HH:MM")
-    p.add_argument("--ntasks-per-node", type=_count("--ntasks-per-node"), default=os.cpu_count() or 1,
-                   help="MPI ranks per node")
-    p.add_argument("--cpus-per-task", type=_count("--cpus-per-task"), default=1)
-    p.add_argument("--partition")
-    p.add_argument("--account")
-    p.add_argument("--mpi", default="pmi2", help="srun --mpi plugin ('' to omit); pmi2 suits the PyPI mpich")
-    p.add_argument("--memory-gb", type=_gib("--memory-gb"), help="node memory for the fit check")
-    p.add_argument("--script", help="output path (default <study>.slurm.sh)")
-    p.set_defaults(func=cmd_submit)
+    from wavebrdf.jobs.shards import add_merge_parser
+    from wavebrdf.jobs.submit import add_submit_parser
+
+    add_submit_parser(sub, _count, _gib)
+    add_merge_parser(sub)
 
     p = sub.add_parser("inspect", help="summarise a dataset")
     p.add_argument("file", type=Path)
     p.add_argument("--config", action="store_true", help="also print the stored config")
     p.set_defaults(func=cmd_inspect)
 
-    p = sub.add_parser("render", help="write PNGs of a dataset's BRDF slices")
+    p = sub.add_parser("render", help="write PNGs of a dataset: hemisphere maps, polar slices, spectra, albedo, "
+                                      "height maps, fiber cross sections (docs/pictures.md)")
     p.add_argument("file", type=Path)
     p.add_argument("--out", type=Path, help="output folder (default: <file stem>_png)")
-    p.add_argument("--scene", choices=["sphere", "plate"],
+    from wavebrdf.jobs.render import add_render_flags
+
+    add_render_flags(p)
+    p.add_argument("--scene", choices=["sphere", "plate", "fibers"],
                    help="render the material with Mitsuba 3 (extra 'render') under a sky instead: "
-                        "<file stem>_<scene>.png")
+                        "<file stem>_<scene>.png (sphere/plate: surface datasets; fibers: fiber datasets)")
     p.set_defaults(func=cmd_render)
 
     p = sub.add_parser("devices", help="list OpenCL platforms/devices and their fp64 support")
@@ -518,6 +513,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("name", help="e.g. kirchhoff")
     p.add_argument("rest", nargs=argparse.REMAINDER)
     p.set_defaults(func=cmd_bench)
+    from wavebrdf.jobs.progress import add_verbosity_flags
+
+    add_verbosity_flags(parser, sub)  # -v/-q before or after the subcommand
     return parser
 
 
@@ -526,8 +524,9 @@ def main(argv: list[str] | None = None) -> int:
         args = build_parser().parse_args(argv)
     except SystemExit as exc:  # --help, --version, or a flag refused in one line
         return exc.code if isinstance(exc.code, int) else 0
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
+    from wavebrdf.jobs.progress import configure_logging
+
+    configure_logging(args.verbose)  # timestamped, printed above the progress bar
     try:
         return args.func(args)
     except _user_errors() as exc:

@@ -2,9 +2,10 @@
 
 Every listed surface model runs on the same scenes — the (case, wavelength, incident direction)
 slices of a study config, so one footprint, one output grid and one BRDF normalization — each run
-in a fresh process, which gives its wall time, CPU time (all threads, OpenCL's included) and peak
-memory over the process's baseline after imports. Times are of a first run in that process: they
-include loading the model's kernels from the PoCL cache (~0.1–0.5 s per model). Each BRDF is then
+alone in a measuring process (:class:`MeasuringProcess`, one per comparison: the interpreter and
+OpenCL start once), which gives its wall time, CPU time (all threads, OpenCL's included) and peak
+memory over the process's resident memory when it started (the peak RSS is reset before each
+model). Times include loading the model's kernels from the PoCL cache on its first use. Each BRDF is then
 compared with the reference model's on the same scene (solver/metrics.py):
 
 * ``rel_l2``: relative L2 over the reference's lobe of the unpolarized BRDF (the raw slices);
@@ -68,31 +69,44 @@ class Measurement:
     failure: str | None = None
 
 
-def _vmhwm_bytes() -> float:
+def _vm_bytes(key: str = "VmHWM") -> float:
     with open("/proc/self/status") as fh:
         for line in fh:
-            if line.startswith("VmHWM:"):
+            if line.startswith(key + ":"):
                 return float(line.split()[1]) * 1024.0
     return float("nan")
 
 
-def _child_main() -> None:
-    """Entry of the measuring process: read (name, options, scene) pickled from stdin, run the
-    model once and pickle what was measured into the file named by argv[1]."""
+def _reset_peak() -> float:
+    """Reset this process's peak RSS to its current RSS (Linux ``clear_refs`` 5) and return the new
+    baseline; NaN where the kernel does not allow it (then peaks are over the imports' baseline)."""
+    import ctypes
+
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)  # give freed heap back, so the next model's peak shows
+    except OSError:
+        pass
+    try:
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+    except OSError:
+        return float("nan")
+    return _vm_bytes("VmHWM")
+
+
+def _run_one(ctx, name: str, options, scene) -> dict:
+    """Run model ``name`` once on ``scene``: wall/CPU time, peak memory over the baseline, BRDF,
+    diagnostics (warnings included), or the failure."""
     import os
-    import pickle
-    import sys
     import warnings
 
     from wavebrdf.jobs.tasks import plain
     from wavebrdf.solver.models import get_model
-    from wavebrdf.solver.opencl import create_context
 
-    name, options, scene = pickle.load(sys.stdin.buffer)
     try:
-        ctx = create_context()
         model = get_model(name, options)
-        baseline = _vmhwm_bytes()
+        baseline = _reset_peak()
+        baseline = _vm_bytes() if not np.isfinite(baseline) else baseline
         t0, c0 = time.perf_counter(), os.times()
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
@@ -102,34 +116,103 @@ def _child_main() -> None:
         diagnostics = plain(result.diagnostics)
         if caught:
             diagnostics["warnings"] = "; ".join(sorted({str(w.message) for w in caught}))
-        out = dict(wall_s=wall, cpu_s=(c1.user - c0.user) + (c1.system - c0.system),
-                   peak_mb=max(_vmhwm_bytes() - baseline, 0.0) / 2**20, brdf=result.brdf(), diagnostics=diagnostics)
+        return dict(wall_s=wall, cpu_s=(c1.user - c0.user) + (c1.system - c0.system),
+                    peak_mb=max(_vm_bytes() - baseline, 0.0) / 2**20, brdf=result.brdf(), diagnostics=diagnostics)
     except Exception as exc:  # noqa: BLE001 - reported in the table, the comparison goes on
-        out = dict(failure=f"{type(exc).__name__}: {exc}", trace=traceback.format_exc())
-    with open(sys.argv[1], "wb") as fh:
-        pickle.dump(out, fh)
+        return dict(failure=f"{type(exc).__name__}: {exc}", trace=traceback.format_exc())
+
+
+def _worker_main() -> None:
+    """Entry of the measuring process: (name, options, scene) requests, length-prefixed pickles on
+    stdin, each answered on the original stdout (model output is sent to stderr)."""
+    import os
+    import pickle
+    import sys
+
+    from wavebrdf.jobs.scheduler import die_with_parent
+    from wavebrdf.solver.opencl import create_context
+
+    die_with_parent(os.getppid())
+    answers = os.fdopen(os.dup(1), "wb")
+    os.dup2(2, 1)
+    requests = sys.stdin.buffer
+    ctx = create_context()
+    while header := requests.read(8):
+        name, options, scene = pickle.loads(requests.read(int.from_bytes(header, "little")))
+        data = pickle.dumps(_run_one(ctx, name, options, scene))
+        answers.write(len(data).to_bytes(8, "little") + data)
+        answers.flush()
+
+
+class MeasuringProcess:
+    """One process that runs the models of a comparison one at a time, so that the interpreter
+    and OpenCL start once, not per model; each model's peak memory is measured from a reset of the
+    process's peak RSS (``clear_refs``). A model that kills the process is reported as a failure
+    and the next one gets a fresh process. Use as a context manager."""
+
+    def __init__(self):
+        self._proc = None
+        self._stderr = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self) -> None:
+        if self._proc is not None:
+            self._proc.stdin.close()
+            self._proc.wait()
+            self._proc = None
+        if self._stderr is not None:
+            self._stderr.close()
+            self._stderr = None
+
+    def _start(self) -> None:
+        import os
+        import subprocess
+        import sys
+        import tempfile
+
+        self._stderr = tempfile.TemporaryFile()
+        # a fixed mmap threshold: large arrays are mapped and unmapped, never kept in the heap for the
+        # next model (glibc's dynamic threshold would hide that model's peak)
+        env = {**os.environ, "MALLOC_MMAP_THRESHOLD_": str(1 << 17)}
+        self._proc = subprocess.Popen([sys.executable, "-c", "from wavebrdf.jobs.compare import _worker_main; "
+                                       "_worker_main()"], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                      stderr=self._stderr, env=env)
+
+    def measure(self, name: str, options, scene, label: str) -> Measurement:
+        """Run model ``name`` (Options or mapping) on ``scene`` in the measuring process."""
+        import pickle
+
+        if self._proc is None or self._proc.poll() is not None:
+            self.close()
+            self._start()
+        request = pickle.dumps((name, options, scene))
+        try:
+            self._proc.stdin.write(len(request).to_bytes(8, "little") + request)
+            self._proc.stdin.flush()
+            header = self._proc.stdout.read(8)
+            out = pickle.loads(self._proc.stdout.read(int.from_bytes(header, "little"))) if len(header) == 8 else None
+        except (BrokenPipeError, EOFError, pickle.UnpicklingError):
+            out = None
+        if out is None:
+            rc = self._proc.wait()
+            self._stderr.seek(0)
+            tail = self._stderr.read().decode(errors="replace").strip().splitlines()[-1:] or ["no output"]
+            out = {"failure": f"the measuring process exited with {rc}: {tail[0]}"}
+            self.close()
+        if "trace" in out:
+            logger.debug("%s on %s failed:\n%s", name, label, out.pop("trace"))
+        return Measurement(model=name, scene=label, **out)
 
 
 def measure(name: str, options, scene, label: str) -> Measurement:
-    """Run model ``name`` (Options or mapping) on ``scene`` in a fresh interpreter."""
-    import pickle
-    import subprocess
-    import sys
-    import tempfile
-
-    with tempfile.TemporaryDirectory(prefix="wavebrdf-compare-") as tmp:
-        result = Path(tmp) / "result.pickle"
-        proc = subprocess.run([sys.executable, "-c", "from wavebrdf.jobs.compare import _child_main; _child_main()",
-                               str(result)], input=pickle.dumps((name, options, scene)), capture_output=True)
-        if result.is_file():
-            with open(result, "rb") as fh:
-                out = pickle.load(fh)
-        else:
-            tail = proc.stderr.decode(errors="replace").strip().splitlines()[-1:] or ["no output"]
-            out = {"failure": f"the measuring process exited with {proc.returncode}: {tail[0]}"}
-    if "trace" in out:
-        logger.debug("%s on %s failed:\n%s", name, label, out.pop("trace"))
-    return Measurement(model=name, scene=label, **out)
+    """Run model ``name`` (Options or mapping) on ``scene`` in a fresh measuring process."""
+    with MeasuringProcess() as process:
+        return process.measure(name, options, scene, label)
 
 
 def speckle_sigma_u(wavelength_um: float, waist_um: float, grid: HemisphereGrid, exterior_index: float = 1.0) -> float:
@@ -190,33 +273,7 @@ class Comparison:
         return "\n".join(lines) + "\n"
 
     def plot(self, path: Path) -> None:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        scenes = list(dict.fromkeys(r["scene"] for r in self.rows))
-        models = list(dict.fromkeys(r["model"] for r in self.rows))
-        markers = "os^vD<>pX*hP"
-        colours = plt.get_cmap("tab10")
-        fig, ax = plt.subplots(figsize=(7.5, 5.0), dpi=120)
-        for r in self.rows:
-            err, t = r.get("rel_l2_smooth", np.nan), r.get("wall_s", np.nan)
-            if r["model"] == r["reference"].split(" ")[0] or not (np.isfinite(err) and np.isfinite(t)) or err <= 0:
-                continue
-            ax.loglog(t, err, linestyle="none", marker=markers[models.index(r["model"]) % len(markers)],
-                      color=colours(scenes.index(r["scene"]) % 10), markersize=7, alpha=0.85)
-        for i, m in enumerate(models):
-            ax.plot([], [], linestyle="none", marker=markers[i % len(markers)], color="0.3", label=m)
-        for j, s in enumerate(scenes):
-            ax.plot([], [], linestyle="-", color=colours(j % 10), label=s)
-        ax.set_xlabel("wall time per scene (s)")
-        ax.set_ylabel("relative L2 over the lobe vs reference (speckle-averaged)")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=6, loc="best", ncol=2)
-        fig.tight_layout()
-        fig.savefig(path)
-        plt.close(fig)
+        plot_trade(self.rows, path)
 
     def gallery(self, path: Path, decades: float = 5.0) -> None:
         """One row per scene (a single scene: rows of five), one hemisphere per model: log₁₀ of the unpolarized BRDF over
@@ -292,6 +349,51 @@ class Comparison:
                                      "diagnostics": json.dumps(m.diagnostics, default=repr)})
 
 
+def plot_trade(rows: list[dict], path: Path, group: str = "scene", title: str | None = None,
+               tolerance: float | None = None) -> None:
+    """Error (``rel_l2_smooth``) vs CPU time, log-log: one marker per model, one colour per
+    ``group`` value; the reference's own rows become a grey band of its CPU times; ``tolerance``
+    a dashed line."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    def reference_of(r):
+        return str(r.get("reference", "")).split(" ")[0]
+
+    groups = list(dict.fromkeys(r[group] for r in rows))
+    models = list(dict.fromkeys(r["model"] for r in rows if r["model"] != reference_of(r)))
+    markers = "os^vD<>pX*hP"
+    colours = plt.get_cmap("tab10")
+    fig, ax = plt.subplots(figsize=(8.5, 5.5), dpi=120)
+    for r in rows:
+        err, t = r.get("rel_l2_smooth", np.nan), r.get("cpu_s", np.nan)
+        if r["model"] == reference_of(r) or not (np.isfinite(err) and np.isfinite(t)) or err <= 0:
+            continue
+        ax.loglog(max(t, 1e-3), err, linestyle="none", marker=markers[models.index(r["model"]) % len(markers)],
+                  color=colours(groups.index(r[group]) % 10), markersize=6, alpha=0.8)
+    ref_times = [r["cpu_s"] for r in rows if r["model"] == reference_of(r) and np.isfinite(r.get("cpu_s", np.nan))]
+    if ref_times:
+        ax.axvspan(min(ref_times), max(ref_times) * 1.05, color="0.85", zorder=0,
+                   label=f"{reference_of(rows[0])} (the reference) CPU time")
+    if tolerance is not None:
+        ax.axhline(tolerance, color="k", linestyle="--", lw=1, label=f"tolerance {tolerance:g}")
+    for i, m in enumerate(models):
+        ax.plot([], [], linestyle="none", marker=markers[i % len(markers)], color="0.3", label=m)
+    for j, g in enumerate(groups):
+        ax.plot([], [], linestyle="-", color=colours(j % 10), label=str(g))
+    ax.set_xlabel("CPU time per scene (s)")
+    ax.set_ylabel("relative L2 over the lobe vs reference (speckle-averaged)")
+    if title:
+        ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=6, loc="best", ncol=3)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
 def _metrics(m: Measurement, ref: Measurement, grid: HemisphereGrid, sigma_u: float, theta: float, phi: float) -> dict:
     f = 0.5 * (m.brdf[0] + m.brdf[1])
     f_ref = 0.5 * (ref.brdf[0] + ref.brdf[1])
@@ -323,30 +425,37 @@ def compare_scenes(scenes: list[tuple[str, object]], models: list[str], options:
     rows: list[dict] = []
     kept: list[Measurement] = []
     grid = scenes[0][1].grid
-    for label, scene in scenes:
-        if reference is None:
-            ref_name, why = choose_reference(models, scene, budget)
-        else:
-            ref_name, why = reference, "given"
-        logger.info("%s: reference %s (%s)", label, ref_name, why)
-        runs = {}
-        for name in [ref_name] + [n for n in models if n != ref_name]:
-            if progress:
-                progress(f"{label}: {name}")
-            runs[name] = measure(name, options.get(name), scene, label)
-            kept.append(runs[name])
-            logger.info("%s: %s %.3g s wall, %.3g s CPU, %.0f MB%s", label, name, runs[name].wall_s,
-                        runs[name].cpu_s, runs[name].peak_mb, f" — {runs[name].failure}" if runs[name].failure else "")
-        ref = runs[ref_name]
-        sigma_u = speckle_sigma_u(scene.wavelength_um, scene.waist_um, grid, scene.exterior_index)
-        for name, m in runs.items():
-            row = {"scene": label, "model": name, "reference": ref_name if reference else f"{ref_name} ({why})",
-                   "wall_s": m.wall_s, "cpu_s": m.cpu_s, "peak_mb": m.peak_mb, "failure": m.failure}
-            if m.failure is None and ref.failure is None:
-                row.update(_metrics(m, ref, grid, sigma_u, scene.theta_i, scene.phi_i))
-            rows.append(row)
+    with MeasuringProcess() as process:
+        for label, scene in scenes:
+            rows += _compare_one(process, label, scene, models, options, reference, budget, kept, grid, progress)
     return Comparison(rows, kept, grid)
 
+
+def _compare_one(process, label, scene, models, options, reference, budget, kept, grid, progress) -> list[dict]:
+    """The rows of one scene: the reference and every model measured, then the metrics."""
+    rows = []
+    if reference is None:
+        ref_name, why = choose_reference(models, scene, budget)
+    else:
+        ref_name, why = reference, "given"
+    logger.info("%s: reference %s (%s)", label, ref_name, why)
+    runs = {}
+    for name in [ref_name] + [n for n in models if n != ref_name]:
+        if progress:
+            progress(f"{label}: {name}")
+        runs[name] = process.measure(name, options.get(name), scene, label)
+        kept.append(runs[name])
+        logger.info("%s: %s %.3g s wall, %.3g s CPU, %.0f MB%s", label, name, runs[name].wall_s,
+                    runs[name].cpu_s, runs[name].peak_mb, f" — {runs[name].failure}" if runs[name].failure else "")
+    ref = runs[ref_name]
+    sigma_u = speckle_sigma_u(scene.wavelength_um, scene.waist_um, grid, scene.exterior_index)
+    for name, m in runs.items():
+        row = {"scene": label, "model": name, "reference": ref_name if reference else f"{ref_name} ({why})",
+               "wall_s": m.wall_s, "cpu_s": m.cpu_s, "peak_mb": m.peak_mb, "failure": m.failure}
+        if m.failure is None and ref.failure is None:
+            row.update(_metrics(m, ref, grid, sigma_u, scene.theta_i, scene.phi_i))
+        rows.append(row)
+    return rows
 
 
 def surface_models(plan) -> list[str]:
@@ -354,7 +463,7 @@ def surface_models(plan) -> list[str]:
     statistics models when every case's surface carries its ensemble."""
     from wavebrdf.solver.models import model_names
 
-    names = list(model_names("height_field"))
+    names = [n for n in model_names("height_field") if n != "auto"]  # auto picks a rung; it is none
     if all(plan.surface(case).ensemble is not None for case in range(len(plan.config.cases))):
         names += list(model_names("statistics"))
     return sorted(names, key=lambda n: LADDER.index(n) if n in LADDER else -1)
@@ -396,15 +505,21 @@ def compare_config(config, models: list[str] | None = None, reference: str | Non
     reference = reference or section.get("reference")
     if reference is not None and reference not in models:
         models = [reference] + models
+    budget = None if memory_gb is None else memory_gb * 2**30
+    return compare_scenes(plan_scenes(plan), models, options, reference, budget, progress)
+
+
+def plan_scenes(plan) -> list[tuple[str, object]]:
+    """(label, SurfaceScene) of every direct task of a surface plan; the label names the case (and
+    its swept values), λ and θ_i — the ``scene`` column of the comparison table."""
     scenes = []
     for task in plan.tasks:
         if task.kind != "direct":
             continue
         scene = plan.scene(task)
-        case = config.cases[task.case]
+        case = plan.config.cases[task.case]
         where = ", ".join(f"{k}={v}" for k, v in case.sweep_values.items())
         label = (f"{case.name}{' (' + where + ')' if where else ''} λ={scene.wavelength_um:g} µm "
                  f"θi={np.rad2deg(scene.theta_i):.0f}°")
         scenes.append((label, scene))
-    budget = None if memory_gb is None else memory_gb * 2**30
-    return compare_scenes(scenes, models, options, reference, budget, progress)
+    return scenes

@@ -3,7 +3,9 @@
 Every problem is reported as a :class:`ConfigError` whose one-line message names the key, the
 value and what is allowed, e.g. ``[illumination] wavelengths_um = [-0.4]: values must be > 0``.
 Relative ``surface.file`` paths are resolved against the config file's folder; ``study.output``
-against the working directory.
+against the working directory. Lists of numbers may be ``{start, stop, count}`` ranges and
+directions a ``{theta, phi}`` grid (jobs/ranges.py); :func:`load_config` also takes a dict and
+``--set``-style overrides (jobs/overrides.py).
 
 Sections (see configs/*.toml and the README for a full example)::
 
@@ -164,6 +166,9 @@ def _choice(*choices: str) -> Callable:
 
 
 def _positive_list(section, key, value):
+    from wavebrdf.jobs.ranges import expand_range
+
+    value = expand_range(section, key, value)  # {start, stop, count}
     if not isinstance(value, list) or not value:
         raise _fail(section, key, value, "must be a non-empty list of numbers")
     out = []
@@ -177,6 +182,9 @@ def _positive_list(section, key, value):
 
 
 def _directions(section, key, value):
+    from wavebrdf.jobs.ranges import expand_directions
+
+    value = expand_directions(section, key, value)  # {theta = ..., phi = ...} grid
     if not isinstance(value, list) or not value:
         raise _fail(section, key, value, "must be a non-empty list of [theta_deg, phi_deg] pairs")
     out = []
@@ -200,6 +208,9 @@ def _angle_list(low: float, high: float) -> Callable:
     """A non-empty list of distinct angles (degrees) in the open interval (low, high)."""
 
     def check(section, key, value):
+        from wavebrdf.jobs.ranges import expand_range
+
+        value = expand_range(section, key, value)  # {start, stop, count}
         if not isinstance(value, list) or not value:
             raise _fail(section, key, value, "must be a non-empty list of angles in degrees")
         out = []
@@ -311,6 +322,7 @@ SCHEMA: dict[str, dict[str, Spec]] = {
         "workers": Spec(_integer_at_least(1)),
         "memory_gb": Spec(_positive),
         "retries": Spec(_integer_at_least(0), default=1),
+        "prologue": Spec(_string),  # `wavebrdf submit`: shell lines before the run (module loads, venv)
     },
     "fiber": {
         "shape": Spec(_choice("circle", "ellipse", "polygon"), required=True),
@@ -319,6 +331,8 @@ SCHEMA: dict[str, dict[str, Spec]] = {
         "points_file": Spec(_string),
         "segments": Spec(_integer_at_least(8)),
         "rotation_deg": Spec(lambda s, k, v: _number(s, k, v), default=0.0),
+        # d'Eon's longitudinal variance v (rad²): the dataset's default for M0, overridable at render time
+        "longitudinal_variance": Spec(lambda s, k, v: _number(s, k, v, low=1e-3, high=10.0), default=0.02),
     },
     "output": {
         "phi_r_bins": Spec(_integer_at_least(8), default=360),
@@ -401,6 +415,7 @@ class FiberSpec:
     points_file: Path | None
     segments: int | None
     rotation_deg: float
+    longitudinal_variance: float = 0.02  # d'Eon's v (rad²), the dataset's default for M0
 
     def build(self):
         """The :class:`~wavebrdf.solver.fiber.CrossSection`."""
@@ -600,8 +615,20 @@ def _check_output_path(raw_output: str) -> Path:
 
 def make_output_folder(output: Path) -> None:
     """Create the output's folder when it is the one missing level :func:`_check_output_path`
-    allows (``wavebrdf run`` only, right before it takes the output's lock)."""
-    Path(output).resolve().parent.mkdir(exist_ok=True)
+    allows (``wavebrdf run`` only, right before it takes the output's lock). The rule holds here
+    too, for paths that never went through it (``compare --out``) or whose folders vanished since:
+    at most the last folder level is created; a deeper missing chain is a one-line ConfigError."""
+    folder = Path(output).expanduser().resolve().parent
+    if folder.is_dir():
+        return
+    if not folder.parent.is_dir():
+        raise ConfigError(f"output {str(output)!r}: folder {str(folder)!r} does not exist, nor does "
+                          f"{str(folder.parent)!r}; create the folder first (only the last level is created)")
+    try:
+        folder.mkdir()
+    except FileExistsError:
+        if not folder.is_dir():
+            raise ConfigError(f"output {str(output)!r}: {str(folder)!r} is not a folder") from None
 
 
 def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: dict,
@@ -715,7 +742,8 @@ def _fiber_spec(f: dict, base_dir: Path) -> FiberSpec:
     if f["points_file"] is not None:
         points = Path(f["points_file"]).expanduser()
         points = points if points.is_absolute() else base_dir / points
-    return FiberSpec(f["shape"], f["radius_um"], f["semi_axes_um"], points, f["segments"], f["rotation_deg"])
+    return FiberSpec(f["shape"], f["radius_um"], f["semi_axes_um"], points, f["segments"], f["rotation_deg"],
+                     f["longitudinal_variance"])
 
 
 def _illumination_spec(ill: dict, given: dict, is_fiber: bool) -> IlluminationSpec:
@@ -850,7 +878,10 @@ def parse_config(text: str, path: Path | None = None, output: str | Path | None 
     if not isinstance(sweep, dict):
         raise ConfigError(f"[sweep] must be a table of \"section.key\" = [values], got {_fmt(sweep)}")
     axes: dict[str, tuple] = {}
+    from wavebrdf.jobs.ranges import expand_range
+
     for dotted, values in _flatten_sweep(sweep).items():
+        values = expand_range("sweep", dotted, values)  # {start, stop, count}
         section, _, key = dotted.partition(".")
         if section not in SCHEMA or (key not in SCHEMA[section] and section not in OPEN_SECTIONS):
             raise ConfigError(f"[sweep] {dotted}: not a config key{_suggest(dotted, _all_keys())}")
@@ -883,9 +914,11 @@ def parse_config(text: str, path: Path | None = None, output: str | Path | None 
 
 def _flatten_sweep(sweep: dict) -> dict:
     """Accept both ``"surface.seed" = [...]`` and a nested ``[sweep.surface] seed = [...]``."""
+    from wavebrdf.jobs.ranges import RANGE_KEYS
+
     flat = {}
     for key, value in sweep.items():
-        if isinstance(value, dict):
+        if isinstance(value, dict) and set(value) != set(RANGE_KEYS):  # not a {start, stop, count} range
             for sub, inner in value.items():
                 flat[f"{key}.{sub}"] = inner
         else:
@@ -897,9 +930,34 @@ def _all_keys() -> list[str]:
     return [f"{s}.{k}" for s, keys in SCHEMA.items() for k in keys]
 
 
-def load_config(path: str | Path, output: str | Path | None = None) -> StudyConfig:
-    """Read and validate a config file; ``output`` overrides ``[study] output``."""
-    path = Path(path)
+def load_config(path: str | Path | dict | StudyConfig, output: str | Path | None = None,
+                overrides=None) -> StudyConfig:
+    """Read and validate a config file — or a dict of sections as TOML loads them (relative paths
+    against the working directory), or the text of a loaded :class:`StudyConfig` (returned as it
+    is when nothing changes); ``overrides`` ({dotted key: value} or [(key, value), ...],
+    jobs/overrides.py) change keys before validation; ``output`` overrides ``[study] output``."""
+    if isinstance(path, StudyConfig) and output is None and not overrides:
+        return path
+    if isinstance(path, (dict, StudyConfig)):
+        from wavebrdf.jobs.overrides import dict_config_text
+
+        text, path = (dict_config_text(path), None) if isinstance(path, dict) else (path.text, path.path)
+    else:
+        path = Path(path)
+        text = _read_config_text(path)
+    if overrides:
+        from wavebrdf.jobs.overrides import overridden_text
+
+        text = overridden_text(text, overrides, path)
+    if output is None:
+        return parse_config(text, path)
+    cfg = parse_config(text, path, output=output)
+    note = f"\n# --output given on the command line: {output}\n"
+    return StudyConfig(text=text + note, path=path, sweep_axes=cfg.sweep_axes, cases=cfg.cases)
+
+
+def _read_config_text(path: Path) -> str:
+    """The UTF-8 text of config file ``path`` (a one-line ConfigError if it cannot be one)."""
     problem = input_file_problem(path)
     if problem is None and path.stat().st_size > MAX_CONFIG_BYTES:
         problem = f"is {path.stat().st_size / 2**20:.0f} MiB; a config is a small TOML text file"
@@ -911,8 +969,4 @@ def load_config(path: str | Path, output: str | Path | None = None) -> StudyConf
     except UnicodeDecodeError as exc:
         raise ConfigError(f"config file {str(path)!r} is not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset "
                           f"{exc.start}); a config is a TOML text file") from None
-    if output is None:
-        return parse_config(text, path)
-    cfg = parse_config(text, path, output=output)
-    note = f"\n# --output given on the command line: {output}\n"
-    return StudyConfig(text=text + note, path=path, sweep_axes=cfg.sweep_axes, cases=cfg.cases)
+    return text

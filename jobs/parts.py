@@ -389,6 +389,15 @@ class PartsFolder:
                         theta_i=float(theta), phi_i=float(phi), E=arrays["E"], H=arrays.get("H"),
                         incident_power=arrays["incident_power"], diagnostics=diagnostics)
 
+    def adopt(self, task, other: PartsFolder) -> bool:
+        """Copy ``task``'s part from ``other`` (a folder of the same plan, e.g. a shard's) into
+        this folder, atomically, if it verifies there; True when copied."""
+        if other.problem(task) is not None:
+            return False
+        source = other._file(task)
+        atomic_write(self._file(task), lambda fh: fh.write(source.read_bytes()))
+        return True
+
     def load_diagnostics(self, task) -> dict:
         return self.load_arrays(task)[1]
 

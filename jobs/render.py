@@ -1,94 +1,73 @@
-"""PNG pictures of datasets (``wavebrdf render``).
+"""PNG pictures of datasets (``wavebrdf render``, and ``wavebrdf run`` when it finishes).
 
-Surfaces: one picture per (sweep case, incident direction); axes are the projected-hemisphere
-direction cosines u (x, vertical) and v (y, horizontal); the white circle is the horizon.
-Fibers: one φ_i–φ_r map of the azimuthal scattering function N_wave per (sweep case, θ_i);
-circular fibers (one φ_i) are drawn over all φ_i by their rotation invariance.
-With several wavelengths the spectrum is converted to colour (CIE XYZ → sRGB,
-solver/spectrum.py) with a logarithmic tone map that keeps chromaticity (these functions span many
-decades); with one wavelength a false-colour log₁₀ map with a colour bar.
+Which pictures exist and what they show: jobs/pictures/ (surfaces: ``maps``, ``slices``,
+``spectra``, ``albedo``, ``heights``; fibers: ``maps``, ``slices``, ``albedo``,
+``cross-sections``). :func:`render_dataset` draws the chosen kinds for the chosen incidences,
+at most ``max_images`` of them (a warning says how many were left out and how to get them), into
+a staging folder that replaces the output folder's pictures only when all are written.
 """
 
 from __future__ import annotations
 
+import argparse
+import logging
+import math
 import os
 import re
 import shutil
 from pathlib import Path
 
-import numpy as np
-
 from wavebrdf.jobs.parts import storage_error
+from wavebrdf.jobs.pictures import DECADES, KINDS, PictureOptions, pictures
 from wavebrdf.jobs.store import Dataset, StoreError
-from wavebrdf.solver.spectrum import spectral_weights, srgb_encode, xyz_to_linear_srgb
 
-__all__ = ["render_dataset", "log_tone_map"]
+__all__ = ["MAX_IMAGES", "RenderedPictures", "add_render_flags", "render_dataset", "render_options"]
 
-DECADES = 5.0  # dynamic range shown
-
-
-def log_tone_map(rgb_linear: np.ndarray, luminance: np.ndarray, decades: float = DECADES) -> np.ndarray:
-    """Scale colours so that log₁₀ luminance over ``decades`` below the peak maps to [0, 1]."""
-    lum = np.where(np.isfinite(luminance), luminance, 0.0)
-    peak = lum.max()
-    if peak <= 0:
-        return np.zeros_like(rgb_linear)
-    level = np.clip((np.log10(np.maximum(lum, peak * 10**-decades)) - np.log10(peak)) / decades + 1.0, 0, 1)
-    scale = np.where(lum > 0, level / np.maximum(lum, 1e-300), 0.0)
-    rgb = rgb_linear * scale[..., None]
-    return rgb / max(1.0, rgb.max())
+MAX_IMAGES = 200
+logger = logging.getLogger("wavebrdf.render")
 
 
-def _figure(title: str, hemisphere: bool = True):
-    import matplotlib
+class RenderedPictures(list):
+    """The paths written; ``total``: how many the options asked for (more when capped)."""
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(5.6, 4.8), dpi=120)
-    ax.set_title(title, fontsize=9)
-    if hemisphere:
-        ax.set_xlabel("v (y direction cosine)")
-        ax.set_ylabel("u (x direction cosine)")
-        t = np.linspace(0, 2 * np.pi, 361)
-        ax.plot(np.cos(t), np.sin(t), color="white", lw=0.6)
-        ax.set_xlim(-1, 1)
-        ax.set_ylim(-1, 1)
-        ax.set_aspect("equal")
-    else:
-        ax.set_xlabel("φ_r (degrees)")
-        ax.set_ylabel("φ_i (degrees)")
-    return fig, ax, plt
+    total: int = 0
 
 
-def _draw(fig, ax, cube: np.ndarray, wavelengths: np.ndarray, extent, unit: str) -> None:
-    """Spectral cube (n_wl, rows, cols) as sRGB (several λ) or false-colour log₁₀ (one λ)."""
-    ax.set_facecolor("black")
-    if len(wavelengths) > 1:
-        xyz = np.einsum("kw,wij->ijk", spectral_weights(wavelengths), np.nan_to_num(cube))
-        rgb = log_tone_map(xyz_to_linear_srgb(xyz), xyz[..., 1])
-        ax.imshow(srgb_encode(rgb), origin="lower", extent=extent, interpolation="nearest", aspect="auto")
-        return
-    with np.errstate(divide="ignore", invalid="ignore"):
-        logf = np.log10(cube[0])
-    top = np.nanmax(logf[np.isfinite(logf)]) if np.any(np.isfinite(logf)) else 0.0
-    im = ax.imshow(logf, origin="lower", extent=extent, cmap="magma", vmin=top - DECADES, vmax=top,
-                   interpolation="nearest", aspect="auto")
-    fig.colorbar(im, ax=ax, label=f"log₁₀ {unit}")
+def _options(kind: str, n_directions: int, plots, incidences, decades, limits, directions) -> PictureOptions:
+    """Checked :class:`PictureOptions` (a one-line ConfigError naming the option and value)."""
+    from wavebrdf.jobs.config import ConfigError
+
+    allowed = KINDS[kind]
+    chosen = tuple(allowed) if plots is None else tuple(plots)
+    unknown = [p for p in chosen if p not in allowed]
+    if unknown or not chosen:
+        raise ConfigError(f"--plots {','.join(chosen)}: {kind} datasets have the pictures {', '.join(allowed)}")
+    if incidences is not None:
+        bad = [i for i in incidences if not 0 <= i < n_directions]
+        if bad or not incidences:
+            axis = "theta_i" if kind == "fiber" else "incidence"
+            raise ConfigError(f"--incidences {','.join(map(str, incidences))}: indices along {axis} are 0 to "
+                              f"{n_directions - 1}")
+    if not (math.isfinite(decades) and decades > 0):
+        raise ConfigError(f"--decades {decades}: must be a number > 0")
+    if limits is not None and not (0 < limits[0] < limits[1] and math.isfinite(limits[1])):
+        raise ConfigError(f"--limits {limits[0]} {limits[1]}: need 0 < VMIN < VMAX")
+    return PictureOptions(chosen, None if incidences is None else tuple(incidences), decades,
+                          None if limits is None else tuple(limits),
+                          None if directions is None else tuple(map(tuple, directions)))
 
 
-def _spectral_note(wavelengths: np.ndarray) -> str:
-    if len(wavelengths) > 1:
-        return f"{wavelengths.min():g}–{wavelengths.max():g} µm, sRGB, log tone map ({DECADES:g} decades)"
-    return f"λ = {wavelengths[0]:g} µm"
+def render_dataset(path: str | Path, out_dir: str | Path | None = None, *, plots=None, incidences=None,
+                   max_images: int = MAX_IMAGES, decades: float = DECADES, limits=None,
+                   directions=None) -> RenderedPictures:
+    """Write the PNGs of dataset ``path`` into ``out_dir`` (default ``<stem>_png``); return their
+    paths (a :class:`RenderedPictures`).
 
-
-def _case_label(keys: list[str], coords: dict, case_index: tuple) -> str:
-    return ", ".join(f"{k}={coords[k][i]}" for k, i in zip(keys, case_index))
-
-
-def render_dataset(path: str | Path, out_dir: str | Path | None = None, *, max_images: int = 200) -> list[Path]:
-    """Write the PNGs of dataset ``path`` into ``out_dir`` (default ``<stem>_png``); return paths.
+    ``plots``: kinds to draw (default: all of the dataset's kind); ``incidences``: indices along
+    incidence (fibers: theta_i) for the per-direction pictures (default all); ``decades``: log
+    range below the peak, or ``limits`` (vmin, vmax) in the variable's units; ``directions``:
+    outgoing (θ_o, φ_o) degrees for spectra. At most ``max_images`` are drawn, in order (per
+    case summaries first); a warning names how many were left out.
 
     The dataset is opened and checked before anything is created. The pictures are drawn into a
     temporary folder beside ``out_dir`` and moved into place only when all of them are written,
@@ -96,29 +75,33 @@ def render_dataset(path: str | Path, out_dir: str | Path | None = None, *, max_i
     it was."""
     path = Path(path)
     out_dir = Path(out_dir) if out_dir else path.with_name(path.stem + "_png")
-    with Dataset(path) as ds, ds.reading():
+    if isinstance(max_images, bool) or not isinstance(max_images, int) or max_images < 1:
+        from wavebrdf.jobs.config import ConfigError
+
+        raise ConfigError(f"--max-images {max_images}: must be an integer >= 1")
+    with Dataset(path) as ds:  # opened and checked: its shapes are known
+        opts = _options(ds.kind, ds.h5[ds.main_variable].shape[len(ds.sweep_keys) + 1], plots, incidences, decades,
+                        limits, directions)
+        written = _render(ds, path, out_dir, opts, max_images)
+    return written
+
+
+def _render(ds: Dataset, path: Path, out_dir: Path, opts: PictureOptions, max_images: int) -> RenderedPictures:
+    with ds.reading():
         if out_dir.exists() and not out_dir.is_dir():
             raise StoreError(f"cannot write PNGs into {str(out_dir)!r}: it is not a folder")
         if not out_dir.parent.is_dir():
             raise StoreError(f"cannot write PNGs into {str(out_dir)!r}: folder {str(out_dir.parent)!r} does not exist")
         _remove_abandoned(out_dir)
-        pictures = _fiber_pictures(ds) if ds.kind == "fiber" else _surface_pictures(ds)
-        wl = ds.coords["wavelength_um"]
+        wanted = pictures(ds, opts)
         staging = out_dir.with_name(f".{out_dir.name}.{os.getpid()}.tmp")
         names = []
         try:
             staging.mkdir()
-            for suffix, title, cube, extent, unit, hemisphere in pictures:
-                if len(names) >= max_images:
-                    break
-                fig, ax, plt = _figure(f"{title}\n{_spectral_note(wl)}", hemisphere)
-                try:
-                    _draw(fig, ax, cube, wl, extent, unit)
-                    fig.tight_layout()
-                    names.append(f"{path.stem}{suffix}.png")
-                    fig.savefig(staging / names[-1])
-                finally:
-                    plt.close(fig)
+            for picture in wanted[:max_images]:
+                fig = picture.draw()
+                names.append(f"{path.stem}{picture.suffix}.png")
+                fig.savefig(staging / names[-1])
             if out_dir.is_dir():
                 for name in names:
                     os.replace(staging / name, out_dir / name)
@@ -130,7 +113,53 @@ def render_dataset(path: str | Path, out_dir: str | Path | None = None, *, max_i
             if isinstance(exc, OSError):
                 raise storage_error(out_dir, exc) from None
             raise
-    return [out_dir / name for name in names]
+    if len(wanted) > max_images:
+        logger.warning("%s: wrote the first %d of %d pictures (the limit --max-images %d); choose fewer with "
+                       "--plots/--incidences or raise --max-images", path.name, max_images, len(wanted), max_images)
+    written = RenderedPictures(out_dir / name for name in names)
+    written.total = len(wanted)
+    return written
+
+
+def add_render_flags(p: argparse.ArgumentParser) -> None:
+    """``wavebrdf render``'s picture options (see :func:`render_dataset`)."""
+    kinds = sorted({k for ks in KINDS.values() for k in ks})
+
+    def listed(flag: str, convert):
+        def parse(text: str):
+            try:
+                return [convert(x) for x in text.replace(";", ",").split(",") if x.strip()]
+            except ValueError:
+                raise argparse.ArgumentTypeError(f"{flag} {text}: expected a comma-separated list") from None
+        return parse
+
+    def direction(text: str):
+        try:
+            theta, phi = (float(x) for x in text.split(","))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"--direction {text}: expected THETA,PHI in degrees") from None
+        if not (0 <= theta < 90 and math.isfinite(phi)):
+            raise argparse.ArgumentTypeError(f"--direction {text}: theta must be in [0, 90) degrees")
+        return theta, phi
+
+    p.add_argument("--plots", type=listed("--plots", str), metavar="KINDS",
+                   help=f"pictures to draw, comma-separated: {', '.join(kinds)} (default: all of the dataset's kind)")
+    p.add_argument("--incidences", type=listed("--incidences", int), metavar="I,J",
+                   help="indices along incidence (fibers: theta_i) for the per-direction pictures (default: all)")
+    p.add_argument("--max-images", type=int, default=MAX_IMAGES, metavar="N",
+                   help=f"draw at most N pictures (default {MAX_IMAGES}); a warning says how many were left out")
+    p.add_argument("--decades", type=float, default=DECADES, help=f"log range below the peak (default {DECADES:g})")
+    p.add_argument("--limits", type=float, nargs=2, metavar=("VMIN", "VMAX"),
+                   help="fixed log colour/radius range in the variable's units (1/sr, 1/rad) instead of --decades")
+    p.add_argument("--direction", type=direction, action="append", dest="directions", metavar="THETA,PHI",
+                   help="outgoing direction (degrees) for the spectra pictures; repeatable (default: specular and "
+                        "5° and 15° from it)")
+
+
+def render_options(args) -> dict:
+    """The keyword arguments of :func:`render_dataset` from parsed :func:`add_render_flags` flags."""
+    return {"plots": args.plots, "incidences": args.incidences, "max_images": args.max_images,
+            "decades": args.decades, "limits": args.limits, "directions": args.directions}
 
 
 def _remove_abandoned(out_dir: Path) -> None:
@@ -150,45 +179,3 @@ def _alive(pid: int) -> bool:
     except PermissionError:
         return True
     return True
-
-
-def _cases(ds: Dataset, variable: str):
-    keys = ds.sweep_keys
-    coords = ds.coords
-    lead = ds.h5[variable].shape[: len(keys)]
-    for case_index in np.ndindex(*lead) if lead else [()]:
-        yield case_index, _case_label(keys, coords, case_index), "".join(f"_c{i}" for i in case_index)
-
-
-def _surface_pictures(ds: Dataset):
-    coords = ds.coords
-    brdf = ds.h5["brdf"]
-    pol = brdf.attrs.get("polarization", "")
-    n_lead = len(ds.sweep_keys)
-    for case_index, case_txt, suffix in _cases(ds, "brdf"):
-        for inc in range(brdf.shape[n_lead + 1]):
-            title = f"θi={coords['theta_i'][inc]:g}°, φi={coords['phi_i'][inc]:g}°, {pol}"
-            if case_txt:
-                title += f"\n{case_txt}"
-            cube = np.asarray(brdf[case_index + (slice(None), inc)], dtype=float)  # (n_wl, res, res)
-            yield f"{suffix}_inc{inc}", title, cube, (-1, 1, -1, 1), "BRDF (1/sr)", True
-
-
-def _fiber_pictures(ds: Dataset):
-    coords = ds.coords
-    bcsdf = ds.h5["bcsdf"]
-    n_lead = len(ds.sweep_keys)
-    phi_r = coords["phi_r"]
-    for case_index, case_txt, suffix in _cases(ds, "bcsdf"):
-        for ti in range(bcsdf.shape[n_lead + 1]):
-            cube = np.asarray(bcsdf[case_index + (slice(None), ti)], dtype=float)  # (n_wl, P, R)
-            if cube.shape[1] == 1:  # circle: N(φ_i, φ_r) = N(0, φ_r − φ_i)
-                cube = np.stack([np.stack([np.roll(c[0], i) for i in range(len(phi_r))]) for c in cube])
-            title = f"fiber N_wave, θi={coords['theta_i'][ti]:g}° (unpolarized)"
-            if case_txt:
-                title += f"\n{case_txt}"
-            step = 360.0 / len(phi_r)
-            phi_i = coords["phi_i"] if bcsdf.shape[n_lead + 2] > 1 else phi_r
-            extent = (phi_r[0] - step / 2, phi_r[-1] + step / 2, phi_i[0], phi_i[-1] + (phi_i[1] - phi_i[0]
-                                                                                          if len(phi_i) > 1 else 1))
-            yield f"{suffix}_theta{ti}", title, cube, extent, "N_wave (1/rad)", False

@@ -37,10 +37,13 @@ from dataclasses import dataclass
 from enum import IntEnum
 from pathlib import Path
 
+from wavebrdf.jobs.node import threads_per_rank
 from wavebrdf.jobs.parts import PartsFolder, ResumeError, StorageError, remove_leftovers
 from wavebrdf.jobs.plan import Plan, Task
+from wavebrdf.jobs.progress import RunLog, worker_stages
 from wavebrdf.jobs.store import write_dataset
 from wavebrdf.jobs.tasks import ModelPool, execute_task, plain
+from wavebrdf.solver.progress import silent
 
 logger = logging.getLogger(__name__)
 
@@ -66,12 +69,14 @@ class RunSummary:
 
 
 def worker_environment(workers_on_node: int, rank: int, cores: int | None = None) -> dict[str, str]:
-    """Environment for one of ``workers_on_node`` workers: bounded threads, own kernel cache.
+    """Environment for one of ``workers_on_node`` workers of a node: bounded threads
+    (:func:`~wavebrdf.jobs.node.threads_per_rank`: the CPU affinity or ``SLURM_CPUS_PER_TASK``,
+    a user's ``OMP_NUM_THREADS``) and the node's shared kernel cache (``POCL_CACHE_DIR``, built
+    once, see :meth:`~wavebrdf.solver.opencl.ComputeContext.program`). ``rank`` is kept for callers.
 
     Must be applied before the worker first touches OpenCL (PoCL reads it at platform load).
     """
-    cores = cores or os.cpu_count() or 1
-    threads = str(max(1, cores // max(1, workers_on_node)))
+    threads = str(threads_per_rank(workers_on_node, cpus=cores))
     base = Path(os.environ.get("POCL_CACHE_DIR", Path.home() / ".cache" / "pocl")).expanduser()
     return {
         "POCL_MAX_PTHREAD_COUNT": threads,
@@ -80,7 +85,7 @@ def worker_environment(workers_on_node: int, rank: int, cores: int | None = None
         "OMP_NUM_THREADS": threads,
         "OPENBLAS_NUM_THREADS": threads,
         "MKL_NUM_THREADS": threads,
-        "POCL_CACHE_DIR": str(base / f"rank-{rank}"),
+        "POCL_CACHE_DIR": str(base),
     }
 
 
@@ -102,7 +107,8 @@ def apply_worker_environment(env: dict[str, str]) -> None:
 class TaskBoard:
     """Which tasks are ready, running, done or failed; retries; the progress bar."""
 
-    def __init__(self, plan: Plan, parts: PartsFolder, retries: int, progress: bool):
+    def __init__(self, plan: Plan, parts: PartsFolder, retries: int, progress: bool, quiet: bool = False,
+                 only: set[int] | None = None):
         self.plan = plan
         self.parts = parts
         self.retries = retries
@@ -111,15 +117,13 @@ class TaskBoard:
         self.run_info: dict[int, dict] = {}  # per-task scheduling facts (rank, dispatch wait) for the table
         self.attempts: dict[int, int] = {}
         self.running: set[int] = set()
-        self.waiting = [t for t in plan.tasks if t.id not in self.done]
+        self.waiting = [t for t in plan.tasks if t.id not in self.done and (only is None or t.id in only)]
         for task in self.waiting:
             parts.clear_failure(task)
         self.started = time.perf_counter()
         self.dispatch_seconds = 0.0
-        from tqdm import tqdm
-
-        self.bar = tqdm(total=len(plan.tasks), initial=len(self.done), unit="task", disable=not progress,
-                        file=sys.stderr, dynamic_ncols=True, desc="simulating")
+        ours = len(plan.tasks) if only is None else len(only)  # a shard runs only its tasks (jobs/shards.py)
+        self.log = RunLog(plan, ours - len(self.waiting), quiet=quiet, show=progress, total=ours)
         if self.done:
             logger.info("resuming: %d of %d tasks already done", len(self.done), len(plan.tasks))
 
@@ -144,19 +148,9 @@ class TaskBoard:
     def finish(self, task: Task, diagnostics: dict) -> None:
         self.running.discard(task.id)
         self.done.add(task.id)
-        self.run_info[task.id] = {k: diagnostics[k] for k in ("rank", "dispatch_wait_s") if k in diagnostics}
-        line = (f"[{len(self.done)}/{len(self.plan.tasks)}] {task.label}: {diagnostics.get('model', '')} "
-                f"{diagnostics.get('wall_time_s', 0.0):.2f} s, peak {diagnostics.get('peak_memory_mb', 0):.0f} MB")
-        for key in ("iterations", "residual"):
-            if key in diagnostics:
-                line += f", {key} {diagnostics[key]}"
-        if diagnostics.get("warnings"):
-            line += f" [warning: {diagnostics['warnings']}]"
-        if self.bar.disable:
-            logger.info("%s", line)
-        else:
-            self.bar.write(line, file=sys.stderr)
-        self.bar.update(1)
+        self.run_info[task.id] = {k: diagnostics[k] for k in ("rank", "dispatch_wait_s", "threads", "kernel_build_s")
+                                  if k in diagnostics}
+        self.log.task_done(task, diagnostics)
 
     def fail(self, task: Task, diagnostics: dict, final: bool = False) -> None:
         self.running.discard(task.id)
@@ -169,27 +163,39 @@ class TaskBoard:
         diagnostics = {**diagnostics, "attempts": self.attempts.get(task.id, 0)}
         self.failed[task.id] = diagnostics
         self.parts.save_failure(task, diagnostics)
-        self.bar.update(1)
+        self.log.task_failed()
 
     @property
     def finished(self) -> bool:
         return not self.waiting and not self.running
 
     def close(self) -> None:
-        self.bar.close()
+        self.log.close()
 
 
-def _run_guarded(ctx, plan: Plan, task: Task, parts: PartsFolder, pool: ModelPool) -> tuple[bool, dict]:
+def _run_guarded(ctx, plan: Plan, task: Task, parts: PartsFolder, pool: ModelPool,
+                 stages=None) -> tuple[bool, dict]:
     """Execute a task, turning any exception into failure diagnostics (except a failed write of
-    the parts folder: a full disk is not the task's failure, it stops the run)."""
+    the parts folder: a full disk is not the task's failure, it stops the run). ``stages``: the
+    task's in-task progress reporter (jobs/progress.py), set as ``ctx.progress`` while it runs.
+    Adds the threads this process runs and its kernel build time to the diagnostics."""
+    build = getattr(ctx, "build_seconds", 0.0)
+    if ctx is not None and stages is not None:
+        ctx.progress = stages
     try:
-        return True, execute_task(ctx, plan, task, parts, pool)
+        diag = execute_task(ctx, plan, task, parts, pool)
+        diag.update(threads=int(os.environ.get("POCL_MAX_PTHREAD_COUNT", 0)) or threads_per_rank(1),
+                    kernel_build_s=getattr(ctx, "build_seconds", 0.0) - build)
+        return True, diag
     except StorageError:
         raise
     except Exception as exc:  # a task failure is data, not a crash of the run
         diag = {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(limit=8)}
         diag.update(plain(getattr(exc, "diagnostics", {}) or {}))
         return False, diag
+    finally:
+        if ctx is not None and stages is not None:
+            ctx.progress = silent
 
 
 def _run_serial(board: TaskBoard, ctx) -> None:
@@ -198,7 +204,7 @@ def _run_serial(board: TaskBoard, ctx) -> None:
         task = board.next_task()
         if task is None:
             raise RuntimeError("internal error: tasks are waiting on dependencies that can never finish")
-        ok, diag = _run_guarded(ctx, board.plan, task, board.parts, pool)
+        ok, diag = _run_guarded(ctx, board.plan, task, board.parts, pool, board.log.stages(task))
         board.finish(task, diag) if ok else board.fail(task, diag)
 
 
@@ -238,12 +244,14 @@ def _process_init(config_text, config_path, output, env, parent_pid):
     from wavebrdf.solver.opencl import create_context
 
     plan = plan_study(parse_config(config_text, Path(config_path), output=output))
-    _WORKER.update(plan=plan, parts=PartsFolder(plan), ctx=create_context(), pool=ModelPool())
+    _WORKER.update(plan=plan, parts=PartsFolder(plan), ctx=create_context(), pool=ModelPool(), pid=os.getpid())
 
 
 def _process_run(task_id: int):
     plan = _WORKER["plan"]
-    return _run_guarded(_WORKER["ctx"], plan, plan.tasks[task_id], _WORKER["parts"], _WORKER["pool"])
+    task = plan.tasks[task_id]
+    return _run_guarded(_WORKER["ctx"], plan, task, _WORKER["parts"], _WORKER["pool"],
+                        worker_stages(plan, task, f"worker {_WORKER['pid']}"))
 
 
 def _run_processes(board: TaskBoard, workers: int) -> None:
@@ -337,7 +345,8 @@ def _mpi_coordinator(board: TaskBoard, comm, size: int, error: list) -> None:
         comm.Abort(1)
 
 
-def _mpi_worker(comm, ctx, plan: Plan, parts: PartsFolder) -> None:
+def _mpi_worker(comm, ctx, plan: Plan, parts: PartsFolder, board: TaskBoard | None = None) -> None:
+    """Ask rank 0 for tasks and run them until told to stop (``board``: rank 0's, for its bar)."""
     rank = comm.Get_rank()
     pool = ModelPool()
     previous = (None, True, {})
@@ -348,7 +357,9 @@ def _mpi_worker(comm, ctx, plan: Plan, parts: PartsFolder) -> None:
         if task_id is None:
             return
         waited = time.perf_counter() - asked  # coordinator round trip: the scheduling overhead
-        ok, diag = _run_guarded(ctx, plan, plan.tasks[task_id], parts, pool)
+        task = plan.tasks[task_id]
+        stages = board.log.stages(task, f"rank {rank}: ") if board is not None else worker_stages(plan, task, rank)
+        ok, diag = _run_guarded(ctx, plan, task, parts, pool, stages)
         diag["dispatch_wait_s"] = waited
         diag["rank"] = rank
         previous = (task_id, ok, diag)
@@ -362,7 +373,7 @@ def _run_mpi(board: TaskBoard | None, comm, ctx, plan: Plan, parts: PartsFolder)
     error: list = []
     thread = threading.Thread(target=_mpi_coordinator, args=(board, comm, comm.Get_size(), error), daemon=True)
     thread.start()
-    _mpi_worker(comm, ctx, plan, parts)
+    _mpi_worker(comm, ctx, plan, parts, board)
     thread.join()
     if error:
         raise error[0]
@@ -383,9 +394,10 @@ def prepare_output(plan: Plan) -> PartsFolder:
 
 
 def run_plan(plan: Plan, ctx, *, executor: str = "serial", workers: int | None = None, comm=None,
-             progress: bool = True) -> RunSummary | None:
+             progress: bool = True, quiet: bool = False, only: set[int] | None = None) -> RunSummary | None:
     """Run every missing task of ``plan`` and write the dataset (rank 0 only under MPI). The caller
-    holds the output's lock (rank 0 under MPI).
+    holds the output's lock (rank 0 under MPI). ``only``: the task ids of a shard (jobs/shards.py):
+    just those run, and the parts folder is kept for ``wavebrdf merge`` instead of a dataset.
 
     Returns the summary on the writing process, None on other MPI ranks.
     """
@@ -394,7 +406,7 @@ def run_plan(plan: Plan, ctx, *, executor: str = "serial", workers: int | None =
     parts = prepare_output(plan) if rank == 0 else PartsFolder(plan)
     if comm is not None:
         comm.Barrier()
-    board = TaskBoard(plan, parts, study.run.retries, progress) if rank == 0 else None
+    board = TaskBoard(plan, parts, study.run.retries, progress, quiet, only) if rank == 0 else None
     try:
         if executor == "mpi":
             _run_mpi(board, comm, ctx, plan, parts)
@@ -410,6 +422,8 @@ def run_plan(plan: Plan, ctx, *, executor: str = "serial", workers: int | None =
     elapsed = time.perf_counter() - board.started
     logger.info("coordinator dispatch time %.3g s for %d tasks (%.2f%% of the run)", board.dispatch_seconds,
                 len(plan.tasks), 100 * board.dispatch_seconds / max(elapsed, 1e-9))
+    if only is not None:
+        return RunSummary(parts.path, len(board.done & only), len(board.failed), len(only))
     path = write_dataset(plan, parts, device=ctx.describe() if ctx is not None else "", run_info=board.run_info)
     if not board.failed:
         parts.remove()

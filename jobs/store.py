@@ -1,4 +1,4 @@
-"""HDF5 dataset schema v1: writer (atomic), reader (:func:`open_dataset`, ``wavebrdf.open``).
+"""HDF5 dataset schema v2: writer (atomic), reader (:func:`open_dataset`, ``wavebrdf.open``).
 
 Two layouts, told apart by the root attribute ``kind``: "surface" (BRDFs of height fields,
 below) and "fiber" (BCSDF tables: ``bcsdf``, ``dCs_dphi``, ``C_ext``/``C_sca``/``C_abs`` over
@@ -6,8 +6,10 @@ wavelength, θ_i, polarization, φ_i, φ_r; see docs/dataset.md). Surface layout
 is a 1-D dataset registered as an HDF5 dimension scale, so
 ``xarray.open_dataset(path, engine="h5netcdf")`` reads it with no custom code)::
 
-    /                         attrs: format="wavebrdf", format_version=1, software_version,
-                              config (TOML text), created (UTC ISO 8601), device, study, conventions
+    /                         attrs: format="wavebrdf", format_version=2, software_version,
+                              config (TOML text), created (UTC ISO 8601), device, study, conventions,
+                              Conventions="CF-1.8", history (CF-style: every variable and
+                              coordinate has long_name, numeric ones units; see jobs/netcdf.py)
     <sweep key>               one coordinate per swept config key, e.g. "surface.rms_height_um"
     wavelength_um             vacuum wavelengths (µm)
     incidence                 0..n-1; with coordinates theta_i, phi_i (degrees) along it
@@ -19,9 +21,13 @@ is a 1-D dataset registered as an HDF5 dimension scale, so
     albedo_sp  [sweep..., wavelength_um, incidence, polarization]
     brdf_sp    [sweep..., wavelength_um, incidence, polarization, u, v]  (output.per_polarization)
     ior_n, ior_kappa [sweep..., wavelength_um]          material index n − jκ
-    surface/<case>            height matrix (µm) of each sweep case; attrs size_um, spacing_um, stats
-    tasks/                    one row per task: case, wavelength/incidence index, model, status,
+    surface/<case>            height matrix (µm) of each sweep case [x_<case>, y_<case>] (node
+                              positions, µm, dimension scales in surface/); attrs size_um, spacing_um, stats
+    tasks/                    one row per task [task]: case, wavelength/incidence index, model, status,
                               wall_time_s, peak_memory_mb, device, message (diagnostics)
+
+Version 2 (this writer) added the CF-style attributes and the dimension scales of the groups
+(no ``phony_dim_*``); readers accept versions 1 and 2 (``READ_VERSIONS``).
 
 Writing is atomic: the file is assembled under a temporary name in the target folder (with the
 mode any new file gets from the umask) and renamed into place only when complete, so a crash
@@ -45,6 +51,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from wavebrdf.jobs.netcdf import (CF_CONVENTIONS, attach_scales, coordinate, describe_task_table, history_line,
+                                  sweep_coordinate_attrs, units_from_name)
 from wavebrdf.jobs.parts import StorageError, fsync_folder, storage_error, temporary_path
 
 __all__ = [
@@ -60,7 +68,8 @@ __all__ = [
 ]
 
 FORMAT = "wavebrdf"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+READ_VERSIONS = (1, 2)  # format versions this reader accepts (v2 = v1 + CF attributes, group dimensions)
 CONVENTIONS = (
     "lengths in micrometres; vacuum wavelength; time dependence exp(+j omega t); index n - j kappa; "
     "theta_i/phi_i in degrees toward the light; u (rows) = x direction cosine, v (columns) = y; "
@@ -214,15 +223,7 @@ def atomic_h5(path: Path):
 
 
 def _coordinate(h5: h5py.File, name: str, values, attrs: dict | None = None) -> h5py.Dataset:
-    values = np.asarray(values)
-    if values.dtype.kind in "UO":
-        ds = h5.create_dataset(name, data=np.array(values, dtype=object), dtype=STRING)
-    else:
-        ds = h5.create_dataset(name, data=values)
-    ds.make_scale(name)
-    for key, value in (attrs or {}).items():
-        ds.attrs[key] = value
-    return ds
+    return coordinate(h5, name, values, attrs or {})
 
 
 def _attach(var: h5py.Dataset, dims: list[str], h5: h5py.File) -> None:
@@ -249,8 +250,11 @@ class _Writer:
     def lead(self) -> list[int]:
         return [len(v) for v in self.sweep_axes.values()]
 
-    def create(self, *, config_text: str, study: str, software_version: str, device: str) -> None:
+    def create(self, *, config_text: str, study: str, software_version: str, device: str,
+               source: str = "wavebrdf run") -> None:
+        """Root attributes (``source``: what made the file, for CF ``history``), coordinates, layout."""
         h5 = self.h5
+        created = datetime.now(timezone.utc).isoformat(timespec="seconds")
         h5.attrs.update(
             {
                 "format": FORMAT,
@@ -258,20 +262,22 @@ class _Writer:
                 "kind": self.kind,
                 "software_version": software_version,
                 "config": config_text,
-                "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+                "created": created,
                 "device": device,
                 "study": study,
                 "conventions": CONVENTIONS,
+                "Conventions": CF_CONVENTIONS,
+                "history": history_line(created, software_version, source),
             }
         )
         for key, values in self.sweep_axes.items():
-            _coordinate(h5, key, list(values), {"long_name": f"swept config key {key}"})
+            _coordinate(h5, key, list(values), sweep_coordinate_attrs(key, list(values)))
         _coordinate(h5, "wavelength_um", self.wavelengths_um, {"units": "um", "long_name": "vacuum wavelength"})
         self.create_layout()
         for name, long_name in (("ior_n", "real part n of the index n - j kappa"),
                                 ("ior_kappa", "extinction coefficient kappa (>= 0 is loss)")):
             self._variable(name, self.sweep + ["wavelength_um"], self.lead + [len(self.wavelengths_um)], np.float64,
-                           {"long_name": long_name})
+                           {"long_name": long_name, "units": "1"})
 
     def create_layout(self) -> None:  # pragma: no cover - abstract
         raise NotImplementedError
@@ -284,7 +290,8 @@ class _Writer:
         fill = np.nan
         kwargs = {"chunks": chunks, "compression": "gzip", "compression_opts": 4, "shuffle": True} if chunks else {}
         ds = self.h5.create_dataset(name, shape=tuple(shape), dtype=dtype, fillvalue=fill, **kwargs)
-        ds.attrs.update(attrs)
+        ds.attrs.update({"_FillValue": np.array(fill, dtype=dtype), "long_name": name.replace("_", " "),
+                         "units": units_from_name(name, dtype), **attrs})  # CF: NaN = not computed
         _attach(ds, dims, self.h5)
         return ds
 
@@ -307,6 +314,7 @@ class _Writer:
             else:
                 data = ["" if v is None else v if isinstance(v, str) else json.dumps(v) for v in values]
                 grp.create_dataset(key, data=np.array(data, dtype=object), dtype=STRING)
+        describe_task_table(grp)
 
 
 class SurfaceDatasetWriter(_Writer):
@@ -325,11 +333,12 @@ class SurfaceDatasetWriter(_Writer):
     def create_layout(self) -> None:
         h5 = self.h5
         n_inc = len(self.directions_deg)
-        _coordinate(h5, "incidence", np.arange(n_inc), {"long_name": "incident direction index"})
-        _coordinate(h5, "polarization", np.array(["s", "p"], dtype=object))
+        _coordinate(h5, "incidence", np.arange(n_inc), {"long_name": "incident direction index", "units": "1"})
+        _coordinate(h5, "polarization", np.array(["s", "p"], dtype=object),
+                    {"long_name": "polarization of the incident field (s: E perpendicular to the plane of incidence)"})
         u = 2.0 * (np.arange(self.resolution) + 0.5) / self.resolution - 1.0
-        _coordinate(h5, "u", u, {"long_name": "x direction cosine of the outgoing direction"})
-        _coordinate(h5, "v", u, {"long_name": "y direction cosine of the outgoing direction"})
+        _coordinate(h5, "u", u, {"long_name": "x direction cosine of the outgoing direction", "units": "1"})
+        _coordinate(h5, "v", u, {"long_name": "y direction cosine of the outgoing direction", "units": "1"})
         for name, column, long_name in (("theta_i", 0, "incident polar angle"), ("phi_i", 1, "incident azimuth")):
             ds = h5.create_dataset(name, data=self.directions_deg[:, column])
             ds.attrs.update({"units": "degree", "long_name": f"{long_name} (toward the light)"})
@@ -340,7 +349,8 @@ class SurfaceDatasetWriter(_Writer):
         coords = "theta_i phi_i"
         self._variable(
             "brdf", sweep + ["wavelength_um", "incidence", "u", "v"], lead + [n_wl, n_inc, res, res],
-            np.float32, {"units": "1/sr", "polarization": self.polarization, "coordinates": coords},
+            np.float32, {"units": "1/sr", "polarization": self.polarization, "coordinates": coords,
+                         "long_name": f"BRDF ({self.polarization}), NaN outside the unit disk"},
             chunks=tuple([1] * (len(lead) + 2) + [res, res]),
         )
         self._variable(
@@ -350,12 +360,13 @@ class SurfaceDatasetWriter(_Writer):
         )
         self._variable(
             "albedo_sp", sweep + ["wavelength_um", "incidence", "polarization"], lead + [n_wl, n_inc, 2],
-            np.float64, {"units": "1", "coordinates": coords},
+            np.float64, {"units": "1", "coordinates": coords, "long_name": "albedo of each polarization"},
         )
         if self.per_polarization:
             self._variable(
                 "brdf_sp", sweep + ["wavelength_um", "incidence", "polarization", "u", "v"],
-                lead + [n_wl, n_inc, 2, res, res], np.float32, {"units": "1/sr", "coordinates": coords},
+                lead + [n_wl, n_inc, 2, res, res], np.float32, {"units": "1/sr", "coordinates": coords,
+                                                                "long_name": "BRDF of each polarization"},
                 chunks=tuple([1] * (len(lead) + 3) + [res, res]),
             )
         h5.create_group("surface")
@@ -366,8 +377,12 @@ class SurfaceDatasetWriter(_Writer):
         parameters (``generator``, ``generator_<key>``) and ensemble (``ensemble_<key>``) when it
         has them, and the material index at every wavelength."""
         ds = self.h5["surface"].create_dataset(case_id, data=heights, compression="gzip", shuffle=True)
-        ds.attrs.update({"size_um": size_um, "spacing_um": size_um / (heights.shape[0] - 1), "units": "um",
+        spacing = size_um / (heights.shape[0] - 1)
+        ds.attrs.update({"size_um": size_um, "spacing_um": spacing, "units": "um", "long_name": "surface height",
                          "case_index": list(case_index), **stats})
+        attach_scales(ds, [(f"{axis}_{case_id}", spacing * np.arange(n), {
+            "units": "um", "long_name": f"{axis} of the height nodes of case {case_id}"})
+            for axis, n in zip("xy", heights.shape)])
         if parameters:
             ds.attrs.update({k if k == "generator" else f"generator_{k}": v for k, v in parameters.items()})
         if ensemble is not None:
@@ -447,15 +462,42 @@ class FiberDatasetWriter(_Writer):
                        {"long_name": "|C_ext - C_sca - C_abs| / C_ext"})
         self._variable("C_geom", sweep + ["phi_i"], lead + [P], np.float64,
                        {"units": "um", "long_name": "geometric width of the cross section seen from phi_i"})
+        self._create_rendering_tables(base, [L, T, P, R])
         h5.create_group("fiber")
 
+    def _create_rendering_tables(self, base: list[str], LTPR: list[int]) -> None:
+        """C_e, the φ_r CDFs, the longitudinal variance and M0's θ_r CDF (docs/dataset.md)."""
+        from wavebrdf.solver.fiber.evaluator import M0_CDF_EDGES_DEG
+
+        sweep, lead = self.sweep, self.lead
+        L, T, P, R = LTPR
+        _coordinate(self.h5, "theta_r", M0_CDF_EDGES_DEG, {
+            "units": "degree", "long_name": "outgoing angle from the plane normal to the fiber axis (CDF nodes)"})
+        self._variable("C_eff", base + ["phi_i"], lead + [L, T, P], np.float64, {
+            "units": "um", "long_name": "effective width C_e for renderers: unpolarized C_ext clamped to 6 C_geom"})
+        self._variable("phi_r_cdf", base + ["phi_i", "phi_r"], lead + [L, T, P, R], np.float32, {
+            "units": "1", "long_name": "CDF of bcsdf over the phi_r bins at each bin's upper edge "
+            "(sampling table per wavelength, theta_i, phi_i)"}, chunks=tuple([1] * (len(lead) + 2) + [P, R]))
+        self._variable("longitudinal_variance", sweep, lead, np.float64, {
+            "units": "rad2", "long_name": "d'Eon's longitudinal variance v of M0 (default; renderers may override)"})
+        self._variable("m0_cdf", sweep + ["theta_i", "theta_r"], lead + [T, len(M0_CDF_EDGES_DEG)], np.float64, {
+            "units": "1", "long_name": "CDF over theta_r of M0(theta_i, theta_r; longitudinal_variance) cos(theta_r)"})
+
     def write_case(self, case_index: tuple[int, ...], case_id: str, nodes: np.ndarray, width: np.ndarray,
-                   index: np.ndarray) -> None:
+                   index: np.ndarray, longitudinal_variance: float = 0.02) -> None:
         ds = self.h5["fiber"].create_dataset(case_id, data=nodes)
         ds.attrs.update({"units": "um", "long_name": "cross-section polygon nodes (x, y), counter-clockwise",
                          "case_index": list(case_index)})
+        attach_scales(ds, [(f"node_{case_id}", np.arange(len(nodes)), {"units": "1", "long_name": "node index"}),
+                           ("xy", np.array(["x", "y"]), {"long_name": "coordinate of the node"})])
         self.h5["C_geom"][tuple(case_index)] = width
         self.write_index(case_index, index)
+        from wavebrdf.solver.fiber.bcsdf import longitudinal_cdf
+        from wavebrdf.solver.fiber.evaluator import M0_CDF_EDGES_DEG
+
+        self.h5["longitudinal_variance"][tuple(case_index)] = longitudinal_variance
+        self.h5["m0_cdf"][tuple(case_index)] = longitudinal_cdf(np.deg2rad(self.theta_i_deg),
+                                                                longitudinal_variance, np.deg2rad(M0_CDF_EDGES_DEG))
 
     def write_slice(self, case_index, wl: int, theta: int, *, dCs_dphi, C_ext, C_sca, C_abs) -> None:
         where = tuple(case_index) + (wl, theta)
@@ -465,6 +507,11 @@ class FiberDatasetWriter(_Writer):
 
         self.h5["power_balance_error"][where] = power_balance_error(C_ext, C_sca, C_abs)
         self.h5["bcsdf"][where] = (dCs_dphi.mean(axis=0) / C_ext.mean(axis=0)[:, None]).astype(np.float32)
+        from wavebrdf.solver.fiber.bcsdf import effective_width
+        from wavebrdf.solver.fiber.evaluator import azimuthal_cdf
+
+        self.h5["C_eff"][where] = effective_width(C_ext.mean(axis=0), self.h5["C_geom"][tuple(case_index)])
+        self.h5["phi_r_cdf"][where] = azimuthal_cdf(self.h5["bcsdf"][where]).astype(np.float32)
 
 
 def _case_indices(plan):
@@ -491,7 +538,7 @@ def _write_case(writer, plan, case: int, case_index: tuple) -> None:
     if plan.is_fiber:
         section = plan.cross_section(case)
         writer.write_case(case_index, str(case), section.nodes, section.width(np.deg2rad(plan.phi_i_axis_deg)),
-                          plan.index(case))
+                          plan.index(case), plan.config.cases[case].fiber.longitudinal_variance)
         return
     surface = plan.surface(case)
     writer.write_case(case_index, str(case), surface.z, surface.size_um, surface.statistics(), plan.index(case),
@@ -519,8 +566,10 @@ def write_dataset(plan, parts, device: str, run_info: dict | None = None) -> Pat
     output = Path(plan.config.output)
     with _guarded_h5(output) as (h5, guard):
         writer = (_fiber_writer if plan.is_fiber else _surface_writer)(h5, plan)
+        source = f"wavebrdf run {plan.config.path or '(config given as a dict)'}"
         writer.create(config_text=plan.config.text, study=plan.study.name, software_version=__version__,
-                      device=device)
+                      device=device, source=source)
+        h5.attrs["fingerprint"] = plan.fingerprint  # a re-run of the same plan is "up to date" (jobs/finished.py)
         for case, case_index in _case_indices(plan):
             _write_case(writer, plan, case, tuple(case_index))
         rows = []
@@ -577,10 +626,10 @@ class Dataset:
         version = attrs.get("format_version")
         if not isinstance(version, (int, np.integer)) or isinstance(version, (bool, np.bool_)):
             raise self._fail(f"has no valid format_version attribute (found {version!r})")
-        if version != FORMAT_VERSION:
+        if version not in READ_VERSIONS:
             newer = "by a newer wavebrdf; update wavebrdf to read it" if version > FORMAT_VERSION else "unsupported"
-            raise self._fail(f"is in format version {version} ({newer}); this wavebrdf reads format version "
-                             f"{FORMAT_VERSION}")
+            raise self._fail(f"is in format version {version} ({newer}); this wavebrdf reads format versions "
+                             f"{', '.join(map(str, READ_VERSIONS))}")
         if self.kind not in LAYOUTS:
             raise self._fail(f"has an unknown kind {self.kind!r} (known: {', '.join(LAYOUTS)})")
         main, trailing, letters, others = LAYOUTS[self.kind]
@@ -615,7 +664,7 @@ class Dataset:
             yield self
         except StorageError:
             raise
-        except (KeyError, ValueError, IndexError, TypeError, OSError) as exc:
+        except (KeyError, ValueError, IndexError, TypeError, OSError, RuntimeError) as exc:  # h5py: stale scales
             text = " ".join(str(exc).split())[:200]
             raise self._fail(f"is damaged or incomplete ({type(exc).__name__}: {text})") from None
 
@@ -678,6 +727,19 @@ class Dataset:
     def __getitem__(self, name: str) -> np.ndarray:
         return self._h5[name][()]
 
+    def bcsdf(self, theta_i, theta_r, phi_i, phi_r, wavelength_um, variance=None, case: int = 0) -> np.ndarray:
+        """Fiber datasets: the full BCSDF S = M0(θ_i, θ_r; v) · N_wave(λ, θ_i, φ_i, φ_r) in 1/sr,
+        vectorized (arrays broadcast). Angles in radians (θ from the plane normal to the axis, ω_i
+        toward the light), λ in µm, ``variance`` v (rad²; default: the stored
+        ``longitudinal_variance``), ``case`` a flat sweep index. ∫ S dω_r = C_sca/C_ext.
+        See :mod:`wavebrdf.solver.fiber.evaluator`."""
+        from wavebrdf.solver.fiber.evaluator import FiberBCSDF
+
+        cache = self.__dict__.setdefault("_bcsdf_cache", {})
+        if case not in cache:
+            cache[case] = FiberBCSDF.from_dataset(self, case)
+        return cache[case](theta_i, theta_r, phi_i, phi_r, wavelength_um, variance)
+
     @property
     def brdf(self) -> np.ndarray:
         return self["brdf"]
@@ -695,9 +757,13 @@ class Dataset:
         return self._h5["surface"][str(case)][()]
 
     def to_xarray(self):
+        """The file as an ``xarray.Dataset`` (h5netcdf engine); for surfaces ``incidence`` is
+        indexed by (theta_i, phi_i), so ``.sel(theta_i=30)`` or ``.sel(theta_i=60, phi_i=45)``
+        selects directions (``.isel(incidence=k)`` still works)."""
         import xarray as xr
 
-        return xr.open_dataset(self.path, engine="h5netcdf")
+        ds = xr.open_dataset(self.path, engine="h5netcdf")
+        return ds.set_index(incidence=["theta_i", "phi_i"]) if self.kind == "surface" else ds
 
     def __repr__(self) -> str:
         name = self.main_variable

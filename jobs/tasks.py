@@ -107,7 +107,7 @@ def _energy_check(plan, task, albedo_sp: np.ndarray, diagnostics: dict) -> None:
     diagnostics["albedo_excess"] = max(0.0, excess)
     if excess > ENERGY_SLACK:
         theta, _ = np.rad2deg(plan.direction_rad(task))
-        model = plan.model_spec(task).name
+        model = diagnostics.get("model", plan.model_spec(task).name)
         message = (f"EnergyWarning: albedo (s, p) = ({albedo_sp[0]:.4g}, {albedo_sp[1]:.4g}) > 1 at θ_i = "
                    f"{theta:g}°: {model} returns {excess:.3g} of the incident power that does not exist "
                    "(outside the model's validity, e.g. no shadowing at grazing incidence; a rung with "
@@ -177,7 +177,8 @@ def execute_task(ctx, plan, task, parts, pool: ModelPool) -> dict:
     messages = sorted({f"{w.category.__name__}: {w.message}" for w in caught})
     extra = {
         "kind": task.kind,
-        "model": plan.model_spec(task).name,
+        # the rung that ran: `auto` names its choice (and model_reason) in the result's diagnostics
+        "model": getattr(output, "diagnostics", {}).get("model", plan.model_spec(task).name),
         "wall_time_s": time.perf_counter() - t0,
         "peak_memory_mb": peak_memory_mb(),
         "device": ctx.describe() if ctx is not None else "",

@@ -33,6 +33,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from wavebrdf.solver.progress import RateLimit
+
 logger = logging.getLogger(__name__)
 
 __all__ = ["KRYLOV_METHODS", "KrylovNotConverged", "KrylovResult", "solve"]
@@ -79,10 +81,12 @@ def _norms(X: np.ndarray) -> np.ndarray:
 class _Counter:
     """Wraps matvec, counting products per right-hand side and recording residual history."""
 
-    def __init__(self, matvec, P: int):
+    def __init__(self, matvec, P: int, progress=None):
         self.matvec = matvec
         self.products = np.zeros(P, dtype=np.int64)
         self.history: list[list[float]] = [[] for _ in range(P)]
+        self.progress = progress  # progress("krylov", None, products=, residual=) about once a second
+        self._due = RateLimit(1.0)
 
     def __call__(self, X: np.ndarray, which: np.ndarray) -> np.ndarray:
         self.products[which] += 1
@@ -91,6 +95,9 @@ class _Counter:
     def record(self, which, residuals):
         for i, r in zip(np.atleast_1d(which), np.atleast_1d(residuals)):
             self.history[int(i)].append(float(r))
+        if self.progress is not None and self._due():
+            latest = [h[-1] for h in self.history if h]
+            self.progress("krylov", None, products=int(self.products.max()), residual=max(latest))
 
 
 def _givens(a: np.ndarray, b: np.ndarray):
@@ -263,10 +270,11 @@ def _bicgstab(A, b, x, tol, max_iterations):
 
 
 def solve(matvec, b: np.ndarray, *, method: str = "gmres", tol: float = 1e-4, max_iterations: int = 1000,
-          restart: int = 60, x0: np.ndarray | None = None, preconditioner=None) -> KrylovResult:
+          restart: int = 60, x0: np.ndarray | None = None, preconditioner=None, progress=None) -> KrylovResult:
     """Solve A x = b for right-hand sides b (P, n); see the module docstring.
 
-    ``max_iterations`` bounds the operator products per right-hand side. Raises
+    ``max_iterations`` bounds the operator products per right-hand side. ``progress`` (solver/progress.py)
+    receives ``("krylov", None, products=, residual=)`` about once a second. Raises
     :class:`KrylovNotConverged` (with ``diagnostics``) if the true residual misses ``tol``.
     """
     if method not in KRYLOV_METHODS:
@@ -288,9 +296,10 @@ def solve(matvec, b: np.ndarray, *, method: str = "gmres", tol: float = 1e-4, ma
         raise ValueError("krylov: a right-hand side is zero")
     x = np.zeros_like(b) if x0 is None else np.array(np.atleast_2d(x0), dtype=dtype)
     if preconditioner is None:
-        A = _Counter(lambda X: np.asarray(matvec(X)).astype(dtype, copy=False), len(b))
+        A = _Counter(lambda X: np.asarray(matvec(X)).astype(dtype, copy=False), len(b), progress)
     else:
-        A = _Counter(lambda X: np.asarray(matvec(preconditioner(X))).astype(dtype, copy=False), len(b))
+        A = _Counter(lambda X: np.asarray(matvec(preconditioner(X))).astype(dtype, copy=False), len(b),
+                     progress)
     t0 = time.perf_counter()
     if method == "gmres":
         x, estimate, true = _gmres(A, b, x, tol, max_iterations, int(restart))

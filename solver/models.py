@@ -203,6 +203,7 @@ _REGISTRY: dict[str, str] = {
     "stam": "wavebrdf.solver.approx.stam:StamModel",
     "ws-v": "wavebrdf.solver.approx.falster:WSVModel",
     "wm": "wavebrdf.solver.approx.falster:WMModel",
+    "auto": "wavebrdf.solver.auto:AutoModel",
 }
 
 

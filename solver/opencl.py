@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import logging
 import os
+import time
 import warnings
 from dataclasses import dataclass, field
 from typing import Any, Mapping
@@ -27,6 +28,8 @@ from typing import Any, Mapping
 import numpy as np
 
 from wavebrdf.kernels import load_source, source_hash
+from wavebrdf.solver.kernel_cache import LockedKernel, build_lock
+from wavebrdf.solver.progress import silent
 
 logger = logging.getLogger(__name__)
 
@@ -157,7 +160,9 @@ def list_devices() -> list[DeviceInfo]:
     return out
 
 
-def choose_device(spec: str, infos: list[DeviceInfo]) -> DeviceInfo:
+def choose_device(spec: str, infos: list[DeviceInfo], local_rank: int = 0) -> DeviceInfo:
+    """The device ``spec`` names (module docstring). With several GPUs matching "auto" or "gpu",
+    the process of local rank r on its node takes GPU r mod (number of GPUs): one GPU per rank."""
     spec_l = spec.strip().lower()
     listing = "; ".join(f"{i.spec} {i.platform} / {i.name} ({i.kind})" for i in infos)
     if spec_l in ("", "auto"):
@@ -169,9 +174,11 @@ def choose_device(spec: str, infos: list[DeviceInfo]) -> DeviceInfo:
         ):
             found = [i for i in infos if pick(i)]
             if found:
-                return found[0]
+                return found[local_rank % len(found)] if "GPU" in found[0].kind else found[0]
     if spec_l in ("gpu", "cpu"):
         found = [i for i in infos if spec_l.upper() in i.kind]
+        if spec_l == "gpu" and found:
+            return found[local_rank % len(found)]
     elif spec_l == "pocl":
         found = [i for i in infos if i.is_pocl]
     elif ":" in spec_l and all(p.strip().isdigit() for p in spec_l.split(":", 1)):
@@ -201,6 +208,8 @@ class ComputeContext:
     info: DeviceInfo
     _programs: dict = field(default_factory=dict, repr=False)
     _kernels: dict = field(default_factory=dict, repr=False)
+    build_seconds: float = 0.0  # program builds + kernels' first launches (PoCL compiles then), cache hits included
+    progress: Any = field(default=silent, repr=False)  # progress(stage, fraction, **figures): solver/progress.py
 
     @property
     def device(self):
@@ -266,7 +275,8 @@ class ComputeContext:
         prog = self._programs.get(key)
         if prog is None:
             options = [f"-DWB_SOURCE_HASH={digest}"] + [f"-D{k}={v}" for k, v in items]
-            with warnings.catch_warnings():
+            t0 = time.perf_counter()
+            with warnings.catch_warnings(), build_lock(digest, " ".join(options), self.describe()):
                 warnings.simplefilter("ignore", cl.CompilerWarning)
                 try:
                     prog = cl.Program(self.context, text).build(options=options)
@@ -275,8 +285,12 @@ class ComputeContext:
                         f"OpenCL build of kernels/{source} failed on {self.describe()} "
                         f"with options {options}:\n{exc}"
                     ) from exc
+            self.build_seconds += time.perf_counter() - t0
             self._programs[key] = prog
         return prog
+
+    def _account_build(self, seconds: float) -> None:
+        self.build_seconds += seconds
 
     def kernel(self, source: str, name: str, defines: Mapping[str, Any] | None = None):
         """Return kernel ``name`` of ``kernels/<source>`` (one Kernel object per key)."""
@@ -285,18 +299,21 @@ class ComputeContext:
         key = (id(prog), name)
         knl = self._kernels.get(key)
         if knl is None:
-            knl = cl.Kernel(prog, name)
+            build = sorted((str(k), str(v)) for k, v in (defines or {}).items())
+            knl = LockedKernel(cl.Kernel(prog, name), f"{source_hash(load_source(source))}:{name}:{build}:"
+                               f"{self.describe()}", account=self._account_build)
             self._kernels[key] = knl
         return knl
 
 
-def create_context(spec: str | None = None, *, require_fp64: bool = True) -> ComputeContext:
-    """Create a :class:`ComputeContext` on the device chosen by ``spec`` / ``WAVEBRDF_DEVICE``."""
+def create_context(spec: str | None = None, *, require_fp64: bool = True, local_rank: int = 0) -> ComputeContext:
+    """Create a :class:`ComputeContext` on the device chosen by ``spec`` / ``WAVEBRDF_DEVICE``
+    (``local_rank``: this process's rank on its node, which picks its GPU, :func:`choose_device`)."""
     cl = _import_cl()
     if spec is None:
         spec = os.environ.get("WAVEBRDF_DEVICE", "auto")
     infos = list_devices()
-    info = choose_device(spec, infos)
+    info = choose_device(spec, infos, local_rank)
     if require_fp64 and not info.fp64:
         raise OpenCLUnavailable(
             f"device {info.platform} / {info.name} has no double precision (cl_khr_fp64). "

@@ -18,7 +18,7 @@ def test_default_config_end_to_end(tmp_path, capsys):
     assert main(["run", str(ROOT / "configs" / "default.toml"), "--output", str(out), "--quiet"]) == 0
     printed = capsys.readouterr().out
     pngs = [Path(line.split(" ", 1)[1]) for line in printed.splitlines() if line.endswith(".png")]
-    assert out.is_file() and len(pngs) == 3 and all(p.stat().st_size > 10_000 for p in pngs)
+    assert out.is_file() and len(pngs) == 11 and all(p.stat().st_size > 10_000 for p in pngs)  # docs/pictures.md
     import h5netcdf  # noqa: F401  (dev dependency: engine="h5netcdf" below; a missing one fails)
     import xarray as xr
 
@@ -30,7 +30,7 @@ def test_default_config_end_to_end(tmp_path, capsys):
     assert main(["inspect", str(out)]) == 0
     text = capsys.readouterr().out
     assert "albedo" in text and "wavelength_um" in text
-    assert main(["render", str(out), "--out", str(tmp_path / "png")]) == 0
+    assert main(["render", str(out), "--out", str(tmp_path / "png"), "--plots", "maps"]) == 0
     assert len(list((tmp_path / "png").glob("*.png"))) == 3
 
 

@@ -112,3 +112,23 @@ def test_compare_command_end_to_end(tmp_path, capsys):
     assert main(["compare", str(cfg), "-q"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "[compare.gs] rays = 0" in err[0]
+
+
+def test_a_measuring_process_that_dies_is_a_failure_and_the_next_model_still_runs(flat_scene):
+    """The measuring process killed during a model (as the OOM killer would): that model's row
+    says how the process ended; the next model gets a fresh process; each model's peak memory is
+    its own (a 2²⁰-ray gm allocates more than the Kirchhoff run after it)."""
+    import threading
+
+    from wavebrdf.jobs.compare import MeasuringProcess
+
+    with MeasuringProcess() as process:
+        first = process.measure("kirchhoff", None, flat_scene, "warm-up")
+        threading.Timer(3.0, lambda: process._proc.kill()).start()
+        killed = process.measure("gm", {"rays": 1 << 26}, flat_scene, "killed")
+        gm = process.measure("gm", {"rays": 1 << 20}, flat_scene, "after")
+        kirchhoff = process.measure("kirchhoff", None, flat_scene, "after")
+    assert first.failure is None
+    assert killed.failure and "exited with -9" in killed.failure
+    assert gm.failure is None and kirchhoff.failure is None
+    assert gm.peak_mb > kirchhoff.peak_mb > 0

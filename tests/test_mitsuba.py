@@ -191,8 +191,6 @@ def chi_square_p_value(bsdf, wi, *, samples: int = 6000, bins: int = 16, sub: in
     bins × bins (u, v) grid, expected counts = samples × ∫ pdf/cos θ_o du dv per cell (midpoint
     rule on sub × sub points), plus one cell for invalid samples (1 − ∫ pdf); cells with fewer
     than 5 expected merged. Returns (p, number of cells)."""
-    from scipy.stats import chisquare
-
     ctx = mi.BSDFContext()
     si = mi.SurfaceInteraction3f()
     si.wi = mi.Vector3f(*map(float, wi))
@@ -220,8 +218,17 @@ def chi_square_p_value(bsdf, wi, *, samples: int = 6000, bins: int = 16, sub: in
                 z = math.sqrt(1.0 - r2)
                 density[i, j] = bsdf.pdf(ctx, si, mi.Vector3f(float(x), float(y), z)) / z
     cells = density.reshape(bins, sub, bins, sub).sum(axis=(1, 3)) * h * h
-    expected = np.append(cells.ravel(), max(1.0 - cells.sum(), 0.0)) * samples
     assert 0.5 < cells.sum() <= 1.0 + 1e-3  # the valid fraction (shifted lobes may leave the disk)
+    return merged_chi_square(observed, cells.ravel(), samples)
+
+
+def merged_chi_square(observed, cells, samples):
+    """(p, number of cells) of Pearson's test: ``observed`` counts per cell plus a last one for
+    invalid/other samples, ``cells`` the probabilities of the cells (the last gets 1 − Σ);
+    cells under 5 expected merged into one."""
+    from scipy.stats import chisquare
+
+    expected = np.append(cells, max(1.0 - cells.sum(), 0.0)) * samples
     keep = expected >= 5
     obs = np.append(observed[keep], observed[~keep].sum())
     exp = np.append(expected[keep], expected[~keep].sum())

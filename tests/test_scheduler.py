@@ -200,7 +200,7 @@ def test_submit_writes_valid_bash(tmp_path, monkeypatch):
     assert main(["submit", str(cfg), "--nodes", "2", "--time", "01:30", "--ntasks-per-node", "4"]) == 0
     script = tmp_path / "batch.slurm.sh"
     text = script.read_text()
-    assert "#SBATCH --nodes=2" in text and "srun --mpi=pmi2" in text and f"run {cfg}" in text
+    assert "#SBATCH --nodes=2" in text and "srun --mpi=list" in text and f"run {cfg}" in text
     assert subprocess.run(["bash", "-n", str(script)]).returncode == 0
     assert main(["submit", str(cfg), "--nodes", "1", "--time", "90 minutes"]) == 2
 

@@ -35,6 +35,17 @@ if [ "$POCL" = apt ]; then
         pocl-opencl-icd ocl-icd-opencl-dev binutils >/dev/null
 fi
 
+# Mitsuba 3's llvm variants (the JIT backend of wavebrdf.mitsuba) need libLLVM >= 17; without it
+# the plugin uses the scalar variants (tests/test_mitsuba*.py say so)
+if ! compgen -G "/usr/lib/*/libLLVM.so.1[7-9]*" >/dev/null && ! compgen -G "/usr/lib/*/libLLVM-1[7-9]*.so*" >/dev/null \
+        && have_apt_root; then
+    SUDO=""; [ "$(id -u)" = 0 ] || SUDO=sudo
+    echo "[setup] installing libLLVM 19 with apt (Mitsuba's llvm variants)"
+    $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends libllvm19 >/dev/null \
+        || echo "[setup] libllvm19 is not available here: Mitsuba will use its scalar variants"
+fi
+
 if [ "$POCL" = pip ]; then
     echo "[setup] no root/apt: PoCL comes from the pocl-binary-distribution wheel"
     EXTRAS="$EXTRAS,pocl"
@@ -45,4 +56,11 @@ echo "[setup] creating $VENV and installing wavebrdf[$EXTRAS]"
 "$VENV/bin/python" -m pip install -q --upgrade pip
 "$VENV/bin/python" -m pip install -q -e ".[$EXTRAS]"
 "$VENV/bin/wavebrdf" devices
+if [ "$EXTRAS" != "${EXTRAS#dev}" ]; then
+    # xarray at the minimum versions pyproject allows, beside the main one: tests/test_conventions.py
+    # opens every example dataset with it (no wavebrdf inside; it only reads the files)
+    echo "[setup] creating $VENV/xarray-min (xarray and h5netcdf at their pinned minimum versions)"
+    "$PYTHON" -m venv "$VENV/xarray-min"
+    "$VENV/xarray-min/bin/python" -m pip install -q -r tools/xarray-min.txt
+fi
 echo "[setup] done: activate with 'source $VENV/bin/activate'"

@@ -13,7 +13,7 @@ try:
 except PackageNotFoundError:  # pragma: no cover - running from a source tree without install
     __version__ = "0+unknown"
 
-__all__ = ["__version__", "open"]
+__all__ = ["__version__", "open", "run"]
 
 
 def open(path):  # noqa: A001 - mirrors xarray.open_dataset / h5py.File usage
@@ -21,3 +21,11 @@ def open(path):  # noqa: A001 - mirrors xarray.open_dataset / h5py.File usage
     from wavebrdf.jobs.store import open_dataset
 
     return open_dataset(path)
+
+
+def run(config, /, **kwargs):
+    """Run a study (TOML path or dict of sections) with config overrides and return the opened
+    dataset; see :func:`wavebrdf.jobs.api.run`."""
+    from wavebrdf.jobs.api import run as _run
+
+    return _run(config, **kwargs)

@@ -51,6 +51,7 @@ from wavebrdf.solver.footprint import incident_basis
 from wavebrdf.solver.fresnel import fresnel_rs_rp
 from wavebrdf.solver.models import Capabilities, Estimate, Model, SurfaceScene
 from wavebrdf.solver.options import option
+from wavebrdf.solver.validity import check_footprint_leak, check_waist
 
 __all__ = ["WMModel", "WMOptions", "WSVModel", "WSVOptions", "masking_blocks", "wsv_farfield"]
 
@@ -238,6 +239,9 @@ def wsv_farfield(ctx, scene: SurfaceScene, masking: str = "rays", masking_classe
         wall_time_s=time.perf_counter() - t0,
     )
     ff.diagnostics["albedo_excess"] = albedo_excess(ff)
+    check_waist(scene, ff.diagnostics, "ws-v")
+    check_footprint_leak(lambda matched: wsv_farfield(ctx, matched, masking, masking_classes, border), scene, ff,
+                         "ws-v")
     return ff
 
 

@@ -80,6 +80,7 @@ from wavebrdf.solver.farfield import FarField, HemisphereGrid
 from wavebrdf.solver.fresnel import fresnel_rs_rp
 from wavebrdf.solver.models import Capabilities, Estimate, SurfaceScene
 from wavebrdf.solver.options import option
+from wavebrdf.solver.validity import check_evanescent_loss, check_waist
 
 __all__ = [
     "GHSModel",
@@ -378,6 +379,9 @@ def harvey_shack_farfield(ctx, scene: SurfaceScene, variant: str, sgrid: SGrid |
         "propagating_albedo_unnormalized": propagating,
         "evanescent_fraction": 1.0 - in_disk,
     }
+    if variant == "ohs":
+        check_evanescent_loss(1.0 - in_disk, diagnostics, scene.theta_i)
+        check_waist(scene, diagnostics, variant)
     if variant == "ghs":
         K = 1.0 / propagating if np.isfinite(propagating) and propagating > 0 else 1.0
         E *= np.sqrt(K)

@@ -45,6 +45,7 @@ from wavebrdf.solver.footprint import (
 from wavebrdf.solver.fresnel import fresnel_rs_rp
 from wavebrdf.solver.models import Capabilities, Estimate, Model, SurfaceScene
 from wavebrdf.solver.surface import HeightField
+from wavebrdf.solver.validity import check_waist
 
 logger = logging.getLogger(__name__)
 
@@ -477,11 +478,13 @@ class KirchhoffModel(FootprintModel):
                                 reciprocal=True, conserves_energy=False)
 
     def run(self, ctx, scene: SurfaceScene) -> FarField:
-        return kirchhoff_farfield(
+        ff = kirchhoff_farfield(
             ctx, scene.surface, scene.wavelength_um, scene.index, scene.theta_i, scene.phi_i,
             scene.grid, window=scene_footprint(scene), exterior_index=scene.exterior_index,
             z_reference=scene.z_reference, precision=scene.precision,
         )
+        check_waist(scene, ff.diagnostics, self.name)
+        return ff
 
     def estimate(self, scene: SurfaceScene) -> Estimate:
         nodes = scene.surface.cells + 1

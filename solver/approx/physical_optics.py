@@ -58,6 +58,7 @@ from wavebrdf.solver.footprint import incident_basis
 from wavebrdf.solver.fresnel import fresnel_rs_rp
 from wavebrdf.solver.models import Capabilities, Estimate, SurfaceScene
 from wavebrdf.solver.options import option
+from wavebrdf.solver.validity import check_footprint_leak, check_waist
 
 __all__ = [
     "POModel",
@@ -184,6 +185,8 @@ def po_farfield(ctx, scene: SurfaceScene, shadowing: str = "rays", border: str =
         wall_time_s=time.perf_counter() - t0,
     )
     ff.diagnostics["albedo_excess"] = albedo_excess(ff)
+    check_waist(scene, ff.diagnostics, "po")
+    check_footprint_leak(lambda matched: po_farfield(ctx, matched, shadowing, border), scene, ff, "po")
     return ff
 
 

@@ -45,6 +45,7 @@ from wavebrdf.solver.fresnel import fresnel_rs_rp
 from wavebrdf.solver.models import Capabilities, Estimate, Model, SurfaceScene
 from wavebrdf.solver.options import option
 from wavebrdf.solver.surface import GaussianEnsemble
+from wavebrdf.solver.validity import check_waist
 
 __all__ = ["GO_THRESHOLD", "StamModel", "StamOptions", "stam_brdf"]
 
@@ -206,11 +207,13 @@ class StamModel(Model):
         power = scene.exterior_index / (2 * ETA0) * np.cos(scene.theta_i) * 0.5 * np.pi * scene.waist_um**2
         mu = scene.grid.mu
         intensity = np.where(scene.grid.inside, np.nan_to_num(brdf) * power * mu, 0.0)
-        return IntensityResult(grid=scene.grid, wavelength_um=scene.wavelength_um, theta_i=scene.theta_i,
-                               phi_i=scene.phi_i, radiant_intensity=intensity,
-                               incident_power=np.array([power, power]),
-                               diagnostics={"model": self.name, "precision": scene.precision, **diagnostics,
-                                            "wall_time_s": time.perf_counter() - t0})
+        result = IntensityResult(grid=scene.grid, wavelength_um=scene.wavelength_um, theta_i=scene.theta_i,
+                                 phi_i=scene.phi_i, radiant_intensity=intensity,
+                                 incident_power=np.array([power, power]),
+                                 diagnostics={"model": self.name, "precision": scene.precision, **diagnostics,
+                                              "wall_time_s": time.perf_counter() - t0})
+        check_waist(scene, result.diagnostics, self.name)
+        return result
 
     def estimate(self, scene: SurfaceScene) -> Estimate:
         pixels = float(np.count_nonzero(scene.grid.inside))

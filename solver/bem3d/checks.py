@@ -31,6 +31,7 @@ OUTSIDE_FRACTION = 1e-3  # incident power falling outside the patch above which 
 EXTERIOR_CELLS_PER_WAVELENGTH = 6.0  # d ≤ λ₁/6
 INTERIOR_KD = 4.0  # |k₂| d above which the interior field (wavelength, skin depth) is under-resolved
 HIGH_CONTRAST = 10.0  # |n₂/n₁| at and above which PMCHWT conditioning degrades
+LOW_REFLECTANCE = 1e-4  # normal reflectance below which the discretization error dominates the BRDF
 RESIDUAL = 1e-8  # relative residual of the direct solve above which we warn
 
 
@@ -73,7 +74,8 @@ def check_footprint(outside_fraction: float, theta_i: float, patch_um: float, be
 
 
 def check_material(media: Media, patch_um: float, diagnostics=None):
-    """Warn for weak absorbers (absorption length > patch) and high-contrast materials."""
+    """Warn for weak absorbers (absorption length > patch), near index matching (R < LOW_REFLECTANCE)
+    and high-contrast materials."""
     n2 = media.index
     kappa = media.kappa
     if kappa > 0:
@@ -87,6 +89,15 @@ def check_material(media: Media, patch_um: float, diagnostics=None):
                 "transparent here; the interior is an unbounded half-space (full interior operator, no "
                 "truncation) and light transmitted into it is not returned",
             )
+    reflectance = abs((n2 - media.exterior_index) / (n2 + media.exterior_index)) ** 2
+    if reflectance < LOW_REFLECTANCE:
+        emit(
+            diagnostics,
+            MaterialWarning,
+            f"near index matching n₂ = {n2:.6g} (n₁ = {media.exterior_index:g}): the normal reflectance "
+            f"{reflectance:.3g} is below the discretization floor of the PMCHWT currents (~1e-6 of Φ_i; "
+            "n = 1.0001 gave 7.6e-7 instead of 2.5e-9), so the BRDF is dominated by that error",
+        )
     contrast = abs(n2) / media.exterior_index
     if contrast >= HIGH_CONTRAST:
         emit(

@@ -24,6 +24,7 @@ from wavebrdf.solver.bem3d.aim.options import AIMOptions
 from wavebrdf.solver.farfield import FarField
 from wavebrdf.solver.models import Capabilities, Estimate, Model, SurfaceScene
 from wavebrdf.solver.options import OptionsError, option
+from wavebrdf.solver.progress import silent
 
 __all__ = ["BEMModel", "BEMOptions"]
 
@@ -42,6 +43,12 @@ class BEMOptions:
     def __post_init__(self):
         if self.method != "aim" and self.aim != AIMOptions():
             raise ValueError('[model.aim] applies to name = "bem", method = "aim" only')
+
+
+def _reporter(ctx):
+    """The solver's progress callable: the context's reporter at the time of each call (the kept
+    solver serves later tasks, each with its own reporter; solver/progress.py)."""
+    return lambda stage, fraction=None, **figures: getattr(ctx, "progress", silent)(stage, fraction, **figures)
 
 
 class BEMModel(Model):
@@ -76,7 +83,8 @@ class BEMModel(Model):
             self._kept = None  # free the previous operator before building the next one
             aim = self.aim_options(scene) if self.options.method == "aim" else None
             solver = BEMSolver(ctx, scene.surface, scene.wavelength_um, scene.index, method=self.options.method,
-                               exterior_index=scene.exterior_index, z_reference=scene.z_reference, aim=aim)
+                               exterior_index=scene.exterior_index, z_reference=scene.z_reference, aim=aim,
+                               progress=_reporter(ctx))
             self._kept = (key, solver)
         return self._kept[1]
 

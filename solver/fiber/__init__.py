@@ -16,10 +16,20 @@ Typical use::
     res = fiber.solve_fiber(ctx, shape, 0.5, 1.55 - 0.02j, theta_i=0.5, phi_i=[0.0, 0.3])
     res.dCs_dphi, res.C_ext, res.C_sca, res.C_abs, res.power_balance_error
     table = fiber.bcsdf_table(fiber.FiberBEM(ctx, shape), wavelengths, 1.55, thetas)
+    S = wavebrdf.open("out/fiber_ellipse.h5").bcsdf(theta_i, theta_r, phi_i, phi_r, 0.5)  # M₀·N_wave
 """
 
 from wavebrdf.solver.fiber.assembly import BEMQuadrature, FiberAssembler
-from wavebrdf.solver.fiber.bcsdf import BCSDFSlice, BCSDFTable, bcsdf_slices, bcsdf_table, longitudinal_m0
+from wavebrdf.solver.fiber.bcsdf import (
+    BCSDFSlice,
+    BCSDFTable,
+    bcsdf_slices,
+    bcsdf_table,
+    effective_width,
+    longitudinal_cdf,
+    longitudinal_m0,
+)
+from wavebrdf.solver.fiber.evaluator import FiberBCSDF, azimuthal_cdf
 from wavebrdf.solver.fiber.bem import FiberBEM, FiberSolution, solve_fiber
 from wavebrdf.solver.fiber.hankel import hankel2_01, hankel2_01_cl, hankel2_01_scipy
 from wavebrdf.solver.fiber.incidence import POLARIZATIONS, FiberMedia, fiber_media
@@ -43,6 +53,7 @@ __all__ = [
     "BEMQuadrature",
     "CrossSection",
     "FiberAssembler",
+    "FiberBCSDF",
     "FiberBEM",
     "FiberMedia",
     "FiberSolution",
@@ -51,15 +62,18 @@ __all__ = [
     "POLARIZATIONS",
     "ScatteringResult",
     "ShapeError",
+    "azimuthal_cdf",
     "bcsdf_slices",
     "bcsdf_table",
     "circle",
+    "effective_width",
     "ellipse",
     "fiber_media",
     "hankel2_01",
     "hankel2_01_cl",
     "hankel2_01_scipy",
     "load_shape",
+    "longitudinal_cdf",
     "longitudinal_m0",
     "mie_cylinder",
     "mie_scattering",

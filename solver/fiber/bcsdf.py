@@ -38,10 +38,18 @@ __all__ = [
     "C_EFF_CLAMP",
     "bcsdf_slices",
     "bcsdf_table",
+    "effective_width",
+    "longitudinal_cdf",
     "longitudinal_m0",
 ]
 
 C_EFF_CLAMP = 6.0  # C_e <= 6 C_g ([P])
+DEFAULT_LONGITUDINAL_VARIANCE = 0.02  # d'Eon's v (rad²): [P] leaves it to the renderer; ~8° lobe
+
+
+def effective_width(C_ext_unpolarized, C_geom):
+    """C_e = C_ext clamped to 6 C_g (µm; [P] §5.1, §6): the width rays must see."""
+    return np.minimum(C_ext_unpolarized, C_EFF_CLAMP * np.asarray(C_geom, dtype=float))
 
 
 def longitudinal_m0(theta_i, theta_r, v):
@@ -58,6 +66,21 @@ def longitudinal_m0(theta_i, theta_r, v):
     b = np.sin(theta_i) * np.sin(theta_r) / v
     log_m0 = a - b + np.log(sp.ive(0, a)) - np.log(v) - 1.0 / v - np.log1p(-np.exp(-2.0 / v))
     return np.exp(log_m0)
+
+
+def longitudinal_cdf(theta_i, v, edges) -> np.ndarray:
+    """CDF of θ_r under the density M₀(θ_i, θ_r; v) cosθ_r at ``edges`` (radians, ascending,
+    spanning [-π/2, π/2]); shape (len(theta_i), len(edges)), 0 at the first edge, 1 at the last.
+    16-point Gauss–Legendre per cell, then normalised (the integral is 1 to < 1e-6 anyway)."""
+    theta_i = np.atleast_1d(np.asarray(theta_i, dtype=float))
+    edges = np.asarray(edges, dtype=float)
+    x, w = np.polynomial.legendre.leggauss(16)
+    half = np.diff(edges) / 2
+    nodes = (edges[:-1] + edges[1:])[:, None] / 2 + half[:, None] * x  # (K, 16)
+    density = longitudinal_m0(theta_i[:, None, None], nodes, v) * np.cos(nodes)
+    cells = (density * w).sum(axis=-1) * half  # (T, K)
+    cdf = np.concatenate([np.zeros((theta_i.size, 1)), np.cumsum(cells, axis=-1)], axis=-1)
+    return cdf / cdf[:, -1:]
 
 
 def _as_index_function(index) -> Callable[[float, int], complex]:
@@ -170,7 +193,7 @@ class BCSDFTable:
     @property
     def C_eff(self) -> np.ndarray:
         """Effective width for renderers: unpolarized C_ext clamped to 6 C_g, (L, T, P)."""
-        return np.minimum(self.C_ext.mean(axis=2), C_EFF_CLAMP * self.C_geom)
+        return effective_width(self.C_ext.mean(axis=2), self.C_geom)
 
     @property
     def C_eff_clamped(self) -> np.ndarray:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,10 +40,15 @@ from wavebrdf.solver.fiber.shapes import CrossSection
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["FiberBEM", "FiberSolution", "solve_fiber"]
+__all__ = ["FiberBEM", "FiberMeshWarning", "FiberSolution", "solve_fiber"]
 
 MIN_ELEMENTS_PER_WAVELENGTH = 9.5  # fiber.md §4 asks for about 10 per interior wavelength
 POWER_BALANCE_WARNING = 1e-2  # |C_ext - C_sca - C_abs|/C_ext above this: mesh too coarse
+
+
+class FiberMeshWarning(UserWarning):
+    """The cross section's mesh is too coarse (elements per wavelength, power balance): said as a
+    warning, so that the batch layer keeps it in the dataset's diagnostics (it was only logged)."""
 
 
 @dataclass
@@ -74,8 +80,9 @@ class FiberSolution:
         timings = dict(self.timings, farfield_s=time.perf_counter() - t0)
         balance = np.max(np.abs(c_ext - c_sca - c_abs) / np.abs(c_ext))
         if balance > POWER_BALANCE_WARNING:  # the runtime error estimate of fiber.md §6
-            logger.warning("fiber BEM power balance error %.1e at λ=%.4g µm, θ_i=%.4g rad: refine the mesh",
-                           balance, self.media.wavelength_um, self.media.theta_i)
+            warnings.warn(f"fiber BEM power balance error {balance:.1e} at λ = {self.media.wavelength_um:.4g} µm, "
+                          f"θ_i = {np.rad2deg(self.media.theta_i):.4g}°: refine the mesh", FiberMeshWarning,
+                          stacklevel=2)
         return ScatteringResult(
             wavelength_um=self.media.wavelength_um,
             index=self.media.index,
@@ -154,10 +161,10 @@ class FiberBEM:
         interior_wavelength = media.wavelength_um / abs(media.index)
         per_wavelength = interior_wavelength / self.shape.lengths.max()
         if per_wavelength < MIN_ELEMENTS_PER_WAVELENGTH:
-            logger.warning(
-                "fiber mesh is coarse: %.1f elements per interior wavelength (λ/|m| = %.3g µm, "
-                "longest element %.3g µm); use at least 10", per_wavelength, interior_wavelength,
-                self.shape.lengths.max())
+            warnings.warn(
+                f"fiber mesh is coarse: {per_wavelength:.1f} elements per interior wavelength (λ/|m| = "
+                f"{interior_wavelength:.3g} µm, longest element {self.shape.lengths.max():.3g} µm); use at least 10",
+                FiberMeshWarning, stacklevel=3)
 
 
 def solve_fiber(ctx, shape: CrossSection, wavelength_um: float, index: complex, theta_i: float,

@@ -3,11 +3,11 @@ the reference table, and the independent T-matrix code treams (run inside the te
 
 from __future__ import annotations
 
-import warnings
 
 import numpy as np
 import pytest
 
+from references import cylinder_widths_treams
 from wavebrdf.solver.fiber import MieFiber, mie_cylinder, mie_scattering
 
 DEG = np.pi / 180
@@ -104,21 +104,8 @@ def test_against_treams_t_matrix(lam, radius, m, theta):
     """Independent code: treams' infinite-cylinder T-matrix (e^{-iωt}, ε = conj(m)²). Its cross
     width is normalised by the full incident intensity: C_treams = C·cosθ_i. Case I is the
     plane wave with E in the plane of the axis and k, case II the one with E ⟂ to it."""
-    import treams  # independent reference (dev dependency): a missing one fails, never skips
-
     th = theta * DEG
-    k0 = 2 * np.pi / lam
-    kz = k0 * np.sin(th)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        tm = treams.TMatrixC.cylinder(kz, 40, k0, radius, [treams.Material(np.conj(m) ** 2), treams.Material()])
-        tm = tm.changepoltype("parity")
-        widths = []
-        for pol in ([-np.sin(th), 0.0, np.cos(th)], [0.0, 1.0, 0.0]):
-            wave = treams.plane_wave([k0 * np.cos(th), 0.0, kz], pol, k0=k0, material=treams.Material(),
-                                     poltype="parity")
-            widths.append(tm.xw(wave))
-    sca, ext = np.array(widths).T / np.cos(th)
+    ext, sca = cylinder_widths_treams(lam, radius, m, th, orders=40)
     mie = mie_cylinder(lam, radius, m, th)
     np.testing.assert_allclose(mie.C_ext, ext, rtol=1e-8)
     np.testing.assert_allclose(mie.C_sca, sca, rtol=1e-8)

@@ -46,7 +46,7 @@ import numpy as np
 
 from wavebrdf.mitsuba.tables import Tables, cell_edges
 
-__all__ = ["make_plugin_class"]
+__all__ = ["linear_nodes", "make_plugin_class", "pick_interval"]
 
 
 class _ScalarOps:
@@ -206,14 +206,7 @@ class Evaluator:
         return self._nearest(ax, ay, az)
 
     def _linear(self, grid, n, x):
-        """[(index, weight)] of linear interpolation at x over sorted ``grid`` (clamped)."""
-        ops = self.ops
-        if n == 1:
-            return [(ops.index(0), 1.0)]
-        j = ops.search(grid, 0, n - 1, x)
-        lo, hi = ops.gather(grid, j), ops.gather(grid, j + 1)
-        w = ops.clip((x - lo) / (hi - lo), 0.0, 1.0)
-        return [(j, 1.0 - w), (j + 1, w)]
+        return linear_nodes(self.ops, grid, n, x)
 
     def _shifted(self, k, w, ax, ay):
         ops = self.ops
@@ -347,12 +340,25 @@ class Evaluator:
         return comp.from_table(x, y)
 
     def _pick(self, cdf, base, count, xi):
-        """Interval j of the CDF segment cdf[base : base + count + 1] holding xi, and the
-        fraction of xi within it (uniform within the cell)."""
-        ops = self.ops
-        j = ops.search(cdf, base, count, xi)
-        lo, hi = ops.gather(cdf, base + j), ops.gather(cdf, base + j + 1)
-        return j, ops.clip((xi - lo) / ops.maximum(hi - lo, 1e-30), 0.0, 1.0)
+        return pick_interval(self.ops, cdf, base, count, xi)
+
+
+def linear_nodes(ops, grid, n, x):
+    """[(index, weight)] of linear interpolation at x over sorted ``grid`` (n nodes; clamped)."""
+    if n == 1:
+        return [(ops.index(0), 1.0)]
+    j = ops.search(grid, 0, n - 1, x)
+    lo, hi = ops.gather(grid, j), ops.gather(grid, j + 1)
+    w = ops.clip((x - lo) / (hi - lo), 0.0, 1.0)
+    return [(j, 1.0 - w), (j + 1, w)]
+
+
+def pick_interval(ops, cdf, base, count, xi):
+    """Interval j of the CDF segment cdf[base : base + count + 1] holding xi, and the fraction of
+    xi within it (uniform within the cell)."""
+    j = ops.search(cdf, base, count, xi)
+    lo, hi = ops.gather(cdf, base + j), ops.gather(cdf, base + j + 1)
+    return j, ops.clip((xi - lo) / ops.maximum(hi - lo, 1e-30), 0.0, 1.0)
 
 
 def make_plugin_class(mi, load):

@@ -62,23 +62,31 @@ def tone_map(rgb: np.ndarray, white: float = 16.0) -> np.ndarray:
 
 def scene_dict(bsdf: dict, *, scene: str = "sphere", resolution: int = 256, spp: int = 64,
                env: np.ndarray | None = None, hide_emitters: bool = False, seed: int = 0,
-               sampler: str = "multijitter") -> dict:
+               sampler: str = "multijitter", curves: str | Path | None = None) -> dict:
     """Mitsuba scene dict: ``bsdf`` on a unit sphere or a square plate (side 1.7) tilted 62°
-    toward the camera and turned −25° about the vertical (the sun's highlight in a corner),
+    toward the camera and turned −25° about the vertical (the sun's highlight in a corner), or
+    on the B-spline curves of the file ``curves`` ("fibers", see :mod:`.fiber_scene`),
     perspective camera, the environment ``env`` (default :func:`environment`), direct lighting
-    (path tracer, max_depth 2: the objects are convex), RGBA film (alpha = coverage), box
-    pixel filter; ``sampler``: a Mitsuba sampler ("multijitter" stratifies: give a square spp)."""
+    (path tracer, max_depth 2: the objects are convex; for fibers ``volpath`` with max_depth 24,
+    whose shadow rays pass through the fibers' Null component, eval_null_transmission, instead
+    of stopping at the bounding cylinders), RGBA film (alpha = coverage), box pixel filter;
+    ``sampler``: a Mitsuba sampler ("multijitter" stratifies: give a square spp)."""
     import mitsuba as mi
 
-    if scene not in ("sphere", "plate"):
-        raise ValueError(f"scene = {scene!r}: expected 'sphere' or 'plate'")
+    if scene not in ("sphere", "plate", "fibers"):
+        raise ValueError(f"scene = {scene!r}: expected 'sphere', 'plate' or 'fibers'")
     T = mi.ScalarTransform4f
     env = environment() if env is None else env
-    shape = {"type": "sphere", "bsdf": bsdf} if scene == "sphere" else \
-        {"type": "rectangle", "to_world": T().rotate([0, 0, 1], -25).rotate([1, 0, 0], 62).scale(0.85), "bsdf": bsdf}
+    if scene == "fibers":
+        shape = {"type": "bsplinecurve", "filename": str(curves), "bsdf": bsdf}
+    else:
+        shape = {"type": "sphere", "bsdf": bsdf} if scene == "sphere" else \
+            {"type": "rectangle", "to_world": T().rotate([0, 0, 1], -25).rotate([1, 0, 0], 62).scale(0.85),
+             "bsdf": bsdf}
     return {
         "type": "scene",
-        "integrator": {"type": "path", "max_depth": 2, "hide_emitters": hide_emitters},
+        "integrator": {"type": "volpath" if scene == "fibers" else "path", "max_depth": 24 if scene == "fibers" else 2,
+                       "hide_emitters": hide_emitters},
         "sensor": {
             "type": "perspective",
             "fov": 30.0,
@@ -115,8 +123,9 @@ def render_scene(dataset, scene: str = "sphere", out: str | Path | None = None, 
                  resolution: int | None = None, variant: str | None = None, case: int = 0,
                  smooth_sigma: float | None = None, env: np.ndarray | None = None, seed: int = 0,
                  exposure: float = 1.5, tonemap: bool = True) -> dict:
-    """Render the material of ``dataset`` (a surface dataset path) on ``scene`` ("sphere" or
-    "plate") and write ``out`` (PNG, sRGB, default ``<dataset stem>_<scene>.png``).
+    """Render the material of ``dataset`` on ``scene`` ("sphere" or "plate" for a surface dataset,
+    "fibers" for a fiber dataset: a wisp of 48 B-spline fibers with the ``"wavebrdf_fiber"``
+    BSDF) and write ``out`` (PNG, sRGB, default ``<dataset stem>_<scene>.png``).
 
     ``variant``: a Mitsuba variant (default :func:`default_variant`: llvm_ad_rgb when a libLLVM
     >= 17 is found, else scalar_rgb, where the Python plugin runs once per sample: ~10⁴
@@ -137,12 +146,23 @@ def render_scene(dataset, scene: str = "sphere", out: str | Path | None = None, 
     register()
     channels = "spectral" if "spectral" in variant else "mono" if "mono" in variant else "rgb"
     start = time.perf_counter()
+    if scene == "fibers" or _is_fiber(dataset):
+        return _render_fibers(dataset, scene, out, spp=spp, resolution=resolution, channels=channels, case=case,
+                              env=env, seed=seed, exposure=exposure, tonemap=tonemap, start=start, variant=variant)
     tables = tables_for(dataset, channels=channels, case=case, smooth_sigma=smooth_sigma)
     bsdf = {"type": "wavebrdf", "filename": str(dataset), "case": int(case)}
     if smooth_sigma is not None:
         bsdf["smooth_sigma"] = float(smooth_sigma)
     scn = mi.load_dict(scene_dict(bsdf, scene=scene, resolution=resolution, spp=spp, env=env, seed=seed))
     load_s = time.perf_counter() - start
+    start = time.perf_counter()
+    return _finish(scn, dataset, scene, out, exposure, tonemap, variant, load_s, tables.diagnostics)
+
+
+def _finish(scn, dataset, scene, out, exposure, tonemap, variant, load_s, diagnostics) -> dict:
+    """Render ``scn``, write the PNG, return render_scene's dict."""
+    import mitsuba as mi
+
     start = time.perf_counter()
     image = np.array(mi.render(scn))
     render_s = time.perf_counter() - start
@@ -151,4 +171,36 @@ def render_scene(dataset, scene: str = "sphere", out: str | Path | None = None, 
     rgb = tone_map(image[..., :3] * exposure) if tonemap else np.clip(image[..., :3] * exposure, 0.0, None)
     mi.util.write_bitmap(str(out), np.ascontiguousarray(rgb, dtype=np.float32), write_async=False)
     return {"image": image, "path": out, "variant": variant, "load_s": load_s, "render_s": render_s,
-            "diagnostics": tables.diagnostics}
+            "diagnostics": diagnostics}
+
+
+def _is_fiber(dataset) -> bool:
+    from wavebrdf.jobs.store import Dataset
+
+    with Dataset(dataset) as ds:
+        return ds.kind == "fiber"
+
+
+def _render_fibers(dataset, scene, out, *, spp, resolution, channels, case, env, seed, exposure, tonemap, start,
+                   variant) -> dict:
+    """The "fibers" scene: a wisp of B-spline fibers with the ``"wavebrdf_fiber"`` BSDF (the
+    curves' radius is the dataset's bounding width, :func:`wavebrdf.mitsuba.fiber_radius`), lit
+    by the environment, which camera rays do not show (black background)."""
+    import tempfile
+
+    import mitsuba as mi
+
+    from wavebrdf.mitsuba import fiber_radius, fiber_tables_for
+    from wavebrdf.mitsuba.fiber_scene import GEOMETRIC_RADIUS, write_fiber_wisp
+
+    if scene != "fibers" or not _is_fiber(dataset):
+        raise ValueError(f"{dataset}: scene = {scene!r} needs a {'fiber' if scene == 'fibers' else 'surface'} "
+                         "dataset (fiber datasets render with --scene fibers)")
+    tables = fiber_tables_for(dataset, channels=channels, case=case)
+    bsdf = {"type": "wavebrdf_fiber", "filename": str(dataset), "case": int(case)}
+    with tempfile.TemporaryDirectory() as tmp:
+        curves = write_fiber_wisp(Path(tmp) / "wisp.txt", fiber_radius(dataset, GEOMETRIC_RADIUS, case))
+        scn = mi.load_dict(scene_dict(bsdf, scene=scene, resolution=resolution, spp=spp, env=env, seed=seed,
+                                      curves=curves, hide_emitters=True))  # thin fibers read best on black
+    load_s = time.perf_counter() - start
+    return _finish(scn, dataset, scene, out, exposure, tonemap, variant, load_s, tables.diagnostics)

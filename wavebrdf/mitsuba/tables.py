@@ -44,7 +44,8 @@ import numpy as np
 from wavebrdf.jobs.store import Dataset
 from wavebrdf.solver.spectrum import spectral_weights, xyz_to_linear_srgb
 
-__all__ = ["CHANNELS", "SCHEMES", "Tables", "cell_edges", "isotropy_from_config", "load_tables"]
+__all__ = ["CHANNELS", "SCHEMES", "Tables", "cell_edges", "channel_matrix", "isotropy_from_config", "load_tables",
+           "open_for_plugin"]
 
 logger = logging.getLogger("wavebrdf")
 
@@ -115,6 +116,24 @@ def isotropy_from_config(config_text: str) -> tuple[bool, str]:
         return False, "config: anisotropic gaussian correlation"
     return False, f"config: surface {('generator ' + repr(generator)) if generator else 'from a file'} " \
                   "not declared isotropic"
+
+
+PLUGINS = {"surface": "wavebrdf", "fiber": "wavebrdf_fiber"}
+
+
+def open_for_plugin(path, kind: str, channels: str) -> Dataset:
+    """Open ``path`` for the plugin of datasets of ``kind`` ("surface" or "fiber"), checking the
+    channel kind and the dataset kind (messages name the plugin and the property)."""
+    plugin = PLUGINS[kind]
+    if channels not in CHANNELS:
+        raise ValueError(f"[{plugin} plugin] channels = {channels!r}: expected one of {', '.join(CHANNELS)}")
+    ds = Dataset(path)
+    if ds.kind != kind:
+        ds.close()
+        other = "fiber" if kind == "surface" else "surface"
+        raise ValueError(f"[{plugin} plugin] filename = {str(path)!r}: a {ds.kind} dataset; the \"{plugin}\" "
+                         f"plugin reads {kind} datasets ({other}s: \"{PLUGINS[other]}\")")
+    return ds
 
 
 def _waist_um(config_text: str) -> float | None:
@@ -194,12 +213,17 @@ def _smooth(cube: np.ndarray, sigma_u: np.ndarray) -> np.ndarray:
     return out
 
 
+def channel_matrix(wavelengths_um: np.ndarray, channels: str) -> np.ndarray:
+    """(C, L): spectrum sampled at ``wavelengths_um`` → linear sRGB ("rgb") or luminance Y ("mono")."""
+    weights = spectral_weights(wavelengths_um)  # XYZ = W @ spectrum
+    return weights[1:2] if channels == "mono" else xyz_to_linear_srgb(weights.T).T
+
+
 def _to_channels(cube: np.ndarray, wavelengths_um: np.ndarray, channels: str) -> tuple[np.ndarray, float]:
     """(n_tab, L, res, res) spectra → (n_tab, C, res, res); returns the clipped (negative) fraction."""
     if channels == "spectral":
         return cube, 0.0
-    weights = spectral_weights(wavelengths_um)  # XYZ = W @ spectrum
-    matrix = weights[1:2] if channels == "mono" else xyz_to_linear_srgb(weights.T).T  # (C, L)
+    matrix = channel_matrix(wavelengths_um, channels)  # (C, L)
     out = np.einsum("cl,klij->kcij", matrix, cube)
     negative = float(np.mean(out < 0))
     return np.maximum(out, 0.0), negative
@@ -294,13 +318,8 @@ def load_tables(path: str | Path, *, case: int = 0, channels: str = "rgb", smoot
     ``isotropic``: use rotation invariance in φ (None: as the config declares it).
     """
     start = time.perf_counter()
-    if channels not in CHANNELS:
-        raise ValueError(f"[wavebrdf plugin] channels = {channels!r}: expected one of {', '.join(CHANNELS)}")
     where = f"[wavebrdf plugin] filename = {str(path)!r}"
-    with Dataset(path) as ds:
-        if ds.kind != "surface":
-            raise ValueError(f"{where}: a {ds.kind} dataset; the \"wavebrdf\" plugin reads surface datasets "
-                             "(fibers: \"wavebrdf_fiber\")")
+    with open_for_plugin(path, "surface", channels) as ds:
         coords = ds.coords
         lead = ds.h5["brdf"].shape[: len(ds.sweep_keys)]
         n_cases = int(np.prod(lead)) if lead else 1

@@ -35,6 +35,7 @@ from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.bem3d.quadrature import QuadratureOptions
 from wavebrdf.solver.krylov import KrylovResult, solve
+from wavebrdf.solver.progress import silent
 
 logger = logging.getLogger(__name__)
 
@@ -85,6 +86,8 @@ class AIMOperator:
         self.options = options = options or AIMOptions()
         self.precision = options.precision
         self.dtype = np.complex128 if options.precision == "double" else np.complex64
+        self.progress = progress or silent
+        self.progress("projection", None)
         grid_part = GridPart.build(ctx, mesh, media, options)
         self.grid_media, self.grid, self.base = grid_part.media, grid_part.grid, grid_part.base
         groups = grid_part.groups
@@ -98,6 +101,8 @@ class AIMOperator:
         if ctx is not None:
             self.near.upload(ctx)
         t3 = time.perf_counter()
+        if precondition:
+            self.progress("preconditioner", None)
         self.preconditioner = NearPreconditioner(self.near, options.preconditioner_tile_cells) if precondition else None
         self.setup = {
             "projection_s": t1 - t0, "spectra_s": t2 - t1, "near_s": t3 - t2,
@@ -146,11 +151,11 @@ class AIMOperator:
         apply = self.matvec if self.ctx is not None else self.matvec_numpy
         if self.preconditioner is not None:
             result = solve(apply, rhs, method=o.solver, tol=o.tolerance, max_iterations=o.max_iterations,
-                           restart=o.restart, preconditioner=self.preconditioner)
+                           restart=o.restart, preconditioner=self.preconditioner, progress=self.progress)
         else:
             s = symmetric_scaling(self.mesh.n_bases, self.dtype)
             result = solve(lambda Y: s * apply(s * Y), s * rhs, method=o.solver, tol=o.tolerance,
-                           max_iterations=o.max_iterations, restart=o.restart)
+                           max_iterations=o.max_iterations, restart=o.restart, progress=self.progress)
             result.x = s * result.x
         if diagnostics is not None:
             diagnostics.update(result.diagnostics(), matvec_timings=dict(self.base.timings))

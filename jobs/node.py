@@ -1,0 +1,56 @@
+"""What this process may use on its node: CPUs (affinity, ``SLURM_CPUS_PER_TASK``, a user's
+``OMP_NUM_THREADS``), its local rank among the node's ranks (from the launcher's environment) and
+so its GPU. Read before MPI or OpenCL start; nothing here imports them."""
+
+from __future__ import annotations
+
+import os
+
+__all__ = ["LOCAL_RANK_VARIABLES", "allowed_cpus", "local_rank", "threads_per_rank"]
+
+# launcher variables naming this process's rank among the ranks of its node, in order of trust
+LOCAL_RANK_VARIABLES = ("SLURM_LOCALID", "OMPI_COMM_WORLD_LOCAL_RANK", "MPI_LOCALRANKID", "PMI_LOCAL_RANK",
+                        "PMIX_LOCAL_RANK", "MV2_COMM_WORLD_LOCAL_RANK", "PALS_LOCAL_RANKID", "WAVEBRDF_LOCAL_RANK")
+
+
+def allowed_cpus() -> int:
+    """CPUs this process may run on (its affinity mask; the CPU count where there is none)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - non-Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def threads_per_rank(ranks_on_node: int, environ: dict | None = None, cpus: int | None = None) -> int:
+    """Threads for one of ``ranks_on_node`` ranks (or worker processes) of a node.
+
+    ``SLURM_CPUS_PER_TASK`` when set (SLURM gave each task that many CPUs), else the affinity
+    mask shared by the node's ranks; a user's ``OMP_NUM_THREADS`` lowers it; never more than
+    the CPUs this process may run on, never less than 1."""
+    env = os.environ if environ is None else environ
+    cpus = cpus or allowed_cpus()
+    slurm = _positive_int_from(env, "SLURM_CPUS_PER_TASK")
+    threads = slurm if slurm is not None else cpus // max(1, ranks_on_node)
+    user = _positive_int_from(env, "OMP_NUM_THREADS")
+    if user is not None:
+        threads = min(threads, user)
+    return max(1, min(threads, cpus))
+
+
+def _positive_int_from(env, name: str) -> int | None:
+    text = str(env.get(name, "")).strip()
+    try:
+        value = int(text.split("(")[0])
+    except ValueError:
+        return None
+    return value if value >= 1 else None
+
+
+def local_rank(environ: dict | None = None) -> int:
+    """This process's rank among the ranks of its node (0 without a launcher)."""
+    env = os.environ if environ is None else environ
+    for name in LOCAL_RANK_VARIABLES:
+        value = _positive_int_from(env, name)
+        if value is not None or str(env.get(name, "")).strip() == "0":
+            return value or 0
+    return 0

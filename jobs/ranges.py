@@ -1,0 +1,74 @@
+"""Ranges in configs: a ``{start, stop, count}`` table wherever a list of numbers goes, and
+direction grids.
+
+::
+
+    wavelengths_um = {start = 0.4, stop = 0.7, count = 31}     # 0.40, 0.41, ..., 0.70 (both ends)
+    theta_i_deg = {start = 0, stop = 60, count = 3}            # fibers: 0, 30, 60
+    directions_deg = {theta = {start = 0, stop = 60, count = 4}, phi = [0, 45]}
+    [sweep]
+    "surface.rms_height_um" = {start = 0.02, stop = 0.1, count = 5}
+
+A range is ``count`` evenly spaced values from ``start`` to ``stop``, both included (``count =
+1``: ``start`` alone), rounded to 12 significant digits so that 0.4 + 3 × 0.1 is 0.7 and
+``.sel(wavelength_um=0.55)`` finds its value; integer ends with an integer step give integers
+(``"surface.seed" = {start = 1, stop = 4, count = 4}``). A direction grid is every (θ, φ) of
+``theta`` × ``phi`` (each a number, a list or a range), θ-major; θ = 0 is one direction whatever
+φ, so it appears once, with the first φ. Anything else is returned as it is, for the key's own
+check.
+"""
+
+from __future__ import annotations
+
+import math
+
+__all__ = ["RANGE_KEYS", "expand_directions", "expand_range"]
+
+RANGE_KEYS = ("start", "stop", "count")
+
+
+def _fail(section: str, key: str, value, problem: str):
+    from wavebrdf.jobs.config import _fail as config_fail  # the config's one-line error format
+
+    return config_fail(section, key, value, problem)
+
+
+def expand_range(section: str, key: str, value):
+    """``value`` with a ``{start, stop, count}`` table replaced by its list of numbers."""
+    if not isinstance(value, dict):
+        return value
+    if set(value) != set(RANGE_KEYS):
+        raise _fail(section, key, value, "a range is a table {start = a, stop = b, count = n} (exactly these keys)")
+    start, stop, count = (value[k] for k in RANGE_KEYS)
+    for name, x in (("start", start), ("stop", stop)):
+        if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
+            raise _fail(section, key, value, f"range {name} must be a finite number")
+    if isinstance(count, bool) or not isinstance(count, int) or not 1 <= count <= 100_000:
+        raise _fail(section, key, value, "range count must be an integer from 1 to 100000")
+    if count == 1:
+        return [start]
+    if start == stop:
+        raise _fail(section, key, value, "a range of count > 1 needs start != stop")
+    if all(isinstance(x, int) for x in (start, stop)) and (stop - start) % (count - 1) == 0:
+        step = (stop - start) // (count - 1)  # integers stay integers (seeds, cells)
+        return [start + i * step for i in range(count)]
+    step = (stop - start) / (count - 1)
+    return [float(f"{start + i * step:.12g}") for i in range(count)]
+
+
+def expand_directions(section: str, key: str, value):
+    """``value`` with a ``{theta = ..., phi = ...}`` grid replaced by its list of [θ, φ] pairs."""
+    if not isinstance(value, dict):
+        return value
+    if set(value) != {"theta", "phi"}:
+        raise _fail(section, key, value, "a direction grid is a table {theta = ..., phi = ...} (each a number, "
+                                         "a list or a range {start, stop, count}), or list [[theta, phi], ...]")
+    axes = []
+    for name in ("theta", "phi"):
+        axis = expand_range(section, f"{key}.{name}", value[name])
+        axes.append(axis if isinstance(axis, list) else [axis])
+    pairs = []
+    for theta in axes[0]:
+        for phi in axes[1][:1] if theta == 0 else axes[1]:
+            pairs.append([theta, phi])
+    return pairs

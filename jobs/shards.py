@@ -1,0 +1,147 @@
+"""Array sharding: one study split over K independent jobs, merged into one dataset.
+
+``run --shard i/K`` runs shard i's tasks with its own output ``<stem>.shard-<i>-of-<K><suffix>``
+(own lock and parts folder, so K jobs never contend) and keeps its parts; it writes no dataset.
+Shards are contiguous groups of tasks (a steered basic direction's patch and synthesis tasks stay
+together; consecutive tasks share a model's operator). ``wavebrdf merge CONFIG`` verifies every
+shard's parts, adopts them into the output's parts folder and writes the dataset with the same
+writer as an unsharded run, so the two are equal; the shards' folders are then removed.
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+from pathlib import Path
+
+from wavebrdf.jobs.parts import OutputLock, PartsFolder, ResumeError
+
+__all__ = ["cmd_merge", "parse_shard", "shard_output", "shard_tasks", "with_output"]
+
+
+def parse_shard(text: str) -> tuple[int, int]:
+    """``"i/K"`` → (i, K) with 0 <= i < K."""
+    from wavebrdf.jobs.config import ConfigError
+
+    match = re.fullmatch(r"\s*(\d+)\s*/\s*(\d+)\s*", str(text))
+    if not match or not 0 <= int(match.group(1)) < int(match.group(2)):
+        raise ConfigError(f"--shard {text!r}: use i/K with 0 <= i < K, e.g. 0/4")
+    return int(match.group(1)), int(match.group(2))
+
+
+def shard_output(output: Path, index: int, shards: int) -> Path:
+    output = Path(output)
+    return output.with_name(f"{output.stem}.shard-{index}-of-{shards}{output.suffix}")
+
+
+def _group(task) -> tuple:
+    """Tasks of one group go to one shard: a basic direction's patches and syntheses."""
+    if task.kind in ("patch", "synth"):
+        return ("steered", task.case, task.wavelength, task.basic)
+    return ("task", task.id)
+
+
+def shard_tasks(plan, index: int, shards: int) -> set[int]:
+    """Ids of the tasks of shard ``index`` of ``shards`` (contiguous groups, balanced by count)."""
+    groups: dict[tuple, list[int]] = {}
+    for task in plan.tasks:
+        groups.setdefault(_group(task), []).append(task.id)
+    ordered = list(groups.values())
+    lo, hi = len(ordered) * index // shards, len(ordered) * (index + 1) // shards
+    return {i for ids in ordered[lo:hi] for i in ids}
+
+
+def with_output(config, output: Path):
+    """``config`` writing to ``output`` (every case)."""
+    from dataclasses import replace
+
+    return replace(config, cases=tuple(replace(case, output=Path(output)) for case in config.cases))
+
+
+def _shard_plan(plan, index: int, shards: int):
+    """The plan with the shard's output (same tasks, same fingerprint)."""
+    from wavebrdf.jobs.plan import Plan
+
+    config = with_output(plan.config, shard_output(plan.config.output, index, shards))
+    return Plan(config, plan.tasks, plan.steering, plan._geometry)
+
+
+def found_shards(output: Path) -> int | None:
+    """K of the shard folders beside ``output`` (None: none there)."""
+    output = Path(output)
+    pattern = re.compile(re.escape(output.stem) + r"\.shard-\d+-of-(\d+)" + re.escape(output.suffix) + r"\.parts")
+    counts = {int(m.group(1)) for p in output.parent.glob(f"{output.stem}.shard-*")
+              if (m := pattern.fullmatch(p.name))}
+    if len(counts) > 1:
+        raise ResumeError(f"shard folders of different shard counts {sorted(counts)} beside {output}; "
+                          "remove the stale ones")
+    return counts.pop() if counts else None
+
+
+def cmd_merge(args) -> int:
+    """``wavebrdf merge CONFIG``: the shards' parts into the study's dataset."""
+    from wavebrdf.jobs.config import load_config
+    from wavebrdf.jobs.finished import up_to_date
+    from wavebrdf.jobs.plan import plan_study
+    from wavebrdf.jobs.render import render_dataset
+    from wavebrdf.jobs.scheduler import prepare_output
+    from wavebrdf.jobs.store import write_dataset
+
+    plan = plan_study(load_config(args.config))
+    output = Path(plan.config.output)
+    with OutputLock(output).acquire(args.wait):
+        if up_to_date(plan):
+            print(f"{output} is up to date")
+            return 0
+        shards = args.shards or found_shards(output)
+        if shards is None:
+            raise ResumeError(f"no shard folders beside {output} (run 'wavebrdf run CONFIG --shard i/K' first)")
+        folders, missing = [], []
+        for index in range(shards):
+            folder = PartsFolder(_shard_plan(plan, index, shards))
+            done = folder.verify() if folder.manifest.is_file() else set()
+            if folder.path.exists():
+                folder.open()  # refuses another configuration's folder
+            wanted = shard_tasks(plan, index, shards)
+            failed = {t for t in wanted if folder.path.exists() and folder.failure(plan.tasks[t]) is not None}
+            if not wanted <= done | failed:
+                missing.append(f"shard {index}: {len(wanted - done - failed)} of {len(wanted)} task(s)")
+            folders.append(folder)
+        if missing:
+            if args.if_complete:
+                print(f"merge of {output} waits for: {'; '.join(missing)}", file=sys.stderr)
+                return 0
+            raise ResumeError(f"cannot merge {output}: not finished: {'; '.join(missing)}")
+        parts = prepare_output(plan)
+        device = ""
+        for folder in folders:
+            for task in plan.tasks:
+                if folder.done(task) and parts.adopt(task, folder):
+                    device = device or parts.load_diagnostics(task).get("device", "")
+                elif folder.failure(task) is not None:
+                    parts.save_failure(task, folder.failure(task))
+        path = write_dataset(plan, parts, device=device)
+        failed = [t for t in plan.tasks if not parts.done(t)]
+        if not failed:
+            parts.remove()
+            for folder in folders:
+                folder.remove()
+        print(f"wrote {path} ({shards} shards)")
+        if failed:
+            print(f"wavebrdf: {len(failed)} task(s) failed; their results are NaN", file=sys.stderr)
+            return 1
+        if not args.no_render:
+            for png in render_dataset(path):
+                print(f"wrote {png}")
+    return 0
+
+
+def add_merge_parser(sub) -> None:
+    p = sub.add_parser("merge", help="merge the shards of 'run --shard i/K' into the study's dataset")
+    p.add_argument("config", type=Path)
+    p.add_argument("--shards", type=int, help="K (default: found beside the output)")
+    p.add_argument("--if-complete", action="store_true",
+                   help="exit 0 without merging while a shard is unfinished (the array jobs' last step)")
+    p.add_argument("--wait", action="store_true", help="wait for another run or merge holding the output")
+    p.add_argument("--no-render", action="store_true", help="do not write PNGs")
+    p.set_defaults(func=cmd_merge)

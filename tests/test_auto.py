@@ -1,0 +1,206 @@
+"""``[model] name = "auto"`` (solver/auto.py, docs/auto.md): the cheapest rung expected to meet a
+tolerance, from scene features and a rule fitted to the trade table of record (docs/trade.md).
+
+* On the suite the rule was fitted to (configs/compare/trade/*.toml), the chosen rung's *measured*
+  error (solver/data/trade.csv, against AIM BEM) is within the tolerance in every scene, and it is
+  the cheapest such rung in most.
+* Scenes generated fresh here (new seeds, new parameters): cube corners and spherical pits never
+  get a single-scattering rung; smooth low-slope random surfaces never get BEM.
+* End to end: a study with ``name = "auto"`` plans (choice, predicted error, avoided cost) and runs,
+  storing the rung and its reason per task.
+* slow: a second suite of fresh scenes against the full-wave reference — the same figures.
+"""
+
+from __future__ import annotations
+
+import logging
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from wavebrdf.jobs.compare import plan_scenes
+from wavebrdf.jobs.config import load_config
+from wavebrdf.jobs.plan import plan_study
+from wavebrdf.solver.auto import (ERROR_COLUMN, FEATURES, REFERENCE, SINGLE_SCATTERING, Rule, choose, measure_scene,
+                                  read_table)
+from wavebrdf.solver.farfield import HemisphereGrid
+from wavebrdf.solver.materials import Material
+from wavebrdf.solver.models import SurfaceScene
+from wavebrdf.solver.surface import generate
+
+logger = logging.getLogger(__name__)
+ROOT = Path(__file__).resolve().parents[1]
+SUITE = sorted((ROOT / "configs" / "compare" / "trade").glob("*.toml"))
+TOLERANCE = 0.05
+DEG = np.pi / 180
+
+
+def aluminium(wavelength_um: float) -> complex:
+    return complex(Material.from_name("aluminium").index(wavelength_um))
+
+
+def test_on_the_fitted_suite_auto_picks_a_rung_within_tolerance():
+    table = read_table()
+    rule = Rule.fit(table)
+    assert len(SUITE) >= 7 and len({r["scene"] for r in table}) >= 28
+    picks, cheapest = [], 0
+    for path in SUITE:
+        for label, scene in plan_scenes(plan_study(load_config(path))):
+            rows = {r["model"]: r for r in table if r["scene"] == label}
+            assert rows, f"{label} is missing from solver/data/trade.csv: regenerate with benchmarks/trade.py"
+            measured = measure_scene(scene)  # the table's features are what auto measures today
+            first = next(iter(rows.values()))
+            assert np.allclose([getattr(measured, k) for k in FEATURES], [float(first[k]) for k in FEATURES],
+                               rtol=1e-6, atol=1e-9), label
+            choice = choose(scene, TOLERANCE, rule, measured)
+            error = float(rows[choice.model][ERROR_COLUMN] or "nan")
+            within = sorted((float(r["cpu_s"]), m) for m, r in rows.items()
+                            if r[ERROR_COLUMN] and float(r[ERROR_COLUMN]) <= TOLERANCE)
+            picks.append((label, choice.model, error, within[0][1]))
+            cheapest += choice.model == within[0][1]
+            assert error <= TOLERANCE, f"{label}: auto picked {choice.model} with measured error {error:.3g}"
+    logger.info("auto on the suite: %s", picks)
+    print("\n".join(f"{p[0]}: auto {p[1]} (measured {p[2]:.3g}), cheapest within tolerance {p[3]}" for p in picks))
+    assert cheapest >= len(picks) / 2
+
+
+def fresh_scene(generator: str, wavelength_um: float, theta_deg: float, seed: int, **params) -> SurfaceScene:
+    surface = generate(generator, cells=64, size_um=4.0, seed=seed, **params)
+    return SurfaceScene(surface, wavelength_um, aluminium(wavelength_um), theta_deg * DEG, 0.0, 0.6, HemisphereGrid(48))
+
+
+def test_multiple_scattering_scenes_never_get_a_single_scattering_rung():
+    rng = np.random.default_rng(2026)
+    picks = []
+    for k in range(6):
+        lam, theta = rng.uniform(0.4, 0.8), rng.choice([0.0, 20.0, 45.0])
+        if k % 2 == 0:
+            period = float(rng.choice([0.8, 1.0, 2.0]))
+            scene = fresh_scene("corner-cubes", lam, theta, k, period_um=period, shape=rng.choice(["full", "triangular"]))
+        else:
+            radius = rng.uniform(0.35, 0.5)
+            scene = fresh_scene("spherical-pits", lam, theta, k, radius_um=radius, depth_um=rng.uniform(0.5, 0.8) * radius,
+                                period_um=1.0)
+        choice = choose(scene, TOLERANCE)
+        picks.append((scene.surface.parameters["generator"], round(lam, 3), theta, choice.model))
+        assert choice.model not in SINGLE_SCATTERING, choice.reason
+    logger.info("multiple-scattering scenes: %s", picks)
+
+
+def test_smooth_low_slope_random_surfaces_never_get_bem():
+    rng = np.random.default_rng(7)
+    picks = []
+    for k in range(6):
+        lam, theta = rng.uniform(0.4, 0.8), rng.uniform(0.0, 60.0)
+        scene = fresh_scene("gaussian", lam, theta, 100 + k, rms_height_um=rng.uniform(0.002, 0.012),
+                            correlation_um=rng.uniform(0.4, 1.0))
+        choice = choose(scene, TOLERANCE)
+        picks.append((round(lam, 3), round(theta), choice.model))
+        assert choice.model != REFERENCE, choice.reason
+    logger.info("smooth random scenes: %s", picks)
+
+
+def test_an_auto_study_plans_and_runs_storing_the_rung_and_its_reason(tmp_path):
+    import h5py
+
+    config = tmp_path / "auto.toml"
+    config.write_text(
+        '[study]\nname = "auto"\noutput = "auto.h5"\n'
+        '[surface]\ngenerator = "gaussian"\nsize_um = 4.0\ncells = 64\nrms_height_um = 0.008\ncorrelation_um = 0.6\n'
+        'seed = 5\n[material]\nname = "aluminium"\n'
+        '[illumination]\nwavelengths_um = [0.6]\ndirections_deg = [[0, 0], [30, 0]]\nwaist_um = 0.6\n'
+        '[model]\nname = "auto"\ntolerance = 0.05\n[output]\nresolution = 48\n')
+    wavebrdf = [sys.executable, "-m", "wavebrdf"]
+    plan = subprocess.run(wavebrdf + ["plan", str(config)], cwd=tmp_path, capture_output=True, text=True)
+    assert plan.returncode == 0, plan.stderr
+    assert plan.stdout.count("auto → ") == 2 and "avoids bem" in plan.stdout and "auto: " in plan.stdout
+    run = subprocess.run(wavebrdf + ["run", str(config), "-q"], cwd=tmp_path, capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    with h5py.File(tmp_path / "auto.h5") as h5:
+        models = [m.decode() if isinstance(m, bytes) else m for m in h5["tasks/model"][()]]
+        reasons = [m.decode() if isinstance(m, bytes) else m for m in h5["tasks/model_reason"][()]]
+        albedo = h5["albedo"][()]
+    assert all(m not in ("auto", REFERENCE, "") for m in models), models
+    assert all("predicted" in r and any(w in r for w in ("checked against", "escalated", "nothing to check"))
+               for r in reasons), reasons
+    assert np.all((albedo > 0.8) & (albedo < 1.0))  # smooth aluminium at 0.6 µm: Fresnel 0.91
+
+
+SECOND_SUITE = [  # (generator, parameters, λ µm, θ_i°): new seeds, parameters, patch and waist
+    ("gaussian", dict(rms_height_um=0.006, correlation_um=0.7, seed=31), 0.6, 30.0),
+    ("gaussian", dict(rms_height_um=0.09, correlation_um=0.6, seed=32), 0.6, 60.0),
+    ("brushed", dict(rms_height_um=0.03, correlation_um=[1.5, 0.25], angle_deg=-20.0, seed=33), 0.6, 30.0),
+    ("sinusoid", dict(amplitude_um=0.025, period_um=0.8), 0.6, 20.0),
+    ("hemispheres", dict(radius_um=0.4, fill=0.3, placement="random", seed=34), 0.6, 30.0),
+    ("corner-cubes", dict(period_um=0.8, shape="full"), 0.6, 10.0),
+    ("spherical-pits", dict(radius_um=0.4, depth_um=0.25, period_um=0.8), 0.6, 30.0),
+]
+SECOND_PATCH = dict(size_um=3.2, cells=48, waist_um=0.5)  # the table's: 4 µm, 64 cells, waist 0.6 µm
+
+
+def second_suite_scenes() -> list[tuple[str, SurfaceScene]]:
+    scenes = []
+    for generator, params, lam, theta in SECOND_SUITE:
+        params = dict(params)
+        seed = params.pop("seed", 0)
+        surface = generate(generator, cells=SECOND_PATCH["cells"], size_um=SECOND_PATCH["size_um"], seed=seed, **params)
+        scenes.append((f"{generator} λ={lam} θi={theta:.0f}°", SurfaceScene(
+            surface, lam, aluminium(lam), theta * DEG, 0.0, SECOND_PATCH["waist_um"], HemisphereGrid(96))))
+    return scenes
+
+
+def compare_second_suite():
+    """Every rung and AIM BEM on the second suite (the slow part: 7 full-wave solves)."""
+    from wavebrdf.jobs.compare import compare_scenes
+
+    rungs = ["gs", "gm", "ohs", "ghs", "kirchhoff", "ws-v", "wm", "po"]
+    return compare_scenes(second_suite_scenes(), rungs + [REFERENCE], {REFERENCE: {"method": "aim"}},
+                          reference=REFERENCE)
+
+
+def evaluate_auto_on(comparison, tolerance: float = TOLERANCE) -> list[dict]:
+    """auto (escalation check included) on each scene of ``comparison``: its rung, error against
+    the reference's BRDF, CPU time (pilot and check included), and the cheapest rung within
+    ``tolerance`` by the comparison's measured errors."""
+    from wavebrdf.jobs.compare import MeasuringProcess, _metrics, speckle_sigma_u
+    from wavebrdf.solver.auto import AutoModel
+
+    out = []
+    with MeasuringProcess() as process:
+        for label, scene in second_suite_scenes():
+            rows = {r["model"]: r for r in comparison.rows if r["scene"] == label}
+            ref = next(m for m in comparison.measurements if m.scene == label and m.model == REFERENCE)
+            picked = AutoModel({"tolerance": tolerance}).choice(scene).model
+            if picked == REFERENCE:  # the same full-wave run: nothing to approximate
+                error, cpu, ran = 0.0, rows[REFERENCE]["cpu_s"], REFERENCE
+            else:
+                run = process.measure("auto", {"tolerance": tolerance}, scene, label)
+                assert run.failure is None, run.failure
+                sigma = speckle_sigma_u(scene.wavelength_um, scene.waist_um, comparison.grid)
+                error = _metrics(run, ref, comparison.grid, sigma, scene.theta_i, scene.phi_i)[ERROR_COLUMN]
+                cpu, ran = run.cpu_s, run.diagnostics["model"]
+            within = sorted((r["cpu_s"], m) for m, r in rows.items() if r.get(ERROR_COLUMN, np.inf) <= tolerance)
+            out.append(dict(scene=label, picked=picked, ran=ran, error=error, cpu=cpu, bem_cpu=rows[REFERENCE]["cpu_s"],
+                            cheapest=within[0][1] if within else REFERENCE))
+    return out
+
+
+@pytest.mark.slow
+def test_second_suite_against_the_full_wave_reference():
+    """Fresh scenes (new seeds, parameters, patch and waist) through auto and every rung, against
+    AIM BEM: the rung auto ran within the tolerance in every scene, the cheapest such rung in most;
+    the CPU time saved against BEM everywhere and the worst error printed."""
+    results = evaluate_auto_on(compare_second_suite())
+    for r in results:
+        print(f"{r['scene']}: auto → {r['ran']} (chose {r['picked']}) error {r['error']:.3g}, CPU {r['cpu']:.3g} s; "
+              f"cheapest within tolerance {r['cheapest']}")
+    within = sum(r["error"] <= TOLERANCE for r in results)
+    cheapest = sum(r["ran"] == r["cheapest"] for r in results)
+    saved = sum(r["bem_cpu"] for r in results) / sum(r["cpu"] for r in results)
+    print(f"second suite: within {within}/{len(results)}, cheapest {cheapest}/{len(results)}, worst error "
+          f"{max(r['error'] for r in results):.3g}, CPU of BEM everywhere / auto {saved:.3g}")
+    assert within == len(results)
+    assert cheapest >= len(results) / 2
