@@ -154,12 +154,17 @@ OVERRIDES["wm"] = {
     "estimate": dict(OVERRIDES["ws-v"]["estimate"], options={"rays": 1 << 20}),
 }
 # auto runs the rung it chooses (plus its pilot and escalation check): the flat Fresnel bar at 0° and
-# 40° in CI (1%: a ray rung may be chosen), 70° and 80° as slow; a smaller estimate scene.
+# 40° in CI (1%: a ray rung may be chosen), 70° and 80° as slow. Its rough scenes are gentle (σ = λ/40)
+# so that it chooses an approximate rung: on the default rough patch (σ = 0.3λ) it would choose a
+# 10⁵-unknown BEM, whose own conformance is tested above on small patches.
 OVERRIDES["auto"] = {
     "tolerance": 0.01,
     "flat": dict(DEFAULT["flat"], angles_deg=(0.0, 40.0)),
     "flat_slow": dict(DEFAULT["flat"], angles_deg=(70.0, 80.0)),
-    "estimate": dict(DEFAULT["estimate"], cells=160, size_um=10.0, waist_um=1.8, resolution=128),
+    "gain": dict(DEFAULT["gain"], rms_height_um=0.01),
+    "rough": dict(DEFAULT["rough"], rms_height_um=0.01),
+    "estimate": dict(DEFAULT["estimate"], cells=160, size_um=10.0, rms_height_um=0.01, waist_um=1.8,
+                     resolution=128),
 }
 ESTIMATE_FIBER = dict(kind="fiber", radius_um=0.5, wavelength_um=0.5, index=[1.55, -0.1], theta_i_deg=40.0,
                       phi_i=[0.0, 0.5, 1.0], phi_r_bins=360, options=None)
