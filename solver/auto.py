@@ -14,14 +14,15 @@ Modelling only what a scene requires, in three steps (docs/auto.md):
    A single-scattering rung is never predicted below the multiple-scattering share it omits.
    Rungs the table does not cover are not predicted (not chosen).
 3. **Choose and check**: the cheapest rung (by its own :meth:`Model.estimate`) whose predicted
-   error is within ``tolerance``; none: the full-wave BEM. At run time an escalation check runs
+   error is within ``tolerance``; none: the full-wave BEM (AIM) where it fits 80 % of the node's RAM,
+   else the approximation predicted best, said so. At run time an escalation check runs
    the next rung up (the cheapest rung predicted more accurate, BEM excepted) and the chosen one
    on a coarse grid of sentinel directions and escalates while they differ by more than the
    tolerance.
 
 The choice and its reason are the result's diagnostics ``model`` and ``model_reason`` (the
-dataset's task table); ``estimate`` is the chosen rung's, and its detail names the choice, the
-predicted error and the cost of the full-wave run avoided.
+dataset's task table); ``estimate`` is the chosen rung's plus the pilot and the check, and its
+detail names the choice, the predicted error and the cost of the full-wave run avoided.
 """
 
 from __future__ import annotations
@@ -79,7 +80,8 @@ FEATURES = tuple(f.name for f in dataclasses.fields(SceneFeatures))
 
 def measure_scene(scene: SurfaceScene) -> SceneFeatures:
     """:class:`SceneFeatures` of ``scene``: height-field statistics and a geometric-optics pilot
-    (NumPy tracer, :data:`PILOT_RAYS` paths up to 16 reflections, PEC-free: the scene's material)."""
+    (NumPy tracer, :data:`PILOT_RAYS` paths up to 16 reflections, weighted by the scene's own
+    material's Fresnel coefficients)."""
     from wavebrdf.solver.approx.raytrace import trace_paths
 
     stats = scene.surface.statistics()
