@@ -170,8 +170,10 @@ def markdown(table: list[dict], auto_rows: list[dict], tolerance: float, sweep: 
     lines = [HEADER.format(tolerance=tolerance), "",
              "## auto on the suite", "",
              f"Tolerance {tolerance:g} (rel_l2_smooth). `auto` = its choice; `cheapest within` = the cheapest rung "
-             "whose measured error meets the tolerance (by measured CPU time); `auto CPU` = pilot + chosen rung + "
-             "the escalation check's rung (full-resolution times, an upper bound).", "",
+             "whose measured error meets the tolerance (by measured CPU time); `auto CPU` ≈ pilot + chosen rung + "
+             "the escalation check's rung (their full-resolution times from the table; the check runs both at 32² "
+             "directions; escalation is not simulated here — on the second suite, where auto ran with its check, it "
+             "never escalated).", "",
              "| scene | auto | predicted | measured | cheapest within | check | auto CPU (s) | bem CPU (s) |",
              "|---|---|---|---|---|---|---|---|"]
     for r in auto_rows:
@@ -227,8 +229,9 @@ of 64² cells, waist 0.6 µm, λ = 0.5 and 0.7 µm, θ_i = 0° and 60°), with t
 grid and normalization, against the full-wave reference (AIM BEM, 16 128 unknowns). Errors are
 the relative L2 over the lobe of the unpolarized BRDF (`rel L2`) and of the speckle-averaged one
 (blurred by the footprint's own angular spread λ/(πw); `rel L2 (speckle-avg)`, the figure `auto`'s
-tolerance applies to); times are CPU seconds of each model alone in a fresh process on the 2-core
-development VM (shared with other work while measured: compare ratios, not absolute times).
+tolerance applies to); times are CPU seconds of each model run alone in `compare`'s measuring
+process (one per scene config) on the 2-core development VM, shared with other work while measured:
+compare ratios, not absolute times. The ray rungs ran with 2²⁰ rays.
 Regenerate (≈ 1–2 h here; resumes where it stopped):
 
     .venv/bin/python benchmarks/trade.py            # --force to recompute every scene

@@ -216,12 +216,12 @@ def cmd_plan(args) -> int:
     print(f"total: {len(plan.tasks)} tasks, {total:.1f} s of compute ({total / 3600:.2f} h); about "
           f"{total / workers:.1f} s wall on {workers} worker(s); peak {peak / 2**30:.2f} GiB per worker "
           f"(node budget {budget / 2**30:.1f} GiB)")
-    if study.model.name == "auto":  # what auto chose per scene and the full-wave cost it avoids
+    auto = [(t, e) for t, e in zip(plan.tasks, estimates) if t.kind == "direct" and plan.model_name(t) == "auto"]
+    if auto:  # what auto chose per scene and the full-wave cost it avoids
         from wavebrdf.solver.auto import plan_summary
 
-        direct = [(t, e) for t, e in zip(plan.tasks, estimates) if t.kind == "direct"]
-        auto = plan.model_spec(direct[0][0]).build() if direct else None
-        print(plan_summary([auto.choice(plan.model_scene(t)) for t, _ in direct], [e.seconds for _, e in direct]))
+        choices = [plan.model_spec(t).build().choice(plan.model_scene(t)) for t, _ in auto]
+        print(plan_summary(choices, [e.seconds for _, e in auto]))
     return 0
 
 

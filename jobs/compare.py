@@ -5,7 +5,8 @@ slices of a study config, so one footprint, one output grid and one BRDF normali
 alone in a measuring process (:class:`MeasuringProcess`, one per comparison: the interpreter and
 OpenCL start once), which gives its wall time, CPU time (all threads, OpenCL's included) and peak
 memory over the process's resident memory when it started (the peak RSS is reset before each
-model). Times include loading the model's kernels from the PoCL cache on its first use. Each BRDF is then
+model; NaN where the kernel refuses the reset). A model's first use in the process includes
+loading its kernels from the PoCL cache. Each BRDF is then
 compared with the reference model's on the same scene (solver/metrics.py):
 
 * ``rel_l2``: relative L2 over the reference's lobe of the unpolarized BRDF (the raw slices);
@@ -105,8 +106,7 @@ def _run_one(ctx, name: str, options, scene) -> dict:
 
     try:
         model = get_model(name, options)
-        baseline = _reset_peak()
-        baseline = _vm_bytes() if not np.isfinite(baseline) else baseline
+        baseline = _reset_peak()  # NaN where the peak cannot be reset: the peak is then not this model's
         t0, c0 = time.perf_counter(), os.times()
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
@@ -157,12 +157,18 @@ class MeasuringProcess:
     def __enter__(self):
         return self
 
-    def __exit__(self, *exc):
-        self.close()
+    def __exit__(self, exc_type, *exc):
+        self.close(kill=exc_type is not None)
 
-    def close(self) -> None:
+    def close(self, kill: bool = False) -> None:
+        """End the process: after its current model (``kill``: at once)."""
         if self._proc is not None:
-            self._proc.stdin.close()
+            if kill:
+                self._proc.kill()
+            try:
+                self._proc.stdin.close()
+            except OSError:
+                pass
             self._proc.wait()
             self._proc = None
         if self._stderr is not None:
@@ -196,9 +202,10 @@ class MeasuringProcess:
             self._proc.stdin.flush()
             header = self._proc.stdout.read(8)
             out = pickle.loads(self._proc.stdout.read(int.from_bytes(header, "little"))) if len(header) == 8 else None
-        except (BrokenPipeError, EOFError, pickle.UnpicklingError):
+        except Exception:  # noqa: BLE001 - a broken pipe, a truncated or garbled answer: the process is done for
             out = None
         if out is None:
+            self._proc.kill()
             rc = self._proc.wait()
             self._stderr.seek(0)
             tail = self._stderr.read().decode(errors="replace").strip().splitlines()[-1:] or ["no output"]

@@ -63,6 +63,8 @@ class SceneFeatures:
     shadowed: float
     multi_bounce: float
 
+    REGRESSORS = ("1", "log10 σ/λ", "rms slope", "sin²θ_i", "multi-bounce", "shadowed")
+
     def regressors(self) -> np.ndarray:
         """The rule's regressors: 1, log₁₀(σ/λ) (floored at 10⁻⁴), rms slope, sin²θ_i,
         multiple-bounce share, shadowed fraction."""
@@ -87,7 +89,8 @@ def measure_scene(scene: SurfaceScene) -> SceneFeatures:
     stats = scene.surface.statistics()
     lam = scene.wavelength_um / scene.exterior_index
     correlation = np.nanmin([stats["correlation_length_x_um"], stats["correlation_length_y_um"], np.inf])
-    trace = trace_paths(None, scene, rays=PILOT_RAYS, max_depth=16, keep=False)
+    double = scene if scene.precision == "double" else dataclasses.replace(scene, precision="double")
+    trace = trace_paths(None, double, rays=PILOT_RAYS, max_depth=16, keep=False)  # the NumPy twin is double
     escaped = trace.escaped_by_depth.mean(axis=0)
     multi = float(escaped[2:].sum() / escaped.sum()) if escaped.sum() > 0 else 0.0
     return SceneFeatures(
@@ -118,7 +121,7 @@ class Rule:
         coefficients, margin, rows = {}, {}, {}
         for name in sorted({r["model"] for r in table} - {REFERENCE}):
             mine = [r for r in table if r["model"] == name and np.isfinite(_float(r.get(ERROR_COLUMN)))]
-            if len(mine) < 4:
+            if len(mine) < 2 * len(SceneFeatures.REGRESSORS):  # too few rows to fit and bound the residual
                 continue
             x = np.array([_features(r).regressors() for r in mine])
             y = np.log10(np.maximum([_float(r[ERROR_COLUMN]) for r in mine], 1e-6))
@@ -151,14 +154,24 @@ def _features(row: dict) -> SceneFeatures:
 
 
 def read_table(path: Path = TRADE_TABLE) -> list[dict]:
+    """The trade table's rows; a table without the columns the rule needs is refused, naming them."""
     with open(path, newline="") as fh:
-        return list(csv.DictReader(fh))
+        rows = list(csv.DictReader(fh))
+    missing = sorted({"model", ERROR_COLUMN, *FEATURES} - set(rows[0] if rows else ()))
+    if missing:
+        raise ValueError(f"{path}: the trade table lacks column(s) {', '.join(missing)}; regenerate it with "
+                         "benchmarks/trade.py")
+    return rows
 
 
 @functools.lru_cache(maxsize=1)
 def default_rule() -> Rule:
-    """The rule fitted to the committed trade table (:data:`TRADE_TABLE`)."""
-    return Rule.fit(read_table())
+    """The rule fitted to the committed trade table (:data:`TRADE_TABLE`), on first use."""
+    rule = Rule.fit(read_table())
+    if not rule.coefficients:
+        raise ValueError(f"{TRADE_TABLE}: no rung has enough rows to fit auto's rule; regenerate it with "
+                         "benchmarks/trade.py")
+    return rule
 
 
 @dataclass(frozen=True)
@@ -189,8 +202,9 @@ def candidate_models(scene: SurfaceScene) -> list[str]:
 
 
 def memory_budget_bytes() -> float:
-    """Memory the full-wave fallback may use: 80% of this node's RAM (the same on every call, so
-    ``plan`` and ``run`` agree)."""
+    """Memory the full-wave fallback may use: 80% of this machine's RAM (the same on every call, so
+    ``plan`` and ``run`` agree when they run on machines of the same size; ``plan``'s own budget
+    check then applies to the choice)."""
     from wavebrdf.solver.resources import meminfo_bytes
 
     return 0.8 * meminfo_bytes("MemTotal")
@@ -233,9 +247,12 @@ def choose(scene: SurfaceScene, tolerance: float, rule: Rule | None = None,
         return Choice(name, error, candidates, full_wave, reason)
     best = min(((e, n) for n, (e, _) in candidates.items() if n != REFERENCE and np.isfinite(e)), default=None)
     closest = f"; best approximation {best[1]} predicted {best[0]:.3g}" if best else ""
-    if full_wave is not None or best is None:
+    if full_wave is not None:
         reason = f"{REFERENCE}: no rung predicted within tolerance {tolerance:g}{closest} ({features.describe()})"
         return Choice(REFERENCE, 0.0, candidates, None, reason)
+    if best is None:
+        raise ValueError(f"[model] name = \"auto\": no rung of the trade table can take this scene and {REFERENCE} "
+                         f"cannot run it within {memory_budget_bytes() / 2**30:.1f} GiB; choose a model")
     reason = (f"{best[1]}: no rung predicted within tolerance {tolerance:g} and {REFERENCE} cannot take this "
               f"scene or exceeds {memory_budget_bytes() / 2**30:.1f} GiB; the best approximation, predicted "
               f"{best[0]:.3g} ({features.describe()})")
@@ -301,7 +318,12 @@ class AutoModel(Model):
         if up is not None:
             coarse = dataclasses.replace(scene, grid=HemisphereGrid(SENTINEL_RESOLUTION))
             extra += self.rung(choice.model).estimate(coarse).seconds + self.rung(up).estimate(coarse).seconds
-        chosen = dataclasses.replace(chosen, seconds=chosen.seconds + extra)
+        # escalation may run any rung predicted more accurate: the memory to plan for is the largest
+        reachable = [n for n, (e, _) in choice.candidates.items()
+                     if n != REFERENCE and np.isfinite(e) and e < choice.candidates.get(choice.model, (0.0,))[0]]
+        memory = max([chosen.memory_bytes] + [self.rung(n).estimate(scene).memory_bytes
+                                              for n in (reachable if self.options.check else [])])
+        chosen = dataclasses.replace(chosen, seconds=chosen.seconds + extra, memory_bytes=memory)
         avoided = "" if choice.avoided is None else (
             f"; avoids {REFERENCE} ≈ {choice.avoided.seconds:.3g} s, {choice.avoided.memory_bytes / 2**30:.2f} GiB")
         detail = (f"auto → {choice.model} (predicted error {choice.predicted_error:.2g}{avoided}): "
@@ -316,13 +338,19 @@ class AutoModel(Model):
         name, reason = choice.model, choice.reason
         if self.options.check and name != REFERENCE:
             coarse = dataclasses.replace(scene, grid=HemisphereGrid(SENTINEL_RESOLUTION))
-            sigma = max(2.0 / SENTINEL_RESOLUTION, scene.wavelength_um / (np.pi * (scene.waist_um or np.inf)))
+            lam = scene.wavelength_um / scene.exterior_index  # the footprint's angular spread λ₁/(πw)
+            sigma = max(2.0 / SENTINEL_RESOLUTION, lam / (np.pi * (scene.waist_um or np.inf)))
+            coarse_brdf = {}
+
+            def sentinel(n: str) -> np.ndarray:
+                if n not in coarse_brdf:
+                    coarse_brdf[n] = blur(_unpolarized(self.rung(n).run(ctx, coarse).brdf()), coarse.grid, sigma)
+                return coarse_brdf[n]
+
             if next_rung_up(choice, name) is None:
                 reason += f"; no approximate rung predicted more accurate than {name}: nothing to check against"
             while (up := next_rung_up(choice, name)) is not None:
-                mine, theirs = (_unpolarized(self.rung(n).run(ctx, coarse).brdf()) for n in (name, up))
-                differ = float(relative_l2(blur(mine, coarse.grid, sigma), blur(theirs, coarse.grid, sigma),
-                                           coarse.grid))
+                differ = float(relative_l2(sentinel(name), sentinel(up), coarse.grid))
                 if differ <= self.options.tolerance:
                     reason += f"; checked against {up} on {SENTINEL_RESOLUTION}² sentinel directions: differ {differ:.3g}"
                     break

@@ -42,12 +42,16 @@ def aluminium(wavelength_um: float) -> complex:
     return complex(Material.from_name("aluminium").index(wavelength_um))
 
 
-def test_on_the_fitted_suite_auto_picks_a_rung_within_tolerance():
+def test_on_the_suite_auto_picks_a_rung_within_tolerance_also_when_the_scene_was_left_out_of_the_fit():
+    """The rule fitted to the whole table (on which its margin makes every prediction at least the
+    measured error), and — the real check — fitted with each scene config left out in turn and
+    asked about that config's scenes: the chosen rung's measured error is within the tolerance."""
     table = read_table()
-    rule = Rule.fit(table)
     assert len(SUITE) >= 7 and len({r["scene"] for r in table}) >= 28
     picks, cheapest = [], 0
     for path in SUITE:
+        config = str(path.resolve().relative_to(ROOT))
+        left_out = Rule.fit([r for r in table if r["config"] != config])
         for label, scene in plan_scenes(plan_study(load_config(path))):
             rows = {r["model"]: r for r in table if r["scene"] == label}
             assert rows, f"{label} is missing from solver/data/trade.csv: regenerate with benchmarks/trade.py"
@@ -55,16 +59,18 @@ def test_on_the_fitted_suite_auto_picks_a_rung_within_tolerance():
             first = next(iter(rows.values()))
             assert np.allclose([getattr(measured, k) for k in FEATURES], [float(first[k]) for k in FEATURES],
                                rtol=1e-6, atol=1e-9), label
-            choice = choose(scene, TOLERANCE, rule, measured)
-            error = float(rows[choice.model][ERROR_COLUMN] or "nan")
             within = sorted((float(r["cpu_s"]), m) for m, r in rows.items()
                             if r[ERROR_COLUMN] and float(r[ERROR_COLUMN]) <= TOLERANCE)
-            picks.append((label, choice.model, error, within[0][1]))
-            cheapest += choice.model == within[0][1]
-            assert error <= TOLERANCE, f"{label}: auto picked {choice.model} with measured error {error:.3g}"
+            for rule, kind in ((Rule.fit(table), "fitted"), (left_out, "left out")):
+                choice = choose(scene, TOLERANCE, rule, measured)
+                error = float(rows[choice.model][ERROR_COLUMN] or "nan")
+                picks.append((label, kind, choice.model, error, within[0][1]))
+                assert error <= TOLERANCE, f"{label} ({kind}): auto picked {choice.model}, measured error {error:.3g}"
+                cheapest += kind == "fitted" and choice.model == within[0][1]
     logger.info("auto on the suite: %s", picks)
-    print("\n".join(f"{p[0]}: auto {p[1]} (measured {p[2]:.3g}), cheapest within tolerance {p[3]}" for p in picks))
-    assert cheapest >= len(picks) / 2
+    print("\n".join(f"{p[0]} ({p[1]}): auto {p[2]} (measured {p[3]:.3g}), cheapest within tolerance {p[4]}"
+                    for p in picks))
+    assert cheapest >= len(picks) / 4  # the cheapest in most scenes, with the rule fitted to all of them
 
 
 def fresh_scene(generator: str, wavelength_um: float, theta_deg: float, seed: int, **params) -> SurfaceScene:

@@ -91,7 +91,7 @@ class BEMSolver:
         if not isinstance(quadrature, QuadratureOptions):
             quadrature = QuadratureOptions.from_mapping(quadrature)
         self.quadrature = quadrature
-        self.progress = progress or (lambda stage, fraction: None)
+        self.progress = progress or (lambda stage, fraction=None, **figures: None)
         self.diagnostics: dict = {"model": "bem", "method": method, "warnings": []}
         check_material(self.media, surface.size_um, self.diagnostics)
         check_resolution(self.media, surface.spacing_um, self.diagnostics)
