@@ -70,31 +70,6 @@ class Measurement:
     failure: str | None = None
 
 
-def _vm_bytes(key: str = "VmHWM") -> float:
-    with open("/proc/self/status") as fh:
-        for line in fh:
-            if line.startswith(key + ":"):
-                return float(line.split()[1]) * 1024.0
-    return float("nan")
-
-
-def _reset_peak() -> float:
-    """Reset this process's peak RSS to its current RSS (Linux ``clear_refs`` 5) and return the new
-    baseline; NaN where the kernel does not allow it (then peaks are over the imports' baseline)."""
-    import ctypes
-
-    try:
-        ctypes.CDLL("libc.so.6").malloc_trim(0)  # give freed heap back, so the next model's peak shows
-    except OSError:
-        pass
-    try:
-        with open("/proc/self/clear_refs", "w") as fh:
-            fh.write("5")
-    except OSError:
-        return float("nan")
-    return _vm_bytes("VmHWM")
-
-
 def _run_one(ctx, name: str, options, scene) -> dict:
     """Run model ``name`` once on ``scene``: wall/CPU time, peak memory over the baseline, BRDF,
     diagnostics (warnings included), or the failure."""
@@ -103,10 +78,11 @@ def _run_one(ctx, name: str, options, scene) -> dict:
 
     from wavebrdf.jobs.tasks import plain
     from wavebrdf.solver.models import get_model
+    from wavebrdf.solver.resources import peak_resident_bytes, reset_peak_memory
 
     try:
         model = get_model(name, options)
-        baseline = _reset_peak()  # NaN where the peak cannot be reset: the peak is then not this model's
+        baseline = reset_peak_memory()  # NaN where the peak cannot be reset: the peak is then not this model's
         t0, c0 = time.perf_counter(), os.times()
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
@@ -117,7 +93,7 @@ def _run_one(ctx, name: str, options, scene) -> dict:
         if caught:
             diagnostics["warnings"] = "; ".join(sorted({str(w.message) for w in caught}))
         return dict(wall_s=wall, cpu_s=(c1.user - c0.user) + (c1.system - c0.system),
-                    peak_mb=max(_vm_bytes() - baseline, 0.0) / 2**20, brdf=result.brdf(), diagnostics=diagnostics)
+                    peak_mb=max(peak_resident_bytes() - baseline, 0.0) / 2**20, brdf=result.brdf(), diagnostics=diagnostics)
     except Exception as exc:  # noqa: BLE001 - reported in the table, the comparison goes on
         return dict(failure=f"{type(exc).__name__}: {exc}", trace=traceback.format_exc())
 

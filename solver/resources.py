@@ -7,7 +7,8 @@ import ctypes.util
 import os
 import resource
 
-__all__ = ["meminfo_bytes", "peak_memory_mb", "release_free_memory", "resident_memory_mb"]
+__all__ = ["meminfo_bytes", "peak_memory_mb", "peak_resident_bytes", "release_free_memory", "reset_peak_memory",
+           "resident_memory_mb"]
 
 
 def _proc_kb(path: str, field: str) -> int | None:
@@ -54,3 +55,22 @@ def release_free_memory() -> None:
     except (OSError, AttributeError, TypeError):
         return
     trim(0)
+
+
+def peak_resident_bytes() -> float:
+    """Peak resident memory of this process since start or the last :func:`reset_peak_memory`
+    (bytes; VmHWM), NaN where /proc is missing."""
+    kb = _proc_kb("/proc/self/status", "VmHWM")
+    return float("nan") if kb is None else kb * 1024.0
+
+
+def reset_peak_memory() -> float:
+    """Give the C heap's free pages back, reset this process's peak RSS to its current RSS (Linux
+    ``clear_refs`` 5) and return that baseline in bytes; NaN where the kernel does not allow it."""
+    release_free_memory()
+    try:
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+    except OSError:
+        return float("nan")
+    return peak_resident_bytes()
