@@ -37,6 +37,7 @@ from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.farfield import HemisphereGrid, albedo
 from wavebrdf.solver.opencl import create_context
 from wavebrdf.solver.resources import peak_memory_mb, resident_memory_mb
+from wavebrdf.solver.stages import format_stages
 from wavebrdf.solver.surface import HeightField, generate
 
 AL_400 = 0.46582 - 4.7119j
@@ -226,8 +227,13 @@ def cmd_accuracy(args, ctx):
 def _single_run(ctx, surface, lam, index, waist, resolution, aim):
     t0 = time.perf_counter()
     cpu0 = usage()["cpu_s"]
-    estimate = estimate_aim(surface, lam, index, aim=aim, waist_um=waist)
+    from wavebrdf.solver.bem3d.aim.estimate import memory_breakdown
+
+    estimate = estimate_aim(surface, lam, index, aim=aim, waist_um=waist, resolution=resolution)
     print("estimate:", {k: v for k, v in estimate.items()}, flush=True)
+    print(f"estimate: {estimate['bytes'] / 2**30:.2f} GiB ({memory_breakdown(estimate)}), {estimate['seconds']:.0f} s "
+          f"(set-up {estimate['setup_s']:.0f} s, {estimate['iterations_guess']} products x {estimate['product_s']:.2f} s)",
+          flush=True)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BEMWarning)
         solver = BEMSolver(ctx, surface, lam, index, method="aim", aim=aim)
@@ -244,7 +250,9 @@ def _single_run(ctx, surface, lam, index, waist, resolution, aim):
           f"matvec timings {d['matvec_timings']}")
     print(f"albedo {measured}, exact-beam reflectance {expected}, relative error {measured / expected - 1}, "
           f"unpolarized {measured.mean() / expected.mean() - 1:+.4f}")
+    print("stages:\n" + format_stages(d["stages"]))
     print(f"wall {wall:.1f} s, CPU {usage()['cpu_s'] - cpu0:.1f} s, peak memory {usage()['peak_memory_gb']:.2f} GB; {load()}")
+    return ff
 
 
 def cmd_reference(args, ctx):
@@ -320,6 +328,46 @@ def cmd_continuation(args, ctx):
     print(load())
 
 
+def subarea_surface(cells: int, d: float = 0.025, seed: int = 1) -> HeightField:
+    """The reference simulator's sub-area at ``cells`` (480: its 12 µm, 481² heights): random
+    bumps of 0.1 µm rms height (Gaussian correlation 1 µm) at d = 0.025 µm."""
+    return generate("gaussian", cells=cells, size_um=cells * d, seed=seed, rms_height_um=0.1, correlation_um=1.0)
+
+
+def cmd_subarea(args, ctx):
+    """The reference simulator's flagship sub-area (12 µm, 481² heights, 919 680 unknowns) or a
+    smaller one at the same d (``--cells``): aluminium at λ = 0.4 µm, exact beam of waist
+    L/4.8 (2.5 µm at 12 µm), normal incidence, 1024² output; AIM settings fitted to
+    ``--memory-gb`` by the planner (solver/bem3d/aim/budget.py) unless ``--aim`` fixes them.
+    Prints the plan's memory and time, then the measured stage breakdown."""
+    from wavebrdf.solver.bem3d.aim.budget import fit_to_budget
+
+    print(load())
+    surface = subarea_surface(args.cells)
+    waist = surface.size_um / 4.8
+    print(f"surface: {surface.cells} cells, {surface.size_um:g} µm, {surface.statistics()}")
+    aim = AIMOptions.from_mapping(json.loads(args.aim))
+    if args.memory_gb:
+        fit = fit_to_budget(surface, 0.4, AL_400, aim, args.memory_gb * 2**30, waist_um=waist,
+                            resolution=args.resolution)
+        print("planner:", fit.summary(), flush=True)
+        aim = fit.options
+    ff = _single_run(ctx, surface, 0.4, AL_400, waist, args.resolution, aim)
+    d = ff.diagnostics
+    print(f"memory per unknown {peak_memory_mb() * 2**20 / d['unknowns']:.0f} B; system CPU share "
+          f"{resource.getrusage(resource.RUSAGE_SELF).ru_stime / max(usage()['cpu_s'], 1e-9):.3f}")
+    if args.save:
+        np.save(args.save, ff.brdf())
+    if args.compare:
+        from wavebrdf.solver.metrics import relative_l2
+
+        ref = np.load(args.compare)
+        grid = HemisphereGrid(args.resolution)
+        mine = ff.brdf()
+        print(f"vs {args.compare}: BRDF relative L2 (s, p) {relative_l2(mine, ref, grid)}, albedo "
+              f"{albedo(mine, grid)} vs {albedo(ref, grid)}")
+
+
 def cmd_scale(args, ctx):
     """12.5 µm aluminium patch at λ = 0.4 µm, d = λ/12.8 = 0.03125 µm (N = 400, 638 400 unknowns)."""
     print(load())
@@ -365,6 +413,13 @@ def main():
     p = sub.add_parser("continuation")
     p.add_argument("--theta", type=float, default=0.4, help="incidence (rad)")
     p.add_argument("--per-wavelength", type=float, default=10.0, help="cells per wavelength")
+    p = sub.add_parser("subarea")
+    p.add_argument("--cells", type=int, default=480)
+    p.add_argument("--memory-gb", type=float, default=8.0, help="budget the planner fits (0: use --aim as given)")
+    p.add_argument("--resolution", type=int, default=1024)
+    p.add_argument("--aim", default="{}", help="AIM options as JSON")
+    p.add_argument("--save", default=None, help="write the BRDF (.npy)")
+    p.add_argument("--compare", default=None, help="a saved BRDF (.npy) to compare with (relative L2, albedo)")
     p = sub.add_parser("scale")
     p.add_argument("--cells", type=int, default=400)
     p.add_argument("--waist", type=float, default=None)

@@ -175,7 +175,12 @@ def cmd_plan(args) -> int:
     from wavebrdf.jobs.config import load_config
     from wavebrdf.jobs.plan import check_memory, device_info, plan_study
 
-    config = load_config(args.config, overrides=args.set)
+    overrides = list(args.set or [])
+    if args.memory_gb:  # the tasks' budget too: the AIM solver fits its settings to it
+        overrides.append(("run.memory_gb", args.memory_gb))
+    if args.workers:
+        overrides.append(("run.workers", args.workers))
+    config = load_config(args.config, overrides=overrides)
     study = config.cases[0]
     plan = plan_study(config)
     from wavebrdf.jobs.batch import workers_per_node

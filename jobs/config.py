@@ -2,7 +2,8 @@
 
 Every problem is reported as a :class:`ConfigError` whose one-line message names the key, the
 value and what is allowed, e.g. ``[illumination] wavelengths_um = [-0.4]: values must be > 0``.
-Relative ``surface.file`` paths are resolved against the config file's folder; ``study.output``
+Relative ``surface.file``, ``material.file`` and ``illumination.directions_file`` paths are resolved
+against the config file's folder; ``study.output``
 against the working directory. Lists of numbers may be ``{start, stop, count}`` ranges and
 directions a ``{theta, phi}`` grid (jobs/ranges.py); :func:`load_config` also takes a dict and
 ``--set``-style overrides (jobs/overrides.py).
@@ -14,14 +15,20 @@ Sections (see configs/*.toml and the README for a full example)::
                    "spherical-pits"|"hemispheres") + size_um, cells, seed, rms_height_um,
                    correlation_um (T or [T_x', T_y']), amplitude_um, period_um, angle_deg, radius_um,
                    depth_um, fill, placement ("square"|"random")
-    [material]     name | table = [[λ_um, n, κ], ...] | n (+ kappa); exterior_index (default 1)
-    [illumination] wavelengths_um, directions_deg = [[θ, φ], ...], waist_um,
+                   — size_um = [L_x, L_y] / cells = [N_x, N_y] (or a non-square file): a rectangular
+                   global surface, [steering] studies only (patches stay square)
+    [material]     name | table = [[λ_um, n, κ], ...] | file (the reference's wvl.txt: λ, n, κ rows) |
+                   n (+ kappa); exterior_index (default 1)
+    [illumination] wavelengths_um (default with material.file: the file's wavelengths),
+                   directions_deg = [[θ, φ], ...] | directions_file (the reference's wi.txt: θ, φ
+                   rows) + angles ("rad" (default) | "deg"), waist_um,
                    polarization ("unpolarized"|"s"|"p"), beam ("exact"|"paraxial"|"plane")
     [model]        name, precision ("double"|"single"), and the model's own options: the keys of
                    its Options dataclass, in [model] or in [model.<name>] (e.g. the bem model's
                    method and its [model.aim] table); unknown keys and bad values are refused
     [output]       resolution, per_polarization
-    [steering]     patches ([mx, my] | "auto"), patch_size_um, shift_um (default: the waist),
+    [steering]     patches ([mx, my] | "auto", either of mx, my may be "auto"), patch_size_um,
+                   shift_um (default: the waist),
                    hexagon_fill (hexagon radius as a fraction of sin(λ_min/(π w)); > 1 steers
                    beyond the aliasing limit, with a warning)
     [run]          executor ("auto"|"serial"|"processes"|"mpi"), workers, memory_gb, retries
@@ -48,6 +55,8 @@ from typing import Any, Callable
 
 import numpy as np
 
+from wavebrdf.solver.number_rows import RowError, number_rows
+
 __all__ = [
     "ConfigError",
     "Study",
@@ -67,6 +76,8 @@ NOT_SWEEPABLE = {
     "illumination.directions_deg": "it is already a dataset axis; list the directions there",
     "illumination.theta_i_deg": "it is already a dataset axis; list the angles there",
     "illumination.phi_i_deg": "it is already a dataset axis; list the angles there",
+    "illumination.directions_file": "it is already a dataset axis; list the directions in one file",
+    "illumination.angles": "it is already a dataset axis; list the directions in one file",
     "output.phi_r_bins": "every case must share one output grid",
     "output.phi_i_bins": "every case must share one output grid",
     "output.resolution": "every case must share one output grid",
@@ -241,15 +252,25 @@ def _positive_or_pair(section, key, value):
 
 
 def _patches(section, key, value):
+    """"auto", or [mx, my] with integers >= 1 or "auto" (as many as fit along that axis)."""
     if value == "auto":
         return value
     if (
         not isinstance(value, list)
         or len(value) != 2
-        or any(isinstance(v, bool) or not isinstance(v, int) or v < 1 for v in value)
+        or any(v != "auto" and (isinstance(v, bool) or not isinstance(v, int) or v < 1) for v in value)
     ):
-        raise _fail(section, key, value, 'must be "auto" or [mx, my] with integers >= 1')
-    return (int(value[0]), int(value[1]))
+        raise _fail(section, key, value, 'must be "auto" or [mx, my] with integers >= 1 (either may be "auto")')
+    return tuple(v if v == "auto" else int(v) for v in value)
+
+
+def _cells(section, key, value):
+    """N (int >= 3), or [N_x, N_y] for a rectangular surface."""
+    if isinstance(value, list):
+        if len(value) != 2 or any(isinstance(v, bool) or not isinstance(v, int) or v < 3 for v in value):
+            raise _fail(section, key, value, "must be an integer >= 3, or [N_x, N_y] with two integers >= 3")
+        return (int(value[0]), int(value[1]))
+    return _number(section, key, value, integer=True, low=3)
 
 
 def _table(section, key, value):
@@ -272,9 +293,9 @@ SCHEMA: dict[str, dict[str, Spec]] = {
     },
     "surface": {
         "file": Spec(_string),
-        "size_um": Spec(_positive, required=True),
+        "size_um": Spec(_positive_or_pair, required=True),  # L, or [L_x, L_y] (rectangles: steering only)
         "generator": Spec(_choice(*SURFACE_GENERATORS)),
-        "cells": Spec(_integer_at_least(3), default=256),
+        "cells": Spec(_cells, default=256),  # N, or [N_x, N_y]
         "seed": Spec(_integer_at_least(0), default=0),
         "rms_height_um": Spec(_nonnegative),
         "correlation_um": Spec(_positive_or_pair),
@@ -290,13 +311,16 @@ SCHEMA: dict[str, dict[str, Spec]] = {
     "material": {
         "name": Spec(_string),
         "table": Spec(_table),
+        "file": Spec(_string),  # the reference simulator's wvl.txt: rows λ (µm), n, κ
         "n": Spec(_positive),
         "kappa": Spec(_nonnegative, default=0.0),
         "exterior_index": Spec(lambda s, k, v: _number(s, k, v, low=1.0), default=1.0),
     },
     "illumination": {
-        "wavelengths_um": Spec(_positive_list, required=True),
+        "wavelengths_um": Spec(_positive_list),  # required; default with material.file: its wavelengths
         "directions_deg": Spec(_directions),  # surfaces
+        "directions_file": Spec(_string),  # surfaces: the reference simulator's wi.txt, rows θ, φ
+        "angles": Spec(_choice("rad", "deg")),  # units of directions_file (default "rad", as wi.txt)
         "waist_um": Spec(_positive),  # surfaces
         "theta_i_deg": Spec(_angle_list(-90.0, 90.0)),  # fibers: from the plane normal to the axis
         "phi_i_deg": Spec(_angle_list(-360.0, 360.0)),  # fibers: incidence azimuths (else bins)
@@ -343,7 +367,7 @@ SCHEMA: dict[str, dict[str, Spec]] = {
 }
 REQUIRED_SECTIONS = ("material", "illumination", "model")  # + exactly one of [surface] / [fiber]
 OPEN_SECTIONS = ("model", "compare")  # sections whose other keys belong to a plug-in (a model's Options)
-SURFACE_ONLY_KEYS = ("directions_deg", "waist_um", "beam")
+SURFACE_ONLY_KEYS = ("directions_deg", "directions_file", "angles", "waist_um", "beam")
 FIBER_ONLY_KEYS = ("theta_i_deg", "phi_i_deg")
 GENERATOR_KEYS = ("rms_height_um", "correlation_um", "amplitude_um", "period_um", "angle_deg", "radius_um",
                   "depth_um", "fill", "placement", "shape")
@@ -360,29 +384,55 @@ def register_section(name: str, keys: dict[str, Spec]) -> None:
 
 @dataclass(frozen=True)
 class SurfaceSpec:
-    size_um: float
+    size_um: float | tuple[float, float]  # L, or (L_x, L_y) for a rectangular (steering) surface
     file: Path | None
     generator: str | None
-    cells: int
+    cells: int | tuple[int, int]  # N, or (N_x, N_y)
     seed: int
     parameters: dict
 
+    @property
+    def rectangular(self) -> bool:
+        """A generated surface with two different sides (files: known once read)."""
+        return self.file is None and isinstance(self.cells, tuple)
+
     def build(self):
-        """Load or generate the :class:`~wavebrdf.solver.surface.HeightField`."""
-        from wavebrdf.solver.surface import HeightField, generate, load_heights
+        """Load or generate the :class:`~wavebrdf.solver.surface.HeightField` — or, for a
+        rectangle (``size_um``/``cells`` pairs, or a non-square file), the steering layer's
+        :class:`~wavebrdf.jobs.steering.GlobalSurface` (refused outside ``[steering]`` studies)."""
+        from wavebrdf.solver.surface import HeightField, SurfaceError, generate, load_heights
 
         if self.file is not None:
-            return HeightField(load_heights(self.file), self.size_um)
+            z = load_heights(self.file)
+            sides = self.size_um if isinstance(self.size_um, tuple) else None
+            if z.ndim == 2 and z.shape[0] != z.shape[1] and min(z.shape) > 1:
+                if sides is None:
+                    raise SurfaceError(f"height matrix must be square ((N+1)x(N+1)), got {z.shape[0]}x{z.shape[1]} "
+                                       "(rows = x, columns = y); a rectangular global surface of a [steering] study "
+                                       "needs size_um = [L_x, L_y]")
+                from wavebrdf.jobs.steering import GlobalSurface
+
+                return GlobalSurface(z, sides)
+            if sides is not None and sides[0] != sides[1]:
+                raise SurfaceError(f"size_um = [{sides[0]:g}, {sides[1]:g}] is not square but the file holds "
+                                   f"{z.shape[0]}x{z.shape[1]} heights")
+            return HeightField(z, sides[0] if sides else self.size_um)
+        if self.rectangular:
+            from wavebrdf.jobs.steering import GlobalSurface
+
+            return GlobalSurface.generated(self.generator, cells=self.cells, sides_um=self.size_um, seed=self.seed,
+                                           **self.parameters)
         return generate(self.generator, cells=self.cells, size_um=self.size_um, seed=self.seed, **self.parameters)
 
 
 @dataclass(frozen=True)
 class MaterialSpec:
     name: str | None
-    table: tuple | None
+    table: tuple | None  # rows (λ µm, n, κ): [material] table, or the rows read from ``file``
     n: float | None
     kappa: float
     exterior_index: float
+    file: Path | None = None  # [material] file (its rows are ``table``)
 
     def build(self):
         from wavebrdf.solver.materials import Material
@@ -390,7 +440,7 @@ class MaterialSpec:
         if self.name is not None:
             return Material.from_name(self.name)
         if self.table is not None:
-            return Material.from_table(self.table)
+            return Material.from_table(self.table, name=f"file {self.file.name}" if self.file else "table")
         return Material.from_constant(self.n, self.kappa)
 
 
@@ -649,12 +699,20 @@ def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: di
     fiber = _fiber_spec(v["fiber"], base_dir) if "fiber" in data else None
 
     m = v["material"]
-    _exactly_one("material", m, ("name", "table", "n"))
+    _material_source(m, data.get("material", {}))
+    material_file = None
+    if m["file"] is not None:
+        material_file = _input_path(m["file"], base_dir)
+        m["table"] = _read_material_file(m["file"], material_file)  # results depend on its rows, not its name
     material = MaterialSpec(
         m["name"], None if m["table"] is None else tuple(map(tuple, m["table"])), m["n"], m["kappa"],
-        m["exterior_index"],
+        m["exterior_index"], material_file,
     )
-    illumination = _illumination_spec(v["illumination"], data.get("illumination", {}), fiber is not None)
+    if v["illumination"]["wavelengths_um"] is None:
+        if material_file is None:
+            raise ConfigError("[illumination] wavelengths_um: missing required key")
+        v["illumination"]["wavelengths_um"] = tuple(row[0] for row in material.table)  # the reference's default
+    illumination = _illumination_spec(v["illumination"], data.get("illumination", {}), fiber is not None, base_dir)
     model = _model_spec(v["model"], fiber is not None)
     if fiber is not None and model.name == "fiber-bem" and fiber.shape != "polygon" and fiber.segments is None:
         raise ConfigError(f"[fiber] segments: required by the fiber-bem model for shape = \"{fiber.shape}\" "
@@ -675,6 +733,9 @@ def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: di
         raise ConfigError(f"[steering]: model {model.name!r} cannot be steered (it returns "
                           f"{model.capabilities.returns}, not coherent fields with their incident beam); "
                           "remove [steering] or choose a steerable model")
+    if surface is not None and surface.rectangular and "steering" not in data:
+        raise _rectangle_outside_steering(f"size_um = {_fmt(list(surface.size_um))}, cells = "
+                                          f"{_fmt(list(surface.cells))}")
     if "steering" in data:
         st = v["steering"]
         steering = SteeringSpec(st["patches"], st["patch_size_um"], st["shift_um"] or illumination.waist_um,
@@ -717,15 +778,63 @@ def _model_spec(m: dict, is_fiber: bool) -> ModelSpec:
 def _surface_spec(s: dict, base_dir: Path) -> SurfaceSpec:
     _exactly_one("surface", s, ("file", "generator"))
     file = None
+    size, cells = s["size_um"], s["cells"]
     if s["file"] is not None:
-        file = Path(s["file"]).expanduser()
-        if not file.is_absolute():
-            file = base_dir / file
+        file = _input_path(s["file"], base_dir)
         extra = [k for k in GENERATOR_KEYS if s[k] is not None]
         if extra:
             raise ConfigError(f"[surface] {extra[0]}: only used with a generator, not with surface.file")
+    elif isinstance(size, tuple) or isinstance(cells, tuple):  # a rectangle: L_x/N_x = L_y/N_y
+        sides = size if isinstance(size, tuple) else (size, size)
+        counts = cells if isinstance(cells, tuple) else (cells, cells)
+        dx, dy = sides[0] / counts[0], sides[1] / counts[1]
+        if abs(dx - dy) > 1e-9 * max(dx, dy):
+            raise ConfigError(f"[surface] size_um = {_fmt(list(sides))}, cells = {_fmt(list(counts))}: cells must be "
+                              f"square (spacing {dx:.6g} µm along x, {dy:.6g} µm along y); for a rectangle give "
+                              "both as [x, y] pairs with size_um[0]/cells[0] = size_um[1]/cells[1]")
+        size, cells = (float(sides[0]), float(sides[1])), (int(counts[0]), int(counts[1]))
+        if counts[0] == counts[1]:
+            size, cells = size[0], cells[0]
     params = {k: s[k] for k in GENERATOR_KEYS if s[k] is not None}
-    return SurfaceSpec(s["size_um"], file, s["generator"], s["cells"], s["seed"], params)
+    return SurfaceSpec(size, file, s["generator"], cells, s["seed"], params)
+
+
+def _input_path(value: str, base_dir: Path) -> Path:
+    """An input file path; relative ones are taken from the config file's folder."""
+    path = Path(value).expanduser()
+    return path if path.is_absolute() else base_dir / path
+
+
+def _rectangle_outside_steering(what: str) -> ConfigError:
+    return ConfigError(f"[surface] {what}: a rectangular surface is only accepted as the global surface of a "
+                       "[steering] study (its patches are square); other studies need a square surface "
+                       "(size_um = L, cells = N, or an (N+1)x(N+1) height file)")
+
+
+def _material_source(m: dict, given: dict) -> None:
+    """[material]: exactly one of name, table, file, n; kappa only with n."""
+    sources = [k for k in ("name", "table", "file", "n") if m.get(k) is not None]
+    if "file" in sources and len(sources) > 1:
+        other = next(k for k in sources if k != "file")
+        raise ConfigError(f"[material] file and {other}: give one of them (material.file = {_fmt(m['file'])} is a "
+                          f"table of λ, n, κ rows; material.{other} is another source of the index)")
+    if "kappa" in given and m.get("file") is not None:
+        raise ConfigError(f"[material] file and kappa: give one of them (material.file = {_fmt(m['file'])} holds "
+                          "κ per wavelength; kappa goes with a constant n)")
+    _exactly_one("material", m, ("name", "table", "file", "n"))
+
+
+def _read_material_file(value: str, path: Path) -> list:
+    """The rows (λ, n, κ) of ``[material] file`` as plain lists (ConfigError naming the key)."""
+    from wavebrdf.solver.materials import MaterialError, read_index_file
+
+    problem = input_file_problem(path)
+    if problem is not None:
+        raise _fail("material", "file", value, f"{str(path)!r} {problem}" if str(path) != value else problem)
+    try:
+        return read_index_file(path, label=value).tolist()
+    except MaterialError as exc:
+        raise ConfigError(f"[material] {exc}") from None
 
 
 FIBER_SHAPE_KEYS = {"circle": "radius_um", "ellipse": "semi_axes_um", "polygon": "points_file"}
@@ -746,12 +855,21 @@ def _fiber_spec(f: dict, base_dir: Path) -> FiberSpec:
                      f["longitudinal_variance"])
 
 
-def _illumination_spec(ill: dict, given: dict, is_fiber: bool) -> IlluminationSpec:
+def _illumination_spec(ill: dict, given: dict, is_fiber: bool, base_dir: Path) -> IlluminationSpec:
     wrong = FIBER_ONLY_KEYS if not is_fiber else SURFACE_ONLY_KEYS
     for key in wrong:
         if key in given:
             kind = "surface" if not is_fiber else "fiber"
             raise ConfigError(f"[illumination] {key}: not used in a {kind} study")
+    if ill["directions_file"] is not None:
+        if ill["directions_deg"] is not None:
+            raise ConfigError(f"[illumination] directions_deg and directions_file: give one of them (directions_file = "
+                              f"{_fmt(ill['directions_file'])} lists the directions already)")
+        path = _input_path(ill["directions_file"], base_dir)  # its directions, in degrees:
+        ill["directions_deg"] = _read_directions_file(ill["directions_file"], path, ill["angles"] or "rad")
+    elif ill["angles"] is not None:
+        raise ConfigError(f"[illumination] angles = {_fmt(ill['angles'])}: only used with directions_file (the units "
+                          "of its θ, φ columns); directions_deg is in degrees")
     needed = ("theta_i_deg",) if is_fiber else ("directions_deg", "waist_um")
     for key in needed:
         if ill[key] is None:
@@ -762,6 +880,55 @@ def _illumination_spec(ill: dict, given: dict, is_fiber: bool) -> IlluminationSp
     )
 
 
+DIRECTIONS_FILE_MAX_BYTES = 16 * 2**20
+
+
+def _read_directions_file(value: str, path: Path, angles: str) -> tuple[tuple[float, float], ...]:
+    """``[illumination] directions_file`` (the reference simulator's wi.txt): one direction per
+    row, θ then φ, in ``angles`` ("rad" as wi.txt, or "deg"), separated by commas and/or
+    whitespace; blank lines, ``#``/``%`` comments and a first line of words (a header) are skipped.
+    θ from the normal toward the light in [0, 90°); φ any finite azimuth. Returned in degrees;
+    every problem is a ConfigError naming the key, the file, the line and the value."""
+    problem = input_file_problem(path)
+    if problem is None and path.stat().st_size > DIRECTIONS_FILE_MAX_BYTES:
+        problem = f"is {path.stat().st_size / 2**20:.0f} MiB; a list of θ, φ rows is a small text file"
+    if problem is not None:
+        where = f"{str(path)!r} {problem}" if str(path) != value else problem
+        raise _fail("illumination", "directions_file", value, where)
+    try:
+        lines = path.read_text(encoding="utf-8-sig").splitlines()
+    except (UnicodeDecodeError, OSError) as exc:
+        raise _fail("illumination", "directions_file", value, f"cannot be read as text ({exc})") from None
+    unit, to_deg = ("rad", math.degrees) if angles == "rad" else ("deg", float)
+    limit = "π/2 rad" if angles == "rad" else "90°"
+    out: list[tuple[float, float]] = []
+    rows: dict[tuple[float, float], int] = {}
+
+    def bad(line_no, line, problem):
+        text = line if len(line) <= 60 else line[:57] + "..."
+        return _fail("illumination", "directions_file", value, f"line {line_no} ({text!r}): {problem}")
+
+    try:
+        for line_no, line, (theta, phi) in number_rows(lines, ("theta", "phi")):
+            if not (math.isfinite(theta) and math.isfinite(phi)):
+                raise bad(line_no, line, "angles must be finite numbers (not NaN/inf)")
+            theta_deg, phi_deg = to_deg(theta), to_deg(phi)
+            if not 0.0 <= theta_deg < 90.0:
+                hint = (" (the file looks like degrees: set angles = \"deg\")" if angles == "rad"
+                        and theta > math.pi / 2 and theta < 90.0 else "")
+                raise bad(line_no, line, f"theta = {theta:g} {unit} must be in [0, {limit}){hint}")
+            if (theta_deg, phi_deg) in rows:
+                raise bad(line_no, line, f"repeats the direction of line {rows[(theta_deg, phi_deg)]}; directions "
+                                         "must be distinct")
+            rows[(theta_deg, phi_deg)] = line_no
+            out.append((theta_deg, phi_deg))
+    except RowError as exc:
+        raise bad(exc.line_no, exc.line, f"{exc.problem}; rows are θ, φ in {unit} (angles = \"{angles}\")") from None
+    if not out:
+        raise _fail("illumination", "directions_file", value, "holds no rows of θ, φ")
+    return tuple(out)
+
+
 def _check_physics(study: Study) -> None:
     """Checks that need the built objects: material range, height matrix contents."""
     from wavebrdf.solver.materials import MaterialError
@@ -769,6 +936,8 @@ def _check_physics(study: Study) -> None:
 
     try:
         material = study.material.build()
+        if study.material.file is not None:
+            _check_file_range(study, material.wavelength_range_um)
         index = material.index(np.array(study.illumination.wavelengths_um))
     except MaterialError as exc:
         raise ConfigError(f"[material] {exc}") from None
@@ -782,6 +951,9 @@ def _check_physics(study: Study) -> None:
             file = study.surface.file
             where = f" (file = {_fmt(str(file))})" if file is not None and str(file) not in str(exc) else ""
             raise ConfigError(f"[surface] {exc}{where}") from None
+        if study.steering is None and study.surface.file is not None and surface.z.shape[0] != surface.z.shape[1]:
+            raise _rectangle_outside_steering(f"file = {_fmt(str(study.surface.file))} holds "
+                                              f"{surface.z.shape[0]}x{surface.z.shape[1]} heights")
         if study.steering is None:
             _check_model_scene(study, surface, index[0])
     if study.fiber is not None:
@@ -791,6 +963,18 @@ def _check_physics(study: Study) -> None:
             study.fiber.build()
         except (ShapeError, OSError) as exc:
             raise ConfigError(f"[fiber] {exc}") from None
+
+
+def _check_file_range(study: Study, valid: tuple[float, float]) -> None:
+    """Requested wavelengths must lie within [material] file's rows (no extrapolation)."""
+    lo, hi = valid
+    wavelengths = study.illumination.wavelengths_um
+    outside = [lam for lam in wavelengths if lam < lo - 1e-12 or lam > hi + 1e-12]
+    if outside:
+        given = study.sections["material"]["file"]
+        raise ConfigError(f"[illumination] wavelengths_um = {_fmt(list(wavelengths))}: {_fmt(outside)} µm lie(s) "
+                          f"outside material.file = {_fmt(given)}, which tabulates {lo:g}–{hi:g} µm (the index is "
+                          "interpolated between its rows, never extrapolated)")
 
 
 SURFACE_BYTES_PER_NODE = 96  # peak while a height field is built and analysed (measured: gaussian 90)
@@ -831,7 +1015,10 @@ def _check_surface_size(study: Study) -> None:
             return  # the loader names what is wrong with it
         key, value, what = "file", str(spec.file), f"its {shape[0]}×{shape[1]} heights need"
     else:
-        shape = (spec.cells + 1, spec.cells + 1)
+        cells = spec.cells if isinstance(spec.cells, tuple) else (spec.cells, spec.cells)
+        shape = (cells[0] + 1, cells[1] + 1)
+        if spec.rectangular:  # generated on the square of the longer side, then cropped
+            shape = (max(shape), max(shape))
         key, value, what = "cells", spec.cells, f"a {shape[0]}×{shape[1]} height field needs"
     need = float(shape[0]) * shape[1] * SURFACE_BYTES_PER_NODE
     memory_gb = study.run.memory_gb

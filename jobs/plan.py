@@ -189,7 +189,18 @@ class Plan:
             beam=study.illumination.beam,
             precision=study.model.precision,
             z_reference=z_reference,
+            memory_budget_bytes=self.task_memory_budget(task.case),
         )
+
+    def task_memory_budget(self, case: int) -> float:
+        """Bytes one task may use: [run] memory_gb (default: this node's memory) over the tasks at
+        once on a node, as ``plan`` and ``run`` count them (jobs/batch.py)."""
+        from wavebrdf.jobs.batch import workers_per_node
+
+        study = self.config.cases[case]
+        executor = "serial" if study.run.executor == "auto" else study.run.executor
+        node = study.run.memory_gb * 2**30 if study.run.memory_gb else node_memory_bytes()
+        return node / max(1, workers_per_node(executor, None, study))
 
     def fiber_scene(self, task: Task) -> FiberScene:
         """The (λ, θ_i) a fiber task solves, every φ_i at once."""
@@ -256,11 +267,8 @@ def _case_steering(plan: Plan, case: int) -> CaseSteering:
     study = plan.config.cases[case]
     spec = study.steering
     surface = plan.surface(case)
-    if spec.patches == "auto":
-        layout = PatchLayout.auto(surface.size_um, spec.patch_size_um, spec.shift_um)
-    else:
-        layout = PatchLayout(tuple(spec.patches), spec.patch_size_um, spec.shift_um)
-    try:
+    try:  # "auto" per axis; the surface may be a rectangle (GlobalSurface)
+        layout = PatchLayout.for_surface(surface, spec.patches, spec.patch_size_um, spec.shift_um)
         layout.check(surface)
     except ValueError as exc:
         raise PlanError(f"[steering] {exc}") from None

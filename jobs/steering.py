@@ -8,7 +8,9 @@
 2. **Sub-areas.** M_x × M_y overlapping patches of side L_sub, shifted by s (default: the waist)
    so that the Gaussian footprints sum to a flat top; patch (a, b) is centred at
    p_ab = s·(a − (M_x−1)/2, b − (M_y−1)/2) in global coordinates and is cut from the global
-   height field with the global mean as z reference. Each patch is simulated once per
+   height field with the global mean as z reference. The global surface may be rectangular
+   (the reference simulator's ``-x ≠ -y``: :class:`GlobalSurface`, used only to cut square
+   patches from; every model sees square :class:`HeightField` patches). Each patch is simulated once per
    (wavelength, basic direction); its FarField is translated to global coordinates
    (e^{+jk p·ω_o}).
 3. **Synthesis** of a requested ω_i: E = Σ a_ab E_ab with a_ab = e^{+jk p_ab·ω_i} (same for H);
@@ -25,16 +27,17 @@ and :func:`estimate_synthesis` are the "synth" task kind of jobs/tasks.py.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from wavebrdf.solver.farfield import FarField
 from wavebrdf.solver.models import Estimate
-from wavebrdf.solver.surface import HeightField
+from wavebrdf.solver.surface import GaussianEnsemble, HeightField, SurfaceError, checked_heights, generate
 
 __all__ = [
     "GRAZING_CAP_DEG",
+    "GlobalSurface",
     "HexagonTiling",
     "PatchLayout",
     "aliasing_limit",
@@ -42,6 +45,7 @@ __all__ = [
     "synthesize",
     "synthesize_task",
     "synthesized_incident_power",
+    "surface_sides_um",
 ]
 
 GRAZING_CAP_DEG = 80.0
@@ -99,29 +103,170 @@ class HexagonTiling:
         return which, basics
 
 
+def surface_sides_um(surface) -> tuple[float, float]:
+    """(L_x, L_y) of a square :class:`HeightField` or a rectangular :class:`GlobalSurface` (µm)."""
+    sides = getattr(surface, "sides_um", None)
+    return tuple(map(float, sides)) if sides is not None else (float(surface.size_um), float(surface.size_um))
+
+
+@dataclass(frozen=True)
+class GlobalSurface:
+    """A rectangular global surface for steering: corner heights ``z`` (µm, shape (N_x+1, N_y+1),
+    row index ↔ x, column ↔ y as in :class:`HeightField`) on L_x × L_y = ``sides_um``, centred on
+    the origin, with square cells d = L_x/N_x = L_y/N_y.
+
+    Only :class:`PatchLayout` uses it: it cuts square patches (HeightFields) from it; the models
+    never see it. It offers what the steering layer and the dataset writer read from a global
+    surface: ``z``, ``spacing_um``, ``size_um`` (L_x: the side along the rows, so that
+    spacing = size_um / (rows − 1) as for a square field), :meth:`statistics`, ``parameters``,
+    ``ensemble``. Square inputs stay :class:`HeightField`.
+    """
+
+    z: np.ndarray
+    sides_um: tuple[float, float]
+    ensemble: GaussianEnsemble | None = field(default=None, compare=False)
+    parameters: dict | None = field(default=None, compare=False, repr=False)
+
+    def __post_init__(self):
+        z = checked_heights(self.z, square=False)
+        sides = tuple(float(v) for v in self.sides_um)
+        if len(sides) != 2 or not all(np.isfinite(v) and v > 0 for v in sides):
+            raise SurfaceError(f"surface size_um must be [L_x, L_y] with two numbers > 0, got {self.sides_um!r}")
+        dx, dy = sides[0] / (z.shape[0] - 1), sides[1] / (z.shape[1] - 1)
+        if abs(dx - dy) > 1e-9 * max(dx, dy):
+            raise SurfaceError(f"cells must be square: size_um = [{sides[0]:g}, {sides[1]:g}] over "
+                               f"{z.shape[0] - 1}x{z.shape[1] - 1} cells gives spacings {dx:.6g} (x) and "
+                               f"{dy:.6g} (y) µm")
+        object.__setattr__(self, "z", z)
+        object.__setattr__(self, "sides_um", sides)
+
+    @classmethod
+    def generated(cls, name: str, *, cells: tuple[int, int], sides_um: tuple[float, float], seed: int = 0,
+                  **params) -> "GlobalSurface":
+        """Generator ``name`` (solver/surface.py) on the square of the longer side at the same
+        spacing, cropped to N_x × N_y cells from its corner (−L/2, −L/2). The crop keeps the
+        generator's ensemble; it is no longer periodic along the cropped axis."""
+        nx, ny = (int(c) for c in cells)
+        side, n = (sides_um[0], nx) if nx >= ny else (sides_um[1], ny)
+        square = generate(name, cells=n, size_um=float(side), seed=seed, **params)
+        recorded = dict(square.parameters or {})
+        recorded.update({"cells": [nx, ny], "size_um": [float(sides_um[0]), float(sides_um[1])],
+                         "generated_square_cells": n, "periodic": ""})
+        return cls(square.z[: nx + 1, : ny + 1].copy(), (float(sides_um[0]), float(sides_um[1])),
+                   ensemble=square.ensemble, parameters=recorded)
+
+    @property
+    def size_um(self) -> float:
+        """L_x (µm), the side along the rows (the dataset stores it with the x/y node scales)."""
+        return self.sides_um[0]
+
+    @property
+    def cells(self) -> tuple[int, int]:
+        """(N_x, N_y)."""
+        return self.z.shape[0] - 1, self.z.shape[1] - 1
+
+    @property
+    def spacing_um(self) -> float:
+        return self.sides_um[0] / (self.z.shape[0] - 1)
+
+    @property
+    def x(self) -> np.ndarray:
+        return -0.5 * self.sides_um[0] + self.spacing_um * np.arange(self.z.shape[0])
+
+    @property
+    def y(self) -> np.ndarray:
+        return -0.5 * self.sides_um[1] + self.spacing_um * np.arange(self.z.shape[1])
+
+    def statistics(self) -> dict[str, float]:
+        """As :meth:`HeightField.statistics` for a non-periodic field: rms height and
+        peak-to-valley of the nodes, rms / max slope of the bilinear surface (cell centres), and
+        the 1/e lengths of the linear (zero-padded) autocorrelation along x and y (µm; NaN where
+        it does not fall to 1/e within half the side)."""
+        z, d = self.z, self.spacing_um
+        zx = 0.5 * (z[1:, 1:] + z[1:, :-1] - z[:-1, 1:] - z[:-1, :-1]) / d
+        zy = 0.5 * (z[1:, 1:] - z[1:, :-1] + z[:-1, 1:] - z[:-1, :-1]) / d
+        slope = np.hypot(zx, zy)
+        h = z - z.mean()
+        lengths = []
+        for axis in (0, 1):
+            n = 2 * h.shape[axis]
+            spectrum = np.fft.rfft(h, n=n, axis=axis)
+            acf = np.fft.irfft(np.abs(spectrum) ** 2, n=n, axis=axis).sum(axis=1 - axis)
+            half = acf[: (h.shape[axis] - 1) // 2 + 1]
+            lengths.append(_one_over_e_length(half, d))
+        return {
+            "rms_height_um": float(np.sqrt(np.mean(h**2))),
+            "peak_to_valley_um": float(np.ptp(h)),
+            "rms_slope": float(np.sqrt(np.mean(slope**2))),
+            "max_slope": float(slope.max()),
+            "correlation_length_x_um": lengths[0],
+            "correlation_length_y_um": lengths[1],
+        }
+
+
+def _one_over_e_length(acf: np.ndarray, spacing_um: float) -> float:
+    """Lag (µm) where ``acf``/``acf[0]`` first falls to 1/e, linearly interpolated; NaN if never."""
+    if not acf[0] > 0:
+        return float("nan")
+    values = acf / acf[0]
+    below = np.nonzero(values <= np.exp(-1.0))[0]
+    if below.size == 0:
+        return float("nan")
+    i = int(below[0])
+    return float((i - 1 + (values[i - 1] - np.exp(-1.0)) / (values[i - 1] - values[i])) * spacing_um)
+
+
 @dataclass(frozen=True)
 class PatchLayout:
-    """M_x × M_y sub-areas of side ``patch_size_um`` shifted by ``shift_um`` on a global surface."""
+    """M_x × M_y sub-areas of side ``patch_size_um`` shifted by ``shift_um`` on a global surface
+    (square :class:`HeightField` or rectangular :class:`GlobalSurface`), centred on it, moved by
+    ``offset_um`` (µm): :meth:`for_surface` moves it by −d/2 along an axis where the centred
+    layout would leave half a cell over on each side, so that patch nodes are surface nodes."""
 
     counts: tuple[int, int]
     patch_size_um: float
     shift_um: float
+    offset_um: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self):
+        if len(self.counts) != 2 or any(isinstance(m, bool) or not isinstance(m, (int, np.integer))
+                                        for m in self.counts):
+            raise ValueError(f"steering.patches must be two integers [mx, my], got {list(self.counts)}")
         if min(self.counts) < 1:
             raise ValueError(f"steering.patches must be >= 1 in each direction, got {self.counts}")
         if not (self.patch_size_um > 0 and self.shift_um > 0):
             raise ValueError("steering.patch_size_um and shift_um must be > 0")
+        object.__setattr__(self, "counts", (int(self.counts[0]), int(self.counts[1])))
+
+    @staticmethod
+    def _fitting(side_um: float, patch_size_um: float, shift_um: float, axis: str) -> int:
+        m = int(np.floor((side_um - patch_size_um) / shift_um + 1e-9)) + 1
+        if m < 1:
+            raise ValueError(f"steering.patch_size_um = {patch_size_um:g} does not fit on the {side_um:g} µm "
+                             f"side of the surface along {axis}")
+        return m
 
     @classmethod
-    def auto(cls, global_size_um: float, patch_size_um: float, shift_um: float) -> "PatchLayout":
-        """As many patches per side as fit on the global surface."""
-        m = int(np.floor((global_size_um - patch_size_um) / shift_um + 1e-9)) + 1
-        if m < 1:
-            raise ValueError(
-                f"steering.patch_size_um = {patch_size_um} does not fit on the {global_size_um} µm surface"
-            )
-        return cls((m, m), patch_size_um, shift_um)
+    def auto(cls, global_size_um, patch_size_um: float, shift_um: float) -> "PatchLayout":
+        """As many patches per side as fit on the global surface (``global_size_um``: L, or
+        (L_x, L_y) for a rectangle)."""
+        sides = np.broadcast_to(np.asarray(global_size_um, dtype=float), (2,))
+        return cls(tuple(cls._fitting(float(s), patch_size_um, shift_um, a) for s, a in zip(sides, "xy")),
+                   patch_size_um, shift_um)
+
+    @classmethod
+    def for_surface(cls, surface, patches, patch_size_um: float, shift_um: float) -> "PatchLayout":
+        """The layout of ``[steering] patches`` on ``surface``: ``"auto"`` (as many as fit along
+        each axis), or [mx, my] where either may be ``"auto"``."""
+        sides = surface_sides_um(surface)
+        wanted = ("auto", "auto") if patches == "auto" else tuple(patches)
+        counts = tuple(cls._fitting(side, patch_size_um, shift_um, axis) if m == "auto" else m
+                       for m, side, axis in zip(wanted, sides, "xy"))
+        layout = cls(counts, patch_size_um, shift_um)
+        starts, d = layout._starts(surface)  # nodes left over before patch 0: k/2 for whole-cell sizes
+        offset = tuple(-0.5 * d if abs(s - round(s)) > 1e-6 and abs(2 * s - round(2 * s)) < 1e-6 else 0.0
+                       for s in starts)
+        return cls(counts, patch_size_um, shift_um, offset)
 
     @property
     def indices(self) -> list[tuple[int, int]]:
@@ -131,14 +276,26 @@ class PatchLayout:
         """Patch centre p_ab (µm, global coordinates, z = 0)."""
         a, b = patch
         mx, my = self.counts
-        return np.array([self.shift_um * (a - (mx - 1) / 2), self.shift_um * (b - (my - 1) / 2), 0.0])
+        return np.array([self.offset_um[0] + self.shift_um * (a - (mx - 1) / 2),
+                         self.offset_um[1] + self.shift_um * (b - (my - 1) / 2), 0.0])
+
+    @property
+    def spans_um(self) -> tuple[float, float]:
+        """Extent (x, y) the patches cover (µm)."""
+        return tuple(self.patch_size_um + (m - 1) * self.shift_um for m in self.counts)
 
     @property
     def span_um(self) -> float:
-        """Side of the square the patches cover."""
-        return self.patch_size_um + (max(self.counts) - 1) * self.shift_um
+        """The longer of :attr:`spans_um`."""
+        return max(self.spans_um)
 
-    def check(self, surface: HeightField) -> None:
+    def _starts(self, surface) -> tuple[list[float], float]:
+        """First node (fractional index) of patch (0, 0) along x and y, and the spacing."""
+        d = surface.spacing_um
+        return [((side - span) / 2 + off) / d
+                for side, span, off in zip(surface_sides_um(surface), self.spans_um, self.offset_um)], d
+
+    def check(self, surface) -> None:
         """Raise ValueError unless every patch lies on ``surface`` on whole grid cells."""
         d = surface.spacing_um
         for name, value in (("patch_size_um", self.patch_size_um), ("shift_um", self.shift_um)):
@@ -146,19 +303,37 @@ class PatchLayout:
                 raise ValueError(
                     f"steering.{name} = {value} is not a multiple of the surface spacing {d:g} µm"
                 )
-        if self.span_um > surface.size_um + 1e-9:
-            raise ValueError(
-                f"{self.counts[0]}x{self.counts[1]} patches of {self.patch_size_um} µm shifted by "
-                f"{self.shift_um} µm span {self.span_um:g} µm, more than the {surface.size_um:g} µm surface"
-            )
+        sides = surface_sides_um(surface)
+        for axis, side, span, m in zip("xy", sides, self.spans_um, self.counts):
+            if span > side + 1e-9:
+                what = (f"{side:g} µm surface" if sides[0] == sides[1]
+                        else f"{side:g} µm side of the surface along {axis}")
+                raise ValueError(
+                    f"{self.counts[0]}x{self.counts[1]} patches of {self.patch_size_um} µm shifted by "
+                    f"{self.shift_um} µm span {span:g} µm along {axis}, more than the {what}"
+                )
+        starts, _ = self._starts(surface)
+        for axis, start, side, span in zip("xy", starts, sides, self.spans_um):
+            if abs(start - round(start)) > 1e-6 or start < -1e-6:
+                raise ValueError(
+                    f"the patches span {span:g} µm along {axis} on the {side:g} µm side: placed as given they "
+                    f"start {start * d:g} µm after its edge, not a whole number of cells of {d:g} µm, so the "
+                    "patches' nodes would fall between the surface's (PatchLayout.for_surface places them)"
+                )
 
-    def cut(self, surface: HeightField, patch: tuple[int, int]) -> HeightField:
-        """The patch's height field (local coordinates centred on p_ab; heights unchanged)."""
-        d = surface.spacing_um
+    def cut(self, surface, patch: tuple[int, int]) -> HeightField:
+        """The patch's square height field (local coordinates centred on p_ab; heights unchanged)
+        from a square or rectangular global ``surface``: nodes
+        [s_x + a·shift, s_x + a·shift + n] × [s_y + b·shift, ...] with n = patch/d and s the
+        margin of the centred layout (:meth:`check` guarantees whole cells)."""
+        starts, d = self._starts(surface)
         cells = int(round(self.patch_size_um / d))
+        shift = int(round(self.shift_um / d))
+        i0, j0 = (int(round(s)) + k * shift for s, k in zip(starts, patch))
+        z = surface.z[i0 : i0 + cells + 1, j0 : j0 + cells + 1]
+        if z.shape != (cells + 1, cells + 1):
+            raise ValueError(f"patch {tuple(patch)} does not lie on the surface (layout {self.counts})")
         centre = self.centre(patch)
-        start = [int(round((c + surface.size_um / 2 - self.patch_size_um / 2) / d)) for c in centre[:2]]
-        z = surface.z[start[0] : start[0] + cells + 1, start[1] : start[1] + cells + 1]
         return HeightField(z.copy(), self.patch_size_um, origin_um=(float(centre[0]), float(centre[1])))
 
 
@@ -199,8 +374,7 @@ def synthesized_incident_power(incident_fields, layout: PatchLayout, spacing_um:
     k = 2 * np.pi * exterior_index / wavelength_um
     omega_i = np.array([np.sin(theta_i) * np.cos(phi_i), np.sin(theta_i) * np.sin(phi_i), np.cos(theta_i)])
     mx, my = layout.counts
-    n_global = n_patch + (max(mx, my) - 1) * shift
-    E = np.zeros(E_b.shape[:2] + (n_global, n_global), dtype=complex)
+    E = np.zeros(E_b.shape[:2] + (n_patch + (mx - 1) * shift, n_patch + (my - 1) * shift), dtype=complex)
     H = np.zeros_like(E)
     for a, b in layout.indices:
         weight = np.exp(1j * k * float(layout.centre((a, b)) @ omega_i))

@@ -168,38 +168,41 @@ inline void aim_curl(const vcplx_t B[3], const vcplx_t q[3], vcplx_t out[3])
 }
 
 /* one work-item per WB_VW consecutive samples (aim/convolution.py picks WB_VW; the host launches whole
-   vectors, then the rest with WB_VW = 1), from sample `first` */
+   vectors, then the rest with WB_VW = 1), from sample `first` of Q; Q may be a slab of the spectrum
+   (host FFTs in slabs): its sample v is the kernels' sample `offset` + v */
 __kernel void aim_fourier(__global const cplx_t *green, __global const cplx_t *gradient, const long nfreq,
-                          __constant const cplx_t *coef, __global cplx_t *Q, const long first)
+                          __constant const cplx_t *coef, __global cplx_t *Q, const long first, const long qfreq,
+                          const long offset)
 {
     /* green (AIM_NMED, nfreq); gradient (3, nfreq) = B_a; coef (4, AIM_NMED): ee_vec, mm_vec,
-       ee_div, mm_div; Q (AIM_BATCH, 8, nfreq) in place */
+       ee_div, mm_div; Q (AIM_BATCH, 8, qfreq) in place */
     const size_t v = first + get_global_id(0) * WB_VW;
-    if (v + WB_VW > (size_t)nfreq) return;
+    if (v + WB_VW > (size_t)qfreq) return;
+    const size_t g = offset + v;
     vcplx_t k[4] = {vc_zero(), vc_zero(), vc_zero(), vc_zero()};  /* A, A', D, D' */
     for (int m = 0; m < AIM_NMED; ++m) {
-        const vcplx_t G = vc_load(green + m * nfreq + v);
+        const vcplx_t G = vc_load(green + m * nfreq + g);
         for (int r = 0; r < 4; ++r) {
             const cplx_t c = coef[r * AIM_NMED + m];
             k[r] = vc_fma(vc_new((vreal_t)(c.x), (vreal_t)(c.y)), G, k[r]);
         }
     }
-    const vcplx_t B[3] = {vc_load(gradient + v), vc_load(gradient + nfreq + v), vc_load(gradient + 2 * nfreq + v)};
+    const vcplx_t B[3] = {vc_load(gradient + g), vc_load(gradient + nfreq + g), vc_load(gradient + 2 * nfreq + g)};
 #pragma unroll
     for (int b = 0; b < AIM_BATCH; ++b) {
-        __global cplx_t *q = Q + (size_t)b * 8 * nfreq + v;
+        __global cplx_t *q = Q + (size_t)b * 8 * qfreq + v;
         vcplx_t qe[3], qh[3], ce[3], ch[3];
         for (int a = 0; a < 3; ++a) {
-            qe[a] = vc_load(q + a * nfreq);
-            qh[a] = vc_load(q + (4 + a) * nfreq);
+            qe[a] = vc_load(q + a * qfreq);
+            qh[a] = vc_load(q + (4 + a) * qfreq);
         }
         aim_curl(B, qh, ce);  /* B x q[M] */
         aim_curl(B, qe, ch);  /* B x q[J] */
         for (int a = 0; a < 3; ++a) {
-            vc_store(vc_fma(k[0], qe[a], ce[a]), q + a * nfreq);
-            vc_store(vc_fma(k[1], qh[a], ch[a]), q + (4 + a) * nfreq);
+            vc_store(vc_fma(k[0], qe[a], ce[a]), q + a * qfreq);
+            vc_store(vc_fma(k[1], qh[a], ch[a]), q + (4 + a) * qfreq);
         }
-        vc_store(vc_mul(k[2], vc_load(q + 3 * nfreq)), q + 3 * nfreq);
-        vc_store(vc_mul(k[3], vc_load(q + 7 * nfreq)), q + 7 * nfreq);
+        vc_store(vc_mul(k[2], vc_load(q + 3 * qfreq)), q + 3 * qfreq);
+        vc_store(vc_mul(k[3], vc_load(q + 7 * qfreq)), q + 7 * qfreq);
     }
 }

@@ -4,16 +4,21 @@ Built-in metals use the Lorentz–Drude fits of Rakić, Djurišić, Elazar & Maj
 5271 (1998), Table 2 (valid well beyond the visible range served here). ``aluminium-bemsim`` is
 the aluminium table of the full-wave reference simulator's published examples (0.400–0.688 µm),
 for like-with-like comparisons. Constant dielectrics are given by a name or by ``n``/``kappa``.
+Tables come as rows (λ, n, κ) or as a file in the reference simulator's ``wvl.txt`` format
+(:func:`read_index_file`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from importlib import resources
+from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Material", "MaterialError", "BUILTIN", "builtin_names", "lorentz_drude_index"]
+from wavebrdf.solver.number_rows import RowError, number_rows
+
+__all__ = ["Material", "MaterialError", "BUILTIN", "builtin_names", "lorentz_drude_index", "read_index_file"]
 
 HC_EV_UM = 1.239841984  # photon energy (eV) × wavelength (µm)
 
@@ -112,6 +117,12 @@ class Material:
             raise MaterialError("material.table has repeated wavelengths")
         return cls(name, "table", table=table)
 
+    @classmethod
+    def from_file(cls, path, name: str | None = None) -> "Material":
+        """The index table of a text file in the reference simulator's ``wvl.txt`` format
+        (:func:`read_index_file`), linearly interpolated over λ like :meth:`from_table`."""
+        return cls.from_table(read_index_file(path), name=name or f"file {Path(path).name}")
+
     @property
     def wavelength_range_um(self) -> tuple[float, float]:
         if self.kind == "table":
@@ -136,6 +147,68 @@ class Material:
         n = np.interp(lam, self.table[:, 0], self.table[:, 1])
         k = np.interp(lam, self.table[:, 0], self.table[:, 2])
         return n - 1j * k
+
+
+INDEX_FILE_MAX_BYTES = 16 * 2**20  # a wvl.txt is a few rows; refuse anything that is clearly not one
+
+
+def _index_row_error(shown: str, line_no: int, line: str, problem: str) -> MaterialError:
+    text = line if len(line) <= 60 else line[:57] + "..."
+    return MaterialError(f"material.file = {shown!r}: line {line_no} ({text!r}): {problem}")
+
+
+def read_index_file(path, label: str | None = None) -> np.ndarray:
+    """Rows (λ µm, n, κ) of a ``wvl.txt``-style file, checked: shape (rows, 3), float.
+
+    Format (the reference simulator's ``wvl.txt``, written by MATLAB's ``writematrix``): one row
+    per wavelength, ``λ, n, κ`` — vacuum wavelength in µm, then the real part n and the loss κ ≥ 0
+    of the index n − jκ (the reference builds its index as n − jκ from the same two numbers for
+    e^{+jωt}). Values separated by commas and/or whitespace (``;`` is taken as a comma); blank
+    lines and lines starting with ``#`` or ``%`` are ignored; the first remaining line may be a
+    header of words (e.g. ``lambda,n,k``). Wavelengths must be > 0 and strictly increasing.
+    Every problem is a :class:`MaterialError` naming ``material.file`` (as ``label``, default the
+    path), the line and the value.
+    """
+    path = Path(path)
+    shown = str(path) if label is None else label
+    if not path.exists():
+        raise MaterialError(f"material.file = {shown!r} does not exist")
+    if not path.is_file():
+        raise MaterialError(f"material.file = {shown!r} is not a regular file")
+    if path.stat().st_size > INDEX_FILE_MAX_BYTES:
+        raise MaterialError(f"material.file = {shown!r} is {path.stat().st_size / 2**20:.0f} MiB; a table of "
+                            "λ, n, κ rows is a small text file")
+    try:
+        lines = path.read_text(encoding="utf-8-sig").splitlines()  # -sig: a BOM from spreadsheet exports
+    except UnicodeDecodeError as exc:
+        raise MaterialError(f"material.file = {shown!r} is not UTF-8 text ({exc.reason} at byte "
+                            f"{exc.start})") from None
+    except OSError as exc:
+        raise MaterialError(f"material.file = {shown!r} cannot be read ({exc.strerror})") from None
+    rows: list[tuple[float, float, float]] = []
+    try:
+        numbered = list(number_rows(lines, ("wavelength_um", "n", "kappa")))
+    except RowError as exc:
+        raise _index_row_error(shown, exc.line_no, exc.line, exc.problem + "; rows are λ (µm), n, κ") from None
+    for line_no, line, values in numbered:
+        lam, n, kappa = values
+        if not all(np.isfinite(values)):
+            raise _index_row_error(shown, line_no, line, "values must be finite numbers (not NaN/inf)")
+        if lam <= 0:
+            raise _index_row_error(shown, line_no, line, f"wavelength {lam:g} µm must be > 0")
+        if n <= 0:
+            raise _index_row_error(shown, line_no, line, f"n = {n:g} must be > 0")
+        if kappa < 0:
+            raise _index_row_error(shown, line_no, line, f"kappa = {kappa:g} must be >= 0 (the index is n - j*kappa, "
+                                   "kappa > 0 meaning loss; write the magnitude of the imaginary part)")
+        if rows and lam <= rows[-1][0]:
+            what = "repeats" if lam == rows[-1][0] else "is smaller than"
+            raise _index_row_error(shown, line_no, line, f"wavelength {lam:g} µm {what} the previous row's "
+                                   f"{rows[-1][0]:g} µm; rows must be in strictly increasing wavelength")
+        rows.append((lam, n, kappa))
+    if not rows:
+        raise MaterialError(f"material.file = {shown!r} holds no rows of λ (µm), n, κ")
+    return np.array(rows, dtype=float)
 
 
 def builtin_names() -> list[str]:

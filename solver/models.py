@@ -88,6 +88,8 @@ class SurfaceScene:
     material below the surface at this wavelength. ``z_reference`` is the phase-reference height
     (None: the surface mean; sub-area patches pass the global mean). ``footprint_centre_um`` is
     the beam centre in patch coordinates. ``precision``: "double" | "single" (kernels and FFTs).
+    ``memory_budget_bytes``: the memory one task may use ([run] memory_gb or the node's, over the
+    tasks at once; None: not limited), which models that can trade time for memory fit.
     """
 
     surface: HeightField
@@ -102,6 +104,7 @@ class SurfaceScene:
     precision: str = "double"
     z_reference: float | None = None
     footprint_centre_um: tuple[float, float] = (0.0, 0.0)
+    memory_budget_bytes: float | None = None
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,12 @@ import os
 import resource
 
 __all__ = ["meminfo_bytes", "peak_memory_mb", "peak_resident_bytes", "release_free_memory", "reset_peak_memory",
-           "resident_memory_mb"]
+           "resident_memory_mb", "restart_stage_peak", "stage_peak_bytes"]
+
+# Peaks (bytes) that stage clocks (solver/stages.py) carried over their resets of VmHWM: since the
+# last reset_peak_memory (a measurement's baseline) and over the process's life (ru_maxrss, which
+# the same kernel counter feeds, is lowered by those resets).
+_carried = {"since_reset": 0.0, "lifetime": 0.0}
 
 
 def _proc_kb(path: str, field: str) -> int | None:
@@ -33,8 +38,8 @@ def meminfo_bytes(field: str = "MemTotal") -> int:
 
 
 def peak_memory_mb() -> float:
-    """Peak resident memory of this process (MB)."""
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    """Peak resident memory of this process over its life (MB), stage resets included."""
+    return max(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, _carried["lifetime"] / 2**20)
 
 
 def resident_memory_mb() -> float:
@@ -57,20 +62,49 @@ def release_free_memory() -> None:
     trim(0)
 
 
-def peak_resident_bytes() -> float:
-    """Peak resident memory of this process since start or the last :func:`reset_peak_memory`
-    (bytes; VmHWM), NaN where /proc is missing."""
+def stage_peak_bytes() -> float:
+    """Peak resident memory (bytes; VmHWM) since the last reset of either kind, NaN where /proc is missing."""
     kb = _proc_kb("/proc/self/status", "VmHWM")
     return float("nan") if kb is None else kb * 1024.0
+
+
+def peak_resident_bytes() -> float:
+    """Peak resident memory of this process since start or the last :func:`reset_peak_memory`
+    (bytes; VmHWM and what stage clocks carried over their resets), NaN where /proc is missing."""
+    return max(stage_peak_bytes(), _carried["since_reset"])
+
+
+def _clear_peak() -> bool:
+    try:
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+    except OSError:
+        return False
+    return True
+
+
+def restart_stage_peak() -> float:
+    """Start a stage's peak: carry the peak so far over, reset VmHWM to the current RSS (without
+    giving heap pages back: that would change what is measured) and return the RSS in bytes;
+    NaN where the kernel does not allow it. :func:`peak_resident_bytes` and
+    :func:`peak_memory_mb` still see the carried peak."""
+    peak = stage_peak_bytes()
+    if peak == peak:  # not NaN
+        _carried["since_reset"] = max(_carried["since_reset"], peak)
+        _carried["lifetime"] = max(_carried["lifetime"], peak)
+    if not _clear_peak():
+        return float("nan")
+    return stage_peak_bytes()
 
 
 def reset_peak_memory() -> float:
     """Give the C heap's free pages back, reset this process's peak RSS to its current RSS (Linux
     ``clear_refs`` 5) and return that baseline in bytes; NaN where the kernel does not allow it."""
     release_free_memory()
-    try:
-        with open("/proc/self/clear_refs", "w") as fh:
-            fh.write("5")
-    except OSError:
+    peak = stage_peak_bytes()
+    if peak == peak:
+        _carried["lifetime"] = max(_carried["lifetime"], peak)
+    _carried["since_reset"] = 0.0
+    if not _clear_peak():
         return float("nan")
     return peak_resident_bytes()

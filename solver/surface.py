@@ -30,6 +30,7 @@ __all__ = [
     "GaussianEnsemble",
     "HeightField",
     "SurfaceError",
+    "checked_heights",
     "generate",
     "load_heights",
 ]
@@ -85,6 +86,25 @@ class GaussianEnsemble:
                 "ensemble_correlation_um": list(self.correlation_um), "ensemble_angle_deg": self.angle_deg}
 
 
+def checked_heights(z, *, square: bool) -> np.ndarray:
+    """``z`` as a float matrix of at least MIN_NODES nodes per side (and square if asked), finite;
+    else SurfaceError naming the problem (shape, or the first NaN/inf)."""
+    z = np.asarray(z, dtype=float)
+    if z.ndim != 2:
+        raise SurfaceError(f"height matrix must be 2-D, got {z.ndim}-D")
+    if square and z.shape[0] != z.shape[1]:
+        raise SurfaceError(f"height matrix must be square ((N+1)x(N+1)), got {z.shape[0]}x{z.shape[1]}")
+    if min(z.shape) < MIN_NODES:
+        raise SurfaceError(f"height matrix is too small: {z.shape[0]}x{z.shape[1]}, need at least "
+                           f"{MIN_NODES}x{MIN_NODES}" if square else
+                           f"height matrix is too small: {z.shape[0]}x{z.shape[1]}, need at least {MIN_NODES} "
+                           "nodes along each side")
+    if not np.all(np.isfinite(z)):
+        bad = np.argwhere(~np.isfinite(z))[0]
+        raise SurfaceError(f"height matrix contains NaN/inf (first at row {bad[0]}, column {bad[1]})")
+    return z
+
+
 @dataclass(frozen=True)
 class HeightField:
     """Corner heights ``z`` (µm, shape (N+1, N+1)) on a square patch of side ``size_um``.
@@ -101,19 +121,7 @@ class HeightField:
     parameters: dict | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self):
-        z = np.asarray(self.z, dtype=float)
-        if z.ndim != 2:
-            raise SurfaceError(f"height matrix must be 2-D, got {z.ndim}-D")
-        if z.shape[0] != z.shape[1]:
-            raise SurfaceError(f"height matrix must be square ((N+1)x(N+1)), got {z.shape[0]}x{z.shape[1]}")
-        if z.shape[0] < MIN_NODES:
-            raise SurfaceError(
-                f"height matrix is too small: {z.shape[0]}x{z.shape[1]}, need at least "
-                f"{MIN_NODES}x{MIN_NODES}"
-            )
-        if not np.all(np.isfinite(z)):
-            bad = np.argwhere(~np.isfinite(z))[0]
-            raise SurfaceError(f"height matrix contains NaN/inf (first at row {bad[0]}, column {bad[1]})")
+        z = checked_heights(self.z, square=True)
         if not (np.isfinite(self.size_um) and self.size_um > 0):
             raise SurfaceError(f"surface size_um must be a positive number, got {self.size_um!r}")
         if self.ensemble is not None and not isinstance(self.ensemble, GaussianEnsemble):

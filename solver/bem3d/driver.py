@@ -38,6 +38,7 @@ from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.bem3d.quadrature import QuadratureOptions
 from wavebrdf.solver.farfield import FarField, HemisphereGrid
 from wavebrdf.solver.resources import peak_memory_mb
+from wavebrdf.solver.stages import StageClock
 from wavebrdf.solver.surface import HeightField
 
 __all__ = ["METHODS", "BEMSolver", "bem_farfield"]
@@ -53,6 +54,7 @@ class Solution(NamedTuple):
     x: np.ndarray
     radiating_mesh: BEMMesh
     radiating_x: np.ndarray
+    radiating_part: object = None  # the extended mesh's AIM grid part when the patch is continued
 
 
 class BEMSolver:
@@ -93,6 +95,7 @@ class BEMSolver:
         self.quadrature = quadrature
         self.progress = progress or (lambda stage, fraction=None, **figures: None)
         self.diagnostics: dict = {"model": "bem", "method": method, "warnings": []}
+        self.clock = StageClock()  # set-up stages here, per-direction stages added by farfield()
         check_material(self.media, surface.size_um, self.diagnostics)
         check_resolution(self.media, surface.spacing_um, self.diagnostics)
         if method == "dense":
@@ -100,11 +103,12 @@ class BEMSolver:
                                           memory_limit_bytes=memory_limit_bytes, progress=self.progress)
         else:
             self.operator = AIMOperator(ctx, self.mesh, self.media, self.aim, quadrature=quadrature,
-                                        progress=self.progress)
+                                        progress=self.progress, clock=self.clock)
         setup = self.operator.diagnostics()
         self.continuation = None
         if continued:
-            self.continuation = FlatContinuation(ctx, self.mesh, self.media, self.aim, quadrature=quadrature)
+            with self.clock("continuation set-up"):
+                self.continuation = FlatContinuation(ctx, self.mesh, self.media, self.aim, quadrature=quadrature)
             setup["setup_s"] += self.continuation.setup_s
             if np.ptp(self.mesh.heights) > 0:
                 check_surface_plasmons(self.media, surface.size_um, self.diagnostics)
@@ -129,15 +133,18 @@ class BEMSolver:
         t_solve = time.perf_counter()
         self.progress("far field", 0.0)
         inc, power = solution.excitation.beam, solution.excitation.incident_power
-        rule = SurfaceRule.build(self.mesh, self.quadrature.farfield_order)
-        ff = self.operator.farfield(solution.radiating_mesh, solution.radiating_x, grid, rule, theta_i=theta_i,
-                                    phi_i=phi_i, incident_power=power, diagnostics=diag)
-        into = power_into_material(self.mesh, solution.x, rule)  # through the patch only
+        extra = {} if solution.radiating_part is None else {"grid_part": solution.radiating_part}
+        with self.clock("far field"):
+            # the dense operator's direct sum needs the surface rule; AIM radiates from grid sources
+            rule = SurfaceRule.build(self.mesh, self.quadrature.farfield_order) if self.method == "dense" else None
+            ff = self.operator.farfield(solution.radiating_mesh, solution.radiating_x, grid, rule, theta_i=theta_i,
+                                        phi_i=phi_i, incident_power=power, diagnostics=diag, **extra)
+            into = power_into_material(self.mesh, solution.x, self.quadrature.farfield_order)  # through the patch only
         if not (np.all(np.isfinite(ff.E)) and np.all(np.isfinite(ff.H))):
             raise FloatingPointError(f"BEM far field ({self.method}) contains NaN/inf")
         ff.diagnostics.update(beam=beam, waist_um=waist_um, farfield_s=time.perf_counter() - t_solve,
                               total_direction_s=time.perf_counter() - t0, into_material_fraction=into / power,
-                              peak_memory_bytes=peak_memory_mb() * 2**20)
+                              peak_memory_bytes=peak_memory_mb() * 2**20, stages=self.clock.as_dict())
         if beam == "exact":
             ff.diagnostics["beam_reflectance"] = inc.reflectance(self.media.index)
             ff.diagnostics["beam_plane_waves"] = len(inc.plane_waves["kvec"])
@@ -171,29 +178,33 @@ class BEMSolver:
                                   patch_size_um=self.mesh.surface.size_um)
             margin = self.continuation.margin(footprint)
             extent = self.mesh.surface.size_um + 2 * margin * self.mesh.spacing_um
-        excitation = beam_excitation(self.mesh, self.media, theta_i, phi_i, waist_um=waist_um, beam=beam,
-                                     focus_um=focus_um, rhs_order=self.quadrature.rhs_order, diagnostics=diagnostics,
-                                     extent_um=extent)
+        with self.clock("excitation"):
+            excitation = beam_excitation(self.mesh, self.media, theta_i, phi_i, waist_um=waist_um, beam=beam,
+                                         focus_um=focus_um, rhs_order=self.quadrature.rhs_order,
+                                         diagnostics=diagnostics, extent_um=extent)
         b = excitation.rhs
         if margin is not None:
             t_fixed = time.perf_counter()
-            fixed, field = self.continuation.fixed_currents(excitation.beam, margin)
+            with self.clock("continuation field"):
+                fixed, field = self.continuation.fixed_currents(excitation.beam, margin)
             b = b - field
             record.update(edge="flat", continuation_cells=margin, continuation_s=time.perf_counter() - t_fixed,
                           extended_unknowns=fixed.shape[1])
         self.progress("solve", 0.0)
         try:
-            result = self.operator.solve(b, record)
+            with self.clock("Krylov solve"):
+                result = self.operator.solve(b, record)
         except Exception as exc:  # keep the set-up diagnostics with the failure
             extra = getattr(exc, "diagnostics", None)
             if isinstance(extra, dict):
                 extra.update({k: v for k, v in record.items() if k not in extra and k != "aim_options"})
             raise
-        mesh, x = self.mesh, result.x
+        mesh, x, part = self.mesh, result.x, None
         if margin is not None:  # the far field of the patch's and the continued currents
             mesh, x = self.continuation.extended_solution(margin, fixed, result.x)
+            part = self.continuation.extended(margin)[1]
             record["continuation_bytes"] = self.continuation.bytes()
-        return Solution(excitation, result.x, mesh, x)
+        return Solution(excitation, result.x, mesh, x, part)
 
 
 def bem_farfield(ctx, surface: HeightField, wavelength_um: float, index: complex, theta_i: float, phi_i: float,

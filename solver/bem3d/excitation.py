@@ -24,8 +24,10 @@ from wavebrdf.solver.bem3d.mesh import SLOT_TANGENT, BEMMesh, slot_weight
 from wavebrdf.solver.bem3d.quadrature import tensor_rule
 from wavebrdf.solver.farfield import ETA0
 
-__all__ = ["BeamExcitation", "SurfaceRule", "beam_excitation", "power_into_material", "right_hand_side",
-           "surface_currents"]
+__all__ = ["ELEMENT_BLOCK", "BeamExcitation", "SurfaceRule", "beam_excitation", "beam_right_hand_side",
+           "element_blocks", "power_into_material", "right_hand_side", "surface_currents"]
+
+ELEMENT_BLOCK = 16384  # elements per block of quadrature-point arrays (excitation, surface power)
 
 
 @dataclass(frozen=True)
@@ -40,9 +42,10 @@ class SurfaceRule:
     rv: np.ndarray
 
     @classmethod
-    def build(cls, mesh: BEMMesh, order: int) -> "SurfaceRule":
+    def build(cls, mesh: BEMMesh, order: int, elements: np.ndarray | None = None) -> "SurfaceRule":
+        """The rule on every element, or on ``elements`` (indices) only."""
         u, v, w = tensor_rule(order)
-        elems = np.arange(mesh.n_elements)[:, None]
+        elems = (np.arange(mesh.n_elements) if elements is None else np.asarray(elements))[:, None]
         r, ru, rv = mesh.points(elems, u[None, :], v[None, :])
         return cls(u=u, v=v, weights=w, r=r, ru=ru, rv=rv)
 
@@ -53,24 +56,47 @@ class SurfaceRule:
         return c.T[None, :, :, None] * t
 
 
+def element_blocks(mesh: BEMMesh, size: int = ELEMENT_BLOCK):
+    """Element index ranges of at most ``size`` elements, covering the mesh in order."""
+    for start in range(0, mesh.n_elements, size):
+        yield np.arange(start, min(mesh.n_elements, start + size))
+
+
+def _slot_projections(fields: tuple[np.ndarray, np.ndarray], rule: SurfaceRule) -> np.ndarray:
+    """∫ c_a t_a · (E, H) per element and slot: shape (2 [E, H], 2 polarizations, elements, 4)."""
+    ct = rule.slot_vectors()  # (elements, q, 4, 3)
+    return np.stack([np.einsum("eqac,peqc,q->pea", ct, F, rule.weights) for F in fields])
+
+
+def _basis_sums(mesh: BEMMesh, projections: np.ndarray) -> np.ndarray:
+    """b = [b_E | −η₀ b_H] (2, 2N_b) from the slot projections of every element."""
+    be, bs = mesh.basis_elements, mesh.basis_slots
+    b = projections[:, :, be[:, 0], bs[:, 0]] + projections[:, :, be[:, 1], bs[:, 1]]
+    return np.concatenate([b[0], -ETA0 * b[1]], axis=1)
+
+
 def right_hand_side(mesh: BEMMesh, fields: tuple[np.ndarray, np.ndarray], rule: SurfaceRule) -> np.ndarray:
     """b = [b_E | b_H] per polarization, shape (2, 2N_b), from E, H (2, N², q, 3) at ``rule``."""
-    E, H = fields
-    ct = rule.slot_vectors()  # (N², q, 4, 3)
-    w = rule.weights
-    proj_E = np.einsum("eqac,peqc,q->pea", ct, E, w)  # (2, N², 4)
-    proj_H = np.einsum("eqac,peqc,q->pea", ct, H, w)
-    be, bs = mesh.basis_elements, mesh.basis_slots
-    b_E = proj_E[:, be[:, 0], bs[:, 0]] + proj_E[:, be[:, 1], bs[:, 1]]
-    b_H = proj_H[:, be[:, 0], bs[:, 0]] + proj_H[:, be[:, 1], bs[:, 1]]
-    return np.concatenate([b_E, -ETA0 * b_H], axis=1)
+    return _basis_sums(mesh, _slot_projections(fields, rule))
 
 
-def surface_currents(mesh: BEMMesh, x: np.ndarray, rule: SurfaceRule) -> tuple[np.ndarray, np.ndarray]:
-    """(j, m) = (J, M̃)·𝒥 at the rule's points for solutions ``x`` (..., 2N_b); shape (..., N², q, 3)."""
+def beam_right_hand_side(mesh: BEMMesh, beam, order: int) -> np.ndarray:
+    """:func:`right_hand_side` of ``beam``'s fields (``beam.fields(points)`` → E, H), built over
+    blocks of elements: the per-point fields of one block are held at a time, not the patch's."""
+    projections = np.zeros((2, 2, mesh.n_elements, 4), dtype=complex)
+    for elements in element_blocks(mesh):
+        rule = SurfaceRule.build(mesh, order, elements)
+        projections[:, :, elements] = _slot_projections(beam.fields(rule.r), rule)
+    return _basis_sums(mesh, projections)
+
+
+def surface_currents(mesh: BEMMesh, x: np.ndarray, rule: SurfaceRule,
+                     elements: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(j, m) = (J, M̃)·𝒥 at the rule's points for solutions ``x`` (..., 2N_b); shape (..., N², q, 3)
+    (or (..., len(elements), q, 3) for a rule built on ``elements``)."""
     x = np.asarray(x)
     nb = mesh.n_bases
-    slots = mesh.element_bases  # (N², 4), −1 on the boundary
+    slots = mesh.element_bases if elements is None else mesh.element_bases[elements]  # (·, 4), −1 on the boundary
     present = slots >= 0
     ct = rule.slot_vectors()
     out = []
@@ -80,16 +106,21 @@ def surface_currents(mesh: BEMMesh, x: np.ndarray, rule: SurfaceRule) -> tuple[n
     return out[0], out[1]
 
 
-def power_into_material(mesh: BEMMesh, x: np.ndarray, rule: SurfaceRule) -> np.ndarray:
-    """Power crossing the surface into the material, ½ Re ∫ n̂·(M × J*) dA (W), shape x.shape[:-1].
+def power_into_material(mesh: BEMMesh, x: np.ndarray, order: int) -> np.ndarray:
+    """Power crossing the surface into the material, ½ Re ∫ n̂·(M × J*) dA (W), shape x.shape[:-1],
+    by tensor Gauss of ``order`` per element, over blocks of elements.
 
     Positive for a passive material: absorbed (metal) or transmitted (dielectric) power.
     """
-    j, m = surface_currents(mesh, x, rule)
-    normal = np.cross(rule.ru, rule.rv)
-    jac = np.linalg.norm(normal, axis=-1)
-    integrand = np.einsum("eqc,...eqc->...eq", normal, np.cross(m, np.conj(j))) / jac**2
-    return 0.5 * ETA0 * np.real(np.einsum("...eq,q->...", integrand, rule.weights))
+    total = 0.0
+    for elements in element_blocks(mesh):
+        rule = SurfaceRule.build(mesh, order, elements)
+        j, m = surface_currents(mesh, x, rule, elements)
+        normal = np.cross(rule.ru, rule.rv)
+        jac = np.linalg.norm(normal, axis=-1)
+        integrand = np.einsum("eqc,...eqc->...eq", normal, np.cross(m, np.conj(j))) / jac**2
+        total = total + 0.5 * ETA0 * np.real(np.einsum("...eq,q->...", integrand, rule.weights))
+    return total
 
 
 @dataclass(frozen=True)
@@ -126,5 +157,4 @@ def beam_excitation(mesh: BEMMesh, media: Media, theta_i: float, phi_i: float, *
             "a beam there (paraxial breakdown or footprint far beyond the patch); use beam = 'exact', a "
             "larger waist or a larger patch"
         )
-    rule = SurfaceRule.build(mesh, rhs_order)
-    return BeamExcitation(inc, right_hand_side(mesh, inc.fields(rule.r), rule), power)
+    return BeamExcitation(inc, beam_right_hand_side(mesh, inc, rhs_order), power)

@@ -62,11 +62,33 @@ class BEMModel(Model):
     def __init__(self, options=None):
         super().__init__(options)
         self._kept: tuple | None = None  # (key, BEMSolver) of the last scene
+        self._fits: dict = {}  # budget fits by scene geometry (aim/budget.py)
 
     def aim_options(self, scene: SurfaceScene) -> AIMOptions:
-        """[model.aim] with [model] precision = "single" applied."""
+        """[model.aim] with [model] precision = "single" applied, fitted to the scene's memory
+        budget (aim/budget.py: the planner's choice, which the run then uses)."""
+        return self.budget_fit(scene).options
+
+    def budget_fit(self, scene: SurfaceScene):
+        """The AIM settings for this scene's budget and their estimate (aim/budget.py BudgetFit;
+        those of the smallest need when nothing fits, which the plan's memory check refuses)."""
+        from wavebrdf.solver.bem3d.aim.budget import fit_to_budget
+
         aim = self.options.aim
-        return replace(aim, precision="single") if scene.precision == "single" else aim
+        if scene.precision == "single":
+            aim = replace(aim, precision="single")
+        # patches of one size whose height ranges agree within a cell share a fit (the estimate
+        # sees the heights only through the grid's extent), so a steered study plans quickly
+        surface = scene.surface
+        relief = round(float(np.ptp(surface.z)) / surface.spacing_um)
+        key = (surface.cells, surface.size_um, relief, scene.wavelength_um, complex(scene.index),
+               scene.exterior_index, scene.waist_um, aim, scene.memory_budget_bytes, scene.grid.resolution)
+        if key not in self._fits:
+            budget = float("inf") if scene.memory_budget_bytes is None else scene.memory_budget_bytes
+            self._fits[key] = fit_to_budget(scene.surface, scene.wavelength_um, scene.index, aim, budget,
+                                            exterior_index=scene.exterior_index, waist_um=scene.waist_um,
+                                            resolution=scene.grid.resolution)
+        return self._fits[key]
 
     def _key(self, ctx, scene: SurfaceScene) -> tuple:
         z = np.ascontiguousarray(scene.surface.z)
@@ -111,13 +133,14 @@ class BEMModel(Model):
 
     def estimate(self, scene: SurfaceScene) -> Estimate:
         if self.options.method == "aim":
-            from wavebrdf.solver.bem3d.aim.estimate import estimate_aim
+            from wavebrdf.solver.bem3d.aim.estimate import memory_breakdown
 
-            est = estimate_aim(scene.surface, scene.wavelength_um, scene.index, exterior_index=scene.exterior_index,
-                               aim=self.aim_options(scene), waist_um=scene.waist_um)
+            fit = self.budget_fit(scene)
+            est = fit.estimate
+            chosen = "; " + ", ".join(f"{k} = {b!r}" for k, (a, b) in fit.changed.items()) if fit.changed else ""
             return Estimate(est["bytes"], est["seconds"],
-                            f"aim {est['unknowns']} unknowns, near {est['near_bytes'] / 2**30:.2f} GiB, "
-                            f"FFT {'x'.join(map(str, est['fft']))}")
+                            f"aim {est['unknowns']} unknowns, ~{est['iterations_guess']} products{chosen}; "
+                            f"{memory_breakdown(est)}")
         from wavebrdf.solver.bem3d.dense import estimate_dense
 
         est = estimate_dense(scene.surface)

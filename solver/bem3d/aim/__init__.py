@@ -15,7 +15,8 @@ Modules:
 * operator       :class:`AIMOperator` (B + C, Krylov solve) and :class:`GridPart` (B alone)
 * continuation   the flat continuation of the patch edge (``edge = "flat"``)
 * farfield       far field of the solved currents from grid point sources by chirp-z transforms
-* estimate       :func:`estimate_aim`, memory and time before a run
+* estimate       :func:`estimate_aim`, memory (held parts + each stage's transient) and time before a run
+* budget         :func:`fit_to_budget`, the settings the planner picks to fit the memory a task may use
 """
 
 from wavebrdf.solver.bem3d.aim.continuation import FlatContinuation

@@ -60,6 +60,7 @@ __all__ = [
 
 FFT_BACKENDS = ("auto", "host", "vkfft")
 PACKED_BATCHES = (1, 2, 4)  # right-hand sides per launch that aim.cl packs into one SIMD vector
+SLAB_BYTES = 64 * 2**20  # spectrum slab of the host FFTs (BaseOperator._apply_host)
 
 
 def batch_chunks(n: int):
@@ -277,15 +278,18 @@ class BaseOperator:
         knl(self.ctx.queue, (self.grid.points,), None, *self._map, int4_arg(self.grid.shape), int4_arg(layout),
             np.int32(self.grid.stencil_size), np.int32(self.n_b), np.int32(self.n_h), weights[1], x_buf, q_buf)
 
-    def _fourier(self, Q_buf, green, gradient, coef, defines):
-        """``fourier_lanes`` samples per work-item (SIMD lanes) for whole vectors, then the rest one by one."""
+    def _fourier(self, Q_buf, green, gradient, coef, defines, samples: int | None = None, offset: int = 0):
+        """``fourier_lanes`` samples per work-item (SIMD lanes) for whole vectors, then the rest one by
+        one; ``Q_buf`` holds ``samples`` spectrum samples (default all) from sample ``offset``."""
         nfreq = self.grid.padded_points
+        samples = nfreq if samples is None else samples
         done = 0
         for lanes in sorted({self.fourier_lanes, 1}, reverse=True):
-            items = (nfreq - done) // lanes
+            items = (samples - done) // lanes
             if items:
                 knl = self.ctx.kernel("aim.cl", "aim_fourier", {**defines, "WB_VW": lanes})
-                knl(self.ctx.queue, (items,), None, green, gradient, np.int64(nfreq), coef, Q_buf, np.int64(done))
+                knl(self.ctx.queue, (items,), None, green, gradient, np.int64(nfreq), coef, Q_buf, np.int64(done),
+                    np.int64(samples), np.int64(offset))
                 done += items * lanes
 
     def _gather(self, F_buf, y_buffer, weights, defines, layout):
@@ -295,34 +299,61 @@ class BaseOperator:
             np.int32(sz), np.int32(self.n_b), np.int32(self.n_h), weights[0], F_buf, y_buffer)
 
     def _apply_host(self, P, x_buf, y_buffer, device_group, group):
-        """Charges and fields on compact host arrays; pruned scipy FFTs on the host."""
+        """Charges and fields on compact host arrays; pruned scipy FFTs on the host, in slabs.
+
+        The x transform runs first on the compact charges (P, 8, p_x, n_y, n_z); then slab by
+        slab of x frequencies the y and z transforms, the Fourier product and their inverses, back
+        into the same array; then the inverse x transform keeps the compact block. No array holds
+        the whole padded spectrum (8P · p_x p_y p_z samples): the largest is 8P · p_x n_y n_z."""
         import pyopencl as cl
 
         ctx, queue = self.ctx, self.ctx.queue
         mf = cl.mem_flags
         weights, green, gradient, coef, cw = device_group
         defines = self._defines(P, cw, len(group.media))
-        shape = self.grid.shape
+        shape, padded, workers = self.grid.shape, self.grid.padded, self.workers
         t0 = time.perf_counter()
         q = np.empty((P, 8) + tuple(shape), dtype=self.complex)
         q_buf = cl.Buffer(ctx.context, mf.WRITE_ONLY | mf.USE_HOST_PTR, hostbuf=q)
         self._scatter(P, x_buf, q_buf, weights, defines, shape)
         _sync(queue, q_buf, q)
+        del q_buf
         t1 = time.perf_counter()
-        Q = forward_pruned(q, self.grid.padded, self.workers).astype(self.complex, copy=False)
-        t2 = time.perf_counter()
-        Q_buf = cl.Buffer(ctx.context, mf.READ_WRITE | mf.USE_HOST_PTR, hostbuf=Q)
-        self._fourier(Q_buf, green, gradient, coef, defines)
-        _sync(queue, Q_buf, Q)
+        A = scipy.fft.fft(q, n=padded[0], axis=-3, workers=workers)  # (P, 8, p_x, n_y, n_z)
+        del q
+        fft_s, fourier_s = time.perf_counter() - t1, 0.0
+        plane = padded[1] * padded[2]
+        for x0 in range(0, padded[0], self.slab_planes(P)):
+            ta = time.perf_counter()
+            x1 = min(padded[0], x0 + self.slab_planes(P))
+            S = scipy.fft.fft(A[:, :, x0:x1], n=padded[2], axis=-1, workers=workers)
+            S = np.ascontiguousarray(scipy.fft.fft(S, n=padded[1], axis=-2, workers=workers, overwrite_x=True),
+                                     dtype=self.complex)
+            tb = time.perf_counter()
+            S_buf = cl.Buffer(ctx.context, mf.READ_WRITE | mf.USE_HOST_PTR, hostbuf=S)
+            self._fourier(S_buf, green, gradient, coef, defines, samples=(x1 - x0) * plane, offset=x0 * plane)
+            _sync(queue, S_buf, S)
+            del S_buf
+            tc = time.perf_counter()
+            S = scipy.fft.ifft(S, axis=-2, workers=workers, overwrite_x=True)[..., : shape[1], :]
+            A[:, :, x0:x1] = scipy.fft.ifft(S, axis=-1, workers=workers)[..., : shape[2]]
+            fft_s += (tb - ta) + (time.perf_counter() - tc)
+            fourier_s += tc - tb
         t3 = time.perf_counter()
-        F = inverse_pruned(Q, shape, self.workers).astype(self.complex, copy=False)
-        del Q, Q_buf
+        F = np.ascontiguousarray(scipy.fft.ifft(A, axis=-3, workers=workers, overwrite_x=True)[:, :, : shape[0]],
+                                 dtype=self.complex)
+        del A
         t4 = time.perf_counter()
         F_buf = cl.Buffer(ctx.context, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=F)
         self._gather(F_buf, y_buffer, weights, defines, shape)
         queue.finish()
         t5 = time.perf_counter()
-        self._record(t1 - t0, (t2 - t1) + (t4 - t3), t3 - t2, t5 - t4)
+        self._record(t1 - t0, fft_s + (t4 - t3), fourier_s, t5 - t4)
+
+    def slab_planes(self, P: int) -> int:
+        """x frequencies per slab of the host FFTs: about SLAB_BYTES of spectrum (P, 8, ·, p_y, p_z)."""
+        plane = 8 * P * self.grid.padded[1] * self.grid.padded[2] * self.complex.itemsize
+        return max(1, SLAB_BYTES // plane)
 
     def _apply_device(self, P, x_buf, y_buffer, device_group, group):
         """Charges and fields on zero-padded device arrays; VkFFT on the device (GPUs)."""

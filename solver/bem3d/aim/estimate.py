@@ -6,7 +6,10 @@ each helper names what it counts.
 
 from __future__ import annotations
 
+import functools
 import math
+
+import numpy as np
 
 from wavebrdf.solver.bem3d.aim.continuation import FLUX_LEFT
 from wavebrdf.solver.bem3d.aim.green import grid_media
@@ -18,7 +21,7 @@ from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.surface import HeightField
 
-__all__ = ["estimate_aim"]
+__all__ = ["estimate_aim", "memory_breakdown"]
 
 
 def _continuation_cost(mesh: BEMMesh, options: AIMOptions, waist_um: float | None, near_entry: int, cplx: int,
@@ -39,12 +42,33 @@ def _continuation_cost(mesh: BEMMesh, options: AIMOptions, waist_um: float | Non
     return ring_pairs * near_entry + weights, 2e-5 * ring_elements + 3e-6 * ring_pairs, farfield
 
 
+_GRIDS: dict = {}  # AIM grids of recent estimates by (cells, size, relief in cells, grid options)
+
+
+def _grid(mesh: BEMMesh, grid_options):
+    """The AIM grid of ``mesh`` (patches of one size whose relief agrees within a cell share it:
+    a steered study's estimates then build a few grids, not one per patch)."""
+    surface = mesh.surface
+    key = (surface.cells, surface.size_um, round(float(np.ptp(surface.z)) / surface.spacing_um), grid_options)
+    if key not in _GRIDS:
+        if len(_GRIDS) >= 16:
+            _GRIDS.pop(next(iter(_GRIDS)))
+        _GRIDS[key] = build_grid(mesh, grid_options)
+    return _GRIDS[key]
+
+
+@functools.lru_cache(maxsize=64)
+def _near_nnz(cells: int, radius_cells: float) -> int:
+    """Near pairs (both orientations) within ``radius_cells`` on an N-cell patch."""
+    return int(NearPattern.build(cells, radius_cells).nnz())
+
+
 def _preconditioner_cost(cells: int, unknowns: int, options: AIMOptions) -> tuple[float, float]:
     """(peak bytes, seconds) of the near LU: SUPERLU_BYTES per factor entry of every tile, plus
     SuperLU's working memory while one tile is factored (0.06 × its factors). Fill 2.2 ln n − 12.6
     per LU of n unknowns fits 5.6 … 16.6 measured at 4·10³ … 6.4·10⁵ unknowns; time
     1.1e-9 nnz^1.5 per LU fits 42 s and 346–384 s at 1.2·10⁷ and 4.7·10⁷ entries (docs/aim.md)."""
-    near_nnz = 4 * NearPattern.build(cells, options.preconditioner_cells).nnz()  # (J, M) × (J, M) blocks
+    near_nnz = 4 * _near_nnz(cells, options.preconditioner_cells)  # (J, M) × (J, M) blocks
     per_axis = tiles_per_axis(cells, options.preconditioner_tile_cells)
     side = cells if per_axis == 1 else cells / per_axis + 2 * PRECONDITIONER_OVERLAP
     share = (side / cells) ** 2  # of the unknowns and near entries in one (extended) tile
@@ -54,69 +78,135 @@ def _preconditioner_cost(cells: int, unknowns: int, options: AIMOptions) -> tupl
     return one_tile * per_axis**2 + 0.06 * one_tile, seconds
 
 
+# Constants of the cost model, fitted to the stage breakdowns of benchmarks/bench_aim.py on the
+# 2-core development machine (docs/aim.md, "Memory and time at scale").
+RUNTIME_BYTES = 460 * 2**20  # interpreter, NumPy/SciPy, OpenCL runtime and built kernels
+ASSEMBLY_BYTES = 1.2 * 2**30  # near-field assembly: element tables and staging of one strip of pairs
+# the beam's fields and the surface power over blocks of elements (excitation.py ELEMENT_BLOCK):
+# measured 207 / 243 MB (excitation) and 220 / 204 MB (surface power) at 1.0·10⁵ / 4.1·10⁵ unknowns
+BLOCK_BYTES = 200 * 2**20
+EXCITATION_BYTES_PER_UNKNOWN = 100.0
+FARFIELD_PIXEL_BYTES = 16 * 2 * 36  # per output pixel: F (6), E, H (3 + 3) per polarization, CZT planes
+
+
 def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, exterior_index: float = 1.0,
-                 aim=None, directions: int = 1, waist_um: float | None = None) -> dict:
+                 aim=None, directions: int = 1, waist_um: float | None = None, resolution: int = 512,
+                 cache: dict | None = None) -> dict:
     """Memory and time of an AIM run before it starts (for ``wavebrdf plan``).
 
-    Returns ``unknowns``, ``near_nnz`` (stored near pairs), ``bytes`` (peak estimate) with its
-    parts, ``seconds`` (set-up + ``directions`` × both polarizations) and the grid sizes. The
-    time model uses throughputs measured on the 2-core development machine (docs/aim.md) and an
-    iteration count growing like the square root of the patch size in wavelengths. With
-    ``edge = "flat"`` it adds the continuation (``continuation_bytes``): the ring operator and the
-    extended mesh, whose size follows from ``waist_um`` (default L/2.5, a border at 1.25 w).
+    Returns ``unknowns``, ``near_nnz`` (stored near pairs), ``bytes`` (the peak: what is held
+    at a stage, ``held`` by part, plus that stage's transient, ``transient``; the set-up's
+    transients come before the preconditioner; :func:`memory_breakdown` prints them), ``seconds`` (set-up + ``directions`` × both
+    polarizations, with ``setup_s`` and ``product_s``), ``iterations_guess`` (products per
+    polarization) and the grid sizes. With ``edge = "flat"`` it adds the continuation: the ring
+    operator and the extended mesh, whose size follows from ``waist_um`` (default L/2.5, a border
+    at 1.25 w). ``resolution``: the output image side. ``cache``: a dict kept between estimates
+    of the same surface (the mesh and grids).
     """
     options = aim if isinstance(aim, AIMOptions) else AIMOptions.from_mapping(aim)
     media = Media(wavelength_um, index, exterior_index)
-    mesh = BEMMesh(surface)
+    cache = {} if cache is None else cache
+    mesh = cache.get("mesh") or cache.setdefault("mesh", BEMMesh(surface))
     d = mesh.spacing_um
     gm = grid_media(media, options.near_cells * d, options.interior_decay_tolerance)
-    grid = build_grid(mesh, options.grid_options(media, d, gm))
+    grid_options = options.grid_options(media, d, gm)
+    grid = cache.get(grid_options) or cache.setdefault(grid_options, _grid(mesh, grid_options))
     pattern = NearPattern.build(mesh.cells, options.near_cells)
-    n = mesh.n_unknowns
-    groups = len(gm) if options.projection == "farfield" else 1
+    n, n_b = mesh.n_unknowns, mesh.n_bases
+    farfield_matching = options.projection == "farfield"
+    groups = len(gm) if farfield_matching else 1
     real = 8 if options.precision == "double" else 4
     cplx = 2 * real
+    weight = cplx if farfield_matching else real
     near_entry = 24 if options.near_storage == "single" else 48
-    near_bytes = pattern.stored_entries() * near_entry
-    spectra = cplx * grid.padded_points * (len(gm) + 3) * groups
-    weights = 2 * cplx * 3 * grid.stencil_size * mesh.n_bases * groups  # by basis and by grid point (aim.cl)
-    work = cplx * grid.padded_points * 8 * 2 * 2  # 8 components, 2 right-hand sides, FFT temporaries
-    krylov = cplx * n * 2 * (options.restart + 3 if options.solver == "gmres" else 6)
-    preconditioner = preconditioner_s = 0.0
-    if options.preconditioner == "near":
-        preconditioner, preconditioner_s = _preconditioner_cost(mesh.cells, n, options)
     stored_pairs = int(pattern.stored_entries())
-    element_pairs = mesh.n_elements * math.pi * (options.near_cells + 1.5) ** 2
-    assembly_temp = 600_000 * 1100 * 2  # element tables + staging of one strip
-    farfield = 4300 * n  # far-field projection and sums (measured 2.7 GiB at 6.4·10⁵ unknowns)
+    S, padded = grid.stencil_size, grid.padded_points
+    compact = grid.points
+    P = 2  # polarizations side by side
+    held = {
+        "runtime": RUNTIME_BYTES,
+        "near field": stored_pairs * near_entry,
+        # per group: G of its media and the 3 precombined gradient spectra
+        "grid spectra": cplx * padded * (len(gm) + 3 * groups),
+        # weights by basis and by grid point (aim.cl), inverse map, origins
+        "projections": groups * 2 * 3 * S * n_b * weight + 4 * (compact + n_b * S) + 12 * n_b,
+        "preconditioner": 0.0,
+    }
+    preconditioner_s = 0.0
+    if options.preconditioner == "near":
+        held["preconditioner"], preconditioner_s = _preconditioner_cost(mesh.cells, n, options)
+    # Krylov vectors are complex128 (solver/krylov.py works in the rhs dtype: complex for the driver)
+    krylov = 16 * n * P * (options.restart + 4 if options.solver == "gmres" else 8)
+    nx, ny, nz = grid.shape
+    px = grid.padded[0]
+    slab = 3 * 64 * 2**20
+    transient = {
+        # the kernels' spectra in complex128 while sampled and transformed, one medium at a time
+        # (the near-field assembly also copies the projections in double for its grid subtraction)
+        "set-up": max(16 * padded * 6 + cplx * padded * (len(gm) + 3 * groups),
+                      ASSEMBLY_BYTES + groups * 3 * S * n_b * 16),
+        "excitation": BLOCK_BYTES + EXCITATION_BYTES_PER_UNKNOWN * n,
+        # host FFTs in slabs: x-transformed charges (8P, p_x, n_y, n_z) and the compact q / F
+        "products": krylov + cplx * 8 * P * (px * ny * nz + compact) + slab + 2 * 16 * n * P,
+        "far field": P * 6 * compact * max(cplx, 8) + FARFIELD_PIXEL_BYTES * resolution**2 + BLOCK_BYTES,
+    }
     continuation = continuation_s = 0.0
     if options.edge == "flat":
         continuation, continuation_s, farfield = _continuation_cost(mesh, options, waist_um, near_entry, cplx,
-                                                                     grid.stencil_size * groups)
-    total = (near_bytes + spectra + weights + work + krylov + preconditioner + assembly_temp + farfield
-             + continuation + 300 * 2**20)
+                                                                     S * groups)
+        held["continuation"] = continuation
+        transient["far field"] += farfield
+    # the set-up's transients come before the preconditioner and the continuation exist
+    before_preconditioner = sum(v for k, v in held.items() if k not in ("preconditioner", "continuation"))
+    total = max(before_preconditioner + transient["set-up"],
+                sum(held.values()) + max(v for k, v in transient.items() if k != "set-up"))
     # time model (seconds), constants from benchmarks/bench_aim.py on the 2-core machine
-    fft_points = grid.padded_points * 16 * groups
-    matvec_s = 2.5e-8 * fft_points * math.log2(max(grid.padded_points, 2)) / 20 + 4e-9 * stored_pairs * 2
+    fft_points = padded * 16 * groups
+    product_s = 2.5e-8 * fft_points * math.log2(max(padded, 2)) / 20 + 4e-9 * stored_pairs * 2
+    if options.precision == "single":
+        product_s *= 0.7  # single / double matvec 0.56–0.83 measured (docs/aim.md, Precision)
+    if options.preconditioner == "near":
+        product_s += 2.0 * held["preconditioner"] / SUPERLU_BYTES * 2e-9  # triangular solves, both polarizations
     size_waves = surface.size_um * exterior_index / wavelength_um
-    if options.preconditioner == "near":  # measured 7–43 products (docs/aim.md): a generous bound
-        iterations = 20 + 6 * math.sqrt(size_waves)
-    else:
-        iterations = 60 + 25 * math.sqrt(size_waves) * (1 + abs(media.index) / 4)
+    iterations = _products(options, size_waves, abs(media.index))
+    element_pairs = mesh.n_elements * math.pi * (options.near_cells + 1.5) ** 2
     setup_s = 2e-5 * element_pairs + 3e-6 * stored_pairs + preconditioner_s + continuation_s
-    seconds = setup_s + directions * iterations * matvec_s * 1.1
+    seconds = setup_s + directions * iterations * product_s * 1.1
     return {
         "unknowns": n,
         "near_nnz": stored_pairs,
         "bytes": int(total),
-        "near_bytes": int(near_bytes),
-        "spectra_bytes": int(spectra),
-        "work_bytes": int(work + krylov),
-        "preconditioner_bytes": int(preconditioner),
+        "held": {k: int(v) for k, v in held.items()},
+        "transient": {k: int(v) for k, v in transient.items()},
+        "near_bytes": int(held["near field"]),
+        "spectra_bytes": int(held["grid spectra"]),
+        "preconditioner_bytes": int(held["preconditioner"]),
         "continuation_bytes": int(continuation),
         "seconds": float(seconds),
+        "setup_s": float(setup_s),
+        "product_s": float(product_s),
         "iterations_guess": int(iterations),
         "grid": grid.shape,
         "fft": grid.padded,
         "grid_media": gm,
     }
+
+
+def _products(options: AIMOptions, size_waves: float, index_modulus: float) -> float:
+    """Operator products per polarization to the tolerance (measured, docs/aim.md "Memory and
+    time at scale"): with the whole near LU 13–30 (1.6·10⁴–6.4·10⁵ unknowns), 2.6 × that on
+    tiles. Without a preconditioner (MINRES) a fit through the three measured solves:
+    92 (|n|/4.74)^0.6 (L/λ)^0.62 — 93 products for glass at 3.2 wavelengths, 385 (429 / 341)
+    for rough aluminium at 10 and 781 (771 / 791) at 31 wavelengths."""
+    if options.preconditioner == "near":
+        whole = 20 + 6 * math.sqrt(size_waves)
+        return whole * (1.0 if options.preconditioner_tile_cells == 0 else 2.6)
+    return 92.0 * (index_modulus / 4.74) ** 0.6 * max(size_waves, 1.0) ** 0.62
+
+
+def memory_breakdown(estimate: dict) -> str:
+    """One line: the held parts and the largest transient of an :func:`estimate_aim` (GiB)."""
+    gib = 2**30
+    held = ", ".join(f"{k} {v / gib:.2f}" for k, v in estimate["held"].items() if v)
+    transients = ", ".join(f"{k} {v / gib:.2f}" for k, v in estimate["transient"].items())
+    return f"held {held}; transient {transients} GiB"

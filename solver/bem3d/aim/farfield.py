@@ -23,7 +23,7 @@ import numpy as np
 
 from wavebrdf.solver.bem3d.aim.convolution import projection_matrices
 from wavebrdf.solver.bem3d.aim.grid import GridOptions, build_grid
-from wavebrdf.solver.bem3d.aim.projection import project
+from wavebrdf.solver.bem3d.aim.projection import Projection, project
 from wavebrdf.solver.bem3d.farfield import fields_from_integrals
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
@@ -48,50 +48,62 @@ class GridFarField:
     upper hemisphere. The chirp-z transforms run on ``solver.opencl.fft_workers()`` threads.
     """
 
-    def __init__(self, mesh: BEMMesh, media: Media, output: HemisphereGrid, *,
+    def __init__(self, mesh: BEMMesh, media: Media, output: HemisphereGrid, *, projection: Projection | None = None,
                  grid_options: GridOptions | None = None, directions: int | None = None,
                  regularization: float = 1e-5):
         self.mesh = mesh
         self.media = media
         self.output = output
         self.workers = fft_workers()
-        self.grid = build_grid(mesh, grid_options or GridOptions(stencil=FARFIELD_STENCIL))
         k1 = media.k0 * media.exterior_index
         self.k = k1
-        self.projection = project(mesh, self.grid, "farfield", k=k1, hemisphere=True, order=FARFIELD_ORDER,
-                                  directions=directions or (3 * self.grid.stencil_size) // 2,
-                                  regularization=regularization)
-        self._mats = projection_matrices(self.projection, mesh.n_horizontal, 3)  # x, y, z
+        if projection is None:
+            grid = build_grid(mesh, grid_options or GridOptions(stencil=FARFIELD_STENCIL))
+            projection = project(mesh, grid, "farfield", k=k1, hemisphere=True, order=FARFIELD_ORDER,
+                                 directions=directions or (3 * grid.stencil_size) // 2,
+                                 regularization=regularization)
+        elif projection.method != "farfield" or not np.isclose(projection.wavenumber[0], k1) or \
+                len(projection.wavenumber) != 1:
+            raise ValueError("the far field needs point sources far-field matched at the exterior wavenumber alone")
+        self.grid = g = projection.grid
+        self.projection = projection
+        self._mats = projection_matrices(projection, mesh.n_horizontal, 3)  # x, y, z
         res = output.resolution
         s0, ds = -1.0 + 1.0 / res, 2.0 / res
-        g = self.grid
         self.czt = [ChirpZAxis.plan(k1, g.lattice_start[a] * g.spacing[a], g.spacing[a], g.shape[a], s0, ds, res)
                     for a in (0, 1)]
-        z = g.axis_coordinates(2)
-        mu = output.mu
-        self.plane_phase = np.exp(1j * k1 * mu[None] * z[:, None, None])  # (n_z, res, res)
+        self.plane_heights = g.axis_coordinates(2)
 
     def point_sources(self, x: np.ndarray) -> np.ndarray:
-        """Grid point sources h (P, 6, n_x, n_y, n_z) of [J_x, J_y, J_z, M_x, M_y, M_z], M = η₀M̃."""
+        """Grid point sources h (P, 6, n_x, n_y, n_z) of [J_x, J_y, J_z, M_x, M_y, M_z], M = η₀M̃, in
+        the projection's precision."""
         x = np.atleast_2d(x)
         nb = self.mesh.n_bases
         shape = self.grid.shape
-        out = np.empty((len(x), 6) + shape, dtype=complex)
+        dtype = np.result_type(self._mats[0].dtype, np.complex64)
+        out = np.empty((len(x), 6) + shape, dtype=dtype)
         for part, (xs, scale) in enumerate(((x[:, :nb], 1.0), (x[:, nb:], ETA0))):
+            xs = np.ascontiguousarray(xs.T, dtype=dtype)
             for c, m in enumerate(self._mats):
-                out[:, 3 * part + c] = scale * (m @ xs.T).T.reshape((len(x),) + shape)
+                out[:, 3 * part + c] = scale * (m @ xs).T.reshape((len(x),) + shape)
         return out
 
     def radiation_integrals(self, x: np.ndarray) -> np.ndarray:
-        """F (P, 6, res, res) = Σ_p h(p) e^{jk₁ r̂·p} at every pixel (zero outside the disk)."""
+        """F (P, 6, res, res) = Σ_p h(p) e^{jk₁ r̂·p} at every pixel (zero outside the disk).
+
+        Streamed over the grid's z planes: two chirp-z transforms of one plane at a time, summed
+        with the plane's phase e^{jk₁ μ z_l}, so no array holds every plane's transform."""
         h = self.point_sources(x)
         P = len(h)
         nx, ny, nz = self.grid.shape
         res = self.output.resolution
-        planes = np.moveaxis(h, -1, 2).reshape(P * 6 * nz, nx, ny)
-        out = self.czt[0](planes, axis=1, workers=self.workers)
-        out = self.czt[1](out, axis=2, workers=self.workers).reshape(P, 6, nz, res, res)
-        F = np.einsum("pclij,lij->pcij", out, self.plane_phase)
+        mu = self.output.mu
+        F = np.zeros((P, 6, res, res), dtype=complex)
+        for level, z in enumerate(self.plane_heights):
+            plane = h[..., level].reshape(P * 6, nx, ny)
+            out = self.czt[0](plane, axis=1, workers=self.workers)
+            out = self.czt[1](out, axis=2, workers=self.workers).reshape(P, 6, res, res)
+            F += out * np.exp(1j * self.k * z * mu)
         return np.where(self.output.inside, F, 0.0)
 
     def fields(self, x: np.ndarray):

@@ -36,6 +36,7 @@ from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.bem3d.quadrature import QuadratureOptions
 from wavebrdf.solver.krylov import KrylovResult, solve
 from wavebrdf.solver.progress import silent
+from wavebrdf.solver.stages import StageClock
 
 logger = logging.getLogger(__name__)
 
@@ -56,30 +57,48 @@ class GridPart:
     projection_s: float
 
     @classmethod
-    def build(cls, ctx, mesh: BEMMesh, media: Media, options: AIMOptions) -> "GridPart":
+    def build(cls, ctx, mesh: BEMMesh, media: Media, options: AIMOptions, clock: StageClock | None = None) -> "GridPart":
+        """Grid, projections (stored in the operator's precision: the kernels read them so) and
+        kernel spectra; ``clock`` records the stages "projection" and "grid spectra"."""
+        clock = clock or StageClock()
         t0 = time.perf_counter()
-        on_grid = grid_media(media, options.near_cells * mesh.spacing_um, options.interior_decay_tolerance)
-        grid = build_grid(mesh, options.grid_options(media, mesh.spacing_um, on_grid))
-        cdtype = np.complex128 if options.precision == "double" else np.complex64
-        if options.projection == "moments":
-            groups = [(project(mesh, grid, "moments", order=PROJECTION_ORDER), on_grid)]
-        else:
-            groups = [(project(mesh, grid, "farfield", k=media.wavenumbers[i].real, order=PROJECTION_ORDER,
-                               directions=options.directions or None, regularization=options.regularization), (i,))
-                      for i in on_grid]
+        with clock("projection"):
+            on_grid = grid_media(media, options.near_cells * mesh.spacing_um, options.interior_decay_tolerance)
+            grid = build_grid(mesh, options.grid_options(media, mesh.spacing_um, on_grid))
+            real = np.float64 if options.precision == "double" else np.float32
+            cdtype = np.result_type(real, np.complex64)
+            if options.projection == "moments":
+                groups = [(project(mesh, grid, "moments", order=PROJECTION_ORDER, dtype=real), on_grid)]
+            else:
+                groups = [(project(mesh, grid, "farfield", k=media.wavenumbers[i].real, order=PROJECTION_ORDER,
+                                   directions=options.directions or None, regularization=options.regularization,
+                                   dtype=real), (i,))
+                          for i in on_grid]
         t1 = time.perf_counter()
-        spectra = kernel_spectra(grid, media, on_grid, dtype=cdtype)
-        base = BaseOperator(ctx, mesh, [GridGroup.build(p, spectra, media, m, cdtype) for p, m in groups],
-                            precision=options.precision, fft=options.fft)
+        with clock("grid spectra"):
+            spectra = kernel_spectra(grid, media, on_grid, dtype=cdtype)
+            base = BaseOperator(ctx, mesh, [GridGroup.build(p, spectra, media, m, cdtype) for p, m in groups],
+                                precision=options.precision, fft=options.fft)
         return cls(on_grid, grid, groups, base, t1 - t0)
+
+    def exterior_projection(self, media: Media):
+        """The projection of the exterior medium's group when it is far-field matched at k₁ alone
+        (it then reproduces every rooftop's radiation integral: the far field's point sources),
+        else None."""
+        for projection, group_media in self.groups:
+            if (0 in group_media and projection.method == "farfield"
+                    and projection.wavenumber == (float(media.wavenumbers[0].real),)):
+                return projection
+        return None
 
 
 class AIMOperator:
     """Z x ≈ (B + C) x for one mesh, wavelength and material (see the module docstring)."""
 
     def __init__(self, ctx, mesh: BEMMesh, media: Media, options: AIMOptions | None = None, *,
-                 quadrature: QuadratureOptions | None = None, progress=None):
+                 quadrature: QuadratureOptions | None = None, progress=None, clock: StageClock | None = None):
         t0 = time.perf_counter()
+        self.clock = clock = clock or StageClock()
         self.ctx = ctx
         self.mesh = mesh
         self.media = media
@@ -88,22 +107,25 @@ class AIMOperator:
         self.dtype = np.complex128 if options.precision == "double" else np.complex64
         self.progress = progress or silent
         self.progress("projection", None)
-        grid_part = GridPart.build(ctx, mesh, media, options)
+        self.grid_part = grid_part = GridPart.build(ctx, mesh, media, options, clock)
         self.grid_media, self.grid, self.base = grid_part.media, grid_part.grid, grid_part.base
         groups = grid_part.groups
         t1, t2 = t0 + grid_part.projection_s, time.perf_counter()
-        self.pattern = NearPattern.build(mesh.cells, options.near_cells)
-        self.integrals = ElementIntegrals(mesh, quadrature or AIM_QUADRATURE, ctx)
         precondition = options.preconditioner == "near"
-        self.near = assemble_near(ctx, mesh, media, self.pattern, groups, integrals=self.integrals,
-                                  storage=options.near_storage, progress=progress,
-                                  exact_cells=options.preconditioner_cells if precondition else None)
-        if ctx is not None:
-            self.near.upload(ctx)
+        with clock("near field"):
+            self.pattern = NearPattern.build(mesh.cells, options.near_cells)
+            integrals = ElementIntegrals(mesh, quadrature or AIM_QUADRATURE, ctx)  # its tables go with it
+            self.near = assemble_near(ctx, mesh, media, self.pattern, groups, integrals=integrals,
+                                      storage=options.near_storage, progress=progress,
+                                      exact_cells=options.preconditioner_cells if precondition else None)
+            if ctx is not None:
+                self.near.upload(ctx)
         t3 = time.perf_counter()
+        self.preconditioner = None
         if precondition:
             self.progress("preconditioner", None)
-        self.preconditioner = NearPreconditioner(self.near, options.preconditioner_tile_cells) if precondition else None
+            with clock("preconditioner"):
+                self.preconditioner = NearPreconditioner(self.near, options.preconditioner_tile_cells)
         self.setup = {
             "projection_s": t1 - t0, "spectra_s": t2 - t1, "near_s": t3 - t2,
             "near_detail": dict(self.near.timings), "grid": self.grid.describe(),
@@ -162,23 +184,31 @@ class AIMOperator:
         return result
 
     def farfield(self, mesh: BEMMesh, x: np.ndarray, grid, rule=None, *, theta_i: float, phi_i: float,
-                 incident_power: np.ndarray, diagnostics: dict):
+                 incident_power: np.ndarray, diagnostics: dict, grid_part: GridPart | None = None):
         """The far field of the currents ``x`` on ``mesh`` (the patch's, or the extended mesh of the
-        flat continuation) from grid point sources by chirp-z transforms (farfield.py); ``rule``
-        is not used (the dense operator's direct sum needs it)."""
-        return self._grid_farfield(grid, mesh).farfield(x, theta_i=theta_i, phi_i=phi_i,
-                                                        incident_power=incident_power, diagnostics=diagnostics)
+        flat continuation, whose ``grid_part`` is then given) from grid point sources by chirp-z
+        transforms (farfield.py); ``rule`` is not used (the dense operator's direct sum needs it)."""
+        return self._grid_farfield(grid, mesh, grid_part).farfield(x, theta_i=theta_i, phi_i=phi_i,
+                                                                   incident_power=incident_power,
+                                                                   diagnostics=diagnostics)
 
-    def _grid_farfield(self, grid, mesh: BEMMesh) -> GridFarField:
+    def _grid_farfield(self, grid, mesh: BEMMesh, grid_part: GridPart | None = None) -> GridFarField:
         """The far-field transform of ``mesh`` onto ``grid``, kept (one extended mesh at a time:
-        its size follows the beam)."""
+        its size follows the beam). With ``farfield_sources = "operator"`` the point sources are
+        the operator's own exterior-medium projection (no second projection is built or held);
+        with "matched", or when the operator's projection is not far-field matched at k₁, a grid
+        of its own matched on the upper hemisphere."""
         key = (grid.resolution, mesh.cells)
         if key not in self._grid_farfields:
             if mesh is not self.mesh:
                 self._grid_farfields = {k: v for k, v in self._grid_farfields.items() if k[1] == self.mesh.cells}
             o = self.options
+            part = self.grid_part if mesh is self.mesh else grid_part
+            projection = None
+            if o.farfield_sources == "operator" and part is not None:
+                projection = part.exterior_projection(self.media)
             self._grid_farfields[key] = GridFarField(
-                mesh, self.media, grid, grid_options=GridOptions(stencil=o.farfield_stencil),
+                mesh, self.media, grid, projection=projection, grid_options=GridOptions(stencil=o.farfield_stencil),
                 directions=o.farfield_directions or None, regularization=o.farfield_regularization)
         return self._grid_farfields[key]
 

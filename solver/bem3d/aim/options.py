@@ -18,7 +18,7 @@ from wavebrdf.solver.bem3d.quadrature import QuadratureOptions
 from wavebrdf.solver.krylov import KRYLOV_METHODS
 from wavebrdf.solver.options import option, parse_options
 
-__all__ = ["AIM_QUADRATURE", "EDGES", "PRECONDITIONERS", "AIMOptions"]
+__all__ = ["AIM_QUADRATURE", "EDGES", "FARFIELD_SOURCES", "PRECONDITIONERS", "AIMOptions"]
 
 # Element integrals of the near field: looser than the dense default (1e-6, static order 8). The
 # dense solver's own study (docs/bem3d.md, rough aluminium) measured a BRDF change of 2e-6 for
@@ -27,6 +27,7 @@ AIM_QUADRATURE = QuadratureOptions(tolerance=1e-4, static_order=5)
 
 PRECONDITIONERS = ("near", "none")
 EDGES = ("pinned", "flat")  # AIMOptions.edge
+FARFIELD_SOURCES = ("operator", "matched")  # AIMOptions.farfield_sources
 
 
 @dataclass(frozen=True)
@@ -53,12 +54,19 @@ class AIMOptions:
     preconditioner      "near" (sparse LU of the exact entries within preconditioner_cells) | "none"
     preconditioner_cells   radius of the preconditioner's pairs (cells)
     preconditioner_tile_cells   side of the preconditioner's LU tiles in cells (0: one LU)
-    farfield_stencil, farfield_directions, farfield_regularization   far-field projection
-                        (upper hemisphere, its own grid with Δ = 1.6 d)
+    farfield_sources    "operator": the far field's point sources are the operator's own
+                        exterior-medium projection (no second projection) | "matched": a grid
+                        of their own, matched on the upper hemisphere (the options below)
+    farfield_stencil, farfield_directions, farfield_regularization   the "matched" far-field
+                        projection (upper hemisphere, its own grid with Δ = 1.6 d)
     edge                "pinned": the currents stop at the patch border (the beam must have
                         decayed there) | "flat": the surface goes on as the flat interface beyond
                         the border, with its closed-form currents (continuation.py; exact beam,
                         border in one plane)
+    fit_memory          true: the planner may change precision, preconditioner, its tiles, the
+                        solver and the restart so that the solve fits the memory a task may use
+                        ([run] memory_gb or the node, over the tasks at once; budget.py), and
+                        says what it chose; false: refuse settings that do not fit
     """
 
     near_cells: float = option(6.0, low=0, low_open=True)
@@ -81,10 +89,12 @@ class AIMOptions:
     preconditioner: str = option("near", choices=PRECONDITIONERS)
     preconditioner_cells: float = option(2.3, low=0, low_open=True)
     preconditioner_tile_cells: int = option(0, low=0)
+    farfield_sources: str = option("operator", choices=FARFIELD_SOURCES)
     farfield_stencil: tuple[int, int, int] = option(FARFIELD_STENCIL, length=3, low=0)
     farfield_directions: int = option(0, low=0)
     farfield_regularization: float = option(1e-5, low=0, low_open=True, high=1, high_open=True)
     edge: str = option("pinned", choices=EDGES)
+    fit_memory: bool = option(True)
 
     def __post_init__(self):
         if self.edge not in EDGES:

@@ -1,0 +1,146 @@
+"""AIM settings that fit a memory budget: :func:`fit_to_budget`.
+
+The largest memory of an AIM solve is its preconditioner (the sparse LU of the near block, whose
+fill grows with the patch), then the near field, the FFT grids and the Krylov basis
+(estimate.py). Given the memory one task may use, the planner tries, from the settings as given,
+the settings that trade time for memory — single precision (kernels, FFTs, grid spectra and
+projections; the accuracy cost is measured in docs/aim.md), the LU on tiles of the patch
+(restricted additive Schwarz: more products, less fill), no preconditioner (the complex-symmetric
+MINRES "csym", six vectors), and for a lossy material whose
+interior field is still on the grid, the near radius at which it decays within the near field
+(green.py ``grid_media``: the interior then leaves the grid, halving its FFTs, spectra and
+projections for a larger near field) — and keeps the one with the shortest predicted time among
+those that fit. It says what it changed and what that costs
+(:meth:`BudgetFit.summary`). When nothing fits it returns the settings of the smallest need
+(``fits`` false), which the batch layer's memory check then refuses (jobs/plan.py
+``check_memory``), naming that need. ``[model.aim] fit_memory = false`` keeps the settings as
+given (refused there if they do not fit).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+from wavebrdf.solver.bem3d.aim.estimate import estimate_aim
+from wavebrdf.solver.bem3d.aim.green import grid_media
+from wavebrdf.solver.bem3d.aim.options import AIMOptions
+from wavebrdf.solver.bem3d.media import Media
+from wavebrdf.solver.surface import HeightField
+
+__all__ = ["BudgetFit", "FITTED_KEYS", "candidate_options", "fit_to_budget", "interior_leaves_grid_cells"]
+
+FITTED_KEYS = ("precision", "near_cells", "preconditioner", "preconditioner_tile_cells", "solver", "restart")
+MIN_TILE_CELLS = 24  # smaller LU tiles barely cut the products (docs/aim.md)
+
+
+@dataclass(frozen=True)
+class BudgetFit:
+    """The settings chosen for a budget, their estimate, and those given with theirs."""
+
+    options: AIMOptions
+    estimate: dict
+    given: AIMOptions
+    given_estimate: dict
+    budget_bytes: float
+    fits: bool = True
+
+    @property
+    def changed(self) -> dict:
+        """{key: (given, chosen)} of the settings the fit changed."""
+        return {k: (getattr(self.given, k), getattr(self.options, k)) for k in FITTED_KEYS
+                if getattr(self.given, k) != getattr(self.options, k)}
+
+    def summary(self) -> str:
+        """One line: what was chosen, its memory and time, and the given settings' need."""
+        gib = 2**30
+        e, g = self.estimate, self.given_estimate
+        chosen = (f"{e['bytes'] / gib:.2f} GiB, {e['seconds']:.0f} s, ~{e['iterations_guess']} products per "
+                  f"polarization")
+        if not self.fits:
+            return (f"no aim settings fit {self.budget_bytes / gib:.1f} GiB; the smallest need: "
+                    f"{', '.join(f'{k} = {getattr(self.options, k)!r}' for k in FITTED_KEYS)} ({chosen})")
+        if not self.changed:
+            return f"aim settings as given fit {self.budget_bytes / gib:.1f} GiB: {chosen}"
+        what = ", ".join(f"{k} {a!r} -> {b!r}" for k, (a, b) in self.changed.items())
+        return (f"aim settings fitted to {self.budget_bytes / gib:.1f} GiB: {what} ({chosen}; as given "
+                f"{g['bytes'] / gib:.2f} GiB, {g['seconds']:.0f} s)")
+
+
+def _tile_sizes(cells: int) -> list[int]:
+    """LU tile sides: the patch split into 2, 3, 4, 6, 8 … tiles per side, down to MIN_TILE_CELLS."""
+    sizes = []
+    for parts in (2, 3, 4, 6, 8, 12, 16):
+        side = -(-cells // parts)
+        if side < MIN_TILE_CELLS:
+            break
+        sizes.append(side)
+    return sizes
+
+
+def interior_leaves_grid_cells(options: AIMOptions, media: Media, spacing_um: float) -> float | None:
+    """The smallest near radius (cells, in half cells up to twice ``near_cells``) at which the
+    interior medium leaves the grid, or None (already off the grid, or never within that)."""
+    def on_grid(cells):
+        return 1 in grid_media(media, cells * spacing_um, options.interior_decay_tolerance)
+
+    if not on_grid(options.near_cells):
+        return None
+    cells = options.near_cells
+    while cells < 2 * options.near_cells:
+        cells += 0.5
+        if not on_grid(cells):
+            return cells
+    return None
+
+
+def candidate_options(options: AIMOptions, cells: int, media: Media | None = None,
+                      spacing_um: float | None = None) -> list[AIMOptions]:
+    """The settings the planner may choose from, ``options`` first (see the module docstring);
+    ``media`` and ``spacing_um`` (µm) allow the near radius that takes the interior off the grid."""
+    out = [options]
+    precisions = [options.precision] + (["single"] if options.precision == "double" else [])
+    radii = [options.near_cells]
+    if media is not None and spacing_um is not None:
+        off = interior_leaves_grid_cells(options, media, spacing_um)
+        radii += [] if off is None else [off]
+    for precision in precisions:
+        for radius in radii:
+            base = replace(options, precision=precision, near_cells=radius)
+            if base.preconditioner == "near":
+                out.append(replace(base, preconditioner_tile_cells=0))
+                out += [replace(base, preconditioner_tile_cells=t) for t in _tile_sizes(cells)]
+            # without a preconditioner: MINRES "csym" (six vectors; measured at 6.4·10⁵ unknowns),
+            # not restarted GMRES, whose products at hundreds of iterations were never measured
+            out.append(replace(base, preconditioner="none", solver="csym"))
+    unique = []
+    for o in out:
+        if o not in unique:
+            unique.append(o)
+    return unique
+
+
+def fit_to_budget(surface: HeightField, wavelength_um: float, index: complex, options: AIMOptions,
+                  budget_bytes: float, *, exterior_index: float = 1.0, waist_um: float | None = None,
+                  directions: int = 1, resolution: int = 512) -> BudgetFit:
+    """The fastest predicted settings whose estimated memory fits ``budget_bytes`` (bytes); when
+    none fits, those of the smallest need (``fits`` false). With ``options.fit_memory`` false
+    only ``options`` is considered."""
+    cache: dict = {}
+
+    def estimate(o):
+        return estimate_aim(surface, wavelength_um, index, exterior_index=exterior_index, aim=o,
+                            directions=directions, waist_um=waist_um, resolution=resolution, cache=cache)
+
+    given_estimate = estimate(options)
+    if given_estimate["bytes"] <= budget_bytes:
+        return BudgetFit(options, given_estimate, options, given_estimate, budget_bytes)
+    tried = [(options, given_estimate)]
+    if options.fit_memory:
+        media = Media(wavelength_um, index, exterior_index)
+        tried += [(o, estimate(o)) for o in candidate_options(options, surface.cells, media, surface.spacing_um)[1:]]
+    fitting = [(o, e) for o, e in tried if e["bytes"] <= budget_bytes]
+    if not fitting:
+        smallest, e = min(tried, key=lambda oe: oe[1]["bytes"])
+        return BudgetFit(smallest, e, options, given_estimate, budget_bytes, fits=False)
+    best, e = min(fitting, key=lambda oe: oe[1]["seconds"])
+    return BudgetFit(best, e, options, given_estimate, budget_bytes)

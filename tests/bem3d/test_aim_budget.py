@@ -1,0 +1,101 @@
+"""The planner fits the AIM settings to the memory a task may use (solver/bem3d/aim/budget.py).
+
+What is checked here is the choice, against the estimates it is made from; the estimates
+themselves are compared with measured runs in docs/aim.md ("Memory and time at scale",
+``benchmarks/bench_aim.py subarea``).
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from wavebrdf.jobs.config import load_config
+from wavebrdf.jobs.plan import PlanError, check_memory, plan_study
+from wavebrdf.solver.bem3d.aim.budget import FITTED_KEYS, candidate_options, fit_to_budget
+from wavebrdf.solver.bem3d.aim.estimate import estimate_aim, memory_breakdown
+from wavebrdf.solver.bem3d.aim.options import AIMOptions
+from wavebrdf.solver.bem3d.media import Media
+from wavebrdf.solver.surface import generate
+
+AL = 0.46582 - 4.7119j
+GIB = 2**30
+
+
+@pytest.fixture(scope="module")
+def surface():
+    return generate("gaussian", cells=200, size_um=5.0, seed=1, rms_height_um=0.05, correlation_um=0.5)
+
+
+def _estimates(surface, options):
+    media = Media(0.4, AL)
+    return [(o, estimate_aim(surface, 0.4, AL, aim=o)) for o in candidate_options(options, surface.cells, media, surface.spacing_um)]
+
+
+def test_settings_that_fit_are_kept(surface):
+    given = AIMOptions()
+    need = estimate_aim(surface, 0.4, AL, aim=given)["bytes"]
+    fit = fit_to_budget(surface, 0.4, AL, given, 2 * need)
+    assert fit.fits and fit.options == given and not fit.changed
+    assert "as given" in fit.summary()
+
+
+def test_a_tight_budget_gets_the_fastest_settings_that_fit(surface):
+    given = AIMOptions()
+    table = _estimates(surface, given)
+    need = table[0][1]["bytes"]
+    smallest = min(e["bytes"] for _, e in table)
+    assert smallest < 0.8 * need  # the candidates do trade memory
+    budget = 0.5 * (need + smallest)
+    fit = fit_to_budget(surface, 0.4, AL, given, budget)
+    assert fit.fits and fit.estimate["bytes"] <= budget
+    assert fit.changed and set(fit.changed) <= set(FITTED_KEYS)
+    fastest = min(e["seconds"] for _, e in table if e["bytes"] <= budget)
+    assert fit.estimate["seconds"] == pytest.approx(fastest)
+    assert all(k in fit.summary() for k in fit.changed)
+
+
+def test_nothing_fits_gives_the_smallest_need_and_fit_memory_false_keeps_the_settings(surface):
+    given = AIMOptions()
+    table = _estimates(surface, given)
+    smallest = min(e["bytes"] for _, e in table)
+    fit = fit_to_budget(surface, 0.4, AL, given, 0.5 * smallest)
+    assert not fit.fits and fit.estimate["bytes"] == smallest
+    strict = fit_to_budget(surface, 0.4, AL, AIMOptions(fit_memory=False), 0.9 * table[0][1]["bytes"])
+    assert not strict.fits and strict.options == AIMOptions(fit_memory=False)
+
+
+def test_the_breakdown_adds_up(surface):
+    e = estimate_aim(surface, 0.4, AL, aim=AIMOptions(), resolution=256)
+    held, transient = e["held"], e["transient"]
+    late = sum(held.values()) + max(v for k, v in transient.items() if k != "set-up")
+    early = sum(held.values()) - held["preconditioner"] + transient["set-up"]
+    assert e["bytes"] == pytest.approx(max(early, late), abs=8)
+    assert "near field" in memory_breakdown(e) and "preconditioner" in memory_breakdown(e)
+
+
+CONFIG = {
+    "study": {"name": "budget", "output": "out/budget.h5"},
+    "surface": {"generator": "gaussian", "size_um": 5.0, "cells": 200, "rms_height_um": 0.05, "correlation_um": 0.5,
+                "seed": 1},
+    "material": {"n": 0.46582, "kappa": 4.7119},
+    "illumination": {"wavelengths_um": [0.4], "directions_deg": [[0, 0]], "waist_um": 1.0},
+    "model": {"name": "bem", "method": "aim"},
+    "output": {"resolution": 64},
+}
+
+
+def test_plan_and_run_use_the_settings_fitted_to_run_memory_gb(surface):
+    given = estimate_aim(surface, 0.4, AL, aim=AIMOptions(), resolution=64, waist_um=1.0)["bytes"]
+    table = [e["bytes"] for _, e in _estimates(surface, AIMOptions())]
+    memory_gb = 0.5 * (given + min(table)) / GIB
+    plan = plan_study(load_config({**CONFIG, "run": {"memory_gb": memory_gb}}))
+    task = plan.tasks[0]
+    estimate = plan.estimate(task)
+    assert estimate.memory_bytes <= memory_gb * GIB
+    check_memory(plan, 1, memory_gb)  # fits: no PlanError
+    model = plan.model_spec(task).build()
+    chosen = model.aim_options(plan.scene(task))  # what the run builds its operator with
+    assert chosen != AIMOptions() and any(f"{k} = " in estimate.detail for k in FITTED_KEYS)
+    tiny = plan_study(load_config({**CONFIG, "run": {"memory_gb": 0.5 * min(table) / GIB}}))
+    with pytest.raises(PlanError, match="GiB"):
+        check_memory(tiny, 1, 0.5 * min(table) / GIB)

@@ -1,0 +1,61 @@
+"""Per-stage time and memory (solver/stages.py) against what the stages really did."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from wavebrdf.solver.resources import peak_memory_mb, peak_resident_bytes, reset_peak_memory
+from wavebrdf.solver.stages import StageClock, format_stages
+
+MB = 2**20
+
+
+def _touch(megabytes: int) -> np.ndarray:
+    a = np.empty(megabytes * MB, dtype=np.uint8)
+    a[::4096] = 1  # every page resident
+    return a
+
+
+def test_a_stage_sees_its_own_peak_and_growth():
+    clock = StageClock()
+    with clock("temporary"):
+        del_me = _touch(300)
+        del del_me
+    with clock("kept"):
+        kept = _touch(200)
+    t, k = clock.stages["temporary"], clock.stages["kept"]
+    if np.isnan(t["peak_mb"]) or t["peak_mb"] == 0:
+        pytest.fail("this kernel does not let a process reset its peak RSS (/proc/self/clear_refs)")
+    assert t["peak_mb"] - (t["rss_mb"] - t["grew_mb"]) >= 290  # the 300 MB were resident inside the stage
+    assert t["grew_mb"] < 50  # and given back (large arrays are mmapped)
+    assert k["grew_mb"] >= 190 and k["peak_mb"] >= k["rss_mb"] - 1
+    assert kept.sum() > 0
+    assert "temporary" in format_stages(clock.as_dict())
+
+
+def test_nested_stages_and_the_process_peak_survive_the_resets():
+    reset_peak_memory()
+    outer_clock, inner_clock = StageClock(), StageClock()
+    with outer_clock("outer"):
+        a = _touch(250)
+        del a
+        with inner_clock("inner"):  # its reset must not hide the outer stage's earlier peak
+            b = _touch(50)
+            del b
+    base = outer_clock.stages["outer"]["rss_mb"]
+    assert outer_clock.stages["outer"]["peak_mb"] >= base + 240
+    assert inner_clock.stages["inner"]["peak_mb"] < base + 150
+    assert peak_resident_bytes() / MB >= base + 240  # a measurement's peak (compare's MeasuringProcess)
+    assert peak_memory_mb() >= base + 240  # the task's peak (jobs/tasks.py)
+
+
+def test_repeated_stages_accumulate_time_and_keep_the_largest_memory():
+    clock = StageClock()
+    for size in (100, 20):
+        with clock("direction"):
+            a = _touch(size)
+            del a
+    d = clock.stages["direction"]
+    assert d["calls"] == 2 and d["wall_s"] > 0
+    assert d["peak_mb"] - (d["rss_mb"] - d["grew_mb"]) >= 90
