@@ -10,6 +10,8 @@
     .venv/bin/python benchmarks/bench_aim.py truncation        # dense vs AIM on that geometry at d = λ/8
     .venv/bin/python benchmarks/bench_aim.py continuation      # a bump: continued vs pinned patches, glass and Al
     .venv/bin/python benchmarks/bench_aim.py scale             # 12.5 µm aluminium, d = λ/12.8 (~6.4e5 unknowns)
+    .venv/bin/python benchmarks/bench_aim.py subarea           # the reference's 12 µm sub-area (919 680 unknowns),
+                                                               # settings fitted to --memory-gb; --cells for smaller
 
 Every run prints the machine load (other agents share the 2 cores): compare ratios measured in
 one run, not absolute times. CPU seconds and peak memory come from getrusage.

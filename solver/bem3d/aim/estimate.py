@@ -81,7 +81,7 @@ def _preconditioner_cost(cells: int, unknowns: int, options: AIMOptions) -> tupl
 # Constants of the cost model, fitted to the stage breakdowns of benchmarks/bench_aim.py on the
 # 2-core development machine (docs/aim.md, "Memory and time at scale").
 RUNTIME_BYTES = 460 * 2**20  # interpreter, NumPy/SciPy, OpenCL runtime and built kernels
-ASSEMBLY_BYTES = 1.2 * 2**30  # near-field assembly: element tables and staging of one strip of pairs
+ASSEMBLY_BYTES = 0.75 * 2**30  # near-field assembly above what it keeps: element tables, one strip of pairs (fit: 36 480 and 101 760 unknowns)
 # the beam's fields and the surface power over blocks of elements (excitation.py ELEMENT_BLOCK):
 # measured 207 / 243 MB (excitation) and 220 / 204 MB (surface power) at 1.0·10⁵ / 4.1·10⁵ unknowns
 BLOCK_BYTES = 200 * 2**20
