@@ -102,6 +102,7 @@ def cmd_run(args) -> int:
         comm = MPI.COMM_WORLD
     plan = plan_study(config)
     per_node = {"mpi": launch.local_size if launch else 1, "processes": workers}.get(executor, 1)
+    plan.tasks_per_node = per_node  # the AIM settings are fitted to the memory each of them may use
     check_memory(plan, per_node, study.run.memory_gb, device=device_info(args.device))
     make_output_folder(config.output)
     lock = OutputLock(config.output)
@@ -178,8 +179,6 @@ def cmd_plan(args) -> int:
     overrides = list(args.set or [])
     if args.memory_gb:  # the tasks' budget too: the AIM solver fits its settings to it
         overrides.append(("run.memory_gb", args.memory_gb))
-    if args.workers:
-        overrides.append(("run.workers", args.workers))
     config = load_config(args.config, overrides=overrides)
     study = config.cases[0]
     plan = plan_study(config)
@@ -188,6 +187,7 @@ def cmd_plan(args) -> int:
 
     executor = "serial" if study.run.executor == "auto" else study.run.executor
     workers = args.workers or workers_per_node(executor, None, study)  # what `run` would use
+    plan.tasks_per_node = workers  # the AIM settings are fitted to the memory each task may use
     estimates = [plan.estimate(t) for t in plan.tasks]
     budget = check_memory(plan, workers, args.memory_gb or study.run.memory_gb, device=device_info(),
                           estimates=estimates)

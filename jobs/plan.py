@@ -89,6 +89,7 @@ class Plan:
     tasks: list[Task] = field(default_factory=list)
     steering: dict[int, CaseSteering] = field(default_factory=dict)
     _geometry: dict = field(default_factory=dict, repr=False)  # built height fields / cross sections
+    tasks_per_node: int | None = None  # set by `plan`/`run` to what they check memory with (None: from [run])
 
     @property
     def study(self) -> Study:
@@ -198,8 +199,10 @@ class Plan:
         from wavebrdf.jobs.batch import workers_per_node
 
         study = self.config.cases[case]
-        executor = "serial" if study.run.executor == "auto" else study.run.executor
         node = study.run.memory_gb * 2**30 if study.run.memory_gb else node_memory_bytes()
+        if self.tasks_per_node is not None:
+            return node / max(1, self.tasks_per_node)
+        executor = "serial" if study.run.executor == "auto" else study.run.executor
         return node / max(1, workers_per_node(executor, None, study))
 
     def fiber_scene(self, task: Task) -> FiberScene:

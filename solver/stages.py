@@ -9,6 +9,7 @@ largest memory figures. Memory is in MB (2²⁰ bytes), NaN where /proc is missi
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from contextlib import contextmanager
@@ -18,6 +19,11 @@ from wavebrdf.solver.resources import resident_memory_mb, restart_stage_peak, st
 __all__ = ["StageClock", "format_stages"]
 
 _open_peaks: list[list[float]] = []  # running peak (bytes) of every open stage, outermost first
+
+
+def _larger(a: float, b: float) -> float:
+    """max(a, b), NaN if either is NaN (a figure that could not be measured stays unknown)."""
+    return math.nan if a != a or b != b else max(a, b)
 
 
 class StageClock:
@@ -41,16 +47,18 @@ class StageClock:
         finally:
             cpu1, t1 = os.times(), time.perf_counter()
             _open_peaks.remove(running)
-            peak, after = max(running[0], stage_peak_bytes()) / 2**20, resident_memory_mb()
+            raw = stage_peak_bytes()
+            peak = max(running[0], raw) / 2**20 if raw == raw else math.nan  # NaN where /proc is missing
+            after = resident_memory_mb() if raw == raw else math.nan
             entry = self.stages.setdefault(name, {"wall_s": 0.0, "user_s": 0.0, "system_s": 0.0, "calls": 0,
                                                   "rss_mb": 0.0, "peak_mb": 0.0, "grew_mb": 0.0})
             entry["wall_s"] += t1 - t0
             entry["user_s"] += cpu1.user - cpu0.user
             entry["system_s"] += cpu1.system - cpu0.system
             entry["calls"] += 1
-            entry["rss_mb"] = max(entry["rss_mb"], after)
-            entry["peak_mb"] = max(entry["peak_mb"], peak)
-            entry["grew_mb"] = max(entry["grew_mb"], after - before)
+            entry["rss_mb"] = _larger(entry["rss_mb"], after)
+            entry["peak_mb"] = _larger(entry["peak_mb"], peak)
+            entry["grew_mb"] = _larger(entry["grew_mb"], after - before)
 
     def merge(self, other: "StageClock | dict") -> None:
         """Add another clock's stages (a sub-solver's) under their names."""

@@ -80,7 +80,8 @@ class BEMModel(Model):
         # patches of one size whose height ranges agree within a cell share a fit (the estimate
         # sees the heights only through the grid's extent), so a steered study plans quickly
         surface = scene.surface
-        relief = round(float(np.ptp(surface.z)) / surface.spacing_um)
+        ptp = float(np.ptp(surface.z))
+        relief = (round(ptp / surface.spacing_um), ptp == 0.0)  # a flat patch's grid has one z plane
         key = (surface.cells, surface.size_um, relief, scene.wavelength_um, complex(scene.index),
                scene.exterior_index, scene.waist_um, aim, scene.memory_budget_bytes, scene.grid.resolution)
         if key not in self._fits:

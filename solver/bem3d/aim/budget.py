@@ -29,7 +29,7 @@ from wavebrdf.solver.surface import HeightField
 
 __all__ = ["BudgetFit", "FITTED_KEYS", "candidate_options", "fit_to_budget", "interior_leaves_grid_cells"]
 
-FITTED_KEYS = ("precision", "near_cells", "preconditioner", "preconditioner_tile_cells", "solver", "restart")
+FITTED_KEYS = ("precision", "near_cells", "preconditioner", "preconditioner_tile_cells", "solver")
 MIN_TILE_CELLS = 24  # smaller LU tiles barely cut the products (docs/aim.md)
 
 

@@ -49,7 +49,8 @@ def _grid(mesh: BEMMesh, grid_options):
     """The AIM grid of ``mesh`` (patches of one size whose relief agrees within a cell share it:
     a steered study's estimates then build a few grids, not one per patch)."""
     surface = mesh.surface
-    key = (surface.cells, surface.size_um, round(float(np.ptp(surface.z)) / surface.spacing_um), grid_options)
+    ptp = float(np.ptp(surface.z))
+    key = (surface.cells, surface.size_um, round(ptp / surface.spacing_um), ptp == 0.0, grid_options)
     if key not in _GRIDS:
         if len(_GRIDS) >= 16:
             _GRIDS.pop(next(iter(_GRIDS)))

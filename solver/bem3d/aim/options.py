@@ -63,8 +63,8 @@ class AIMOptions:
                         decayed there) | "flat": the surface goes on as the flat interface beyond
                         the border, with its closed-form currents (continuation.py; exact beam,
                         border in one plane)
-    fit_memory          true: the planner may change precision, preconditioner, its tiles, the
-                        solver and the restart so that the solve fits the memory a task may use
+    fit_memory          true: the planner may change precision, near_cells, preconditioner, its
+                        tiles and the solver so that the solve fits the memory a task may use
                         ([run] memory_gb or the node, over the tasks at once; budget.py), and
                         says what it chose; false: refuse settings that do not fit
     """
