@@ -1,4 +1,5 @@
-"""Per-stage time and memory (solver/stages.py) against what the stages really did."""
+"""Per-stage time and memory (solver/stages.py) against what the stages really did, and the BLAS
+thread limit (solver/resources.py)."""
 
 from __future__ import annotations
 
@@ -59,3 +60,21 @@ def test_repeated_stages_accumulate_time_and_keep_the_largest_memory():
     d = clock.stages["direction"]
     assert d["calls"] == 2 and d["wall_s"] > 0
     assert d["peak_mb"] - (d["rss_mb"] - d["grew_mb"]) >= 90
+
+
+def test_one_blas_thread_limits_every_loaded_blas_and_lifts_the_limit():
+    """SuperLU's factorization runs under one_blas_thread (solver/bem3d/aim/preconditioner.py):
+    inside, numpy's and scipy's BLAS libraries report one thread; after, their own counts again."""
+    import scipy.sparse.linalg  # noqa: F401  (loads scipy's own OpenBLAS)
+    from threadpoolctl import threadpool_info
+
+    from wavebrdf.solver.resources import one_blas_thread
+
+    def counts():
+        return {lib["filepath"]: lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"}
+
+    before = counts()
+    assert len(before) >= 2  # numpy's and scipy's
+    with one_blas_thread():
+        assert set(counts().values()) == {1}
+    assert counts() == before

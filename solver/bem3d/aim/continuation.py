@@ -149,10 +149,12 @@ class FlatContinuation:
         # ring rooftops: near + grid through the ring mesh's operator
         op = self.ring_operator
         y_ring = op.matvec(c[:, unknown_indices(ring, nb_ext)].astype(op.dtype))
+        op.base.release_work()
         # the rest: grid part of the extended mesh (beyond the near radius of every patch rooftop)
         outer = c.copy()
         outer[:, unknown_indices(ring, nb_ext)] = 0.0
         y_outer = grid_part.base.apply(outer.astype(grid_part.base.complex))
+        grid_part.base.release_work()  # one product per direction: its arrays are not worth keeping
         field = (y_ring[:, unknown_indices(self._patch_in_ring, nb_ring)]
                  + y_outer[:, unknown_indices(patch, nb_ext)])
         return c, field.astype(complex)

@@ -206,6 +206,7 @@ class BaseOperator:
         self.timings = {"scatter_s": 0.0, "fft_s": 0.0, "fourier_s": 0.0, "gather_s": 0.0, "calls": 0}
         self._mats = None
         self._vkfft: dict = {}
+        self._host: dict = {}
         if ctx is not None:
             self._upload()
 
@@ -299,56 +300,78 @@ class BaseOperator:
             np.int32(sz), np.int32(self.n_b), np.int32(self.n_h), weights[0], F_buf, y_buffer)
 
     def _apply_host(self, P, x_buf, y_buffer, device_group, group):
-        """Charges and fields on compact host arrays; pruned scipy FFTs on the host, in slabs.
+        """Charges and fields on host arrays kept between products; pruned scipy FFTs, in slabs.
 
-        The x transform runs first on the compact charges (P, 8, p_x, n_y, n_z); then slab by
-        slab of x frequencies the y and z transforms, the Fourier product and their inverses, back
-        into the same array; then the inverse x transform keeps the compact block. No array holds
-        the whole padded spectrum (8P · p_x p_y p_z samples): the largest is 8P · p_x n_y n_z."""
-        import pyopencl as cl
-
-        ctx, queue = self.ctx, self.ctx.queue
-        mf = cl.mem_flags
+        The charges are scattered into the first n_x planes of A (P, 8, p_x, n_y, n_z) and x
+        transformed in place; then slab by slab of x frequencies the y and z transforms, the
+        Fourier product and their inverses run on a slab array (P, 8, ·, p_y, p_z) and go back
+        into A; the inverse x transform leaves the fields in A's first n_x planes, where the
+        gather reads them. No array holds the whole padded spectrum (8P · p_x p_y p_z samples).
+        A and the slab are kept (``_host_work``): fresh arrays of this size would be mapped and
+        page-faulted in again every product (system time; ``release_work`` frees them)."""
+        queue = self.ctx.queue
         weights, green, gradient, coef, cw = device_group
         defines = self._defines(P, cw, len(group.media))
         shape, padded, workers = self.grid.shape, self.grid.padded, self.workers
+        work = self._host_work(P)
+        A, A_buf, slab, slab_buf = work["A"], work["A_buf"], work["slab"], work["slab_buf"]
+        layout = (padded[0], shape[1], shape[2])
         t0 = time.perf_counter()
-        q = np.empty((P, 8) + tuple(shape), dtype=self.complex)
-        q_buf = cl.Buffer(ctx.context, mf.WRITE_ONLY | mf.USE_HOST_PTR, hostbuf=q)
-        self._scatter(P, x_buf, q_buf, weights, defines, shape)
-        _sync(queue, q_buf, q)
-        del q_buf
+        A[:, :, shape[0]:] = 0
+        self._scatter(P, x_buf, A_buf, weights, defines, layout)
+        _sync(queue, A_buf, A)
         t1 = time.perf_counter()
-        A = scipy.fft.fft(q, n=padded[0], axis=-3, workers=workers)  # (P, 8, p_x, n_y, n_z)
-        del q
+        _fft_in_place(A, -3, workers)
         fft_s, fourier_s = time.perf_counter() - t1, 0.0
         plane = padded[1] * padded[2]
-        for x0 in range(0, padded[0], self.slab_planes(P)):
+        planes = slab.shape[2]
+        for x0 in range(0, padded[0], planes):
             ta = time.perf_counter()
-            x1 = min(padded[0], x0 + self.slab_planes(P))
-            S = scipy.fft.fft(A[:, :, x0:x1], n=padded[2], axis=-1, workers=workers)
-            S = np.ascontiguousarray(scipy.fft.fft(S, n=padded[1], axis=-2, workers=workers, overwrite_x=True),
-                                     dtype=self.complex)
+            x1 = min(padded[0], x0 + planes)
+            S = slab.reshape(-1)[: P * 8 * (x1 - x0) * plane].reshape((P, 8, x1 - x0) + tuple(padded[1:]))
+            S[:, :, :, shape[1]:] = 0
+            S[:, :, :, : shape[1], shape[2]:] = 0
+            S[:, :, :, : shape[1], : shape[2]] = A[:, :, x0:x1]
+            _fft_in_place(S[:, :, :, : shape[1]], -1, workers)  # rows n_y..p_y are zero: pruned
+            _fft_in_place(S, -2, workers)
             tb = time.perf_counter()
-            S_buf = cl.Buffer(ctx.context, mf.READ_WRITE | mf.USE_HOST_PTR, hostbuf=S)
-            self._fourier(S_buf, green, gradient, coef, defines, samples=(x1 - x0) * plane, offset=x0 * plane)
-            _sync(queue, S_buf, S)
-            del S_buf
+            self._fourier(slab_buf, green, gradient, coef, defines, samples=(x1 - x0) * plane, offset=x0 * plane)
+            _sync(queue, slab_buf, slab)
             tc = time.perf_counter()
-            S = scipy.fft.ifft(S, axis=-2, workers=workers, overwrite_x=True)[..., : shape[1], :]
-            A[:, :, x0:x1] = scipy.fft.ifft(S, axis=-1, workers=workers)[..., : shape[2]]
+            _fft_in_place(S, -2, workers, inverse=True)
+            top = S[:, :, :, : shape[1]]
+            _fft_in_place(top, -1, workers, inverse=True)
+            A[:, :, x0:x1] = top[..., : shape[2]]
             fft_s += (tb - ta) + (time.perf_counter() - tc)
             fourier_s += tc - tb
         t3 = time.perf_counter()
-        F = np.ascontiguousarray(scipy.fft.ifft(A, axis=-3, workers=workers, overwrite_x=True)[:, :, : shape[0]],
-                                 dtype=self.complex)
-        del A
+        _fft_in_place(A, -3, workers, inverse=True)
         t4 = time.perf_counter()
-        F_buf = cl.Buffer(ctx.context, mf.READ_ONLY | mf.USE_HOST_PTR, hostbuf=F)
-        self._gather(F_buf, y_buffer, weights, defines, shape)
+        self._gather(A_buf, y_buffer, weights, defines, layout)
         queue.finish()
         t5 = time.perf_counter()
         self._record(t1 - t0, fft_s + (t4 - t3), fourier_s, t5 - t4)
+
+    def _host_work(self, P: int) -> dict:
+        """The host path's arrays and their OpenCL buffers, kept per batch size (one at a time):
+        A (P, 8, p_x, n_y, n_z) and a slab (P, 8, slab_planes, p_y, p_z)."""
+        if self._host.get("P") != P:
+            import pyopencl as cl
+
+            self._host = {}
+            mf = cl.mem_flags
+            shape, padded = self.grid.shape, self.grid.padded
+            A = np.empty((P, 8, padded[0], shape[1], shape[2]), dtype=self.complex)
+            slab = np.empty((P, 8, min(padded[0], self.slab_planes(P)), padded[1], padded[2]), dtype=self.complex)
+            self._host = {"P": P, "A": A, "slab": slab,
+                          "A_buf": cl.Buffer(self.ctx.context, mf.READ_WRITE | mf.USE_HOST_PTR, hostbuf=A),
+                          "slab_buf": cl.Buffer(self.ctx.context, mf.READ_WRITE | mf.USE_HOST_PTR, hostbuf=slab)}
+        return self._host
+
+    def release_work(self) -> None:
+        """Free the arrays kept between products (after a solve: the far field needs the memory)."""
+        self._host = {}
+        self._vkfft = {}
 
     def slab_planes(self, P: int) -> int:
         """x frequencies per slab of the host FFTs: about SLAB_BYTES of spectrum (P, 8, ·, p_y, p_z)."""
@@ -438,6 +461,13 @@ def int4_arg(values):
     import pyopencl as cl
 
     return np.array(list(values) + [0] * (4 - len(values)), dtype=np.int32).view(cl.cltypes.int4)[0]
+
+
+def _fft_in_place(a: np.ndarray, axis: int, workers: int, inverse: bool = False) -> None:
+    """The (inverse) FFT of ``a`` along ``axis``, written into ``a`` (a view may be strided)."""
+    out = (scipy.fft.ifft if inverse else scipy.fft.fft)(a, axis=axis, workers=workers, overwrite_x=True)
+    if not np.may_share_memory(out, a):  # scipy chose a copy: move it back
+        a[...] = out
 
 
 def _sync(queue, buf, host: np.ndarray):

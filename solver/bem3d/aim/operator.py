@@ -171,14 +171,17 @@ class AIMOperator:
         Raises KrylovNotConverged (with ``diagnostics``) when the tolerance is missed."""
         o = self.options
         apply = self.matvec if self.ctx is not None else self.matvec_numpy
-        if self.preconditioner is not None:
-            result = solve(apply, rhs, method=o.solver, tol=o.tolerance, max_iterations=o.max_iterations,
-                           restart=o.restart, preconditioner=self.preconditioner, progress=self.progress)
-        else:
-            s = symmetric_scaling(self.mesh.n_bases, self.dtype)
-            result = solve(lambda Y: s * apply(s * Y), s * rhs, method=o.solver, tol=o.tolerance,
-                           max_iterations=o.max_iterations, restart=o.restart, progress=self.progress)
-            result.x = s * result.x
+        try:
+            if self.preconditioner is not None:
+                result = solve(apply, rhs, method=o.solver, tol=o.tolerance, max_iterations=o.max_iterations,
+                               restart=o.restart, preconditioner=self.preconditioner, progress=self.progress)
+            else:
+                s = symmetric_scaling(self.mesh.n_bases, self.dtype)
+                result = solve(lambda Y: s * apply(s * Y), s * rhs, method=o.solver, tol=o.tolerance,
+                               max_iterations=o.max_iterations, restart=o.restart, progress=self.progress)
+                result.x = s * result.x
+        finally:
+            self.base.release_work()  # the products' arrays: the far field and the next set-up need the memory
         if diagnostics is not None:
             diagnostics.update(result.diagnostics(), matvec_timings=dict(self.base.timings))
         return result

@@ -13,7 +13,7 @@ import scipy.sparse.linalg
 
 from wavebrdf.solver.bem3d.aim.nearfield import NearPattern
 from wavebrdf.solver.bem3d.mesh import near_coords, near_first
-from wavebrdf.solver.resources import release_free_memory
+from wavebrdf.solver.resources import one_blas_thread, release_free_memory
 
 logger = logging.getLogger(__name__)
 
@@ -67,7 +67,8 @@ class NearPreconditioner:
         self.factor_nnz = 0
         for extended, own in preconditioner_tiles(near.pattern, tile_cells, overlap_cells):
             block = A if len(extended) == A.shape[0] else A[extended][:, extended].tocsc()
-            lu = scipy.sparse.linalg.splu(block, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0)
+            with one_blas_thread():  # SuperLU's many small BLAS calls: threads only spin (see there)
+                lu = scipy.sparse.linalg.splu(block, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0)
             self.factor_nnz += lu.L.nnz + lu.U.nnz
             self.tiles.append((extended, np.searchsorted(extended, own), own, lu))  # both sorted, own ⊂ extended
         del A
@@ -84,12 +85,13 @@ class NearPreconditioner:
         t0 = time.perf_counter()
         X = np.atleast_2d(X)
         Xs = np.ascontiguousarray((self.scale * X).T, dtype=np.complex64)  # (n, P)
-        if len(self.tiles) == 1:
-            Y = self.tiles[0][3].solve(Xs)
-        else:
-            Y = np.empty_like(Xs)
-            for extended, positions, own, lu in self.tiles:
-                Y[own] = lu.solve(np.ascontiguousarray(Xs[extended]))[positions]
+        with one_blas_thread():
+            if len(self.tiles) == 1:
+                Y = self.tiles[0][3].solve(Xs)
+            else:
+                Y = np.empty_like(Xs)
+                for extended, positions, own, lu in self.tiles:
+                    Y[own] = lu.solve(np.ascontiguousarray(Xs[extended]))[positions]
         Y = self.scale * Y.T
         self.apply_s += time.perf_counter() - t0
         return Y.astype(X.dtype, copy=False)
