@@ -70,6 +70,6 @@ def up_to_date(plan, force: bool = False) -> bool:
         config = config.decode() if isinstance(config, bytes) else str(config)
         raise ResumeError(f"{output} holds the results of another configuration (changed: "
                           f"{changed_keys(config, plan.config.text)}); add --force to overwrite it, or set "
-                          "another [study] output" + plan.budget_note())
+                          "another [study] output")
     states = {s.decode() if isinstance(s, bytes) else str(s) for s in status}
     return len(status) == len(plan.tasks) and states == {"done"}

@@ -256,7 +256,6 @@ class PartsFolder:
                 f"{self.path} holds partial results of a different configuration "
                 f"(fingerprint {found.get('fingerprint')} vs {expected['fingerprint']}); "
                 "delete that folder to start over, or restore the original config to resume"
-                + self.plan.budget_note()
             )
         for tmp in self.path.glob(".*.tmp"):  # writes of a killed run
             _discard(tmp)

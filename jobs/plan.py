@@ -90,7 +90,6 @@ class Plan:
     steering: dict[int, CaseSteering] = field(default_factory=dict)
     _geometry: dict = field(default_factory=dict, repr=False)  # built height fields / cross sections
     tasks_per_node: int | None = None  # set by `plan`/`run` to what they check memory with (None: from [run])
-    _fingerprints: dict = field(default_factory=dict, repr=False)  # by the task memory budgets it depends on
 
     @property
     def study(self) -> Study:
@@ -237,35 +236,12 @@ class Plan:
         """Memory/time of ``task`` (jobs/tasks.py KINDS)."""
         return KINDS[task.kind].estimate(self, task)
 
-    @property
+    @cached_property
     def fingerprint(self) -> str:
-        """Hash of everything that determines the results (not the output path or name).
-
-        [run] is left out, except that where a model fits its settings to the memory a task may
-        use (the AIM solver, ``fit_memory``), that budget is in: a resume on nodes that would
-        choose other settings is refused rather than mixing them in one dataset."""
-        budgets = tuple(self.task_memory_budget(case) if getattr(study.model.options, "depends_on_memory_budget", False)
-                        else None for case, study in enumerate(self.config.cases))
-        if budgets not in self._fingerprints:
-            self._fingerprints[budgets] = self._digest(budgets)
-        return self._fingerprints[budgets]
-
-    def budget_note(self) -> str:
-        """What a refused resume should also say when the fingerprint holds task memory budgets."""
-        gib = sorted({round(self.task_memory_budget(case) / 2**30, 3) for case, study in enumerate(self.config.cases)
-                      if getattr(study.model.options, "depends_on_memory_budget", False)})
-        if not gib:
-            return ""
-        return (f"; the AIM settings are fitted to the memory each task may use ({', '.join(map(str, gib))} GiB "
-                "here, from [run] memory_gb and the tasks per node): set [run] memory_gb to the first run's "
-                "budget times its tasks per node to resume it")
-
-    def _digest(self, budgets: tuple) -> str:
+        """Hash of everything that determines the results (not the output path or name)."""
         cases = []
-        for study, budget in zip(self.config.cases, budgets):
+        for study in self.config.cases:
             sections = {s: dict(v) for s, v in study.sections.items() if s not in ("study", "run")}
-            if budget is not None:
-                sections["task_memory_gib"] = round(budget / 2**30, 3)
             for section, key, path in (("surface", "file", study.surface and study.surface.file),
                                        ("fiber", "points_file", study.fiber and study.fiber.points_file)):
                 if path is not None:

@@ -2,7 +2,8 @@
  *
  * Unknowns x = [J (nb) | M~ (nb)] per right-hand side (AIM_BATCH = 1, 2 or 4 of them, build define).
  * Grid arrays: 8 components per right-hand side, row-major with layout dims (Lx, Ly, Lz) >= (nx, ny, nz):
- * compact (L = n) for host FFTs, the zero-padded FFT size for device FFTs; "points" = Lx Ly Lz:
+ * (p_x, n_y, n_z) for host FFTs (x padded: the x transform runs in place), the zero-padded FFT size
+ * for device FFTs; "points" = Lx Ly Lz:
  *   charges  q = [Jx, Jy, Jz, Jd, Mx, My, Mz, Md]   (x from horizontal, y from vertical rooftops)
  *   fields   F = [Ex, Ey, Ez, Ed, Hx, Hy, Hz, Hd]   (after the convolution, tested the same way)
  * Projection weights W: (3, nb, S) for components (t, z, d); real (AIM_COMPLEX_W = 0,

@@ -64,17 +64,18 @@ def test_repeated_stages_accumulate_time_and_keep_the_largest_memory():
 
 def test_one_blas_thread_limits_every_loaded_blas_and_lifts_the_limit():
     """SuperLU's factorization runs under one_blas_thread (solver/bem3d/aim/preconditioner.py):
-    inside, numpy's and scipy's BLAS libraries report one thread; after, their own counts again."""
-    import scipy.sparse.linalg  # noqa: F401  (loads scipy's own OpenBLAS)
-    from threadpoolctl import threadpool_info
+    inside, numpy's and scipy's BLAS libraries report one thread; after, the two set before."""
+    import scipy.sparse.linalg  # noqa: F401  (loads scipy's own OpenBLAS where it has one)
+    from threadpoolctl import threadpool_info, threadpool_limits
 
     from wavebrdf.solver.resources import one_blas_thread
 
     def counts():
         return {lib["filepath"]: lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"}
 
-    before = counts()
-    assert len(before) >= 2  # numpy's and scipy's
-    with one_blas_thread():
-        assert set(counts().values()) == {1}
-    assert counts() == before
+    with threadpool_limits(2, user_api="blas"):
+        before = counts()
+        assert before and set(before.values()) == {2}
+        with one_blas_thread():
+            assert set(counts().values()) == {1}
+        assert counts() == before

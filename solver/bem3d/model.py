@@ -44,12 +44,6 @@ class BEMOptions:
         if self.method != "aim" and self.aim != AIMOptions():
             raise ValueError('[model.aim] applies to name = "bem", method = "aim" only')
 
-    @property
-    def depends_on_memory_budget(self) -> bool:
-        """True when the settings a task runs with are fitted to its memory budget (AIM with
-        fit_memory): the budget then belongs to what determines the results (jobs/plan.py fingerprint)."""
-        return self.method == "aim" and self.aim.fit_memory
-
 
 def _reporter(ctx):
     """The solver's progress callable: the context's reporter at the time of each call (the kept

@@ -99,25 +99,3 @@ def test_plan_and_run_use_the_settings_fitted_to_run_memory_gb(surface):
     tiny = plan_study(load_config({**CONFIG, "run": {"memory_gb": 0.5 * min(table) / GIB}}))
     with pytest.raises(PlanError, match="GiB"):
         check_memory(tiny, 1, 0.5 * min(table) / GIB)
-
-
-def test_the_task_budget_is_part_of_the_fingerprint_where_it_chooses_the_settings(tmp_path):
-    """Two budgets can choose two AIM settings: a resume under the other one is refused, naming the
-    budget; [run] stays out of the fingerprint where nothing is fitted to it."""
-    from wavebrdf.jobs.parts import PartsFolder, ResumeError
-
-    def plan(memory_gb, **model):
-        config = {**CONFIG, "study": {"name": "budget", "output": str(tmp_path / "budget.h5")},
-                  "model": {**CONFIG["model"], **model}, "run": {"memory_gb": memory_gb}}
-        return plan_study(load_config(config))
-
-    small, large = plan(2.0), plan(8.0)
-    assert small.fingerprint != large.fingerprint
-    two_tasks = plan(8.0)
-    two_tasks.tasks_per_node = 4  # 8 GiB over 4 tasks at once: the 2 GiB budget again
-    assert two_tasks.fingerprint == small.fingerprint
-    assert plan(2.0, aim={"fit_memory": False}).fingerprint == plan(8.0, aim={"fit_memory": False}).fingerprint
-    assert plan(2.0, method="dense").fingerprint == plan(8.0, method="dense").fingerprint
-    PartsFolder(small).open()
-    with pytest.raises(ResumeError, match=r"fitted to the memory each task may use \(8\.0 GiB"):
-        PartsFolder(large).open()

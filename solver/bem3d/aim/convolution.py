@@ -317,9 +317,9 @@ class BaseOperator:
         A, A_buf, slab, slab_buf = work["A"], work["A_buf"], work["slab"], work["slab_buf"]
         layout = (padded[0], shape[1], shape[2])
         t0 = time.perf_counter()
-        A[:, :, shape[0]:] = 0
         self._scatter(P, x_buf, A_buf, weights, defines, layout)
         _sync(queue, A_buf, A)
+        A[:, :, shape[0]:] = 0  # after the read-back: a device copy of the buffer may hold old planes
         t1 = time.perf_counter()
         _fft_in_place(A, -3, workers)
         fft_s, fourier_s = time.perf_counter() - t1, 0.0
@@ -335,6 +335,7 @@ class BaseOperator:
             _fft_in_place(S[:, :, :, : shape[1]], -1, workers)  # rows n_y..p_y are zero: pruned
             _fft_in_place(S, -2, workers)
             tb = time.perf_counter()
+            _publish(queue, slab_buf, slab)
             self._fourier(slab_buf, green, gradient, coef, defines, samples=(x1 - x0) * plane, offset=x0 * plane)
             _sync(queue, slab_buf, slab)
             tc = time.perf_counter()
@@ -347,6 +348,7 @@ class BaseOperator:
         t3 = time.perf_counter()
         _fft_in_place(A, -3, workers, inverse=True)
         t4 = time.perf_counter()
+        _publish(queue, A_buf, A)
         self._gather(A_buf, y_buffer, weights, defines, layout)
         queue.finish()
         t5 = time.perf_counter()
@@ -369,9 +371,9 @@ class BaseOperator:
         return self._host
 
     def release_work(self) -> None:
-        """Free the arrays kept between products (after a solve: the far field needs the memory)."""
+        """Free the host arrays kept between products (after a solve: the far field needs the
+        memory). The device path's VkFFT plan stays: it is built once per batch size."""
         self._host = {}
-        self._vkfft = {}
 
     def slab_planes(self, P: int) -> int:
         """x frequencies per slab of the host FFTs: about SLAB_BYTES of spectrum (P, 8, ·, p_y, p_z)."""
@@ -468,6 +470,16 @@ def _fft_in_place(a: np.ndarray, axis: int, workers: int, inverse: bool = False)
     out = (scipy.fft.ifft if inverse else scipy.fft.fft)(a, axis=axis, workers=workers, overwrite_x=True)
     if not np.may_share_memory(out, a):  # scipy chose a copy: move it back
         a[...] = out
+
+
+def _publish(queue, buf, host: np.ndarray):
+    """Make the device see the host's writes to a kept USE_HOST_PTR buffer (map for writing,
+    discarding the device copy, + unmap). On CPU devices the buffer is the host array and this
+    costs nothing; a GPU driver may hold a device copy that only an unmap refreshes."""
+    import pyopencl as cl
+
+    mapped, _ = cl.enqueue_map_buffer(queue, buf, cl.map_flags.WRITE_INVALIDATE_REGION, 0, host.shape, host.dtype)
+    mapped.base.release(queue)
 
 
 def _sync(queue, buf, host: np.ndarray):

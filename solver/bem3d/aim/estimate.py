@@ -152,7 +152,8 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
         "set-up": max(16 * padded * 6 + cplx * padded * (len(gm) + 3 * groups),
                       ASSEMBLY_BYTES + groups * 3 * S * n_b * 16),
         "excitation": BLOCK_BYTES + EXCITATION_BYTES_PER_UNKNOWN * n,
-        # host FFTs in slabs: x-transformed charges (8P, p_x, n_y, n_z) and the compact q / F
+        # host FFTs in slabs: the kept array A (8P, p_x, n_y, n_z), the kept slab and scipy.fft's
+        # work arrays for the strided transforms (bounded by the compact-grid term)
         "products": krylov + cplx * 8 * P * (px * ny * nz + compact) + slab + 2 * 16 * n * P,
         "far field": P * 6 * compact * max(cplx, 8) + FARFIELD_PIXEL_BYTES * resolution**2 + BLOCK_BYTES,
     }
