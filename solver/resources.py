@@ -8,8 +8,8 @@ import ctypes.util
 import os
 import resource
 
-__all__ = ["meminfo_bytes", "one_blas_thread", "peak_memory_mb", "peak_resident_bytes", "release_free_memory", "reset_peak_memory",
-           "resident_memory_mb", "restart_stage_peak", "stage_peak_bytes"]
+__all__ = ["meminfo_bytes", "one_blas_thread", "peak_memory_mb", "peak_resident_bytes", "release_free_memory",
+           "reset_peak_memory", "resident_memory_mb", "restart_stage_peak", "stage_peak_bytes"]
 
 # Peaks (bytes) that stage clocks (solver/stages.py) carried over their resets of VmHWM: since the
 # last reset_peak_memory (a measurement's baseline) and over the process's life (ru_maxrss, which

@@ -213,7 +213,8 @@ def test_host_fft_slabs_and_kept_arrays_give_the_numpy_product(cl_ctx, rough_mes
         if op._host:
             op._host["A"][...] = np.nan
             op._host["slab"][...] = np.nan
-        x = rng.standard_normal((batch, rough_mesh.n_unknowns)) + 1j * rng.standard_normal((batch, rough_mesh.n_unknowns))
+        shape = (batch, rough_mesh.n_unknowns)
+        x = rng.standard_normal(shape) + 1j * rng.standard_normal(shape)
         ref = op.apply_numpy(x)
         assert np.linalg.norm(op.apply(x) - ref) / np.linalg.norm(ref) < 1e-12
         assert op._host["P"] == batch

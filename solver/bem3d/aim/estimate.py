@@ -86,7 +86,9 @@ def _preconditioner_cost(cells: int, unknowns: int, options: AIMOptions, flat: b
 # Constants of the cost model, fitted to the stage breakdowns of benchmarks/bench_aim.py on the
 # 2-core development machine (docs/aim.md, "Memory and time at scale").
 RUNTIME_BYTES = 460 * 2**20  # interpreter, NumPy/SciPy, OpenCL runtime and built kernels
-ASSEMBLY_BYTES = 0.75 * 2**30  # near-field assembly above what it keeps: element tables, one strip of pairs (fit: 36 480 and 101 760 unknowns)
+# near-field assembly above what it keeps: element tables, one strip of pairs (fit: 36 480 and
+# 101 760 unknowns)
+ASSEMBLY_BYTES = 0.75 * 2**30
 # the beam's fields and the surface power over blocks of elements (excitation.py ELEMENT_BLOCK):
 # measured 207 / 243 MB (excitation) and 220 / 204 MB (surface power) at 1.0·10⁵ / 4.1·10⁵ unknowns
 BLOCK_BYTES = 200 * 2**20
@@ -101,12 +103,13 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
 
     Returns ``unknowns``, ``near_nnz`` (stored near pairs), ``bytes`` (the peak: what is held
     at a stage, ``held`` by part, plus that stage's transient, ``transient``; the set-up's
-    transients come before the preconditioner; :func:`memory_breakdown` prints them), ``seconds`` (set-up + ``directions`` × both
-    polarizations, with ``setup_s`` and ``product_s``), ``iterations_guess`` (products per
-    polarization) and the grid sizes. With ``edge = "flat"`` it adds the continuation: the ring
-    operator and the extended mesh, whose size follows from ``waist_um`` (default L/2.5, a border
-    at 1.25 w). ``resolution``: the output image side. ``cache``: a dict kept between estimates
-    of the same surface (the mesh and grids).
+    transients come before the preconditioner; :func:`memory_breakdown` prints them), ``seconds``
+    (set-up + ``directions`` × both polarizations, with ``setup_s`` and ``product_s``),
+    ``iterations_guess`` (products per polarization) and the grid sizes. With ``edge = "flat"`` it
+    adds the continuation: the ring operator and the extended mesh, whose size follows from
+    ``waist_um`` (default L/2.5, a border at 1.25 w). ``resolution``: the output image side.
+    ``cache``: a dict kept between estimates of the same surface (its mesh; the grids are cached
+    by geometry, ``_grid``).
     """
     options = aim if isinstance(aim, AIMOptions) else AIMOptions.from_mapping(aim)
     media = Media(wavelength_um, index, exterior_index)
@@ -115,7 +118,7 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     d = mesh.spacing_um
     gm = grid_media(media, options.near_cells * d, options.interior_decay_tolerance)
     grid_options = options.grid_options(media, d, gm)
-    grid = cache.get(grid_options) or cache.setdefault(grid_options, _grid(mesh, grid_options))
+    grid = _grid(mesh, grid_options)
     pattern = NearPattern.build(mesh.cells, options.near_cells)
     n, n_b = mesh.n_unknowns, mesh.n_bases
     farfield_matching = options.projection == "farfield"
