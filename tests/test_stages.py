@@ -3,6 +3,8 @@ thread limit (solver/resources.py)."""
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -79,3 +81,24 @@ def test_one_blas_thread_limits_every_loaded_blas_and_lifts_the_limit():
         with one_blas_thread():
             assert set(counts().values()) == {1}
         assert counts() == before
+
+
+def test_huge_page_advice_is_off_unless_the_user_asks(monkeypatch):
+    """Importing the solver switched numpy's MADV_HUGEPAGE off; NUMPY_MADVISE_HUGEPAGE wins."""
+    from numpy._core.multiarray import _set_madvise_hugepage
+
+    from wavebrdf.solver.resources import huge_page_advice
+
+    previous = _set_madvise_hugepage(False)
+    try:
+        if "NUMPY_MADVISE_HUGEPAGE" not in os.environ:
+            assert previous is False  # as the package import left it
+        monkeypatch.delenv("NUMPY_MADVISE_HUGEPAGE", raising=False)
+        _set_madvise_hugepage(True)
+        assert huge_page_advice() is True and _set_madvise_hugepage(False) is False
+        monkeypatch.setenv("NUMPY_MADVISE_HUGEPAGE", "1")
+        huge_page_advice()
+        assert _set_madvise_hugepage(False) is True
+        assert huge_page_advice(False) is False and huge_page_advice(True) is False
+    finally:
+        _set_madvise_hugepage(False)

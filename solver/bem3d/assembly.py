@@ -137,9 +137,8 @@ class _DirectTables:
     def block(self, test_elems, source_elems):
         t = np.repeat(test_elems, len(source_elems))
         s = np.tile(source_elems, len(test_elems))
-        tables = self.integrals.tables(t, s, self.wavenumbers)
-        pair_map = np.arange(len(t), dtype=np.int32).reshape(len(test_elems), len(source_elems))
-        return tables, pair_map
+        tables, index = self.integrals.indexed_tables(t, s, self.wavenumbers)
+        return tables, index.astype(np.int32).reshape(len(test_elems), len(source_elems))
 
 
 class _ReusedTables:
@@ -169,10 +168,10 @@ class _ReusedTables:
         key = (key * n_shapes + shape_ids[:, None]) * n_shapes + shape_ids[None, :]
         key = key * n_dz + dz_id
         unique, first, inverse = np.unique(key.ravel(), return_index=True, return_inverse=True)
-        self.map = inverse.reshape(ne, ne).astype(np.int32)
         test, source = np.divmod(first, ne)
         logger.info("table reuse: %d distinct element pairs of %d", len(unique), ne * ne)
-        self.tables = integrals.tables(test, source, wavenumbers)
+        self.tables, index = integrals.indexed_tables(test, source, wavenumbers)
+        self.map = index[inverse].reshape(ne, ne).astype(np.int32)
 
     def block(self, test_elems, source_elems):
         return self.tables, self.map[np.ix_(test_elems, source_elems)]
@@ -347,7 +346,8 @@ def basis_pair_entries(ctx, mesh: BEMMesh, media: Media, rows, cols,
                        integrals: ElementIntegrals | None = None):
     """ee, mm, em (each (P,)) of the basis pairs (rows[p], cols[p]) (geometric basis indices).
 
-    Computes the tables of exactly the element pairs these basis pairs touch.
+    Computes the tables of exactly the element pairs these basis pairs touch; ``integrals`` is
+    anything with ``indexed_tables`` (ElementIntegrals, or the AIM's RepeatingTables).
     """
     rows = np.asarray(rows, dtype=np.int64)
     cols = np.asarray(cols, dtype=np.int64)
@@ -363,10 +363,10 @@ def basis_pair_entries(ctx, mesh: BEMMesh, media: Media, rows, cols,
     pairs = np.unique(
         (row_elem[inv_r][:, :, None] * len(source_elems) + col_elem[inv_c][:, None, :]).ravel()
     )
-    pair_map = np.full((len(test_elems), len(source_elems)), -1, dtype=np.int32)
-    pair_map.ravel()[pairs] = np.arange(len(pairs), dtype=np.int32)
     lt_idx, ls_idx = np.divmod(pairs, len(source_elems))
-    tables = integrals.tables(test_elems[lt_idx], source_elems[ls_idx], media.wavenumbers)
+    tables, index = integrals.indexed_tables(test_elems[lt_idx], source_elems[ls_idx], media.wavenumbers)
+    pair_map = np.full((len(test_elems), len(source_elems)), -1, dtype=np.int32)
+    pair_map.ravel()[pairs] = index
     coef = _coefficients(media)
     row_slot, col_slot = mesh.basis_slots[ub_r], mesh.basis_slots[ub_c]
     if ctx is None:

@@ -188,14 +188,26 @@ def launch_size(ctx, n: int) -> tuple[tuple[int], tuple[int]]:
     return (items,), (WORK_GROUP,)
 
 
+def _destination(out, shape, dtype) -> np.ndarray:
+    """``out`` checked to be a C-contiguous array of ``shape`` and ``dtype`` (kernels copy into
+    it), or a fresh one."""
+    if out is None:
+        return np.empty(shape, dtype=dtype)
+    if out.shape != shape or out.dtype != dtype or not out.flags.c_contiguous:
+        raise ValueError(f"out must be C-contiguous {np.dtype(dtype)} of shape {shape}, got "
+                         f"{out.dtype} {out.shape}")
+    return out
+
+
 def _launch_chunks(n_pairs: int, bytes_per_pair: int):
     step = max(1, OUTPUT_BUDGET // bytes_per_pair)
     for start in range(0, n_pairs, step):
         yield slice(start, min(n_pairs, start + step))
 
 
-def regular_pairs_opencl(ctx, geometry, h, test, source, order, wavenumbers):
-    """OpenCL twin of :func:`regular_pairs_numpy` (kernel ``bem_regular_pairs``)."""
+def regular_pairs_opencl(ctx, geometry, h, test, source, order, wavenumbers, out=None):
+    """OpenCL twin of :func:`regular_pairs_numpy` (kernel ``bem_regular_pairs``); written into
+    ``out`` (C-contiguous (P, 2, 33) complex128) when given."""
     import pyopencl as cl
 
     knl = ctx.kernel("bem_elements.cl", "bem_regular_pairs", ctx.defines("double", lanes=ctx.vector_lanes("double")))
@@ -204,7 +216,7 @@ def regular_pairs_opencl(ctx, geometry, h, test, source, order, wavenumbers):
     nodes, weights = ctx.to_device(x), ctx.to_device(w)
     test = np.ascontiguousarray(test, np.int32)
     source = np.ascontiguousarray(source, np.int32)
-    out = np.empty((len(test), 2, TABLE), dtype=np.complex128)
+    out = _destination(out, (len(test), 2, TABLE), np.complex128)
     for sl in _launch_chunks(len(test), 2 * TABLE * 16):
         n = sl.stop - sl.start
         t_buf, s_buf = ctx.to_device(test[sl]), ctx.to_device(source[sl])
@@ -216,8 +228,10 @@ def regular_pairs_opencl(ctx, geometry, h, test, source, order, wavenumbers):
     return out
 
 
-def singular_pairs_opencl(ctx, geometry, h, test, source, code_test, code_source, rule, wavenumbers, kind):
-    """OpenCL twin of :func:`singular_pairs_numpy` (kernel ``bem_singular_pairs``)."""
+def singular_pairs_opencl(ctx, geometry, h, test, source, code_test, code_source, rule, wavenumbers, kind,
+                          out=None):
+    """OpenCL twin of :func:`singular_pairs_numpy` (kernel ``bem_singular_pairs``); written into
+    ``out`` when given."""
     import pyopencl as cl
 
     knl = ctx.kernel("bem_elements.cl", "bem_singular_pairs",
@@ -227,8 +241,8 @@ def singular_pairs_opencl(ctx, geometry, h, test, source, code_test, code_source
     arrays = [np.ascontiguousarray(a, np.int32) for a in (test, source, code_test, code_source)]
     static = kind == KIND_STATIC
     per_pair = TABLE * (8 if static else 32)
-    out = np.empty((len(arrays[0]), TABLE) if static else (len(arrays[0]), 2, TABLE),
-                   dtype=np.float64 if static else np.complex128)
+    out = _destination(out, (len(arrays[0]), TABLE) if static else (len(arrays[0]), 2, TABLE),
+                       np.float64 if static else np.complex128)
     k1, k2 = (wavenumbers if not static else (0.0, 0.0))
     for sl in _launch_chunks(len(arrays[0]), per_pair):
         n = sl.stop - sl.start
@@ -255,23 +269,25 @@ class ElementIntegrals:
         self.mesh = mesh
         self.options = options or QuadratureOptions()
         self.ctx = ctx
-        self._static_keys = np.zeros(0, dtype=np.int64)
-        self._static_values = np.zeros((0, TABLE))
+        self._static = None  # (n_elements · 9, 33) static tables by touching slot, filled lazily
+        self._static_known = None
         self.timings = {"static_s": 0.0, "singular_s": 0.0, "regular_s": 0.0}
         self.counts = {"static": 0, "singular": 0, "regular": 0, "regular_points": 0}
 
     # -- backends ---------------------------------------------------------------------------
-    def _regular(self, test, source, order, wavenumbers):
+    def _regular(self, test, source, order, wavenumbers, out):
         g, h = self.mesh.geometry, self.mesh.half
         if self.ctx is None:
-            return regular_pairs_numpy(g, h, test, source, order, wavenumbers)
-        return regular_pairs_opencl(self.ctx, g, h, test, source, order, wavenumbers)
+            out[...] = regular_pairs_numpy(g, h, test, source, order, wavenumbers)
+        else:
+            regular_pairs_opencl(self.ctx, g, h, test, source, order, wavenumbers, out=out)
 
-    def _singular(self, test, source, ct, cs, rule, wavenumbers, kind):
+    def _singular(self, test, source, ct, cs, rule, wavenumbers, kind, out):
         g, h = self.mesh.geometry, self.mesh.half
         if self.ctx is None:
-            return singular_pairs_numpy(g, h, test, source, ct, cs, rule, wavenumbers, kind)
-        return singular_pairs_opencl(self.ctx, g, h, test, source, ct, cs, rule, wavenumbers, kind)
+            out[...] = singular_pairs_numpy(g, h, test, source, ct, cs, rule, wavenumbers, kind)
+        else:
+            singular_pairs_opencl(self.ctx, g, h, test, source, ct, cs, rule, wavenumbers, kind, out=out)
 
     # -- classification ---------------------------------------------------------------------
     def classify(self, test, source):
@@ -291,65 +307,78 @@ class ElementIntegrals:
         return regular_order(self.options, distance, rad[test], rad[source], ell, wavenumbers)
 
     # -- static singular parts --------------------------------------------------------------
+    def _touching_slot(self, test, source) -> np.ndarray:
+        """test · 9 + 3(Δs + 1) + (Δt + 1): the cache row of a touching pair."""
+        d = self.mesh.element_st[source] - self.mesh.element_st[test]
+        return test.astype(np.int64) * 9 + 3 * (d[:, 0] + 1) + (d[:, 1] + 1)
+
     def static_tables(self, test, source, case, code_t, code_s) -> np.ndarray:
-        """Real (P, 33) static tables of touching pairs, computed once per pair and cached."""
-        ne = self.mesh.n_elements
-        keys = test.astype(np.int64) * ne + source
-        if len(self._static_keys):
-            pos = np.minimum(np.searchsorted(self._static_keys, keys), len(self._static_keys) - 1)
-            known = self._static_keys[pos] == keys
-        else:
-            known = np.zeros(len(keys), dtype=bool)
-        missing = np.flatnonzero(~known)
+        """Real (P, 33) static tables of touching pairs, computed once per pair and cached
+        (rows by test element and neighbour slot: lookups cost O(P) however large the cache)."""
+        if self._static is None:
+            slots = 9 * self.mesh.n_elements
+            self._static = np.empty((slots, TABLE))  # pages are touched only where written
+            self._static_known = np.zeros(slots, dtype=bool)
+        slot = self._touching_slot(test, source)
+        missing = np.flatnonzero(~self._static_known[slot])
         if len(missing):
             t0 = time.perf_counter()
-            values = np.empty((len(missing), TABLE))
+            _, first = np.unique(slot[missing], return_index=True)  # a pair listed twice: once
+            missing = missing[first]
             for c in np.unique(case[missing]):
                 sel = missing[case[missing] == c]
                 rule = singular_rule(int(c), self.options.static_order)
-                values[np.searchsorted(missing, sel)] = self._singular(
-                    test[sel], source[sel], code_t[sel], code_s[sel], rule, (0.0, 0.0), KIND_STATIC
-                )
-            all_keys = np.concatenate([self._static_keys, keys[missing]])
-            all_values = np.concatenate([self._static_values, values])
-            order = np.argsort(all_keys, kind="stable")
-            all_keys, first = np.unique(all_keys[order], return_index=True)
-            self._static_keys = all_keys
-            self._static_values = all_values[order][first]
+                values = np.empty((len(sel), TABLE))
+                self._singular(test[sel], source[sel], code_t[sel], code_s[sel], rule, (0.0, 0.0),
+                               KIND_STATIC, values)
+                self._static[slot[sel]] = values
+            self._static_known[slot[missing]] = True
             self.timings["static_s"] += time.perf_counter() - t0
             self.counts["static"] += len(missing)
-        return self._static_values[np.searchsorted(self._static_keys, keys)]
+        return self._static[slot]
 
     # -- tables -----------------------------------------------------------------------------
-    def tables(self, test, source, wavenumbers) -> np.ndarray:
-        """Complex (P, 2, 33) tables of element pairs (test[p], source[p]) for media k₁, k₂."""
+    def indexed_tables(self, test, source, wavenumbers) -> tuple[np.ndarray, np.ndarray]:
+        """(tables, index): complex (P, 2, 33) tables of the element pairs (test[p], source[p])
+        for media k₁, k₂, stored grouped by quadrature (each kernel writes one contiguous block);
+        pair p's table is ``tables[index[p]]``."""
         test = np.asarray(test, dtype=np.int64)
         source = np.asarray(source, dtype=np.int64)
-        out = np.empty((len(test), 2, TABLE), dtype=complex)
         case, code_t, code_s = self.classify(test, source)
-        touching = np.flatnonzero(case != CASE_REGULAR)
-        if len(touching):
-            static = self.static_tables(test[touching], source[touching], case[touching],
-                                        code_t[touching], code_s[touching])
-            t0 = time.perf_counter()
-            order = singular_order(self.options, self.mesh.half_length.max(), wavenumbers)
-            for c in np.unique(case[touching]):
-                sel = touching[case[touching] == c]
-                rule = singular_rule(int(c), order)
-                out[sel] = self._singular(test[sel], source[sel], code_t[sel], code_s[sel], rule,
-                                          wavenumbers, KIND_REMAINDER)
-                logger.debug("%d %s pairs, remainder order %d", len(sel), CASE_NAMES[int(c)], order)
-            out[touching] += static[:, None, :]
-            self.timings["singular_s"] += time.perf_counter() - t0
-            self.counts["singular"] += len(touching)
+        group = case.astype(np.int64)  # touching: case 1..3; regular: 4 + Gauss order
         regular = np.flatnonzero(case == CASE_REGULAR)
         if len(regular):
+            group[regular] = 4 + self.orders(test[regular], source[regular], wavenumbers)
+        order = np.argsort(group, kind="stable")
+        index = np.empty(len(test), dtype=np.int64)
+        index[order] = np.arange(len(test))
+        bounds = np.flatnonzero(np.diff(group[order])) + 1
+        out = np.empty((len(test), 2, TABLE), dtype=complex)
+        remainder_order = None
+        for a, b in zip(np.concatenate([[0], bounds]), np.concatenate([bounds, [len(test)]])):
+            sel = order[a:b]
+            g = int(group[sel[0]])
             t0 = time.perf_counter()
-            orders = self.orders(test[regular], source[regular], wavenumbers)
-            for n in np.unique(orders):
-                sel = regular[orders == n]
-                out[sel] = self._regular(test[sel], source[sel], int(n), wavenumbers)
-                self.counts["regular_points"] += len(sel) * int(n) ** 4
-            self.timings["regular_s"] += time.perf_counter() - t0
-            self.counts["regular"] += len(regular)
-        return out
+            if g >= 4:
+                self._regular(test[sel], source[sel], g - 4, wavenumbers, out[a:b])
+                self.counts["regular_points"] += len(sel) * (g - 4) ** 4
+                self.counts["regular"] += len(sel)
+                self.timings["regular_s"] += time.perf_counter() - t0
+                continue
+            static = self.static_tables(test[sel], source[sel], case[sel], code_t[sel], code_s[sel])
+            t0 = time.perf_counter()
+            if remainder_order is None:
+                remainder_order = singular_order(self.options, self.mesh.half_length.max(), wavenumbers)
+            rule = singular_rule(g, remainder_order)
+            self._singular(test[sel], source[sel], code_t[sel], code_s[sel], rule, wavenumbers,
+                           KIND_REMAINDER, out[a:b])
+            out[a:b] += static[:, None, :]
+            logger.debug("%d %s pairs, remainder order %d", len(sel), CASE_NAMES[g], remainder_order)
+            self.timings["singular_s"] += time.perf_counter() - t0
+            self.counts["singular"] += len(sel)
+        return out, index
+
+    def tables(self, test, source, wavenumbers) -> np.ndarray:
+        """Complex (P, 2, 33) tables of element pairs (test[p], source[p]) for media k₁, k₂."""
+        out, index = self.indexed_tables(test, source, wavenumbers)
+        return out[index]

@@ -381,3 +381,25 @@ def test_flat_surface_has_no_vertical_projection():
     mesh = BEMMesh(HeightField(np.zeros((9, 9)), 0.4))
     proj = project(mesh, build_grid(mesh), "farfield", k=2 * np.pi / LAMBDA)
     assert np.abs(proj.weights[1]).max() == 0.0
+
+
+def test_repeating_tables_are_the_fresh_tables_of_each_pair(cl_ctx, rng):
+    """A tilted plane with dyadic heights (bit-identical element shapes): the tables cached per
+    distinct pair geometry, over two calls sharing pairs, equal fresh tables per pair (to
+    rounding: the same geometry at other positions)."""
+    from wavebrdf.solver.bem3d.aim.near_assembly import RepeatingTables
+    from wavebrdf.solver.bem3d.elements import ElementIntegrals
+
+    i, j = np.meshgrid(np.arange(13), np.arange(13), indexing="ij")
+    mesh = BEMMesh(HeightField((3 * i - j) / 256.0, 0.3), z_reference=0.0)
+    assert RepeatingTables.worthwhile(mesh)
+    ks = (2 * np.pi / 0.5, 2 * np.pi / 0.5 * (0.5 - 3.0j))
+    repeating = RepeatingTables(ElementIntegrals(mesh, ctx=cl_ctx))
+    fresh = ElementIntegrals(mesh, ctx=cl_ctx)
+    for _ in range(2):
+        test = rng.integers(0, mesh.n_elements, 300)
+        source = np.clip(test + rng.integers(-30, 31, 300), 0, mesh.n_elements - 1)
+        store, index = repeating.indexed_tables(test, source, ks)
+        reference = fresh.tables(test, source, ks)
+        assert np.max(np.abs(store[index] - reference)) < 1e-13 * np.max(np.abs(reference))
+    assert len(store) < 300  # computed once per distinct geometry

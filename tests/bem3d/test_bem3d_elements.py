@@ -174,3 +174,26 @@ def test_identical_element_pairs_reuse_tables_exactly(cl_ctx, references):
     Zb, rb = assemble_dense(cl_ctx, mesh, media, allow_reuse=False)
     assert ra.table_reuse and not rb.table_reuse
     assert np.linalg.norm(Za - Zb) / np.linalg.norm(Zb) < 1e-13
+
+
+def test_tables_of_overlapping_lists_match_a_fresh_computation(cl_ctx, curved_mesh, rng, references):
+    """The static cache (rows by touching slot) and the grouped, indexed tables: two lists sharing
+    touching pairs (one listed twice), in any order, give exactly what a fresh object gives."""
+    ks = _ks(references, references["al_400"])
+    near_t, near_s = _random_pairs(curved_mesh, rng, 60, touching=True)
+    far_t, far_s = _random_pairs(curved_mesh, rng, 40, touching=False)
+    first_t, first_s = np.concatenate([near_t[:40], far_t[:20]]), np.concatenate([near_s[:40], far_s[:20]])
+    second_t = np.concatenate([far_t[20:], near_t[20:], near_t[25:26]])
+    second_s = np.concatenate([far_s[20:], near_s[20:], near_s[25:26]])
+    cached = el.ElementIntegrals(curved_mesh, ctx=cl_ctx)
+    cached.tables(first_t, first_s, ks)
+    static_before = cached.counts["static"]
+    tables, index = cached.indexed_tables(second_t, second_s, ks)
+    known = set(zip(near_t[:40].tolist(), near_s[:40].tolist()))
+    new = set(zip(near_t[20:].tolist(), near_s[20:].tolist())) - known
+    assert cached.counts["static"] - static_before == len(new) > 0
+    fresh = el.ElementIntegrals(curved_mesh, ctx=cl_ctx).tables(second_t, second_s, ks)
+    assert sorted(index.tolist()) == list(range(len(second_t)))
+    assert np.array_equal(tables[index], fresh)
+    reference = el.ElementIntegrals(curved_mesh, ctx=None).tables(second_t, second_s, ks)
+    assert _rel(fresh, reference) < 1e-10

@@ -41,54 +41,64 @@ POTENTIAL_BUDGET = 256 * 2**20  # bytes of grid potentials per launch
 
 
 class RepeatingTables:
-    """Drop-in for ElementIntegrals.tables that computes each geometrically distinct pair once.
+    """Drop-in for ElementIntegrals.indexed_tables that computes each geometrically distinct pair
+    once.
 
     Two element pairs are identical when the index offset, the shapes (z10, z01, z11) of both
     elements and the height offset Δz00 are equal bit for bit (flat, tilted or 1-D periodic
-    patches). Tables are cached across calls, so strips of a large patch share them.
+    patches). Tables are cached across calls, so strips of a large patch share them; a call
+    returns the whole cache and each pair's row in it (nothing is copied per pair).
     """
 
     def __init__(self, integrals: ElementIntegrals):
         self.integrals = integrals
         mesh = integrals.mesh
         _, self.shape_ids = np.unique(mesh.geometry[:, 3:6], axis=0, return_inverse=True)
-        self.shape_ids = self.shape_ids.ravel()
+        self.shape_ids = self.shape_ids.ravel().astype(np.int64)
+        self.n_shapes = int(self.shape_ids.max()) + 1
         self.z00 = mesh.geometry[:, 2].copy()
         self.st = mesh.element_st
+        self.cells = mesh.cells
         self._keys: dict = {}
-        self._tables: list = []
+        self._store = np.zeros((0, 2, 33), dtype=complex)
 
     @staticmethod
     def worthwhile(mesh: BEMMesh, fraction: float = 0.25) -> bool:
         return len(np.unique(mesh.geometry[:, 3:6], axis=0)) <= max(1, fraction * mesh.n_elements)
 
-    def tables(self, test, source, wavenumbers) -> np.ndarray:
-        test = np.asarray(test)
-        source = np.asarray(source)
+    def _distinct(self, test, source):
+        """(keys of the distinct pairs, first pair of each, inverse) — one int64 sort key for the
+        offset and shapes, Δz00 compared bit for bit."""
         d = self.st[source] - self.st[test]
-        dz = (self.z00[source] - self.z00[test]).view(np.int64)
-        keys = np.stack([d[:, 0], d[:, 1], self.shape_ids[test], self.shape_ids[source], dz], axis=1)
-        unique, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
-        index = np.empty(len(unique), dtype=np.int64)
-        missing = []
-        for u, key in enumerate(map(tuple, unique)):
-            pos = self._keys.get(key)
-            if pos is None:
-                missing.append(u)
-            else:
-                index[u] = pos
-        if missing:
-            missing = np.asarray(missing)
-            fresh = self.integrals.tables(test[first[missing]], source[first[missing]], wavenumbers)
-            base = sum(len(t) for t in self._tables)
-            self._tables.append(fresh)
-            for i, u in enumerate(missing):
-                self._keys[tuple(unique[u])] = base + i
-                index[u] = base + i
-        store = np.concatenate(self._tables) if len(self._tables) > 1 else self._tables[0]
-        if len(self._tables) > 1:
-            self._tables = [store]
-        return store[index[inverse.ravel()]]
+        span = 2 * self.cells + 1
+        columns = [d[:, 0] + self.cells, d[:, 1] + self.cells, self.shape_ids[test], self.shape_ids[source]]
+        if span * span * self.n_shapes**2 < 2**62:  # one int64 key for all but Δz00
+            key = ((columns[0] * span + columns[1]) * self.n_shapes + columns[2]) * self.n_shapes + columns[3]
+            columns = [key]
+        columns.append((self.z00[source] - self.z00[test]).view(np.int64))
+        order = np.lexsort(columns[::-1])
+        new = np.zeros(len(order), dtype=bool)
+        new[:1] = True
+        for c in columns:
+            sorted_c = c[order]
+            new[1:] |= sorted_c[1:] != sorted_c[:-1]
+        first = order[new]
+        inverse = np.empty(len(order), dtype=np.int64)
+        inverse[order] = np.cumsum(new) - 1
+        return list(zip(*(c[first].tolist() for c in columns))), first, inverse
+
+    def indexed_tables(self, test, source, wavenumbers) -> tuple[np.ndarray, np.ndarray]:
+        test = np.asarray(test, dtype=np.int64)
+        source = np.asarray(source, dtype=np.int64)
+        keys, first, inverse = self._distinct(test, source)
+        index = np.array([self._keys.get(key, -1) for key in keys], dtype=np.int64)
+        missing = np.flatnonzero(index < 0)
+        if len(missing):
+            fresh, order = self.integrals.indexed_tables(test[first[missing]], source[first[missing]], wavenumbers)
+            index[missing] = len(self._store) + order
+            self._store = np.concatenate([self._store, fresh])
+            self._keys.update(zip((keys[u] for u in missing), index[missing].tolist()))
+        return self._store, index[inverse]
 
 
 # ---------------------------------------------------------------------------------------------
