@@ -288,7 +288,9 @@ class ExactGaussianBeam(_GaussianBeam):
         E, H = E * dk**2, H * dk**2
         norm = np.sum(E[1] @ self.frame[0])  # x_b component of the p field at the focus
         logger.debug("exact beam: %d plane waves, period %.3g µm", len(kvec), P)
-        return {"kvec": kvec, "E": E / norm, "H": H / norm, "period_um": P, "norm": norm}
+        lattice = np.nonzero(keep)  # (κx, κy) lattice indices of each wave
+        return {"kvec": kvec, "E": E / norm, "H": H / norm, "period_um": P, "norm": norm,
+                "lattice": lattice, "kx_axis": KX[:, 0], "ky_axis": KY[0, :]}
 
     def spectrum(self, kx, ky) -> tuple[np.ndarray, np.ndarray]:
         """Continuous angular spectrum (E, H densities per unit κ area, shape (2, ..., 3)) at
@@ -306,13 +308,18 @@ class ExactGaussianBeam(_GaussianBeam):
             waves.append((self.reflected_waves(interface_index), self.focus_um * [1.0, 1.0, -1.0]))
         points = np.asarray(points, dtype=float)
         shape = points.shape[:-1]
-        out = np.zeros((int(np.prod(shape)), 12), dtype=complex)
+        flat_points = points.reshape(-1, 3)
+        out = np.zeros((len(flat_points), 12), dtype=complex)
+        on_lattice = _lattice_sum_applies(flat_points, chunk)
         for pw, origin in waves:
-            flat = points.reshape(-1, 3) - origin
+            flat = flat_points - origin
             m = len(pw["kvec"])
             # columns: E_s, E_p, H_s, H_p (x, y, z each)
             amps = np.concatenate([pw["E"].transpose(1, 0, 2).reshape(m, 6), pw["H"].transpose(1, 0, 2).reshape(m, 6)],
                                   axis=1)
+            if on_lattice:
+                out += _lattice_sum(pw, amps, flat)
+                continue
             for s in range(0, len(flat), chunk):
                 out[s : s + chunk] += np.exp(-1j * (flat[s : s + chunk] @ pw["kvec"].T)) @ amps
         out = out.reshape(shape + (2, 2, 3))  # (..., E|H, pol, xyz)
@@ -340,7 +347,8 @@ class ExactGaussianBeam(_GaussianBeam):
         kr_hat = khat * np.array([1.0, 1.0, -1.0])
         E_te = (r_s * np.einsum("pmc,mc->pm", pw["E"], s_hat))[..., None] * s_hat
         H_tm = (r_p * np.einsum("pmc,mc->pm", pw["H"], s_hat))[..., None] * s_hat
-        return {"kvec": kr, "E": E_te + eta1 * np.cross(H_tm, kr_hat), "H": H_tm + np.cross(kr_hat, E_te) / eta1}
+        return {"kvec": kr, "E": E_te + eta1 * np.cross(H_tm, kr_hat), "H": H_tm + np.cross(kr_hat, E_te) / eta1,
+                "lattice": pw["lattice"], "kx_axis": pw["kx_axis"], "ky_axis": pw["ky_axis"]}
 
     def _flux_weights(self) -> np.ndarray:
         """Downward power of each plane wave per period cell, shape (2, M)."""
@@ -364,6 +372,62 @@ class ExactGaussianBeam(_GaussianBeam):
         reflected = self.reflected_waves(index)["E"]
         return (np.sum(weights * np.sum(np.abs(reflected) ** 2, axis=2), axis=1)
                 / np.sum(weights * np.sum(np.abs(pw["E"]) ** 2, axis=2), axis=1))
+
+
+LATTICE_SUM_BYTES = 64 * 2**20  # field values of one block of x columns in _lattice_sum
+SERIES_TAIL = 1e-17  # last Jacobi–Anger coefficient kept, relative to the amplitudes
+
+
+def _lattice_sum_applies(offsets: np.ndarray, chunk: int) -> bool:
+    """Whether the points are many and take few distinct x and y (a mesh's quadrature points)."""
+    n = len(offsets)
+    return n > chunk and len(np.unique(offsets[:, 0])) * len(np.unique(offsets[:, 1])) <= 4 * n
+
+
+def _lattice_sum(pw: dict, amps: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """Σ_m amps_m e^{−j k_m·r} (N, 12) at points r = ``offsets`` (N, 3), for waves on the
+    (κx, κy) lattice of ``pw`` (``lattice``, ``kx_axis``, ``ky_axis``), with real k_z.
+
+    The phase factorizes, e^{−jκx x} e^{−jκy y} e^{−jk_z z}, and over the points' height range
+    z = c + h t (|t| ≤ 1) the last factor is the Jacobi–Anger series
+    e^{−jk_z c} Σ_n ε_n (−j)^n J_n(k_z h) T_n(t) (ε_0 = 1, else 2), cut where J_n(max k_z h) <
+    SERIES_TAIL (one term for points in a plane). Each term's sum over the wave lattice is two
+    matrix products on the points' distinct x and y, instead of one complex exponential per
+    point and wave."""
+    from scipy.special import jv
+
+    ix, iy = pw["lattice"]
+    kx, ky, kz = pw["kx_axis"], pw["ky_axis"], pw["kvec"][:, 2]
+    ux, inv_x = np.unique(offsets[:, 0], return_inverse=True)
+    uy, inv_y = np.unique(offsets[:, 1], return_inverse=True)
+    z0, z1 = float(offsets[:, 2].min()), float(offsets[:, 2].max())
+    c, h = 0.5 * (z0 + z1), 0.5 * (z1 - z0)
+    reach = float(np.max(np.abs(kz))) * h
+    terms = 1
+    while reach > 0 and (terms <= reach or abs(jv(terms, reach)) >= SERIES_TAIL):
+        terms += 1
+    n = np.arange(terms)
+    series = np.where(n == 0, 1.0, 2.0) * (-1j) ** n * jv(n[None, :], h * kz[:, None])  # (M, T)
+    lattice = np.zeros((len(kx), len(ky), 12, terms), dtype=complex)
+    lattice[ix, iy] = (amps * np.exp(-1j * kz * c)[:, None])[:, :, None] * series[:, None, :]
+    ex = np.exp(-1j * np.outer(ux, kx))  # (Ux, nx)
+    ey = np.exp(-1j * np.outer(uy, ky))  # (Uy, ny)
+    width = 12 * terms
+    # over κy first: (Uy, ny) @ (ny, nx·12·T) → per x wave number, every y
+    by_y = (ey @ lattice.transpose(1, 0, 2, 3).reshape(len(ky), -1)).reshape(len(uy), len(kx), width)
+    by_y = by_y.transpose(1, 0, 2).reshape(len(kx), -1)  # (nx, Uy·12·T)
+    t = (offsets[:, 2] - c) / h if h else np.zeros(len(offsets))
+    out = np.empty((len(offsets), 12), dtype=complex)
+    order = np.argsort(inv_x, kind="stable")
+    starts = np.searchsorted(inv_x[order], np.arange(len(ux) + 1))
+    step = max(1, LATTICE_SUM_BYTES // (len(uy) * width * 16))
+    for x0 in range(0, len(ux), step):
+        x1 = min(len(ux), x0 + step)
+        block = (ex[x0:x1] @ by_y).reshape(x1 - x0, len(uy), 12, terms)
+        rows = order[starts[x0] : starts[x1]]
+        chebyshev = np.cos(np.arccos(np.clip(t[rows], -1.0, 1.0))[:, None] * n[None, :])  # T_n(t)
+        out[rows] = np.einsum("pct,pt->pc", block[inv_x[rows] - x0, inv_y[rows]], chebyshev)
+    return out
 
 
 def make_beam(kind: str, wavelength_um: float, theta_i: float, phi_i: float, waist_um: float | None,

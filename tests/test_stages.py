@@ -3,6 +3,7 @@ thread limit (solver/resources.py)."""
 
 from __future__ import annotations
 
+import mmap
 import os
 
 import numpy as np
@@ -15,8 +16,10 @@ MB = 2**20
 
 
 def _touch(megabytes: int) -> np.ndarray:
-    a = np.empty(megabytes * MB, dtype=np.uint8)
-    a[::4096] = 1  # every page resident
+    """``megabytes`` of fresh anonymous memory, every page resident (an mmap of its own: malloc
+    could serve the request from free heap memory that is resident already)."""
+    a = np.frombuffer(mmap.mmap(-1, megabytes * MB), dtype=np.uint8)
+    a[::4096] = 1
     return a
 
 

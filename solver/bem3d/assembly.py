@@ -359,13 +359,12 @@ def basis_pair_entries(ctx, mesh: BEMMesh, media: Media, rows, cols,
     source_elems = np.unique(mesh.basis_elements[ub_c])
     lt, ls = _local(test_elems, ne), _local(source_elems, ne)
     row_elem, col_elem = lt[mesh.basis_elements[ub_r]], ls[mesh.basis_elements[ub_c]]
-    # the element pairs actually needed
-    pairs = np.unique(
-        (row_elem[inv_r][:, :, None] * len(source_elems) + col_elem[inv_c][:, None, :]).ravel()
-    )
+    # the element pairs actually needed: marked on the dense local map (cheaper than a sort or hash)
+    pair_map = np.full((len(test_elems), len(source_elems)), -1, dtype=np.int32)
+    pair_map[row_elem[inv_r][:, :, None], col_elem[inv_c][:, None, :]] = 0
+    pairs = np.flatnonzero(pair_map.ravel() == 0)
     lt_idx, ls_idx = np.divmod(pairs, len(source_elems))
     tables, index = integrals.indexed_tables(test_elems[lt_idx], source_elems[ls_idx], media.wavenumbers)
-    pair_map = np.full((len(test_elems), len(source_elems)), -1, dtype=np.int32)
     pair_map.ravel()[pairs] = index
     coef = _coefficients(media)
     row_slot, col_slot = mesh.basis_slots[ub_r], mesh.basis_slots[ub_c]

@@ -403,3 +403,18 @@ def test_repeating_tables_are_the_fresh_tables_of_each_pair(cl_ctx, rng):
         reference = fresh.tables(test, source, ks)
         assert np.max(np.abs(store[index] - reference)) < 1e-13 * np.max(np.abs(reference))
     assert len(store) < 300  # computed once per distinct geometry
+
+
+def test_plane_wave_phases_of_repeating_and_scattered_positions(rng):
+    """e^{jk·r} computed once per distinct position (lattice points) or per entry (scattered
+    points) equals the direct exponential."""
+    from wavebrdf.solver.bem3d.aim.projection import plane_wave_phases
+
+    k = rng.standard_normal((40, 3)) * 12.0
+    lattice = np.stack([rng.integers(0, 9, (500, 8)) * 0.0125, rng.integers(0, 7, (500, 8)) * 0.02,
+                        np.full((500, 8), -0.03)], axis=-1)
+    scattered = rng.uniform(-1, 1, (300, 8, 3))
+    for r in (lattice, scattered):
+        got = plane_wave_phases(r, k)
+        assert got.shape == (r.shape[0], 8, 40)
+        assert np.max(np.abs(got - np.exp(1j * np.einsum("bqc,lc->bql", r, k)))) < 1e-13

@@ -133,3 +133,28 @@ def test_make_beam_rejects_bad_input():
         make_beam("exact", LAMBDA, 1.6, 0.0, 1.0, patch_size_um=5.0)
     with pytest.raises(ValueError, match="waist_um"):
         make_beam("paraxial", LAMBDA, 0.1, 0.0, None)
+
+
+@pytest.mark.parametrize("index", [None, 1.3 - 2.0j])
+@pytest.mark.parametrize("height_spread", [0.0, 0.35])
+def test_exact_beam_on_a_lattice_is_the_plane_wave_sum(index, height_spread):
+    """Points on an x-y lattice (a mesh's quadrature points, many more than one chunk), in one
+    plane or at random heights, take the factorized sum; it equals Σ_m E_m e^{−jk_m·(r − focus)}
+    (plus the reflected waves) summed here directly."""
+    beam = make_beam("exact", 0.5, 0.35, 0.8, 1.2, patch_size_um=5.0, focus_um=(0.3, -0.2, 0.1))
+    x, y = np.meshgrid(np.arange(-80, 81) * 0.025, np.arange(-60, 61) * 0.025 + 0.0125, indexing="ij")
+    z = 0.04 + height_spread * np.random.default_rng(5).uniform(-1, 1, x.shape)
+    points = np.stack([x, y, z], axis=-1)
+    assert points[..., 0].size > 4096
+    E, H = beam.fields(points, interface_index=index)
+    assert E.shape == (2,) + x.shape + (3,)
+    waves = [(beam.plane_waves, np.array(beam.focus_um))]
+    if index is not None:
+        waves.append((beam.reflected_waves(index), np.array(beam.focus_um) * [1, 1, -1]))
+    pick = np.random.default_rng(3).integers(0, x.size, 200)
+    r = points.reshape(-1, 3)[pick]
+    expected_E = sum(np.einsum("nm,pmc->pnc", np.exp(-1j * (r - o) @ pw["kvec"].T), pw["E"]) for pw, o in waves)
+    expected_H = sum(np.einsum("nm,pmc->pnc", np.exp(-1j * (r - o) @ pw["kvec"].T), pw["H"]) for pw, o in waves)
+    got_E, got_H = E.reshape(2, -1, 3)[:, pick], H.reshape(2, -1, 3)[:, pick]
+    assert np.max(np.abs(got_E - expected_E)) < 1e-12 * np.max(np.abs(expected_E))
+    assert np.max(np.abs(got_H - expected_H)) < 1e-12 * np.max(np.abs(expected_H))

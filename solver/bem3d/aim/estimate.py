@@ -35,13 +35,30 @@ def _continuation_cost(mesh: BEMMesh, options: AIMOptions, waist_um: float | Non
     reach = waist * math.sqrt(0.5 * math.log(1.0 / FLUX_LEFT))
     extended = max(ring + 4, math.ceil(2 * reach / d))
     ring_pairs = NearPattern.build(ring, options.near_cells).stored_entries()
-    ring_elements = ring**2 * math.pi * (options.near_cells + 1.5) ** 2
     extended_bases = 2 * extended * (extended - 1)
     weights = 2 * cplx * 3 * stencil_points * extended_bases
     # the extended mesh radiates from its own grid sources (farfield.py): 6 components per
     # polarization on its compact grid, one plane (the continuation is flat), complex128
     farfield = 2 * 6 * (extended + 4) ** 2 * 16
-    return ring_pairs * near_entry + weights, 2e-5 * ring_elements + 3e-6 * ring_pairs, farfield
+    seconds = _near_assembly_s(ring_pairs, flat=True) + _grid_setup_s(2 * extended_bases, flat=True)
+    return ring_pairs * near_entry + weights, seconds, farfield
+
+
+# Set-up time (seconds on the 2-core development machine), fitted to the stage clocks of
+# benchmarks/bench_aim.py (docs/aim.md): the near-field assembly per stored pair — 1.72e-5 s on
+# the rough 12 µm sub-area (7.4·10⁷ pairs, 1 274 s), 1.4e-6 s on the flat reference patch, whose
+# element tables repeat (9.0·10⁶ pairs, 12.3 s) — and projection, kernel spectra and excitation
+# per unknown (162 s at 919 680 rough unknowns; 7.6 s at 101 760 flat ones, one grid plane).
+NEAR_PAIR_S = {"rough": 1.6e-5, "flat": 1.4e-6}
+GRID_SETUP_S = {"rough": 1.8e-4, "flat": 7.5e-5}
+
+
+def _near_assembly_s(stored_pairs: float, flat: bool) -> float:
+    return NEAR_PAIR_S["flat" if flat else "rough"] * stored_pairs
+
+
+def _grid_setup_s(unknowns: float, flat: bool) -> float:
+    return GRID_SETUP_S["flat" if flat else "rough"] * unknowns
 
 
 _GRIDS: dict = {}  # AIM grids of recent estimates by (cells, size, relief in cells, grid options)
@@ -121,6 +138,7 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     grid = _grid(mesh, grid_options)
     pattern = NearPattern.build(mesh.cells, options.near_cells)
     n, n_b = mesh.n_unknowns, mesh.n_bases
+    flat = bool(np.ptp(mesh.heights) == 0)
     farfield_matching = options.projection == "farfield"
     groups = len(gm) if farfield_matching else 1
     real = 8 if options.precision == "double" else 4
@@ -142,7 +160,6 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     }
     preconditioner_s = 0.0
     if options.preconditioner == "near":
-        flat = bool(np.ptp(mesh.heights) == 0)
         held["preconditioner"], preconditioner_s = _preconditioner_cost(mesh.cells, n, options, flat=flat)
     # Krylov vectors are complex128 (solver/krylov.py works in the rhs dtype: complex for the driver)
     krylov = 16 * n * P * (options.restart + 4 if options.solver == "gmres" else 8)
@@ -179,8 +196,8 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
         product_s += 2.0 * held["preconditioner"] / SUPERLU_BYTES * 2e-9  # triangular solves, both polarizations
     size_waves = surface.size_um * exterior_index / wavelength_um
     iterations = _products(options, size_waves, abs(media.index))
-    element_pairs = mesh.n_elements * math.pi * (options.near_cells + 1.5) ** 2
-    setup_s = 2e-5 * element_pairs + 3e-6 * stored_pairs + preconditioner_s + continuation_s
+    setup_s = (_near_assembly_s(stored_pairs, flat) + _grid_setup_s(n, flat) + preconditioner_s
+               + continuation_s)
     seconds = setup_s + directions * iterations * product_s * 1.1
     return {
         "unknowns": n,

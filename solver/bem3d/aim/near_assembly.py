@@ -170,19 +170,29 @@ def _kernel_table(k, grid, wbase, wdim):
 
 
 class _NearBaseOpenCL:
-    """Device state of the B subtraction: weights of each projection, origins."""
+    """Device state of the B subtraction: weights of each projection, origins, and the grid
+    potentials' buffer (kept across launches and strips: fresh buffers of this size cost a page
+    fault per page every launch)."""
 
     def __init__(self, ctx, projections):
         self.ctx = ctx
         self.origins = ctx.to_device(projections[0].grid.origins, np.int32)
         self.weights = {id(p): ctx.to_device(p.weights, np.result_type(p.weights, np.float64)) for p in projections}
+        self._potentials = None
+
+    def _potential_buffer(self, nbytes: int):
+        import pyopencl as cl
+
+        if self._potentials is None or self._potentials.size < nbytes:
+            self._potentials = None
+            self._potentials = cl.Buffer(self.ctx.context, cl.mem_flags.READ_WRITE, nbytes)
+        return self._potentials
 
     def subtract(self, projection, k, coef, pattern, block, rows, staged, window, n_horizontal):
         """Subtract B (one medium) from ``staged`` (n_offsets, len(rows), 3) complex128 in place."""
         import pyopencl as cl
 
         ctx, queue = self.ctx, self.ctx.queue
-        mf = cl.mem_flags
         grid = projection.grid
         orow, ocol, _ = BLOCKS[block]
         wbase, wdim = window
@@ -204,7 +214,7 @@ class _NearBaseOpenCL:
             n = s1 - s0
             src_buf = ctx.to_device(sources[s0:s1])
             row_buf = ctx.to_device(rows[s0:s1], np.int32)
-            pot = cl.Buffer(ctx.context, mf.READ_WRITE, n * 6 * nW * 16)
+            pot = self._potential_buffer(n * 6 * nW * 16)
             pot_knl(queue, (n * nW,), None, src_buf, np.int32(n), self.origins, np.int32(2 * pattern.rows),
                     np.int32(n_horizontal), weights, np.int32(sx), np.int32(sy), np.int32(sz), int4_arg(wdim),
                     int4_arg(wbase), int4_arg(lo), int4_arg(dims), *tables, pot)
@@ -253,14 +263,16 @@ def assemble_near(ctx, mesh: BEMMesh, media: Media, pattern: NearPattern, groups
         exact_offsets = {b: pattern.within(b, min(exact_cells, pattern.radius_cells)) for b in BLOCKS}
         exact = {b: np.zeros((len(exact_offsets[b]), nrows, 3), dtype=STORAGE[storage]) for b in BLOCKS}
     device = _NearBaseOpenCL(ctx, [p for p, _ in groups]) if ctx is not None else None
-    timings = {"exact_s": 0.0, "base_s": 0.0}
+    timings = {"exact_s": 0.0, "entries_s": 0.0, "base_s": 0.0}  # exact_s: pair lists, entries, staging
     strips = list(_strips(pattern))
     for i_strip, rows_by_block in enumerate(strips):
         t0 = time.perf_counter()
         pairs = {b: pattern.pairs(b, rows_by_block[b]) for b in BLOCKS}
         all_rows = np.concatenate([p[0] for p in pairs.values()])
         all_cols = np.concatenate([p[1] for p in pairs.values()])
+        t_entries = time.perf_counter()
         ee, mm, em = basis_pair_entries(ctx, mesh, media, all_rows, all_cols, integrals=tables)
+        timings["entries_s"] += time.perf_counter() - t_entries
         staged, start = {}, 0
         for b, (row_id, col_id, j, pos) in pairs.items():
             s = np.zeros((len(pattern.offsets(b)), len(rows_by_block[b]), 3), dtype=complex)

@@ -49,6 +49,7 @@ __all__ = [
     "fibonacci_directions",
     "lagrange_weights",
     "matching_operator",
+    "plane_wave_phases",
     "project",
 ]
 
@@ -127,6 +128,28 @@ def matching_operator(grid: AIMGrid, wavevectors: np.ndarray, regularization: fl
     return np.linalg.solve(gram, A.conj().T)
 
 
+REPEAT_FRACTION = 0.25  # share of distinct positions below which each distinct one is computed once
+
+
+def plane_wave_phases(r: np.ndarray, wavevectors: np.ndarray) -> np.ndarray:
+    """e^{j k_ℓ·r} for positions r (..., 3) µm and wavevectors (L, 3): shape (..., L).
+
+    Positions that repeat exactly (flat or stepped meshes: the quadrature points of one lattice
+    relative to their stencils take few distinct values) get their exponentials once."""
+    flat = r.reshape(-1, 3)
+    key = np.zeros(len(flat), dtype=np.int64)
+    for c in range(3):
+        values, inverse = np.unique(flat[:, c], return_inverse=True)
+        if len(values) > REPEAT_FRACTION * len(flat):
+            return np.exp(1j * (r @ wavevectors.T))
+        key = key * len(values) + inverse.ravel()
+    distinct, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+    if len(distinct) > REPEAT_FRACTION * len(flat):
+        return np.exp(1j * (r @ wavevectors.T))
+    phases = np.exp(1j * (flat[first] @ wavevectors.T))
+    return phases[inverse.ravel()].reshape(r.shape[:-1] + (len(wavevectors),))
+
+
 def _local_coordinates(grid: AIMGrid, r: np.ndarray, bases: np.ndarray) -> np.ndarray:
     """Positions relative to each basis' stencil origin, in units of the spacings."""
     origin = (grid.origins[bases] + np.asarray(grid.lattice_start)) * np.asarray(grid.spacing)
@@ -170,7 +193,7 @@ def project(mesh: BEMMesh, grid: AIMGrid, method: str = "moments", *, k=None,
             ).reshape(len(bases), -1, S)
             out[:, bases] = np.einsum("cbq,bqs->cbs", psi, W)
         else:
-            phase = np.exp(1j * (xi * np.asarray(grid.spacing)) @ wavevectors.T)  # (B, Q, L)
+            phase = plane_wave_phases(xi * np.asarray(grid.spacing), wavevectors)  # (B, Q, L)
             moments = np.einsum("cbq,bql->cbl", psi, phase)
             out[:, bases] = moments @ P.T
     logger.debug("projection %s: %d bases x %d stencil points", method, n_b, S)
