@@ -317,8 +317,9 @@ class ExactGaussianBeam(_GaussianBeam):
             # columns: E_s, E_p, H_s, H_p (x, y, z each)
             amps = np.concatenate([pw["E"].transpose(1, 0, 2).reshape(m, 6), pw["H"].transpose(1, 0, 2).reshape(m, 6)],
                                   axis=1)
-            if on_lattice:
-                out += _lattice_sum(pw, amps, flat)
+            summed = _lattice_sum(pw, amps, flat) if on_lattice else None
+            if summed is not None:
+                out += summed
                 continue
             for s in range(0, len(flat), chunk):
                 out[s : s + chunk] += np.exp(-1j * (flat[s : s + chunk] @ pw["kvec"].T)) @ amps
@@ -379,12 +380,26 @@ SERIES_TAIL = 1e-17  # last Jacobi–Anger coefficient kept, relative to the amp
 
 
 def _lattice_sum_applies(offsets: np.ndarray, chunk: int) -> bool:
-    """Whether the points are many and take few distinct x and y (a mesh's quadrature points)."""
+    """Whether the points are many and take few distinct x and y, each (x, y) a few times at most
+    (a mesh's quadrature points; not a volume grid)."""
     n = len(offsets)
-    return n > chunk and len(np.unique(offsets[:, 0])) * len(np.unique(offsets[:, 1])) <= 4 * n
+    if n <= chunk:
+        return False
+    columns = len(np.unique(offsets[:, 0])) * len(np.unique(offsets[:, 1]))
+    return n / 4 <= columns <= 4 * n
 
 
-def _lattice_sum(pw: dict, amps: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+def _series_terms(reach: float) -> int:
+    """Jacobi–Anger terms for |k_z h| ≤ ``reach``: up to the first n > reach with |J_n| < SERIES_TAIL."""
+    from scipy.special import jv
+
+    terms = 1
+    while reach > 0 and (terms <= reach or abs(jv(terms, reach)) >= SERIES_TAIL):
+        terms += 1
+    return terms
+
+
+def _lattice_sum(pw: dict, amps: np.ndarray, offsets: np.ndarray) -> np.ndarray | None:
     """Σ_m amps_m e^{−j k_m·r} (N, 12) at points r = ``offsets`` (N, 3), for waves on the
     (κx, κy) lattice of ``pw`` (``lattice``, ``kx_axis``, ``ky_axis``), with real k_z.
 
@@ -393,7 +408,8 @@ def _lattice_sum(pw: dict, amps: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     e^{−jk_z c} Σ_n ε_n (−j)^n J_n(k_z h) T_n(t) (ε_0 = 1, else 2), cut where J_n(max k_z h) <
     SERIES_TAIL (one term for points in a plane). Each term's sum over the wave lattice is two
     matrix products on the points' distinct x and y, instead of one complex exponential per
-    point and wave."""
+    point and wave. None (use the direct sum) where the series would need as many terms as
+    there are waves or its partial sums more than 4 LATTICE_SUM_BYTES."""
     from scipy.special import jv
 
     ix, iy = pw["lattice"]
@@ -402,10 +418,9 @@ def _lattice_sum(pw: dict, amps: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     uy, inv_y = np.unique(offsets[:, 1], return_inverse=True)
     z0, z1 = float(offsets[:, 2].min()), float(offsets[:, 2].max())
     c, h = 0.5 * (z0 + z1), 0.5 * (z1 - z0)
-    reach = float(np.max(np.abs(kz))) * h
-    terms = 1
-    while reach > 0 and (terms <= reach or abs(jv(terms, reach)) >= SERIES_TAIL):
-        terms += 1
+    terms = _series_terms(float(np.max(np.abs(kz))) * h)
+    if terms >= len(kz) or len(kx) * len(uy) * 12 * terms * 16 > 4 * LATTICE_SUM_BYTES:
+        return None
     n = np.arange(terms)
     series = np.where(n == 0, 1.0, 2.0) * (-1j) ** n * jv(n[None, :], h * kz[:, None])  # (M, T)
     lattice = np.zeros((len(kx), len(ky), 12, terms), dtype=complex)

@@ -133,9 +133,10 @@ def one_blas_thread():
         yield
 
 
-def huge_page_advice(enabled: bool | None = None) -> bool:
+def huge_page_advice(enabled: bool | None = None) -> bool | None:
     """Set whether numpy advises the kernel to back its large arrays with transparent huge pages
-    (``madvise(MADV_HUGEPAGE)``); returns the previous setting.
+    (``madvise(MADV_HUGEPAGE)``); returns the previous setting (None where this numpy has no
+    such switch: nothing is changed).
 
     ``enabled`` None: off unless the user set ``NUMPY_MADVISE_HUGEPAGE`` (numpy's own switch,
     then left as it chose). Off by default because with the common ``defrag = madvise`` setting
@@ -144,8 +145,13 @@ def huge_page_advice(enabled: bool | None = None) -> bool:
     (nearly all system time) and 0.25 s without, and the AIM near-field set-up of 101 760
     unknowns dropped from 170 s to 107 s wall (system 61 → 19 s) with AIM products unchanged
     (0.203 vs 0.212 s)."""
-    from numpy._core.multiarray import _set_madvise_hugepage
-
+    try:
+        from numpy._core.multiarray import _set_madvise_hugepage
+    except ImportError:  # numpy < 2
+        try:
+            from numpy.core.multiarray import _set_madvise_hugepage
+        except ImportError:
+            return None
     if enabled is None:
         if "NUMPY_MADVISE_HUGEPAGE" in os.environ:
             return _set_madvise_hugepage(os.environ["NUMPY_MADVISE_HUGEPAGE"] not in ("", "0"))

@@ -88,7 +88,7 @@ def test_one_blas_thread_limits_every_loaded_blas_and_lifts_the_limit():
 
 def test_huge_page_advice_is_off_unless_the_user_asks(monkeypatch):
     """Importing the solver switched numpy's MADV_HUGEPAGE off; NUMPY_MADVISE_HUGEPAGE wins."""
-    from numpy._core.multiarray import _set_madvise_hugepage
+    from numpy._core.multiarray import _set_madvise_hugepage  # numpy >= 2, as locked
 
     from wavebrdf.solver.resources import huge_page_advice
 

@@ -344,6 +344,8 @@ class ElementIntegrals:
         pair p's table is ``tables[index[p]]``."""
         test = np.asarray(test, dtype=np.int64)
         source = np.asarray(source, dtype=np.int64)
+        if len(test) == 0:
+            return np.empty((0, 2, TABLE), dtype=complex), np.empty(0, dtype=np.int64)
         case, code_t, code_s = self.classify(test, source)
         group = case.astype(np.int64)  # touching: case 1..3; regular: 4 + Gauss order
         regular = np.flatnonzero(case == CASE_REGULAR)

@@ -183,8 +183,8 @@ def test_tables_of_overlapping_lists_match_a_fresh_computation(cl_ctx, curved_me
     near_t, near_s = _random_pairs(curved_mesh, rng, 60, touching=True)
     far_t, far_s = _random_pairs(curved_mesh, rng, 40, touching=False)
     first_t, first_s = np.concatenate([near_t[:40], far_t[:20]]), np.concatenate([near_s[:40], far_s[:20]])
-    second_t = np.concatenate([far_t[20:], near_t[20:], near_t[25:26]])
-    second_s = np.concatenate([far_s[20:], near_s[20:], near_s[25:26]])
+    second_t = np.concatenate([far_t[20:], near_t[20:], near_t[25:26], near_t[45:46]])  # one cached,
+    second_s = np.concatenate([far_s[20:], near_s[20:], near_s[25:26], near_s[45:46]])  # one new twice
     cached = el.ElementIntegrals(curved_mesh, ctx=cl_ctx)
     cached.tables(first_t, first_s, ks)
     static_before = cached.counts["static"]

@@ -138,9 +138,11 @@ def plane_wave_phases(r: np.ndarray, wavevectors: np.ndarray) -> np.ndarray:
     relative to their stencils take few distinct values) get their exponentials once."""
     flat = r.reshape(-1, 3)
     key = np.zeros(len(flat), dtype=np.int64)
+    span = 1
     for c in range(3):
         values, inverse = np.unique(flat[:, c], return_inverse=True)
-        if len(values) > REPEAT_FRACTION * len(flat):
+        span *= len(values)
+        if len(values) > REPEAT_FRACTION * len(flat) or span >= 2**62:
             return np.exp(1j * (r @ wavevectors.T))
         key = key * len(values) + inverse.ravel()
     distinct, first, inverse = np.unique(key, return_index=True, return_inverse=True)
