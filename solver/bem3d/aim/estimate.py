@@ -45,10 +45,10 @@ def _continuation_cost(mesh: BEMMesh, options: AIMOptions, waist_um: float | Non
 
 
 # Set-up time (seconds on the 2-core development machine), fitted to the stage clocks of
-# benchmarks/bench_aim.py (docs/aim.md): the near-field assembly per stored pair — 1.72e-5 s on
-# the rough 12 µm sub-area (7.4·10⁷ pairs, 1 274 s), 1.4e-6 s on the flat reference patch, whose
+# benchmarks/bench_aim.py (docs/aim.md): the near-field assembly per stored pair — 1.6e-5 s on
+# the rough 12 µm sub-area (7.4·10⁷ pairs, 1 189 s), 1.4e-6 s on the flat reference patch, whose
 # element tables repeat (9.0·10⁶ pairs, 12.3 s) — and projection, kernel spectra and excitation
-# per unknown (162 s at 919 680 rough unknowns; 7.6 s at 101 760 flat ones, one grid plane).
+# per unknown (164 s at 919 680 rough unknowns; 7.6 s at 101 760 flat ones, one grid plane).
 NEAR_PAIR_S = {"rough": 1.6e-5, "flat": 1.4e-6}
 GRID_SETUP_S = {"rough": 1.8e-4, "flat": 7.5e-5}
 
