@@ -310,14 +310,15 @@ class ExactGaussianBeam(_GaussianBeam):
         shape = points.shape[:-1]
         flat_points = points.reshape(-1, 3)
         out = np.zeros((len(flat_points), 12), dtype=complex)
-        on_lattice = _lattice_sum_applies(flat_points, chunk)
+        distinct = _distinct_xy(flat_points) if len(flat_points) > chunk else None
+        on_lattice = distinct is not None and _lattice_sum_applies(len(flat_points), distinct)
         for pw, origin in waves:
             flat = flat_points - origin
             m = len(pw["kvec"])
             # columns: E_s, E_p, H_s, H_p (x, y, z each)
             amps = np.concatenate([pw["E"].transpose(1, 0, 2).reshape(m, 6), pw["H"].transpose(1, 0, 2).reshape(m, 6)],
                                   axis=1)
-            summed = _lattice_sum(pw, amps, flat) if on_lattice else None
+            summed = _lattice_sum(pw, amps, flat, _shifted(distinct, origin)) if on_lattice else None
             if summed is not None:
                 out += summed
                 continue
@@ -379,14 +380,24 @@ LATTICE_SUM_BYTES = 64 * 2**20  # field values of one block of x columns in _lat
 SERIES_TAIL = 1e-17  # last Jacobi–Anger coefficient kept, relative to the amplitudes
 
 
-def _lattice_sum_applies(offsets: np.ndarray, chunk: int) -> bool:
-    """Whether the points are many and take few distinct x and y, each (x, y) a few times at most
-    (a mesh's quadrature points; not a volume grid)."""
-    n = len(offsets)
-    if n <= chunk:
-        return False
-    columns = len(np.unique(offsets[:, 0])) * len(np.unique(offsets[:, 1]))
-    return n / 4 <= columns <= 4 * n
+def _distinct_xy(points: np.ndarray) -> tuple:
+    """The points' distinct x and y and each point's index into them: (ux, inv_x, uy, inv_y)."""
+    ux, inv_x = np.unique(points[:, 0], return_inverse=True)
+    uy, inv_y = np.unique(points[:, 1], return_inverse=True)
+    return ux, inv_x, uy, inv_y
+
+
+def _shifted(distinct: tuple, origin) -> tuple:
+    """:func:`_distinct_xy` of the points less ``origin`` (µm; x and y shift, the indices stay)."""
+    ux, inv_x, uy, inv_y = distinct
+    return ux - origin[0], inv_x, uy - origin[1], inv_y
+
+
+def _lattice_sum_applies(n_points: int, distinct: tuple) -> bool:
+    """Whether ``n_points`` points with these distinct x and y (:func:`_distinct_xy`) take each
+    (x, y) a few times at most (a mesh's quadrature points; not a volume grid)."""
+    columns = len(distinct[0]) * len(distinct[2])
+    return n_points / 4 <= columns <= 4 * n_points
 
 
 def _series_terms(reach: float) -> int:
@@ -399,8 +410,9 @@ def _series_terms(reach: float) -> int:
     return terms
 
 
-def _lattice_sum(pw: dict, amps: np.ndarray, offsets: np.ndarray) -> np.ndarray | None:
-    """Σ_m amps_m e^{−j k_m·r} (N, 12) at points r = ``offsets`` (N, 3), for waves on the
+def _lattice_sum(pw: dict, amps: np.ndarray, offsets: np.ndarray, distinct: tuple) -> np.ndarray | None:
+    """Σ_m amps_m e^{−j k_m·r} (N, 12) at points r = ``offsets`` (N, 3) with distinct x and y
+    ``distinct`` (:func:`_distinct_xy` of the offsets), for waves on the
     (κx, κy) lattice of ``pw`` (``lattice``, ``kx_axis``, ``ky_axis``), with real k_z.
 
     The phase factorizes, e^{−jκx x} e^{−jκy y} e^{−jk_z z}, and over the points' height range
@@ -414,8 +426,7 @@ def _lattice_sum(pw: dict, amps: np.ndarray, offsets: np.ndarray) -> np.ndarray 
 
     ix, iy = pw["lattice"]
     kx, ky, kz = pw["kx_axis"], pw["ky_axis"], pw["kvec"][:, 2]
-    ux, inv_x = np.unique(offsets[:, 0], return_inverse=True)
-    uy, inv_y = np.unique(offsets[:, 1], return_inverse=True)
+    ux, inv_x, uy, inv_y = distinct
     z0, z1 = float(offsets[:, 2].min()), float(offsets[:, 2].max())
     c, h = 0.5 * (z0 + z1), 0.5 * (z1 - z0)
     terms = _series_terms(float(np.max(np.abs(kz))) * h)

@@ -158,11 +158,7 @@ class HeightField:
         """rms height and peak-to-valley of the nodes (of the N×N tile when periodic, so that each
         point counts once), rms / max slope of the bilinear surface (cell centres), and the
         correlation lengths along x and y (µm; NaN when undefined)."""
-        z = self.z
-        d = self.spacing_um
-        zx = 0.5 * (z[1:, 1:] + z[1:, :-1] - z[:-1, 1:] - z[:-1, :-1]) / d
-        zy = 0.5 * (z[1:, 1:] - z[1:, :-1] + z[:-1, 1:] - z[:-1, :-1]) / d
-        slope = np.hypot(zx, zy)
+        slope = self.slopes()
         heights = self._tile()
         heights = heights - heights.mean()
         length_x, length_y = self.correlation_lengths()
@@ -174,6 +170,14 @@ class HeightField:
             "correlation_length_x_um": length_x,
             "correlation_length_y_um": length_y,
         }
+
+    def slopes(self) -> np.ndarray:
+        """|∇z| of the bilinear surface at the cell centres, shape (N, N) (dimensionless)."""
+        z = self.z
+        d = self.spacing_um
+        zx = 0.5 * (z[1:, 1:] + z[1:, :-1] - z[:-1, 1:] - z[:-1, :-1]) / d
+        zy = 0.5 * (z[1:, 1:] - z[1:, :-1] + z[:-1, 1:] - z[:-1, :-1]) / d
+        return np.hypot(zx, zy)
 
     def _tile(self) -> np.ndarray:
         """The nodes that are distinct points: the N×N tile when periodic, else all (N+1)²."""
