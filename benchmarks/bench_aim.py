@@ -12,6 +12,8 @@
     .venv/bin/python benchmarks/bench_aim.py scale             # 12.5 µm aluminium, d = λ/12.8 (~6.4e5 unknowns)
     .venv/bin/python benchmarks/bench_aim.py subarea           # the reference's 12 µm sub-area (919 680 unknowns),
                                                                # settings fitted to --memory-gb; --cells for smaller
+    .venv/bin/python benchmarks/bench_aim.py products          # unpreconditioned MINRES products vs the planner's
+                                                               # estimate on small surfaces of varied roughness
 
 Every run prints the machine load (other agents share the 2 cores): compare ratios measured in
 one run, not absolute times. CPU seconds and peak memory come from getrusage.
@@ -370,13 +372,60 @@ def cmd_subarea(args, ctx):
               f"{albedo(mine, grid)} vs {albedo(ref, grid)}")
 
 
+# (label, wavelength µm, index, surface): the planner's unpreconditioned settings on small
+# patches at d = λ/16 (the aluminium patch: λ/12.8) whose roughness and correlation differ
+PRODUCT_CASES = (
+    ("Al, rms 0.1 µm, T 1 µm (sub-area family)", 0.4, AL_400, lambda: subarea_surface(96)),
+    ("Al, rms 0.088 µm, T 1.8 µm", 0.4, AL_400,
+     lambda: generate("gaussian", cells=96, size_um=2.4, seed=1, rms_height_um=0.088, correlation_um=1.8)),
+    ("Al, rms 0.2 µm, T 1 µm", 0.4, AL_400,
+     lambda: generate("gaussian", cells=96, size_um=2.4, seed=1, rms_height_um=0.2, correlation_um=1.0)),
+    ("Al, flat", 0.4, AL_400, lambda: generate("flat", cells=96, size_um=2.4)),
+    ("Al, scale-run family at d = λ/12.8", 0.4, AL_400, lambda: aluminium_patch(96)),
+    ("glass, the sub-area family scaled to λ = 0.5", 0.5, 1.5,
+     lambda: generate("gaussian", cells=96, size_um=3.0, seed=1, rms_height_um=0.125, correlation_um=1.25)),
+    ("Al, rms 0.1 µm, T 1 µm, 1.6 µm", 0.4, AL_400,
+     lambda: generate("gaussian", cells=64, size_um=1.6, seed=2, rms_height_um=0.1, correlation_um=1.0)),
+    ("Al, rms 0.05 µm, T 0.5 µm, 1.6 µm", 0.4, AL_400,
+     lambda: generate("gaussian", cells=64, size_um=1.6, seed=2, rms_height_um=0.05, correlation_um=0.5)),
+    ("glass, rms 0.06 µm, T 0.5 µm, 1.5 µm", 0.5, 1.5,
+     lambda: generate("gaussian", cells=48, size_um=1.5, seed=2, rms_height_um=0.06, correlation_um=0.5)),
+)
+
+
+def cmd_products(args, ctx):
+    """MINRES products without a preconditioner (single precision, the interior off the grid
+    where the radius allows: the planner's choice at scale) against ``estimate_aim``'s count, on
+    the small patches of PRODUCT_CASES; exact beam of waist L/4.8 at normal incidence."""
+    from wavebrdf.solver.bem3d.aim.budget import interior_leaves_grid_cells
+
+    print(load())
+    for label, lam, index, make in PRODUCT_CASES[slice(*args.cases)]:
+        surface = make()
+        aim = AIMOptions(precision="single", preconditioner="none", solver="csym")
+        off = interior_leaves_grid_cells(aim, Media(lam, index), surface.spacing_um)
+        aim = AIMOptions(precision="single", preconditioner="none", solver="csym",
+                         near_cells=aim.near_cells if off is None else off)
+        waist = surface.size_um / 4.8
+        guess = estimate_aim(surface, lam, index, aim=aim, waist_um=waist)["iterations_guess"]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", BEMWarning)
+            solver = BEMSolver(ctx, surface, lam, index, method="aim", aim=aim)
+            measured = solver.farfield(0.0, 0.0, HemisphereGrid(64), waist_um=waist).diagnostics["iterations"]
+        print(f"{label}: L/λ {surface.size_um / lam:.1f}, rms slope {surface.statistics()['rms_slope']:.3f}, "
+              f"near_cells {aim.near_cells:g}: products {measured}, estimate {guess} "
+              f"({guess / np.mean(measured) - 1:+.0%})", flush=True)
+
+
 def cmd_scale(args, ctx):
-    """12.5 µm aluminium patch at λ = 0.4 µm, d = λ/12.8 = 0.03125 µm (N = 400, 638 400 unknowns)."""
+    """12.5 µm aluminium patch at λ = 0.4 µm, d = λ/12.8 = 0.03125 µm (N = 400, 638 400 unknowns),
+    exact beam of waist L/5, normal incidence; single precision and storage unless ``--aim`` says more."""
     print(load())
     surface = aluminium_patch(args.cells)
     print(f"surface: {surface.cells} cells, {surface.size_um:g} µm, {surface.statistics()}")
-    _single_run(ctx, surface, 0.4, AL_400, args.waist or surface.size_um / 5, 256,
-                {"precision": args.precision, "near_storage": "single"})
+    _single_run(ctx, surface, 0.4, AL_400, args.waist or surface.size_um / 5, args.resolution,
+                {"precision": args.precision, "near_storage": "single", **json.loads(args.aim)})
+    print(f"system CPU share {resource.getrusage(resource.RUSAGE_SELF).ru_stime / max(usage()['cpu_s'], 1e-9):.3f}")
 
 
 def main():
@@ -422,10 +471,15 @@ def main():
     p.add_argument("--aim", default="{}", help="AIM options as JSON")
     p.add_argument("--save", default=None, help="write the BRDF (.npy)")
     p.add_argument("--compare", default=None, help="a saved BRDF (.npy) to compare with (relative L2, albedo)")
+    p = sub.add_parser("products")
+    p.add_argument("--cases", type=int, nargs=2, default=[0, len(PRODUCT_CASES)], help="a slice of PRODUCT_CASES")
     p = sub.add_parser("scale")
     p.add_argument("--cells", type=int, default=400)
     p.add_argument("--waist", type=float, default=None)
     p.add_argument("--precision", default="single")
+    p.add_argument("--resolution", type=int, default=256)
+    p.add_argument("--aim", default="{}", help='more AIM options as JSON, e.g. \'{"preconditioner": "none", '
+                   '"solver": "csym"}\' (the issue-18 run)')
     args = parser.parse_args()
     ctx = create_context()
     print(f"device: {ctx.describe()}")

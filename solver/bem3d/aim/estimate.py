@@ -226,7 +226,7 @@ def _products(options: AIMOptions, size_waves: float, index_modulus: float, rms_
     tiles. Without a preconditioner (MINRES) the count follows the roughness as much as the size:
     55 (|n|/4.74)^1.05 (L/λ)^0.49 e^{2.37 s} (s: rms slope), a fit through eight aluminium solves
     at d = λ/16 and λ/12.8 (flat 141, rms slope 0.19–0.56 at 6–30 wavelengths: 167–487 products,
-    within −17…+36%) and one glass solve of the same geometry (89 vs 298: the |n| factor)."""
+    within −17…+37%) and one glass solve of the same geometry (89 vs 298: the |n| factor)."""
     if options.preconditioner == "near":
         whole = 20 + 6 * math.sqrt(size_waves)
         return whole * (1.0 if options.preconditioner_tile_cells == 0 else 2.6)
