@@ -165,7 +165,7 @@ class HeightField:
         return {
             "rms_height_um": float(np.sqrt(np.mean(heights**2))),
             "peak_to_valley_um": float(np.ptp(heights)),
-            "rms_slope": float(np.sqrt(np.mean(slope**2))),
+            "rms_slope": self.rms_slope(),
             "max_slope": float(slope.max()),
             "correlation_length_x_um": length_x,
             "correlation_length_y_um": length_y,
@@ -178,6 +178,10 @@ class HeightField:
         zx = 0.5 * (z[1:, 1:] + z[1:, :-1] - z[:-1, 1:] - z[:-1, :-1]) / d
         zy = 0.5 * (z[1:, 1:] - z[1:, :-1] + z[:-1, 1:] - z[:-1, :-1]) / d
         return np.hypot(zx, zy)
+
+    def rms_slope(self) -> float:
+        """rms of :meth:`slopes` (dimensionless)."""
+        return float(np.sqrt(np.mean(self.slopes() ** 2)))
 
     def _tile(self) -> np.ndarray:
         """The nodes that are distinct points: the N×N tile when periodic, else all (N+1)²."""

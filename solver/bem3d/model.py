@@ -77,12 +77,14 @@ class BEMModel(Model):
         aim = self.options.aim
         if scene.precision == "single":
             aim = replace(aim, precision="single")
-        # patches of one size whose height ranges agree within a cell share a fit (the estimate
-        # sees the heights only through the grid's extent), so a steered study plans quickly
+        # patches of one size whose height ranges agree within a cell and rms slopes within 0.01
+        # share a fit (the estimate sees the heights only through the grid's extent and, for the
+        # product count, the rms slope), so a steered study plans quickly
         surface = scene.surface
         ptp = float(np.ptp(surface.z))
         relief = (round(ptp / surface.spacing_um), ptp == 0.0)  # a flat patch's grid has one z plane
-        key = (surface.cells, surface.size_um, relief, scene.wavelength_um, complex(scene.index),
+        slope = round(surface.rms_slope(), 2)
+        key = (surface.cells, surface.size_um, relief, slope, scene.wavelength_um, complex(scene.index),
                scene.exterior_index, scene.waist_um, aim, scene.memory_budget_bytes, scene.grid.resolution)
         if key not in self._fits:
             budget = float("inf") if scene.memory_budget_bytes is None else scene.memory_budget_bytes

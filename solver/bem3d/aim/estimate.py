@@ -195,8 +195,7 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     if options.preconditioner == "near":
         product_s += 2.0 * held["preconditioner"] / SUPERLU_BYTES * 2e-9  # triangular solves, both polarizations
     size_waves = surface.size_um * exterior_index / wavelength_um
-    rms_slope = float(np.sqrt(np.mean(surface.slopes() ** 2)))
-    iterations = _products(options, size_waves, abs(media.index), rms_slope)
+    iterations = _products(options, size_waves, abs(media.index), surface.rms_slope())
     setup_s = (_near_assembly_s(stored_pairs, flat) + _grid_setup_s(n, flat) + preconditioner_s
                + continuation_s)
     seconds = setup_s + directions * iterations * product_s * 1.1
