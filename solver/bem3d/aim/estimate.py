@@ -189,7 +189,9 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
                 sum(held.values()) + max(v for k, v in transient.items() if k != "set-up"))
     # time model (seconds), constants from benchmarks/bench_aim.py on the 2-core machine
     fft_points = padded * 16 * groups
-    product_s = 2.5e-8 * fft_points * math.log2(max(padded, 2)) / 20 + 4e-9 * stored_pairs * 2
+    # FFT term refitted to the Krylov stages of the 12 µm and 16 µm sub-areas (3.25 / 4.06 s per
+    # product of both polarizations incl. the 1.1 below; this fit +13% / −13%)
+    product_s = 8.3e-10 * fft_points * math.log2(max(padded, 2)) + 4e-9 * stored_pairs * 2
     if options.precision == "single":
         product_s *= 0.7  # single / double matvec 0.56–0.83 measured (docs/aim.md, Precision)
     if options.preconditioner == "near":
