@@ -190,7 +190,8 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     # time model (seconds), constants from benchmarks/bench_aim.py on the 2-core machine
     fft_points = padded * 16 * groups
     # FFT term refitted to the Krylov stages of the 12 µm and 16 µm sub-areas (3.25 / 4.06 s per
-    # product of both polarizations incl. the 1.1 below; this fit +13% / −13%)
+    # product of both polarizations before the 1.1 below; this fit gives 2.80 / 4.69 s, whole runs
+    # −3% / +6%; docs/aim.md "The 16 µm sub-area, run")
     product_s = 8.3e-10 * fft_points * math.log2(max(padded, 2)) + 4e-9 * stored_pairs * 2
     if options.precision == "single":
         product_s *= 0.7  # single / double matvec 0.56–0.83 measured (docs/aim.md, Precision)
