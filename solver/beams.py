@@ -420,8 +420,9 @@ def _lattice_sum(pw: dict, amps: np.ndarray, offsets: np.ndarray, distinct: tupl
     e^{−jk_z c} Σ_n ε_n (−j)^n J_n(k_z h) T_n(t) (ε_0 = 1, else 2), cut where J_n(max k_z h) <
     SERIES_TAIL (one term for points in a plane). Each term's sum over the wave lattice is two
     matrix products on the points' distinct x and y, instead of one complex exponential per
-    point and wave. None (use the direct sum) where the series would need as many terms as
-    there are waves or its partial sums more than 4 LATTICE_SUM_BYTES."""
+    point and wave; the distinct y are taken in passes that keep the partial sums within 4
+    LATTICE_SUM_BYTES. None (use the direct sum) where the series would need as many terms as
+    there are waves or one y alone would exceed that."""
     from scipy.special import jv
 
     ix, iy = pw["lattice"]
@@ -430,29 +431,38 @@ def _lattice_sum(pw: dict, amps: np.ndarray, offsets: np.ndarray, distinct: tupl
     z0, z1 = float(offsets[:, 2].min()), float(offsets[:, 2].max())
     c, h = 0.5 * (z0 + z1), 0.5 * (z1 - z0)
     terms = _series_terms(float(np.max(np.abs(kz))) * h)
-    if terms >= len(kz) or len(kx) * len(uy) * 12 * terms * 16 > 4 * LATTICE_SUM_BYTES:
+    width = 12 * terms
+    # distinct y per pass: the partial sums (nx, y's, 12·T) within 4 LATTICE_SUM_BYTES
+    y_step = 4 * LATTICE_SUM_BYTES // (len(kx) * width * 16)
+    if terms >= len(kz) or y_step < 1:
         return None
     n = np.arange(terms)
     series = np.where(n == 0, 1.0, 2.0) * (-1j) ** n * jv(n[None, :], h * kz[:, None])  # (M, T)
     lattice = np.zeros((len(kx), len(ky), 12, terms), dtype=complex)
     lattice[ix, iy] = (amps * np.exp(-1j * kz * c)[:, None])[:, :, None] * series[:, None, :]
+    by_ky = lattice.transpose(1, 0, 2, 3).reshape(len(ky), -1)  # (ny, nx·12·T)
     ex = np.exp(-1j * np.outer(ux, kx))  # (Ux, nx)
-    ey = np.exp(-1j * np.outer(uy, ky))  # (Uy, ny)
-    width = 12 * terms
-    # over κy first: (Uy, ny) @ (ny, nx·12·T) → per x wave number, every y
-    by_y = (ey @ lattice.transpose(1, 0, 2, 3).reshape(len(ky), -1)).reshape(len(uy), len(kx), width)
-    by_y = by_y.transpose(1, 0, 2).reshape(len(kx), -1)  # (nx, Uy·12·T)
     t = (offsets[:, 2] - c) / h if h else np.zeros(len(offsets))
     out = np.empty((len(offsets), 12), dtype=complex)
-    order = np.argsort(inv_x, kind="stable")
-    starts = np.searchsorted(inv_x[order], np.arange(len(ux) + 1))
-    step = max(1, LATTICE_SUM_BYTES // (len(uy) * width * 16))
-    for x0 in range(0, len(ux), step):
-        x1 = min(len(ux), x0 + step)
-        block = (ex[x0:x1] @ by_y).reshape(x1 - x0, len(uy), 12, terms)
-        rows = order[starts[x0] : starts[x1]]
-        chebyshev = np.cos(np.arccos(np.clip(t[rows], -1.0, 1.0))[:, None] * n[None, :])  # T_n(t)
-        out[rows] = np.einsum("pct,pt->pc", block[inv_x[rows] - x0, inv_y[rows]], chebyshev)
+    y_order = np.argsort(inv_y, kind="stable")
+    y_starts = np.searchsorted(inv_y[y_order], np.arange(0, len(uy) + y_step, y_step).clip(max=len(uy)))
+    for y0, (r0, r1) in zip(range(0, len(uy), y_step), zip(y_starts[:-1], y_starts[1:])):
+        y1 = min(len(uy), y0 + y_step)
+        ey = np.exp(-1j * np.outer(uy[y0:y1], ky))  # (y's, ny)
+        # over κy first: (y's, ny) @ (ny, nx·12·T) → per x wave number, these y's
+        by_y = (ey @ by_ky).reshape(y1 - y0, len(kx), width).transpose(1, 0, 2).reshape(len(kx), -1)
+        pass_rows = y_order[r0:r1]
+        order = pass_rows[np.argsort(inv_x[pass_rows], kind="stable")]
+        starts = np.searchsorted(inv_x[order], np.arange(len(ux) + 1))
+        step = max(1, LATTICE_SUM_BYTES // ((y1 - y0) * width * 16))
+        for x0 in range(0, len(ux), step):
+            x1 = min(len(ux), x0 + step)
+            rows = order[starts[x0] : starts[x1]]
+            if len(rows) == 0:
+                continue
+            block = (ex[x0:x1] @ by_y).reshape(x1 - x0, y1 - y0, 12, terms)
+            chebyshev = np.cos(np.arccos(np.clip(t[rows], -1.0, 1.0))[:, None] * n[None, :])  # T_n(t)
+            out[rows] = np.einsum("pct,pt->pc", block[inv_x[rows] - x0, inv_y[rows] - y0], chebyshev)
     return out
 
 

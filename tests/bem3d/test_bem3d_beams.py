@@ -137,10 +137,12 @@ def test_make_beam_rejects_bad_input():
 
 @pytest.mark.parametrize("index", [None, 1.3 - 2.0j])
 @pytest.mark.parametrize("height_spread", [0.0, 0.35])
-def test_exact_beam_on_a_lattice_is_the_plane_wave_sum(index, height_spread, monkeypatch):
+@pytest.mark.parametrize("partial_sum_bytes", [None, 2**16])
+def test_exact_beam_on_a_lattice_is_the_plane_wave_sum(index, height_spread, partial_sum_bytes, monkeypatch):
     """Points on an x-y lattice (a mesh's quadrature points, many more than one chunk), in one
     plane or at random heights, take the factorized sum; it equals Σ_m E_m e^{−jk_m·(r − focus)}
-    (plus the reflected waves) summed here directly."""
+    (plus the reflected waves) summed here directly. A small ``partial_sum_bytes`` makes the sum
+    take its distinct y in many passes."""
     beam = make_beam("exact", 0.5, 0.35, 0.8, 1.2, patch_size_um=5.0, focus_um=(0.3, -0.2, 0.1))
     x, y = np.meshgrid(np.arange(-80, 81) * 0.025, np.arange(-60, 61) * 0.025 + 0.0125, indexing="ij")
     z = 0.04 + height_spread * np.random.default_rng(5).uniform(-1, 1, x.shape)
@@ -148,6 +150,8 @@ def test_exact_beam_on_a_lattice_is_the_plane_wave_sum(index, height_spread, mon
     assert points[..., 0].size > 4096
     import wavebrdf.solver.beams as beams
 
+    if partial_sum_bytes is not None:
+        monkeypatch.setattr(beams, "LATTICE_SUM_BYTES", partial_sum_bytes)
     summed = []
     lattice_sum = beams._lattice_sum
     monkeypatch.setattr(beams, "_lattice_sum", lambda *a: summed.append(lattice_sum(*a)) or summed[-1])
