@@ -445,9 +445,10 @@ def _lattice_sum(pw: dict, amps: np.ndarray, offsets: np.ndarray, distinct: tupl
     t = (offsets[:, 2] - c) / h if h else np.zeros(len(offsets))
     out = np.empty((len(offsets), 12), dtype=complex)
     y_order = np.argsort(inv_y, kind="stable")
-    y_starts = np.searchsorted(inv_y[y_order], np.arange(0, len(uy) + y_step, y_step).clip(max=len(uy)))
-    for y0, (r0, r1) in zip(range(0, len(uy), y_step), zip(y_starts[:-1], y_starts[1:])):
+    sorted_y = inv_y[y_order]
+    for y0 in range(0, len(uy), y_step):
         y1 = min(len(uy), y0 + y_step)
+        r0, r1 = np.searchsorted(sorted_y, [y0, y1])
         ey = np.exp(-1j * np.outer(uy[y0:y1], ky))  # (y's, ny)
         # over κy first: (y's, ny) @ (ny, nx·12·T) → per x wave number, these y's
         by_y = (ey @ by_ky).reshape(y1 - y0, len(kx), width).transpose(1, 0, 2).reshape(len(kx), -1)

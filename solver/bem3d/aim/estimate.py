@@ -125,7 +125,7 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     ``iterations_guess`` (products per polarization) and the grid sizes. With ``edge = "flat"`` it
     adds the continuation: the ring operator and the extended mesh, whose size follows from
     ``waist_um`` (default L/2.5, a border at 1.25 w). ``resolution``: the output image side.
-    ``cache``: a dict kept between estimates of the same surface (its mesh; the grids are cached
+    ``cache``: a dict kept between estimates of the same surface (its mesh and rms slope; the grids are cached
     by geometry, ``_grid``).
     """
     options = aim if isinstance(aim, AIMOptions) else AIMOptions.from_mapping(aim)
@@ -198,7 +198,9 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     if options.preconditioner == "near":
         product_s += 2.0 * held["preconditioner"] / SUPERLU_BYTES * 2e-9  # triangular solves, both polarizations
     size_waves = surface.size_um * exterior_index / wavelength_um
-    iterations = _products(options, size_waves, abs(media.index), surface.rms_slope())
+    if "rms_slope" not in cache:  # the surface's, for every candidate of one fit
+        cache["rms_slope"] = surface.rms_slope()
+    iterations = _products(options, size_waves, abs(media.index), cache["rms_slope"])
     setup_s = (_near_assembly_s(stored_pairs, flat) + _grid_setup_s(n, flat) + preconditioner_s
                + continuation_s)
     seconds = setup_s + directions * iterations * product_s * 1.1
