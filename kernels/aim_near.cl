@@ -9,7 +9,7 @@
  *     FG_c = sum_b g(p - q_b) L^c_s(b)   (c = t, z, d)
  *     FK   = sum_b grad g(p - q_b) x (L^t_s(b) t_s + L^z_s(b) z^)     (3 components)
  *   stored as pot[(s * 6 + f) * nW + w], f = (FG_t, FG_z, FG_d, FK_x, FK_y, FK_z).
- * aim_near_correct     one work-item per stored pair (offset j, row r) of the chunk: the test
+ * aim_near_correct     one work-item per stored pair (row r, offset j) of the chunk: the test
  *   rooftop n (the column) reads the fields over its stencil,
  *     Lvec = [same orientation] sum L^t_n FG_t + sum L^z_n FG_z,  Ldiv = sum L^d_n FG_d,
  *     K = sum L^t_n FK_{x or y} + L^z_n FK_z,
@@ -76,7 +76,8 @@ __kernel void aim_near_correct(const int orow, const int ocol, const int N, __gl
     /* coef: ee_vec, ee_div, mm_vec, mm_div, em */
     const size_t gid = get_global_id(0);
     if (gid >= (size_t)noff * nrows) return;
-    const int j = gid / nrows, r = gid - (size_t)j * nrows;
+    /* the offsets of one row are adjacent work-items: they read the same row's potentials (cache) */
+    const int r = gid / noff, j = gid - (size_t)r * noff;
     const int2 c = near_coords(orow, N, rows[r]);
     const int2 d = offsets[j];
     if (!near_valid(ocol, N, c.x + d.x, c.y + d.y)) return;

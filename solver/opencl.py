@@ -254,6 +254,40 @@ class ComputeContext:
         flags = (cl.mem_flags.READ_WRITE if writable else cl.mem_flags.READ_ONLY) | cl.mem_flags.COPY_HOST_PTR
         return cl.Buffer(self.context, flags, hostbuf=host)
 
+    @property
+    def shares_host_memory(self) -> bool:
+        """True where buffers can live in host memory at no cost (CPU devices: USE_HOST_PTR)."""
+        return "CPU" in self.info.kind
+
+    def host_buffer(self, array: np.ndarray, access: str = "read"):
+        """A buffer over the C-contiguous host ``array`` for ``access`` "read" | "write" |
+        "read_write" by kernels: the array's own memory on CPU devices (no copy, no fresh pages;
+        the array must outlive the buffer), a copy ("read"), an empty buffer ("write") or both
+        elsewhere. Kernel writes reach the array through :meth:`read_into`."""
+        cl = _import_cl()
+        flags = {"read": cl.mem_flags.READ_ONLY, "write": cl.mem_flags.WRITE_ONLY,
+                 "read_write": cl.mem_flags.READ_WRITE}
+        if access not in flags:
+            raise ValueError(f"access must be one of {tuple(flags)}, got {access!r}")
+        if not array.flags.c_contiguous:
+            raise ValueError(f"host_buffer needs a C-contiguous array, got strides {array.strides}")
+        if self.shares_host_memory:
+            return cl.Buffer(self.context, flags[access] | cl.mem_flags.USE_HOST_PTR, hostbuf=array)
+        if access == "write":
+            return cl.Buffer(self.context, flags[access], max(array.nbytes, 1))
+        return cl.Buffer(self.context, flags[access] | cl.mem_flags.COPY_HOST_PTR, hostbuf=array)
+
+    def read_into(self, array: np.ndarray, buffer) -> None:
+        """Make ``array`` hold ``buffer``'s content once the queued kernels are done: a map and
+        unmap of a :meth:`host_buffer` over ``array`` on CPU devices (no copy), a copy elsewhere."""
+        cl = _import_cl()
+        if buffer.flags & cl.mem_flags.USE_HOST_PTR:  # host_buffer(array) on a CPU device
+            mapped, _ = cl.enqueue_map_buffer(self.queue, buffer, cl.map_flags.READ, 0, array.shape, array.dtype)
+            mapped.base.release(self.queue)
+            self.queue.finish()
+            return
+        cl.enqueue_copy(self.queue, array, buffer)
+
     def real_dtype(self, precision: str = "double") -> np.dtype:
         """float64 or float32 for ``precision`` ("double" | "single"), checking fp64 support."""
         if precision not in PRECISIONS:

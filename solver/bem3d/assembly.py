@@ -93,7 +93,7 @@ def basis_entries_opencl(ctx, tables, pair_map, row_elem, row_slot, col_elem, co
     buf = ctx.to_device
     n_source = pair_map.shape[1]
     args = [
-        buf(tables, np.complex128), buf(pair_map, np.int32), np.int32(n_source),
+        ctx.host_buffer(np.ascontiguousarray(tables, np.complex128)), buf(pair_map, np.int32), np.int32(n_source),
         buf(row_elem, np.int32), buf(row_slot, np.int32), buf(col_elem, np.int32), buf(col_slot, np.int32),
     ]
     coef_buf = buf(coef, np.complex128)
@@ -364,7 +364,7 @@ def basis_pair_entries(ctx, mesh: BEMMesh, media: Media, rows, cols,
     pair_map[row_elem[inv_r][:, :, None], col_elem[inv_c][:, None, :]] = 0
     pairs = np.flatnonzero(pair_map.ravel() == 0)
     lt_idx, ls_idx = np.divmod(pairs, len(source_elems))
-    tables, index = integrals.indexed_tables(test_elems[lt_idx], source_elems[ls_idx], media.wavenumbers)
+    tables, index = integrals.indexed_tables(test_elems[lt_idx], source_elems[ls_idx], media.wavenumbers, scratch=True)
     pair_map.ravel()[pairs] = index
     coef = _coefficients(media)
     row_slot, col_slot = mesh.basis_slots[ub_r], mesh.basis_slots[ub_c]

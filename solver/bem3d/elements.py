@@ -208,8 +208,6 @@ def _launch_chunks(n_pairs: int, bytes_per_pair: int):
 def regular_pairs_opencl(ctx, geometry, h, test, source, order, wavenumbers, out=None):
     """OpenCL twin of :func:`regular_pairs_numpy` (kernel ``bem_regular_pairs``); written into
     ``out`` (C-contiguous (P, 2, 33) complex128) when given."""
-    import pyopencl as cl
-
     knl = ctx.kernel("bem_elements.cl", "bem_regular_pairs", ctx.defines("double", lanes=ctx.vector_lanes("double")))
     geom = ctx.to_device(geometry, np.float64)
     x, w = np.polynomial.legendre.leggauss(int(order))
@@ -220,10 +218,10 @@ def regular_pairs_opencl(ctx, geometry, h, test, source, order, wavenumbers, out
     for sl in _launch_chunks(len(test), 2 * TABLE * 16):
         n = sl.stop - sl.start
         t_buf, s_buf = ctx.to_device(test[sl]), ctx.to_device(source[sl])
-        o_buf = cl.Buffer(ctx.context, cl.mem_flags.WRITE_ONLY, n * 2 * TABLE * 16)
+        o_buf = ctx.host_buffer(out[sl], "write")  # the kernel writes into out itself on CPU devices
         knl(ctx.queue, *launch_size(ctx, n), geom, np.float64(h), t_buf, s_buf, np.int32(n), nodes, weights,
             np.int32(order), _cplx(wavenumbers[0]), _cplx(wavenumbers[1]), o_buf)
-        cl.enqueue_copy(ctx.queue, out[sl], o_buf)
+        ctx.read_into(out[sl], o_buf)
     ctx.queue.finish()
     return out
 
@@ -232,8 +230,6 @@ def singular_pairs_opencl(ctx, geometry, h, test, source, code_test, code_source
                           out=None):
     """OpenCL twin of :func:`singular_pairs_numpy` (kernel ``bem_singular_pairs``); written into
     ``out`` when given."""
-    import pyopencl as cl
-
     knl = ctx.kernel("bem_elements.cl", "bem_singular_pairs",
                      ctx.defines("double", lanes=ctx.vector_lanes("double"), BEM_KIND=int(kind)))
     geom = ctx.to_device(geometry, np.float64)
@@ -247,10 +243,10 @@ def singular_pairs_opencl(ctx, geometry, h, test, source, code_test, code_source
     for sl in _launch_chunks(len(arrays[0]), per_pair):
         n = sl.stop - sl.start
         bufs = [ctx.to_device(a[sl]) for a in arrays]
-        o_buf = cl.Buffer(ctx.context, cl.mem_flags.WRITE_ONLY, n * per_pair)
+        o_buf = ctx.host_buffer(out[sl], "write")
         knl(ctx.queue, *launch_size(ctx, n), geom, np.float64(h), *bufs, np.int32(n), rule_buf,
             np.int32(len(rule)), _cplx(k1), _cplx(k2), o_buf)
-        cl.enqueue_copy(ctx.queue, out[sl], o_buf)
+        ctx.read_into(out[sl], o_buf)
     ctx.queue.finish()
     return out
 
@@ -271,6 +267,7 @@ class ElementIntegrals:
         self.ctx = ctx
         self._static = None  # (n_elements · 9, 33) static tables by touching slot, filled lazily
         self._static_known = None
+        self._scratch = None  # reused table buffer of indexed_tables(scratch=True)
         self.timings = {"static_s": 0.0, "singular_s": 0.0, "regular_s": 0.0}
         self.counts = {"static": 0, "singular": 0, "regular": 0, "regular_points": 0}
 
@@ -337,11 +334,21 @@ class ElementIntegrals:
             self.counts["static"] += len(missing)
         return self._static[slot]
 
+    def _scratch_tables(self, n: int) -> np.ndarray:
+        """The first n rows of the scratch table buffer (grown by a quarter when short)."""
+        if self._scratch is None or len(self._scratch) < n:
+            self._scratch = None  # the old buffer goes before the new one is allocated
+            self._scratch = np.empty((n + n // 4, 2, TABLE), dtype=complex)
+        return self._scratch[:n]
+
     # -- tables -----------------------------------------------------------------------------
-    def indexed_tables(self, test, source, wavenumbers) -> tuple[np.ndarray, np.ndarray]:
+    def indexed_tables(self, test, source, wavenumbers, *, scratch: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """(tables, index): complex (P, 2, 33) tables of the element pairs (test[p], source[p])
         for media k₁, k₂, stored grouped by quadrature (each kernel writes one contiguous block);
-        pair p's table is ``tables[index[p]]``."""
+        pair p's table is ``tables[index[p]]``.
+
+        ``scratch``: the tables live in a buffer that the next scratch call overwrites (callers
+        that use them at once, strip after strip, then touch no fresh pages per call)."""
         test = np.asarray(test, dtype=np.int64)
         source = np.asarray(source, dtype=np.int64)
         if len(test) == 0:
@@ -355,7 +362,7 @@ class ElementIntegrals:
         index = np.empty(len(test), dtype=np.int64)
         index[order] = np.arange(len(test))
         bounds = np.flatnonzero(np.diff(group[order])) + 1
-        out = np.empty((len(test), 2, TABLE), dtype=complex)
+        out = self._scratch_tables(len(test)) if scratch else np.empty((len(test), 2, TABLE), dtype=complex)
         remainder_order = None
         for a, b in zip(np.concatenate([[0], bounds]), np.concatenate([bounds, [len(test)]])):
             sel = order[a:b]

@@ -451,11 +451,7 @@ class BaseOperator:
 def shared_buffer(ctx, array: np.ndarray):
     """Read-only device buffer of a contiguous host array: shares the host memory on CPU devices
     (no copy, the array must outlive the buffer), copies it on other devices."""
-    import pyopencl as cl
-
-    if "CPU" in ctx.info.kind:
-        return cl.Buffer(ctx.context, cl.mem_flags.READ_ONLY | cl.mem_flags.USE_HOST_PTR, hostbuf=array)
-    return ctx.to_device(array)
+    return ctx.host_buffer(array, "read")
 
 
 def int4_arg(values):

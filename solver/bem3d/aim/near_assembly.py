@@ -87,7 +87,8 @@ class RepeatingTables:
         inverse[order] = np.cumsum(new) - 1
         return list(zip(*(c[first].tolist() for c in columns))), first, inverse
 
-    def indexed_tables(self, test, source, wavenumbers) -> tuple[np.ndarray, np.ndarray]:
+    def indexed_tables(self, test, source, wavenumbers, *, scratch: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """As ElementIntegrals.indexed_tables (the cache is returned, so ``scratch`` changes nothing)."""
         test = np.asarray(test, dtype=np.int64)
         source = np.asarray(source, dtype=np.int64)
         keys, first, inverse = self._distinct(test, source)
@@ -188,21 +189,24 @@ class _NearBaseOpenCL:
             self._potentials = cl.Buffer(self.ctx.context, cl.mem_flags.READ_WRITE, nbytes)
         return self._potentials
 
-    def subtract(self, projection, k, coef, pattern, block, rows, staged, window, n_horizontal):
-        """Subtract B (one medium) from ``staged`` (n_offsets, len(rows), 3) complex128 in place."""
+    def subtract(self, projection, k, coef, pattern, blocks, rows, staged, window, n_horizontal):
+        """Subtract B (one medium) from ``staged[block]`` (n_offsets, len(rows), 3) complex128 in
+        place for each of ``blocks``, which share the row orientation and ``rows``: the grid
+        potentials of the rows' stencils are computed once and tested by every block's columns."""
         import pyopencl as cl
 
         ctx, queue = self.ctx, self.ctx.queue
         grid = projection.grid
-        orow, ocol, _ = BLOCKS[block]
+        orow = BLOCKS[blocks[0]][0]
+        if any(BLOCKS[b][0] != orow for b in blocks):
+            raise ValueError(f"blocks {blocks} do not share the row orientation")
         wbase, wdim = window
         lo, dims, green, gradient = _kernel_table(k, grid, wbase, wdim)
         defines = ctx.defines("double", AIM_COMPLEX_W=int(np.iscomplexobj(projection.weights)))
         pot_knl = ctx.kernel("aim_near.cl", "aim_near_potentials", defines)
         cor_knl = ctx.kernel("aim_near.cl", "aim_near_correct", defines)
         tables = [ctx.to_device(a, np.complex128) for a in (green, gradient)]
-        offsets = pattern.offsets(block)
-        off_buf = ctx.to_device(offsets)
+        offset_bufs = {b: (ctx.to_device(pattern.offsets(b)), len(pattern.offsets(b))) for b in blocks}
         coef_buf = ctx.to_device(coef, np.complex128)
         nW = int(np.prod(wdim))
         sources = (near_first(orow, pattern.cells) + np.asarray(rows)).astype(np.int32)
@@ -218,14 +222,18 @@ class _NearBaseOpenCL:
             pot_knl(queue, (n * nW,), None, src_buf, np.int32(n), self.origins, np.int32(2 * pattern.rows),
                     np.int32(n_horizontal), weights, np.int32(sx), np.int32(sy), np.int32(sz), int4_arg(wdim),
                     int4_arg(wbase), int4_arg(lo), int4_arg(dims), *tables, pot)
-            chunk = np.ascontiguousarray(staged[:, s0:s1])
-            val_buf = ctx.to_device(chunk, writable=True)
-            cor_knl(queue, (len(offsets) * n,), None, np.int32(orow), np.int32(ocol), np.int32(pattern.cells),
-                    off_buf, np.int32(len(offsets)), row_buf, np.int32(n), self.origins, np.int32(2 * pattern.rows),
-                    weights, np.int32(sx), np.int32(sy), np.int32(sz), int4_arg(wdim), int4_arg(wbase), pot,
-                    coef_buf, val_buf)
-            cl.enqueue_copy(queue, chunk, val_buf)
-            staged[:, s0:s1] = chunk
+            for b in blocks:
+                off_buf, n_off = offset_bufs[b]
+                whole = n == len(rows)  # staged itself is the chunk: no staging copy
+                chunk = staged[b] if whole else np.ascontiguousarray(staged[b][:, s0:s1])
+                val_buf = ctx.to_device(chunk, writable=True)
+                cor_knl(queue, (n_off * n,), None, np.int32(orow), np.int32(BLOCKS[b][1]), np.int32(pattern.cells),
+                        off_buf, np.int32(n_off), row_buf, np.int32(n), self.origins, np.int32(2 * pattern.rows),
+                        weights, np.int32(sx), np.int32(sy), np.int32(sz), int4_arg(wdim), int4_arg(wbase), pot,
+                        coef_buf, val_buf)
+                cl.enqueue_copy(queue, chunk, val_buf)
+                if not whole:
+                    staged[b][:, s0:s1] = chunk
         queue.finish()
 
 
@@ -288,16 +296,18 @@ def assemble_near(ctx, mesh: BEMMesh, media: Media, pattern: NearPattern, groups
             for i in medium_indices:
                 k = media.wavenumbers[i]
                 coef = [coef_all["ee_vec"][i], coef_all["ee_div"][i], coef_all["mm_vec"][i], coef_all["mm_div"][i]]
+                if device is not None:  # blocks of one row orientation share their grid potentials
+                    for o in (0, 1):
+                        blocks = [b for b in BLOCKS if BLOCKS[b][0] == o and len(pairs[b][0])]
+                        if blocks:
+                            device.subtract(projection, k, coef + [ETA0], pattern, blocks, rows_by_block[blocks[0]],
+                                            staged, windows[o], mesh.n_horizontal)
+                    continue
                 for b, (row_id, col_id, j, pos) in pairs.items():
-                    if len(row_id) == 0:
-                        continue
-                    if device is None:
+                    if len(row_id):
                         B = near_base_numpy(projection, k, coef, mesh.n_horizontal, row_id, col_id)
                         for comp in range(3):
                             staged[b][j, pos, comp] -= B[comp]
-                    else:
-                        device.subtract(projection, k, coef + [ETA0], pattern, b, rows_by_block[b], staged[b],
-                                        windows[BLOCKS[b][0]], mesh.n_horizontal)
         for b in BLOCKS:
             if not np.all(np.isfinite(staged[b])):
                 raise FloatingPointError(f"near-field block {b}: non-finite entries (window or quadrature failure)")

@@ -72,7 +72,7 @@ class GridPart:
             else:
                 groups = [(project(mesh, grid, "farfield", k=media.wavenumbers[i].real, order=PROJECTION_ORDER,
                                    directions=options.directions or None, regularization=options.regularization,
-                                   dtype=real), (i,))
+                                   dtype=real, ctx=ctx), (i,))
                           for i in on_grid]
         t1 = time.perf_counter()
         with clock("grid spectra"):

@@ -49,6 +49,7 @@ __all__ = [
     "fibonacci_directions",
     "lagrange_weights",
     "matching_operator",
+    "plane_wave_moments_opencl",
     "plane_wave_phases",
     "project",
 ]
@@ -158,15 +159,28 @@ def _local_coordinates(grid: AIMGrid, r: np.ndarray, bases: np.ndarray) -> np.nd
     return (r - origin[:, None, :]) / np.asarray(grid.spacing)
 
 
+def plane_wave_moments_opencl(ctx, r: np.ndarray, psi: np.ndarray, wavevectors: np.ndarray) -> np.ndarray:
+    """Σ_q ψ^c_q e^{j k_ℓ·r_q} per basis on the device (kernels/aim_projection.cl), double
+    precision: r (B, Q, 3) µm, ψ (3, B, Q), wavevectors (L, 3) µm⁻¹ → complex (3, B, L)."""
+    n_b, n_q, _ = r.shape
+    out = np.empty((3, n_b, len(wavevectors)), dtype=np.complex128)
+    buffer = ctx.host_buffer(out, "write")
+    kernel = ctx.kernel("aim_projection.cl", "aim_plane_wave_moments", ctx.defines("double"))
+    kernel(ctx.queue, (n_b * len(wavevectors),), None, ctx.to_device(r, np.float64), ctx.to_device(psi, np.float64),
+           np.int32(n_b), np.int32(n_q), ctx.to_device(wavevectors, np.float64), np.int32(len(wavevectors)), buffer)
+    ctx.read_into(out, buffer)
+    return out
+
+
 def project(mesh: BEMMesh, grid: AIMGrid, method: str = "moments", *, k=None,
             directions: int | np.ndarray | None = None, hemisphere: bool = False,
-            regularization: float = 1e-3, order: int = 4, dtype=np.float64) -> Projection:
+            regularization: float = 1e-3, order: int = 4, dtype=np.float64, ctx=None) -> Projection:
     """Λ of every basis of ``mesh`` on ``grid`` (see the module docstring).
 
     ``k`` (µm⁻¹, real, or a sequence of them: the plane waves of every k are matched at once)
     and ``directions`` (a count per k or an (L, 3) array; default 3S) are used by far-field
     matching only. ``dtype`` float32/float64 sets the storage precision (complex for far-field
-    matching).
+    matching). ``ctx``: far-field matching sums its plane waves on that device (NumPy without).
     """
     if method not in PROJECTIONS:
         raise ValueError(f"aim projection must be one of {PROJECTIONS}, got {method!r}")
@@ -195,8 +209,11 @@ def project(mesh: BEMMesh, grid: AIMGrid, method: str = "moments", *, k=None,
             ).reshape(len(bases), -1, S)
             out[:, bases] = np.einsum("cbq,bqs->cbs", psi, W)
         else:
-            phase = plane_wave_phases(xi * np.asarray(grid.spacing), wavevectors)  # (B, Q, L)
-            moments = np.einsum("cbq,bql->cbl", psi, phase)
+            positions = xi * np.asarray(grid.spacing)  # µm from the stencil origin
+            if ctx is not None:
+                moments = plane_wave_moments_opencl(ctx, positions, psi, wavevectors)
+            else:
+                moments = np.einsum("cbq,bql->cbl", psi, plane_wave_phases(positions, wavevectors))
             out[:, bases] = moments @ P.T
     logger.debug("projection %s: %d bases x %d stencil points", method, n_b, S)
     wavenumber = None if method == "moments" else tuple(float(kk) for kk in ks)
