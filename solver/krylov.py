@@ -12,7 +12,8 @@ Methods (``method``):
 ``"csym"``
     complex-symmetric MINRES (A = Aᵀ, not Hermitian): the Saunders–Simon–Yip tridiagonalization
     A V̄_k = V_{k+1} T_k with a minimal-residual QR of T_k (Bunse-Gerstner & Stöver 1999; the
-    solver of the reference code, bem3d.md §7). Short recurrences, 4 stored vectors.
+    solver of the reference code, bem3d.md §7). Short recurrences, 4 stored vectors per
+    right-hand side; the right-hand sides run in lockstep.
 ``"bicgstab"``
     BiCGStab (van der Vorst 1992), two products per iteration.
 
@@ -182,52 +183,72 @@ def _gmres(A, b, x, tol, max_iterations, restart):
 
 
 def _csym(A, b, x, tol, max_iterations):
-    """Complex-symmetric MINRES on the SSY tridiagonalization (one right-hand side at a time)."""
+    """Complex-symmetric MINRES on the SSY tridiagonalization; the right-hand sides iterate in
+    lockstep (one product call serves all that are still iterating), each with its own
+    recurrence, exactly as if solved alone."""
     P, n = b.shape
+    bnorm = _norms(b)
     estimate = np.zeros(P)
     true = np.zeros(P)
-    for p in range(P):
-        which = np.array([p])
-        bnorm = np.linalg.norm(b[p])
-        while True:  # restarts from the current x when the true residual misses tol
-            r0 = b[p] - A(x[p : p + 1], which)[0] if np.any(x[p]) else b[p].copy()
-            beta1 = np.linalg.norm(r0)
-            true[p] = beta1 / bnorm
-            if true[p] <= tol or A.products[p] >= max_iterations:
-                break
-            v_prev = np.zeros(n, dtype=b.dtype)
-            v = r0 / beta1
-            beta = 0.0
-            # QR state: rotations k−1, k−2; directions d_{k−1}, d_{k−2}; rotated rhs
-            c1, s1, c2, s2 = 1.0, 0.0, 1.0, 0.0
-            d1 = np.zeros(n, dtype=b.dtype)
-            d2 = np.zeros(n, dtype=b.dtype)
-            phi = beta1
-            while A.products[p] < max_iterations:
-                q = A(np.conj(v)[None], which)[0]
-                alpha = np.vdot(v, q)
-                q = q - alpha * v - beta * v_prev
-                beta_next = np.linalg.norm(q)
-                # column k of T: (β_k, α_k, β_{k+1}) on rows (k−1, k, k+1)
-                e2 = s2 * beta  # row k−2 after rotation k−2 (row k−2 entry starts at 0)
-                t = c2 * beta
-                e1 = c1 * t + s1 * alpha
-                diag = -np.conj(s1) * t + c1 * alpha
-                c, s, rho = _givens(np.asarray(diag), np.asarray(beta_next))
-                c, s, rho = float(c), complex(s), complex(rho)
-                d = (np.conj(v) - e1 * d1 - e2 * d2) / rho
-                tau = c * phi
-                phi = -np.conj(s) * phi
-                x[p] += tau * d
-                d2, d1 = d1, d
-                c2, s2, c1, s1 = c1, s1, c, s
-                v_prev, v = v, q / (beta_next if beta_next > 0 else 1.0)
-                beta = beta_next
-                estimate[p] = abs(phi) / bnorm
-                A.record(p, estimate[p])
-                if estimate[p] <= tol or beta_next == 0:
-                    break
+    pending = np.arange(P)
+    while len(pending):  # restarts from the current x when the true residual misses tol
+        r0 = b[pending].copy()
+        started = np.flatnonzero(np.any(x[pending] != 0, axis=1))
+        if len(started):
+            r0[started] -= A(x[pending[started]], pending[started])
+        beta1 = _norms(r0)
+        true[pending] = beta1 / bnorm[pending]
+        going = (true[pending] > tol) & (A.products[pending] < max_iterations)
+        pending, r0, beta1 = pending[going], r0[going], beta1[going]
+        if len(pending):
+            _csym_cycle(A, x, pending, r0, beta1, bnorm, tol, max_iterations, estimate)
     return x, estimate, true
+
+
+def _csym_cycle(A, x, rows, r0, beta1, bnorm, tol, max_iterations, estimate):
+    """One MINRES run from residuals r0 (k, n) of the right-hand sides ``rows``, until each
+    one's recurrence estimate reaches tol (or its products reach ``max_iterations``)."""
+    k, n = r0.shape
+    vdtype = r0.dtype
+    v = r0 / beta1[:, None].astype(vdtype)
+    v_prev = np.zeros_like(v)
+    d1 = np.zeros_like(v)  # directions d_{k−1}, d_{k−2}
+    d2 = np.zeros_like(v)
+    beta = np.zeros(k)
+    # QR state: rotations k−1, k−2 and the rotated right-hand side
+    c1, c2 = np.ones(k), np.ones(k)
+    s1, s2 = np.zeros(k, dtype=complex), np.zeros(k, dtype=complex)
+    phi = beta1.astype(complex)
+    active = np.arange(k)
+    while len(active):
+        active = active[A.products[rows[active]] < max_iterations]
+        if not len(active):
+            break
+        a = active
+        va = v[a]
+        q = A(np.conj(va), rows[a])
+        alpha = np.sum(np.conj(va) * q, axis=1).astype(complex)
+        q -= alpha[:, None].astype(vdtype) * va + beta[a][:, None].astype(vdtype) * v_prev[a]
+        beta_next = _norms(q).astype(float)
+        # column k of T: (β_k, α_k, β_{k+1}) on rows (k−1, k, k+1)
+        e2 = s2[a] * beta[a]  # row k−2 after rotation k−2 (row k−2 entry starts at 0)
+        t = c2[a] * beta[a]
+        e1 = c1[a] * t + s1[a] * alpha
+        diag = -np.conj(s1[a]) * t + c1[a] * alpha
+        c, s, rho = _givens(diag, beta_next)
+        d = (np.conj(va) - e1[:, None].astype(vdtype) * d1[a] - e2[:, None].astype(vdtype) * d2[a]) \
+            / rho[:, None].astype(vdtype)
+        tau = c * phi[a]
+        phi[a] = -np.conj(s) * phi[a]
+        x[rows[a]] += tau[:, None].astype(vdtype) * d
+        d2[a], d1[a] = d1[a], d
+        c2[a], s2[a], c1[a], s1[a] = c1[a], s1[a], c, s
+        v_prev[a] = va
+        v[a] = q / np.where(beta_next > 0, beta_next, 1.0)[:, None].astype(vdtype)
+        beta[a] = beta_next
+        estimate[rows[a]] = np.abs(phi[a]) / bnorm[rows[a]]
+        A.record(rows[a], estimate[rows[a]])
+        active = a[(estimate[rows[a]] > tol) & (beta_next != 0)]
 
 
 def _bicgstab(A, b, x, tol, max_iterations):

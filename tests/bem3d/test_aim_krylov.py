@@ -57,3 +57,21 @@ def test_bad_arguments_are_named():
         solve(lambda X: X, np.ones((1, 3)), tol=0)
     with pytest.raises(ValueError, match="zero"):
         solve(lambda X: X @ A, np.zeros((1, 3)))
+
+
+def test_csym_in_lockstep_is_each_right_hand_side_alone(system):
+    """MINRES on both right-hand sides at once takes the products each takes alone (same
+    iterates), in about as many operator calls as the longer one needs."""
+    A, b, exact = system
+    calls = []
+
+    def matvec(X):
+        calls.append(len(X))
+        return X @ A.T
+
+    both = solve(matvec, b, method="csym", tol=1e-8, max_iterations=5000)
+    alone = [solve(lambda X: X @ A.T, b[p : p + 1], method="csym", tol=1e-8, max_iterations=5000) for p in range(2)]
+    assert both.iterations.tolist() == [r.iterations[0] for r in alone]
+    for p in range(2):
+        assert np.allclose(both.x[p], alone[p].x[0], rtol=0, atol=1e-10 * np.abs(exact).max())
+    assert len(calls) <= max(both.iterations) + 2 and max(calls) == 2
