@@ -45,12 +45,12 @@ def _continuation_cost(mesh: BEMMesh, options: AIMOptions, waist_um: float | Non
 
 
 # Set-up time (seconds on the 2-core development machine), fitted to the stage clocks of
-# benchmarks/bench_aim.py (docs/aim.md): the near-field assembly per stored pair — 1.6e-5 s on
-# the rough 12 µm sub-area (7.4·10⁷ pairs, 1 189 s), 1.4e-6 s on the flat reference patch, whose
-# element tables repeat (9.0·10⁶ pairs, 12.3 s) — and projection, kernel spectra and excitation
-# per unknown (164 s at 919 680 rough unknowns; 7.6 s at 101 760 flat ones, one grid plane).
-NEAR_PAIR_S = {"rough": 1.6e-5, "flat": 1.4e-6}
-GRID_SETUP_S = {"rough": 1.8e-4, "flat": 7.5e-5}
+# benchmarks/bench_aim.py (docs/aim.md, fifth pass): the near-field assembly per stored pair —
+# 6.4e-6 s on the rough 12 µm sub-area (7.4·10⁷ pairs, 470 s), 8.6e-7 s on the flat reference
+# patch, whose element tables repeat (9.0·10⁶ pairs, 7.7 s) — and projection, kernel spectra and
+# excitation per unknown (78 s at 919 680 rough unknowns; 3.75 s at 101 760 flat ones, one plane).
+NEAR_PAIR_S = {"rough": 6.4e-6, "flat": 8.6e-7}
+GRID_SETUP_S = {"rough": 8.5e-5, "flat": 3.7e-5}
 
 
 def _near_assembly_s(stored_pairs: float, flat: bool) -> float:
@@ -189,10 +189,10 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
                 sum(held.values()) + max(v for k, v in transient.items() if k != "set-up"))
     # time model (seconds), constants from benchmarks/bench_aim.py on the 2-core machine
     fft_points = padded * 16 * groups
-    # FFT term refitted to the Krylov stages of the 12 µm and 16 µm sub-areas (3.25 / 4.06 s per
-    # product of both polarizations before the 1.1 below; this fit gives 2.80 / 4.69 s, whole runs
-    # −3% / +6%; docs/aim.md "The 16 µm sub-area, run")
-    product_s = 8.3e-10 * fft_points * math.log2(max(padded, 2)) + 4e-9 * stored_pairs * 2
+    # FFT term fitted to the Krylov stages of the 12 µm and 16 µm sub-areas (docs/aim.md "The 16 µm
+    # sub-area, run"), then scaled by 0.895 for MINRES in lockstep (12 µm: 1 143 s for 421 / 408
+    # products, 2.51 s per product of both polarizations before the 1.1 below; fifth pass)
+    product_s = 0.895 * (8.3e-10 * fft_points * math.log2(max(padded, 2)) + 4e-9 * stored_pairs * 2)
     if options.precision == "single":
         product_s *= 0.7  # single / double matvec 0.56–0.83 measured (docs/aim.md, Precision)
     if options.preconditioner == "near":
