@@ -198,6 +198,7 @@ def _csym(A, b, x, tol, max_iterations):
             r0[started] -= A(x[pending[started]], pending[started])
         beta1 = _norms(r0)
         true[pending] = beta1 / bnorm[pending]
+        estimate[pending] = true[pending]  # a right-hand side that needs no iteration keeps its true residual
         going = (true[pending] > tol) & (A.products[pending] < max_iterations)
         pending, r0, beta1 = pending[going], r0[going], beta1[going]
         if len(pending):
@@ -226,8 +227,9 @@ def _csym_cycle(A, x, rows, r0, beta1, bnorm, tol, max_iterations, estimate):
             break
         a = active
         va = v[a]
-        q = A(np.conj(va), rows[a])
-        alpha = np.sum(np.conj(va) * q, axis=1).astype(complex)
+        va_conj = np.conj(va)
+        q = A(va_conj, rows[a])
+        alpha = np.sum(va_conj * q, axis=1).astype(complex)
         q -= alpha[:, None].astype(vdtype) * va + beta[a][:, None].astype(vdtype) * v_prev[a]
         beta_next = _norms(q).astype(float)
         # column k of T: (β_k, α_k, β_{k+1}) on rows (k−1, k, k+1)
@@ -236,7 +238,7 @@ def _csym_cycle(A, x, rows, r0, beta1, bnorm, tol, max_iterations, estimate):
         e1 = c1[a] * t + s1[a] * alpha
         diag = -np.conj(s1[a]) * t + c1[a] * alpha
         c, s, rho = _givens(diag, beta_next)
-        d = (np.conj(va) - e1[:, None].astype(vdtype) * d1[a] - e2[:, None].astype(vdtype) * d2[a]) \
+        d = (va_conj - e1[:, None].astype(vdtype) * d1[a] - e2[:, None].astype(vdtype) * d2[a]) \
             / rho[:, None].astype(vdtype)
         tau = c * phi[a]
         phi[a] = -np.conj(s) * phi[a]

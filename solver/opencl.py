@@ -260,28 +260,36 @@ class ComputeContext:
         return "CPU" in self.info.kind
 
     def host_buffer(self, array: np.ndarray, access: str = "read"):
-        """A buffer over the C-contiguous host ``array`` for ``access`` "read" | "write" |
-        "read_write" by kernels: the array's own memory on CPU devices (no copy, no fresh pages;
-        the array must outlive the buffer), a copy ("read"), an empty buffer ("write") or both
-        elsewhere. Kernel writes reach the array through :meth:`read_into`."""
+        """A buffer over the host ``array`` (C-contiguous, non-empty) for ``access`` "read" |
+        "write" | "read_write" by kernels: the array's own memory on CPU devices (no copy, no
+        fresh pages; the array must outlive the buffer), a copy ("read"), an empty buffer
+        ("write") or both elsewhere; a non-contiguous array is copied for "read". Kernel writes
+        reach the array through :meth:`read_into`."""
         cl = _import_cl()
         flags = {"read": cl.mem_flags.READ_ONLY, "write": cl.mem_flags.WRITE_ONLY,
                  "read_write": cl.mem_flags.READ_WRITE}
         if access not in flags:
             raise ValueError(f"access must be one of {tuple(flags)}, got {access!r}")
         if not array.flags.c_contiguous:
-            raise ValueError(f"host_buffer needs a C-contiguous array, got strides {array.strides}")
+            if access == "read":  # nothing to share: a contiguous copy
+                return self.to_device(array)
+            raise ValueError(f"host_buffer for {access!r} needs a C-contiguous array, got strides {array.strides}")
+        if array.nbytes == 0:
+            raise ValueError(f"host_buffer needs a non-empty array, got shape {array.shape}")
         if self.shares_host_memory:
             return cl.Buffer(self.context, flags[access] | cl.mem_flags.USE_HOST_PTR, hostbuf=array)
         if access == "write":
-            return cl.Buffer(self.context, flags[access], max(array.nbytes, 1))
+            return cl.Buffer(self.context, flags[access], array.nbytes)
         return cl.Buffer(self.context, flags[access] | cl.mem_flags.COPY_HOST_PTR, hostbuf=array)
 
     def read_into(self, array: np.ndarray, buffer) -> None:
         """Make ``array`` hold ``buffer``'s content once the queued kernels are done: a map and
-        unmap of a :meth:`host_buffer` over ``array`` on CPU devices (no copy), a copy elsewhere."""
+        unmap of a :meth:`host_buffer` over ``array`` on CPU devices (no copy where the runtime
+        uses the host memory itself), a copy otherwise."""
         cl = _import_cl()
-        if buffer.flags & cl.mem_flags.USE_HOST_PTR:  # host_buffer(array) on a CPU device
+        over_array = (buffer.flags & cl.mem_flags.USE_HOST_PTR
+                      and buffer.get_host_array(array.shape, array.dtype).ctypes.data == array.ctypes.data)
+        if over_array:  # host_buffer(array) on a CPU device
             mapped, _ = cl.enqueue_map_buffer(self.queue, buffer, cl.map_flags.READ, 0, array.shape, array.dtype)
             mapped.base.release(self.queue)
             self.queue.finish()

@@ -347,7 +347,9 @@ def basis_pair_entries(ctx, mesh: BEMMesh, media: Media, rows, cols,
     """ee, mm, em (each (P,)) of the basis pairs (rows[p], cols[p]) (geometric basis indices).
 
     Computes the tables of exactly the element pairs these basis pairs touch; ``integrals`` is
-    anything with ``indexed_tables`` (ElementIntegrals, or the AIM's RepeatingTables).
+    anything with ``indexed_tables(test, source, wavenumbers, scratch=True)`` (ElementIntegrals,
+    or the AIM's RepeatingTables); its tables are used before this returns, so they may live in
+    a buffer that the next call reuses.
     """
     rows = np.asarray(rows, dtype=np.int64)
     cols = np.asarray(cols, dtype=np.int64)

@@ -189,7 +189,7 @@ def launch_size(ctx, n: int) -> tuple[tuple[int], tuple[int]]:
 
 
 def _destination(out, shape, dtype) -> np.ndarray:
-    """``out`` checked to be a C-contiguous array of ``shape`` and ``dtype`` (kernels copy into
+    """``out`` checked to be a C-contiguous array of ``shape`` and ``dtype`` (kernels write into
     it), or a fresh one."""
     if out is None:
         return np.empty(shape, dtype=dtype)
@@ -333,6 +333,10 @@ class ElementIntegrals:
             self.timings["static_s"] += time.perf_counter() - t0
             self.counts["static"] += len(missing)
         return self._static[slot]
+
+    def release_scratch(self) -> None:
+        """Free the scratch table buffer (the next scratch call allocates a new one)."""
+        self._scratch = None
 
     def _scratch_tables(self, n: int) -> np.ndarray:
         """The first n rows of the scratch table buffer (grown by a quarter when short)."""

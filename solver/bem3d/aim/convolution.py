@@ -55,7 +55,6 @@ __all__ = [
     "projection_matrices",
     "scatter_numpy",
     "int4_arg",
-    "shared_buffer",
 ]
 
 FFT_BACKENDS = ("auto", "host", "vkfft")
@@ -236,9 +235,9 @@ class BaseOperator:
             by_basis = np.ascontiguousarray(w, wdtype)  # no copy when the dtype matches
             by_point = np.ascontiguousarray(by_basis.reshape(3, -1)[:, entries])  # streamed by aim_scatter
             self._host_weights += [by_basis, by_point]
-            weights = (shared_buffer(ctx, by_basis), shared_buffer(ctx, by_point))
-            green = shared_buffer(ctx, group.green)
-            gradient = shared_buffer(ctx, group.gradient)
+            weights = (ctx.host_buffer(by_basis), ctx.host_buffer(by_point))  # shared on CPU devices
+            green = ctx.host_buffer(group.green)
+            gradient = ctx.host_buffer(group.gradient)
             coef = ctx.to_device(group.coefficients, self.complex)
             self._device_groups.append((weights, green, gradient, coef, np.iscomplexobj(w)))
 
@@ -446,12 +445,6 @@ class BaseOperator:
                      for g in self.groups)  # by basis and by grid point
         total += 4 * (self.grid.points + 1 + self.n_b * self.grid.stencil_size) + 12 * self.n_b
         return int(total)
-
-
-def shared_buffer(ctx, array: np.ndarray):
-    """Read-only device buffer of a contiguous host array: shares the host memory on CPU devices
-    (no copy, the array must outlive the buffer), copies it on other devices."""
-    return ctx.host_buffer(array, "read")
 
 
 def int4_arg(values):

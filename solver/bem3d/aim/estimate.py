@@ -190,8 +190,9 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     # time model (seconds), constants from benchmarks/bench_aim.py on the 2-core machine
     fft_points = padded * 16 * groups
     # FFT term fitted to the Krylov stages of the 12 µm and 16 µm sub-areas (docs/aim.md "The 16 µm
-    # sub-area, run"), then scaled by 0.895 for MINRES in lockstep (12 µm: 1 143 s for 421 / 408
-    # products, 2.51 s per product of both polarizations before the 1.1 below; fifth pass)
+    # sub-area, run"), then scaled by 0.895 to the 12 µm run after the fifth pass (MINRES in
+    # lockstep, like GMRES and BiCGStab always were: 1 143 s for 421 / 408 products, 2.51 s per
+    # product of both polarizations before the 1.1 below); every solver method takes it
     product_s = 0.895 * (8.3e-10 * fft_points * math.log2(max(padded, 2)) + 4e-9 * stored_pairs * 2)
     if options.precision == "single":
         product_s *= 0.7  # single / double matvec 0.56–0.83 measured (docs/aim.md, Precision)

@@ -319,6 +319,7 @@ def assemble_near(ctx, mesh: BEMMesh, media: Media, pattern: NearPattern, groups
             progress("near field", (i_strip + 1) / len(strips))
         logger.debug("near strip %d/%d: %d pairs, exact %.2f s, base %.2f s", i_strip + 1, len(strips),
                      len(all_rows), t1 - t0, t2 - t1)
+    integrals.release_scratch()  # one strip's tables (~1 KB per element pair) go before the solve
     timings["total_s"] = time.perf_counter() - t_start
     timings.update({f"element_{k}": v for k, v in integrals.timings.items()})
     near.timings, near.exact, near.exact_offsets = timings, exact, exact_offsets

@@ -36,7 +36,6 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse
 
-from wavebrdf.solver.bem3d.aim.convolution import shared_buffer
 from wavebrdf.solver.bem3d.mesh import near_coords, near_first, near_row, near_valid
 
 __all__ = [
@@ -262,7 +261,7 @@ class NearMatrix:
             parts = []
             for j0 in range(0, len(values), step):
                 j1 = min(len(values), j0 + step)
-                parts.append((ctx.to_device(offsets[j0:j1], np.int32), j1 - j0, shared_buffer(ctx, values[j0:j1])))
+                parts.append((ctx.to_device(offsets[j0:j1], np.int32), j1 - j0, ctx.host_buffer(values[j0:j1])))
             device[block] = parts
         self._device = device
 

@@ -118,6 +118,7 @@ class AIMOperator:
             self.near = assemble_near(ctx, mesh, media, self.pattern, groups, integrals=integrals,
                                       storage=options.near_storage, progress=progress,
                                       exact_cells=options.preconditioner_cells if precondition else None)
+            del integrals  # its static tables go before the preconditioner and the solve
             if ctx is not None:
                 self.near.upload(ctx)
         t3 = time.perf_counter()

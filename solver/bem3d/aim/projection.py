@@ -162,6 +162,11 @@ def _local_coordinates(grid: AIMGrid, r: np.ndarray, bases: np.ndarray) -> np.nd
 def plane_wave_moments_opencl(ctx, r: np.ndarray, psi: np.ndarray, wavevectors: np.ndarray) -> np.ndarray:
     """Σ_q ψ^c_q e^{j k_ℓ·r_q} per basis on the device (kernels/aim_projection.cl), double
     precision: r (B, Q, 3) µm, ψ (3, B, Q), wavevectors (L, 3) µm⁻¹ → complex (3, B, L)."""
+    r, psi, wavevectors = (np.asarray(a, dtype=np.float64) for a in (r, psi, wavevectors))
+    if r.ndim != 3 or r.shape[2] != 3 or psi.shape != (3,) + r.shape[:2] or wavevectors.ndim != 2 \
+            or wavevectors.shape[1] != 3 or min(r.shape[0], r.shape[1], len(wavevectors)) == 0:
+        raise ValueError(f"plane-wave moments need r (B, Q, 3), psi (3, B, Q) and wavevectors (L, 3), all "
+                         f"non-empty; got {r.shape}, {psi.shape}, {wavevectors.shape}")
     n_b, n_q, _ = r.shape
     out = np.empty((3, n_b, len(wavevectors)), dtype=np.complex128)
     buffer = ctx.host_buffer(out, "write")
