@@ -209,7 +209,7 @@ def _csym(A, b, x, tol, max_iterations):
 def _csym_cycle(A, x, rows, r0, beta1, bnorm, tol, max_iterations, estimate):
     """One MINRES run from residuals r0 (k, n) of the right-hand sides ``rows``, until each
     one's recurrence estimate reaches tol (or its products reach ``max_iterations``)."""
-    k, n = r0.shape
+    k = len(r0)
     vdtype = r0.dtype
     v = r0 / beta1[:, None].astype(vdtype)
     v_prev = np.zeros_like(v)

@@ -222,9 +222,9 @@ class _NearBaseOpenCL:
             pot_knl(queue, (n * nW,), None, src_buf, np.int32(n), self.origins, np.int32(2 * pattern.rows),
                     np.int32(n_horizontal), weights, np.int32(sx), np.int32(sy), np.int32(sz), int4_arg(wdim),
                     int4_arg(wbase), int4_arg(lo), int4_arg(dims), *tables, pot)
+            whole = n == len(rows)  # each block's staged array is the chunk: no staging copy
             for b in blocks:
                 off_buf, n_off = offset_bufs[b]
-                whole = n == len(rows)  # staged itself is the chunk: no staging copy
                 chunk = staged[b] if whole else np.ascontiguousarray(staged[b][:, s0:s1])
                 val_buf = ctx.to_device(chunk, writable=True)
                 cor_knl(queue, (n_off * n,), None, np.int32(orow), np.int32(BLOCKS[b][1]), np.int32(pattern.cells),
