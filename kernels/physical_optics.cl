@@ -7,6 +7,9 @@
  *   E_r = r_s (ê·ŝ) ŝ + r_p (ê·p̂_i) p̂_r,   η₁H = k̂×ê + k̂_r×E_r  (η₁ = η₀/n₁),
  *   J' dS = η₁ J dS = m̃ × η₁(H_i + H_r) dx dy,   M dS = −m̃ × (E_i + E_r) dx dy,
  * with m̃ = (−h_x, −h_y, 1) and the aperture Δ² W; unlit nodes (lit = 0, or c ≤ 0) carry none.
+ * The incident field's currents on every node are subtracted (they radiate nothing upward for a
+ * Maxwell field; the footprint's radiate only its ∇W leak): lit nodes keep the reflected part
+ * m̃ × η₁H_r, −m̃ × E_r, unlit ones carry −m̃ × η₁H_i, m̃ × E_i.
  * Output: 12 apertures (pol s|p) × (J'_x, J'_y, J'_z, M_x, M_y, M_z), transformed by the Chebyshev /
  * chirp-z machinery of kernels/kirchhoff.cl into N' = Σ J' e^{+jk(ω_i+ω_o)·r}, L likewise.
  *
@@ -51,8 +54,19 @@ __kernel void po_currents(
     const real_t m[3] = {mt[0] * inv, mt[1] * inv, mt[2] * inv};
     const real_t kh[3] = {-wx, -wy, -wz};                                /* k̂ */
     const real_t c = -dot_rr(kh, m);                                   /* ω_i·m */
-    if (!lit[gid] || c <= R(0.0)) {
-        for (int q = 0; q < 12; ++q) out[q * plane + gid] = c_new(R(0.0), R(0.0));
+    const cplx_t w = window[gid];
+    if (!lit[gid] || c <= R(0.0)) { /* minus the incident field's own currents */
+        for (int p = 0; p < 2; ++p) {
+            const real_t e[3] = {polarizations[3 * p], polarizations[3 * p + 1], polarizations[3 * p + 2]};
+            real_t ke[3], J[3], M[3];
+            cross_rr(kh, e, ke);
+            cross_rr(mt, ke, J);
+            cross_rr(mt, e, M);
+            for (int q = 0; q < 3; ++q) {
+                out[(p * 6 + q) * plane + gid] = c_scale(w, -J[q]);
+                out[(p * 6 + 3 + q) * plane + gid] = c_scale(w, M[q]);
+            }
+        }
         return;
     }
     real_t s[3];
@@ -71,22 +85,15 @@ __kernel void po_currents(
     cross_rr(s, kr, pr);
     cplx_t rs, rp;
     fresnel_rs_rp(eta, c, &rs, &rp);
-    const cplx_t w = window[gid];
     for (int p = 0; p < 2; ++p) {
         const real_t e[3] = {polarizations[3 * p], polarizations[3 * p + 1], polarizations[3 * p + 2]};
         const real_t es = dot_rr(e, s), ep = dot_rr(e, pi);
-        cplx_t Et[3], Er[3], Ht[3], tmp[3];
-        for (int q = 0; q < 3; ++q) {
-            Er[q] = c_add(c_scale(rs, es * s[q]), c_scale(rp, ep * pr[q]));
-            Et[q] = c_add(c_new(e[q], R(0.0)), Er[q]);
-        }
-        real_t ke[3];
-        cross_rr(kh, e, ke);
-        cross_rc(kr, Er, tmp);
-        for (int q = 0; q < 3; ++q) Ht[q] = c_add(c_new(ke[q], R(0.0)), tmp[q]);
+        cplx_t Er[3], Hr[3];
+        for (int q = 0; q < 3; ++q) Er[q] = c_add(c_scale(rs, es * s[q]), c_scale(rp, ep * pr[q]));
+        cross_rc(kr, Er, Hr);
         cplx_t J[3], M[3];
-        cross_rc(mt, Ht, J);
-        cross_rc(mt, Et, M);
+        cross_rc(mt, Hr, J);
+        cross_rc(mt, Er, M);
         for (int q = 0; q < 3; ++q) {
             out[(p * 6 + q) * plane + gid] = c_mul(w, J[q]);
             out[(p * 6 + 3 + q) * plane + gid] = c_mul(w, c_scale(M[q], R(-1.0)));

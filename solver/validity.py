@@ -3,11 +3,6 @@ by more than its tolerance, said out loud (a :class:`ValidityWarning` through :f
 which the batch layer stores in the dataset's diagnostics, and a figure in the result's
 diagnostics). Found by the extremes suite (tests/extremes.py, docs/extremes.md).
 
-* :func:`check_footprint_leak` — the footprint plane wave W e^{+jk ω_i·r} ê of the Kirchhoff family
-  is not a Maxwell field, so its own equivalent currents (those of a surface with no interface,
-  n₂ = n₁) radiate a small albedo of their own; PO and WS-V add it to the reflection. It is
-  negligible against ordinary reflectances but not near index matching (n = 1.0001: 8% of
-  R = 2.5e-9 at w = 30 µm, normal incidence; ×4.6 at n = 1.01, 40°, w = 15 µm).
 * :func:`check_waist` — a footprint of waist w spreads over λ₁/(πw) in angle, across which the
   rungs' obliquity and Fresnel factors vary: the flat albedo is off by ≈ 0.3 (λ₁/(πw))²/μ_i²
   (measured on flat aluminium at 0°: +3.1% for w = 0.38 µm, +0.18% for w = 1.5 µm at λ = 0.4 µm,
@@ -18,19 +13,14 @@ diagnostics). Found by the extremes suite (tests/extremes.py, docs/extremes.md).
 
 from __future__ import annotations
 
-import dataclasses
 import warnings
 
 import numpy as np
 
-from wavebrdf.solver.farfield import BRDFResult, albedo
-from wavebrdf.solver.fresnel import fresnel_reflectance
 
-__all__ = ["EVANESCENT_LOSS", "LEAK_CHECK_REFLECTANCE", "LEAK_RELATIVE", "SPREAD_ERROR", "SPREAD_COEFFICIENT",
-           "ValidityWarning", "check_evanescent_loss", "check_footprint_leak", "check_waist"]
+__all__ = ["EVANESCENT_LOSS", "SPREAD_ERROR", "SPREAD_COEFFICIENT", "ValidityWarning", "check_evanescent_loss",
+           "check_waist"]
 
-LEAK_CHECK_REFLECTANCE = 0.02  # measure the leak when the unpolarized R(θ_i) is below this
-LEAK_RELATIVE = 1e-3  # warn when the leak exceeds this share of the albedo
 EVANESCENT_LOSS = 0.01  # OHS: warn when this share of the reflected spectrum is dropped
 SPREAD_COEFFICIENT = 0.3  # albedo error ≈ this × (λ₁/(πw))²/μ_i² (fitted on flat aluminium, see above)
 SPREAD_ERROR = 0.005  # warn above this predicted relative albedo error (the rungs' flat tolerance)
@@ -47,31 +37,6 @@ def _append(diagnostics: dict, message: str) -> None:
         recorded.append(line)
     else:
         diagnostics["warnings"] = "; ".join(w for w in (recorded or "", line) if w)
-
-
-def check_footprint_leak(run, scene, result: BRDFResult, model: str) -> None:
-    """When R(θ_i) < LEAK_CHECK_REFLECTANCE, run ``run(scene')`` with n₂ = n₁ (no interface: the
-    footprint's own leak) and warn when its albedo exceeds LEAK_RELATIVE of the result's
-    (``diagnostics["footprint_leak_albedo"]``: the leak per polarization)."""
-    if complex(scene.index) == complex(scene.exterior_index):
-        return
-    R = np.mean(fresnel_reflectance(complex(scene.index) / scene.exterior_index, np.cos(scene.theta_i)))
-    if R >= LEAK_CHECK_REFLECTANCE:
-        return
-    matched = dataclasses.replace(scene, index=complex(scene.exterior_index))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # the footprint warnings of this pass are the scene's own
-        leak = albedo(run(matched).brdf(), scene.grid)
-    own = albedo(result.brdf(), scene.grid)
-    result.diagnostics["footprint_leak_albedo"] = leak.tolist()
-    share = float(np.max(leak / np.maximum(own, 1e-300)))
-    if share > LEAK_RELATIVE:
-        message = (f"{model}: near index matching (n₂ = {complex(scene.index):.6g}, R(θ_i) = {R:.3g}) the footprint "
-                   f"plane wave's own currents radiate an albedo of {np.max(leak):.3g} ({share:.3g} of the result's): "
-                   f"the figure is off by about that share at waist {scene.waist_um:g} µm (a larger waist or the "
-                   "kirchhoff/ghs rungs, which carry Fresnel outside the integral, avoid it)")
-        _append(result.diagnostics, message)
-        warnings.warn(message, ValidityWarning, stacklevel=3)
 
 
 def check_evanescent_loss(fraction: float, diagnostics: dict, theta_i: float) -> None:

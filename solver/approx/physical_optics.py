@@ -14,7 +14,12 @@ with E_r = r_s (ê·ŝ) ŝ + r_p (ê·p̂_i) p̂_r in the node's local s/p frame
 at normal local incidence, where r_s = −r_p) and Fresnel r_s, r_p at the exact local angle
 (complex index, kernels/wb_fresnel.h). Node slopes: central differences (the mean of the bilinear
 cells' gradients at the node; one-sided on the patch border). Shadowed or back-facing nodes carry
-no current. The far field (Balanis' radiation integrals for e^{+jωt})
+no current. The incident field's own currents, m̃ × H_i and −m̃ × E_i on every node, are then
+subtracted: for a Maxwell incident field on the whole surface they radiate nothing into the upper
+half-space (the extinction theorem), and the footprint plane wave's radiate only a leak of its
+non-Maxwell ∇W part (at n₂ = n₁: 1e-2 of Φ_i at 60°, 1% of glass's R at 30°, w = 4 µm). So lit nodes
+carry the reflected field's currents, unlit ones minus the incident field's (their shadow), and the
+index-matched interface reflects exactly nothing. The far field (Balanis' radiation integrals for e^{+jωt})
 
     E_far(ω_o) = (jk/4π) ω_o × (η₁ ω_o × N + L),   N = Σ J Δ² e^{+jk(ω_i + ω_o)·r}, L likewise,
 
@@ -48,6 +53,7 @@ from wavebrdf.solver.approx.kirchhoff import (
     KirchhoffSetup,
     albedo_excess,
     chebyshev_cost,
+    chebyshev_device_bytes,
     chebyshev_transform,
     chebyshev_transform_numpy,
     transform_orders,
@@ -58,7 +64,7 @@ from wavebrdf.solver.footprint import incident_basis
 from wavebrdf.solver.fresnel import fresnel_rs_rp
 from wavebrdf.solver.models import Capabilities, Estimate, SurfaceScene
 from wavebrdf.solver.options import option
-from wavebrdf.solver.validity import check_footprint_leak, check_waist
+from wavebrdf.solver.validity import check_waist
 
 __all__ = [
     "POModel",
@@ -72,7 +78,8 @@ CHANNELS = 12  # 2 polarizations × (J'_x, J'_y, J'_z, M_x, M_y, M_z)
 
 def po_currents_numpy(window: np.ndarray, slopes: np.ndarray, lit: np.ndarray, omega_i: np.ndarray,
                       polarizations: np.ndarray, eta: complex) -> np.ndarray:
-    """Twin of the kernel po_currents: (12, na, nb) apertures Δ²W·(J', M) per polarization, J' = η₁J."""
+    """Twin of the kernel po_currents: (12, na, nb) apertures Δ²W·(J', M) per polarization, J' = η₁J
+    (lit nodes: the reflected field's currents; unlit: minus the incident field's)."""
     mt = np.stack([-slopes[0], -slopes[1], np.ones_like(slopes[0])], axis=-1)  # m̃ (na, nb, 3)
     m = mt / np.linalg.norm(mt, axis=-1, keepdims=True)
     kh = -np.asarray(omega_i, dtype=float)
@@ -90,14 +97,14 @@ def po_currents_numpy(window: np.ndarray, slopes: np.ndarray, lit: np.ndarray, o
     k_r = kh + 2.0 * c[..., None] * m
     p_r = np.cross(s, k_r)
     r_s, r_p = fresnel_rs_rp(eta, np.clip(c, 0.0, 1.0))
-    on = lit & (c > 0)
+    on = (lit & (c > 0))[..., None]
     out = np.zeros((CHANNELS,) + slopes.shape[1:], dtype=complex)
     for p, e in enumerate(polarizations):
         E_r = (r_s * (s @ e))[..., None] * s + (r_p * (p_i @ e))[..., None] * p_r
-        H = np.cross(kh, e) + np.cross(k_r, E_r)
-        J = np.cross(mt, H)
-        M = -np.cross(mt, e + E_r)
-        currents = np.concatenate([J, M], axis=-1) * np.where(on, window, 0.0)[..., None]
+        # lit: the reflected field's currents; unlit: minus the incident field's (module docstring)
+        J = np.where(on, np.cross(mt, np.cross(k_r, E_r)), -np.cross(mt, np.cross(kh, e)))
+        M = np.where(on, -np.cross(mt, E_r), np.cross(mt, np.broadcast_to(e, mt.shape)))
+        currents = np.concatenate([J, M], axis=-1) * window[..., None]
         out[6 * p : 6 * p + 6] = np.moveaxis(currents, -1, 0)
     return out
 
@@ -186,7 +193,6 @@ def po_farfield(ctx, scene: SurfaceScene, shadowing: str = "rays", border: str =
     )
     ff.diagnostics["albedo_excess"] = albedo_excess(ff)
     check_waist(scene, ff.diagnostics, "po")
-    check_footprint_leak(lambda matched: po_farfield(ctx, matched, shadowing, border), scene, ff, "po")
     return ff
 
 
@@ -217,5 +223,9 @@ class POModel(FootprintModel):
         memory, seconds = chebyshev_cost(nodes, res, orders, channels=CHANNELS)
         memory += 16.0 * (CHANNELS + 4) * nodes**2
         seconds += 2e-7 * nodes**2 if self.options.shadowing == "rays" else 0.0
+        held, largest = chebyshev_device_bytes(nodes, res, orders, channels=CHANNELS, precision=scene.precision)
+        item = 16.0 if scene.precision == "double" else 8.0
+        currents, planes = item * CHANNELS * nodes**2, item * CHANNELS * res * res  # one buffer each
         return Estimate(memory, seconds, f"{orders} Chebyshev orders × {CHANNELS} currents, {nodes}² nodes, "
-                                         f"{res}² pixels")
+                                         f"{res}² pixels", device_bytes=held + currents + planes,
+                        largest_buffer_bytes=max(largest, currents, planes))

@@ -42,8 +42,8 @@ def _quiet(model, ctx, scene):
 def brute_force_wsv(ctx, scene: SurfaceScene) -> np.ndarray:
     """WS-V BRDF (2, res, res) by a direct sum over the nodes for every pixel, with V_o ray traced
     at that pixel's own direction (approx.md §3.4, e^{+jωt}):
-    f = |Σ Δ² W V_i V_o a e^{+jk[s·x + (μ_i+μ_o)(z − z̄)]}|² / (4 μ_i μ_o λ² Δ² Σ W²),
-    a = m̃·[(ω_i + ω_o) r(θ_l) + (ω_o − ω_i)]."""
+    f = |Σ Δ² W (V_i V_o a − m̃·(ω_o − ω_i)) e^{+jk[s·x + (μ_i+μ_o)(z − z̄)]}|² / (4 μ_i μ_o λ² Δ² Σ W²),
+    a = m̃·[(ω_i + ω_o) r(θ_l) + (ω_o − ω_i)] (the second term: the footprint's leak, subtracted)."""
     surface, grid = scene.surface, scene.grid
     lam, k = scene.wavelength_um, 2 * np.pi / scene.wavelength_um
     d = surface.spacing_um
@@ -65,11 +65,11 @@ def brute_force_wsv(ctx, scene: SurfaceScene) -> np.ndarray:
     for (i, j), v_o in zip(pixels, v_o_all):
         wo = grid.directions[i, j]
         phase = np.exp(1j * k * ((wi[0] + wo[0]) * X + (wi[1] + wo[1]) * Y + (wi[2] + wo[2]) * Z))
-        weight = d * d * W * v_i * v_o * phase
+        weight = d * d * W * phase
         m_o = m @ wo
         for p, r in enumerate((rs, rp)):
             a = m_i * (r - 1) + m_o * (r + 1)
-            out[p, i, j] = abs(np.sum(weight * a)) ** 2 / (norm * wo[2])
+            out[p, i, j] = abs(np.sum(weight * (v_i * v_o * a - (m_o - m_i)))) ** 2 / (norm * wo[2])
     return out
 
 
