@@ -83,7 +83,8 @@ def cmd_run(args) -> int:
     from wavebrdf.jobs.plan import check_memory, device_info, plan_study
     from wavebrdf.jobs.batch import run_scope, stop_on_sigterm, workers_per_node
 
-    scope = run_scope(args, load_config(args.config, output=args.output, overrides=args.set))  # None: up to date
+    loaded = load_config(args.config, output=args.output, overrides=args.set)
+    scope = run_scope(args, loaded)  # None: up to date
     if scope is None:
         return 0
     from wavebrdf.jobs.scheduler import apply_worker_environment, worker_environment
@@ -106,12 +107,22 @@ def cmd_run(args) -> int:
     check_memory(plan, per_node, study.run.memory_gb, device=device_info(args.device))
     make_output_folder(config.output)
     lock = OutputLock(config.output)
+
+    def still_to_run() -> bool:
+        """The output checked again under its lock, as a run this one waited for may have written it
+        since: False when up to date (said), ResumeError when it is not this study's to replace.
+        A shard writes no dataset (its parts folder is checked under its own lock)."""
+        return scope.shard is not None or run_scope(args, loaded) is not None
+
     if comm is None:
         with lock.acquire(args.wait):  # held until the dataset and its PNGs are written
+            if not still_to_run():
+                return 0
             return _run_and_report(args, plan, executor, workers, None)
     try:
-        if not _mpi_lock(comm, lock, args.wait):
-            return 2
+        code = _mpi_lock(comm, lock, args.wait, still_to_run)
+        if code is not None:
+            return code
         return _run_and_report(args, plan, executor, workers, comm)
     except BaseException as exc:  # one failing rank must not leave the others waiting forever
         print(f"wavebrdf: error on rank {comm.Get_rank()}: {type(exc).__name__}: {exc}", file=sys.stderr)
@@ -121,22 +132,22 @@ def cmd_run(args) -> int:
         lock.release()
 
 
-def _mpi_lock(comm, lock, wait: bool) -> bool:
-    """Rank 0 takes the output's lock before any rank works and tells every rank the outcome
-    (False: refused, said once by rank 0)."""
-    from wavebrdf.jobs.parts import OutputBusy, StorageError
+def _mpi_lock(comm, lock, wait: bool, still_to_run) -> int | None:
+    """Rank 0 takes the output's lock before any rank works, checks under it that there is work
+    (``still_to_run()``), and tells every rank the outcome: None to run, else the exit status (0 up
+    to date, 2 refused: said once by rank 0)."""
+    from wavebrdf.jobs.parts import OutputBusy, ResumeError, StorageError
     from wavebrdf.jobs.scheduler import share_from_root
 
-    refusal = None
+    code = None
     if comm.Get_rank() == 0:
         try:
             lock.acquire(wait)
-        except (OutputBusy, StorageError) as exc:
-            refusal = str(exc)
-    refusal = share_from_root(comm, refusal)
-    if refusal is not None and comm.Get_rank() == 0:
-        print(f"wavebrdf: error: {refusal}", file=sys.stderr)
-    return refusal is None
+            code = None if still_to_run() else 0
+        except (OutputBusy, StorageError, ResumeError) as exc:
+            print(f"wavebrdf: error: {one_line(str(exc))}", file=sys.stderr)
+            code = 2
+    return share_from_root(comm, code)
 
 
 def _run_and_report(args, plan, executor: str, workers: int, comm) -> int:

@@ -3,8 +3,11 @@ complete results does nothing ("up to date", exit 0), unless ``--force``.
 
 The dataset records the plan's fingerprint (root attribute ``fingerprint``, jobs/plan.py: every
 config value that determines results). An output holding another configuration's results is
-refused with the keys that changed; ``--force`` (or another ``[study] output``) overwrites it.
-Datasets without the attribute (older versions) are recomputed as before.
+refused with the keys that changed and the study that wrote it; a file that is not a wavebrdf
+dataset (a text file, someone's own HDF5 file) is refused too. ``--force`` (or another ``[study]
+output``) overwrites either. Datasets without the attribute (older versions) are recomputed as
+before. ``run`` and ``merge`` check again once they hold the output's lock: a run they waited for
+may have written the output meanwhile.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ import h5py
 import numpy as np
 
 from wavebrdf.jobs.parts import ResumeError
+from wavebrdf.jobs.store import not_a_dataset
 
 __all__ = ["changed_keys", "up_to_date"]
 
@@ -49,27 +53,35 @@ def changed_keys(old_text: str, new_text: str, limit: int = 6) -> str:
     return ", ".join(items) + (f" and {len(keys) - limit} more" if len(keys) > limit else "")
 
 
+def _text(value) -> str:
+    return value.decode() if isinstance(value, bytes) else str(value)
+
+
 def up_to_date(plan, force: bool = False) -> bool:
     """True when ``plan``'s output already holds its complete results (nothing to run).
-    ResumeError when it holds another configuration's results (and not ``force``)."""
+    ResumeError (unless ``force``) when the output is not a wavebrdf dataset or holds another
+    configuration's results."""
     output = Path(plan.config.output)
-    parts = output.with_name(output.name + ".parts")
-    if force or not output.is_file() or parts.exists():
-        return False  # nothing yet, or a run to resume
+    if force or not output.exists():
+        return False
+    problem = not_a_dataset(output)
+    if problem is not None:
+        raise ResumeError(f"{output} {problem}: it is not a wavebrdf dataset, so it is not replaced; move it "
+                          "away, set another [study] output, or add --force to overwrite it")
+    if output.with_name(output.name + ".parts").exists():
+        return False  # a run to resume
     try:
         with h5py.File(output, "r") as h5:
             found = h5.attrs.get("fingerprint")
-            config = h5.attrs.get("config", "")
+            config, study = h5.attrs.get("config", ""), h5.attrs.get("study", "")
             status = h5["tasks/status"][()] if "tasks/status" in h5 else np.array([])
     except (OSError, KeyError, ValueError):
-        return False  # not a readable dataset: the run replaces it, as before
+        return False  # a damaged dataset of ours: the run replaces it, as before
     if found is None:
         return False
-    found = found.decode() if isinstance(found, bytes) else str(found)
-    if found != plan.fingerprint:
-        config = config.decode() if isinstance(config, bytes) else str(config)
-        raise ResumeError(f"{output} holds the results of another configuration (changed: "
-                          f"{changed_keys(config, plan.config.text)}); add --force to overwrite it, or set "
-                          "another [study] output")
-    states = {s.decode() if isinstance(s, bytes) else str(s) for s in status}
+    if _text(found) != plan.fingerprint:
+        raise ResumeError(f"{output} holds the results of another configuration (study {_text(study)!r}, "
+                          f"fingerprint {_text(found)}; changed: {changed_keys(_text(config), plan.config.text)}); "
+                          "add --force to overwrite it, or set another [study] output")
+    states = {_text(s) for s in status}
     return len(status) == len(plan.tasks) and states == {"done"}

@@ -70,8 +70,10 @@ def storage_error(path: Path, exc: OSError) -> StorageError:
         return exc
     code = f"[Errno {exc.errno}] " if exc.errno else ""
     reason = exc.strerror or str(exc) or type(exc).__name__
-    return StorageError(f"cannot write {path}: {code}{reason}; nothing was replaced (free space or fix the "
-                        "file system, then re-run the same command)")
+    fix = ("make the folder writable or write elsewhere" if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS)
+           else "free space or fix the file system")
+    return StorageError(f"cannot write {path}: {code}{reason}; nothing was replaced ({fix}, then re-run the same "
+                        "command)")
 
 
 def temporary_path(path: Path) -> Path:
@@ -241,45 +243,31 @@ class PartsFolder:
         self.manifest = self.path / "manifest.json"
         self.rejected = self.path / "rejected"
 
+    def _expected(self) -> dict:
+        return {"fingerprint": self.plan.fingerprint, "tasks": len(self.plan.tasks)}
+
     def open(self) -> None:
         """Create the folder with its manifest, or check that an existing one belongs to this plan.
         The caller holds the output's lock."""
-        expected = {"fingerprint": self.plan.fingerprint, "tasks": len(self.plan.tasks)}
         if not self.path.exists() and not self.path.is_symlink():
-            self._create(expected)
+            self._create(self._expected())
             return
-        if not self.path.is_dir():
-            raise ResumeError(f"{self.path} is not a folder; remove it to run this study")
-        found = self._read_manifest()
-        if {k: found.get(k) for k in expected} != expected:
-            raise ResumeError(
-                f"{self.path} holds partial results of a different configuration "
-                f"(fingerprint {found.get('fingerprint')} vs {expected['fingerprint']}); "
-                "delete that folder to start over, or restore the original config to resume"
-            )
+        if self.check() is None:  # an empty folder holds nothing to trust or distrust
+            self.path.rmdir()
+            self._create(self._expected())
+            return
         for tmp in self.path.glob(".*.tmp"):  # writes of a killed run
             _discard(tmp)
 
-    def _create(self, expected: dict) -> None:
-        new = self.path.with_name(f".{self.path.name}.{os.getpid()}.new")
-        payload = json.dumps({**expected, "software_version": __version__}).encode()
-        try:
-            new.mkdir()
-            atomic_write(new / "manifest.json", lambda fh: fh.write(payload))
-            os.rename(new, self.path)
-            fsync_folder(self.path.parent)
-        except OSError as exc:
-            if new.exists():
-                shutil.rmtree(new, ignore_errors=True)
-            raise storage_error(self.path, exc) from None
-
-    def _read_manifest(self) -> dict:
+    def check(self) -> dict | None:
+        """The manifest of the existing folder, refused (:class:`ResumeError`) unless it is this
+        plan's; None for an empty folder. Reads only: nothing is created, moved or removed."""
+        if not self.path.is_dir():
+            raise ResumeError(f"{self.path} is not a folder; remove it to run this study")
         if not self.manifest.is_file():
-            files = [p for p in self.path.iterdir()]
-            if not files:  # an empty folder holds nothing to trust or distrust
-                self.path.rmdir()
-                self._create({"fingerprint": self.plan.fingerprint, "tasks": len(self.plan.tasks)})
-                return json.loads(self.manifest.read_text())
+            files = list(self.path.iterdir())
+            if not files:
+                return None
             raise ResumeError(
                 f"{self.path} has no manifest.json, so its {len(files)} file(s) cannot be tied to a "
                 "configuration (a run killed while removing it, or files copied in); delete that folder "
@@ -294,7 +282,28 @@ class PartsFolder:
                 f"{self.manifest} is not a valid manifest ({type(exc).__name__}), so the results in {self.path} "
                 "cannot be tied to a configuration; delete that folder to start over"
             ) from None
+        names = {"fingerprint": "fingerprint", "tasks": "task count"}
+        differ = [f"{names[k]} {found.get(k)} in the folder, {v} in this config"
+                  for k, v in self._expected().items() if found.get(k) != v]
+        if differ:
+            raise ResumeError(
+                f"{self.path} holds partial results of a different configuration ({'; '.join(differ)}); "
+                "delete that folder to start over, or restore the original config to resume"
+            )
         return found
+
+    def _create(self, expected: dict) -> None:
+        new = self.path.with_name(f".{self.path.name}.{os.getpid()}.new")
+        payload = json.dumps({**expected, "software_version": __version__}).encode()
+        try:
+            new.mkdir()
+            atomic_write(new / "manifest.json", lambda fh: fh.write(payload))
+            os.rename(new, self.path)
+            fsync_folder(self.path.parent)
+        except OSError as exc:
+            if new.exists():
+                shutil.rmtree(new, ignore_errors=True)
+            raise storage_error(self.path, exc) from None
 
     # --- part files ------------------------------------------------------------------------
 
@@ -317,18 +326,26 @@ class PartsFolder:
             return str(exc)
         return None
 
-    def verify(self) -> set[int]:
-        """Check every part file (identity and checksum); move bad ones to ``rejected/`` with one
-        log line each. Returns the ids of the tasks whose part is good (done)."""
-        good = set()
+    def inspect(self) -> tuple[set[int], dict[int, str]]:
+        """Check every part file (identity and checksum), moving nothing: the ids of the tasks whose
+        part is good (done) and, per task whose part is bad, why."""
+        good, bad = set(), {}
         for task in self.plan.tasks:
-            path = self._file(task)
-            if not path.exists():
+            if not self._file(task).exists():
                 continue
             problem = self.problem(task)
             if problem is None:
                 good.add(task.id)
-                continue
+            else:
+                bad[task.id] = problem
+        return good, bad
+
+    def verify(self) -> set[int]:
+        """:meth:`inspect`, then move the bad parts to ``rejected/`` with one log line each (they
+        are recomputed). Returns the ids of the tasks whose part is good (done)."""
+        good, bad = self.inspect()
+        for task_id, problem in bad.items():
+            path = self._file(self.plan.tasks[task_id])
             self.rejected.mkdir(exist_ok=True)
             os.replace(path, self.rejected / path.name)
             logger.warning("%s: %s; moved to %s/, the task will be recomputed", path, problem, self.rejected.name)

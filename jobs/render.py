@@ -17,9 +17,9 @@ import re
 import shutil
 from pathlib import Path
 
-from wavebrdf.jobs.parts import storage_error
+from wavebrdf.jobs.parts import StorageError, storage_error
 from wavebrdf.jobs.pictures import DECADES, KINDS, PictureOptions, pictures
-from wavebrdf.jobs.store import Dataset, StoreError
+from wavebrdf.jobs.store import Dataset
 
 __all__ = ["MAX_IMAGES", "RenderedPictures", "add_render_flags", "render_dataset", "render_options"]
 
@@ -86,13 +86,29 @@ def render_dataset(path: str | Path, out_dir: str | Path | None = None, *, plots
     return written
 
 
+def _check_out_dir(out_dir: Path) -> None:
+    """Refuse an output folder that cannot be written (a file there or above it, a missing or
+    unwritable parent) with a :class:`StorageError` naming it: an output problem, not the dataset's."""
+    def refuse(problem: str) -> StorageError:
+        return StorageError(f"cannot write PNGs into {str(out_dir)!r}: {problem}; choose another folder with --out")
+
+    if out_dir.exists() and not out_dir.is_dir():
+        raise refuse("it is a file, not a folder")
+    parent = out_dir.parent
+    existing = next((p for p in (parent, *parent.parents) if p.exists()), None)
+    if existing is not None and not existing.is_dir():
+        raise refuse(f"{str(existing)!r} is a file, not a folder")
+    if existing != parent:
+        raise refuse(f"folder {str(parent)!r} does not exist")
+    target = out_dir if out_dir.is_dir() else parent
+    if not os.access(target, os.W_OK | os.X_OK):
+        raise refuse(f"folder {str(target)!r} is not writable")
+
+
 def _render(ds: Dataset, path: Path, out_dir: Path, opts: PictureOptions, max_images: int) -> RenderedPictures:
+    _check_out_dir(out_dir)
+    _remove_abandoned(out_dir)
     with ds.reading():
-        if out_dir.exists() and not out_dir.is_dir():
-            raise StoreError(f"cannot write PNGs into {str(out_dir)!r}: it is not a folder")
-        if not out_dir.parent.is_dir():
-            raise StoreError(f"cannot write PNGs into {str(out_dir)!r}: folder {str(out_dir.parent)!r} does not exist")
-        _remove_abandoned(out_dir)
         wanted = pictures(ds, opts)
         staging = out_dir.with_name(f".{out_dir.name}.{os.getpid()}.tmp")
         names = []

@@ -78,8 +78,28 @@ def found_shards(output: Path) -> int | None:
     return counts.pop() if counts else None
 
 
+def _shard_state(plan, index: int, shards: int) -> tuple[PartsFolder, str | None]:
+    """Shard ``index``'s parts folder and what it lacks ("3 of 3 task(s) missing (not started)";
+    None: every task done or failed for good). Refuses (ResumeError) a folder of another
+    configuration. Reads only: a damaged part stays where it is, for the shard's run to redo."""
+    folder = PartsFolder(_shard_plan(plan, index, shards))
+    wanted = shard_tasks(plan, index, shards)
+    if not folder.path.exists():
+        return folder, f"{len(wanted)} of {len(wanted)} task(s) missing (not started)"
+    folder.check()
+    done, bad = folder.inspect()
+    failed = {t for t in wanted if folder.failure(plan.tasks[t]) is not None}
+    lacking = wanted - done - failed
+    if not lacking:
+        return folder, None
+    damaged = len(lacking & set(bad))
+    why = f" ({damaged} damaged part(s), recomputed by the shard's run)" if damaged else ""
+    return folder, f"{len(lacking)} of {len(wanted)} task(s) missing{why}"
+
+
 def cmd_merge(args) -> int:
-    """``wavebrdf merge CONFIG``: the shards' parts into the study's dataset."""
+    """``wavebrdf merge CONFIG``: the shards' parts into the study's dataset. Everything is checked
+    before anything is written or moved: a refusal leaves the shards' folders as they were."""
     from wavebrdf.jobs.config import load_config
     from wavebrdf.jobs.finished import up_to_date
     from wavebrdf.jobs.plan import plan_study
@@ -90,28 +110,25 @@ def cmd_merge(args) -> int:
     plan = plan_study(load_config(args.config))
     output = Path(plan.config.output)
     with OutputLock(output).acquire(args.wait):
-        if up_to_date(plan):
+        if up_to_date(plan, args.force):
             print(f"{output} is up to date")
             return 0
         shards = args.shards or found_shards(output)
         if shards is None:
             raise ResumeError(f"no shard folders beside {output} (run 'wavebrdf run CONFIG --shard i/K' first)")
-        folders, missing = [], []
-        for index in range(shards):
-            folder = PartsFolder(_shard_plan(plan, index, shards))
-            done = folder.verify() if folder.manifest.is_file() else set()
-            if folder.path.exists():
-                folder.open()  # refuses another configuration's folder
-            wanted = shard_tasks(plan, index, shards)
-            failed = {t for t in wanted if folder.path.exists() and folder.failure(plan.tasks[t]) is not None}
-            if not wanted <= done | failed:
-                missing.append(f"shard {index}: {len(wanted - done - failed)} of {len(wanted)} task(s)")
-            folders.append(folder)
+        states = [_shard_state(plan, index, shards) for index in range(shards)]
+        own = PartsFolder(plan)
+        if own.path.exists():
+            own.check()  # a parts folder of another configuration beside the output
+        missing = {index: lack for index, (_, lack) in enumerate(states) if lack is not None}
         if missing:
+            lacking = "; ".join(f"shard {index}: {lack}" for index, lack in missing.items())
             if args.if_complete:
-                print(f"merge of {output} waits for: {'; '.join(missing)}", file=sys.stderr)
+                print(f"merge of {output} waits for: {lacking}", file=sys.stderr)
                 return 0
-            raise ResumeError(f"cannot merge {output}: not finished: {'; '.join(missing)}")
+            raise ResumeError(f"cannot merge {output}: not finished: {lacking}; finish them with 'wavebrdf run "
+                              f"{args.config} --shard I/{shards}' for I in {', '.join(map(str, missing))}")
+        folders = [folder for folder, _ in states]
         parts = prepare_output(plan)
         device = ""
         for folder in folders:
@@ -143,5 +160,7 @@ def add_merge_parser(sub) -> None:
     p.add_argument("--if-complete", action="store_true",
                    help="exit 0 without merging while a shard is unfinished (the array jobs' last step)")
     p.add_argument("--wait", action="store_true", help="wait for another run or merge holding the output")
+    p.add_argument("--force", action="store_true", help="overwrite an output that holds another configuration's "
+                                                       "results or is not a wavebrdf dataset")
     p.add_argument("--no-render", action="store_true", help="do not write PNGs")
     p.set_defaults(func=cmd_merge)

@@ -63,6 +63,7 @@ __all__ = [
     "StoreError",
     "SurfaceDatasetWriter",
     "atomic_h5",
+    "not_a_dataset",
     "open_dataset",
     "write_dataset",
 ]
@@ -80,6 +81,31 @@ STRING = h5py.string_dtype()
 
 class StoreError(RuntimeError):
     """The file is not a readable wavebrdf dataset."""
+
+
+def not_a_dataset(path: Path) -> str | None:
+    """Why the existing file ``path`` is not a wavebrdf dataset ("is not an HDF5 file", "is an
+    HDF5 file without wavebrdf's format attribute", ...); None for a dataset wavebrdf wrote (any
+    format version, readable or damaged: its ``format`` attribute says so)."""
+    path = Path(path)
+    if path.is_dir():
+        return "is a folder"
+    if not path.is_file():
+        return "is not a regular file"
+    try:
+        if path.stat().st_size == 0:
+            return "is an empty file"
+        if not h5py.is_hdf5(path):
+            return "is not an HDF5 file"
+        with h5py.File(path, "r") as h5:
+            found = h5.attrs.get("format")
+    except (OSError, ValueError, KeyError) as exc:
+        return f"cannot be read as HDF5 ({type(exc).__name__}: {' '.join(str(exc).split())[:80]})"
+    found = found.decode() if isinstance(found, bytes) else found
+    if found != FORMAT:
+        shown = "" if found is None else f" (format = {found!r})"
+        return f"is an HDF5 file without wavebrdf's format attribute{shown}"
+    return None
 
 
 # kind: (main variable, its trailing dimensions, their letters, {other variable: its dimensions as

@@ -329,9 +329,9 @@ sys.exit(main(sys.argv[3:]))
 def test_defect4_disk_full_leaves_the_previous_state_and_one_line(tmp_path, reference, when, limit):
     cfg = write_study(tmp_path)
     previous = tmp_path / "rel.h5"
-    previous.write_bytes(b"the previous dataset")
+    previous.write_bytes(b"the previous dataset")  # not a dataset: only --force replaces it
     result = subprocess.run([sys.executable, "-c", FILE_SIZE_LIMIT, str(limit), when, "run", str(cfg), "-q",
-                             "--no-render"], capture_output=True, text=True, timeout=300)
+                             "--no-render", "--force"], capture_output=True, text=True, timeout=300)
     assert result.returncode == 2, result.stderr[-3000:]
     line = one_line_error(result.stderr.split("\n", 1)[1])  # after the "study ...: N task(s)" line
     assert "File too large" in line and str(tmp_path) in line, line
