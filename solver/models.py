@@ -23,7 +23,9 @@ and model configuration (jobs/tasks.py ``ModelPool``).
 
 from __future__ import annotations
 
+import functools
 import importlib
+import warnings
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import ClassVar
@@ -33,6 +35,7 @@ import numpy as np
 from wavebrdf.solver.farfield import HemisphereGrid
 from wavebrdf.solver.options import NoOptions, parse_options
 from wavebrdf.solver.surface import HeightField
+from wavebrdf.solver.validity import ValidityWarning, check_sampling
 
 __all__ = [
     "Capabilities",
@@ -162,7 +165,15 @@ class Estimate:
 
 
 class Model(ABC):
-    """A scattering model: options, capabilities, estimate and run (see the module docstring)."""
+    """A scattering model: options, capabilities, estimate and run (see the module docstring).
+
+    Sampling validity: ``sampling`` names what the model's figure depends on
+    (:data:`~wavebrdf.solver.validity.SAMPLING_FLAGS`: the node lattice against λ, point-sampled
+    output pixels, a realization against its ensemble). Every subclass's :meth:`run` and
+    :meth:`check` go through :meth:`validity` on surface scenes: a refusal is a ValueError, each
+    warning a :class:`~wavebrdf.solver.validity.ValidityWarning` (which the batch layer records in
+    the task table's warnings).
+    """
 
     name: ClassVar[str]
     capabilities: ClassVar[Capabilities]
@@ -172,6 +183,14 @@ class Model(ABC):
         self.options = parse_options(self.Options, options, f"model.{self.name}")
 
     @abstractmethod
+    sampling: ClassVar[frozenset[str]] = frozenset()
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        for method in ("run", "check"):
+            own = cls.__dict__.get(method)
+            if own is not None and not getattr(own, "_sampling_checked", False):
+                setattr(cls, method, _through_validity(own, method == "run"))
     def run(self, ctx, scene):
         """Simulate ``scene`` on the OpenCL context ``ctx`` (a BRDFResult or a FiberResult)."""
 
@@ -181,7 +200,16 @@ class Model(ABC):
 
     def check(self, scene) -> None:
         """Refuse (ValueError naming the config key) a scene these options cannot simulate; called
-        by the config layer on each case before anything runs. Default: nothing to check."""
+        by the config layer on each case before anything runs. Default: the sampling refusals of
+        :meth:`validity` only."""
+        self.validity(scene)
+
+    def validity(self, scene) -> list[str]:
+        """The sampling validity of ``scene`` without running it (``wavebrdf plan`` can show it):
+        raises ValueError where the figure would be wrong, returns the warnings it would carry."""
+        if not isinstance(scene, SurfaceScene):
+            return []
+        return check_sampling(self.name, self.sampling, scene)
 
     def incident_fields(self, scene: SurfaceScene, points):
         """Incident (E, H), each (2 pol, 3, ...), at ``points`` (..., 3) in patch coordinates,
@@ -197,6 +225,22 @@ _REGISTRY: dict[str, str] = {
     "kirchhoff": "wavebrdf.solver.approx.kirchhoff:KirchhoffModel",
     "bem": "wavebrdf.solver.bem3d.model:BEMModel",
     "fiber-bem": "wavebrdf.solver.fiber.model:FiberBEMModel",
+def _through_validity(method, warn: bool):
+    """``method`` (a subclass's run or check) preceded by :meth:`Model.validity`; ``warn``: issue
+    its warnings (run) rather than only its refusals (check)."""
+
+    @functools.wraps(method)
+    def checked(self, *args, **kwargs):
+        scene = args[-1] if args else kwargs.get("scene")
+        for message in self.validity(scene):
+            if warn:
+                warnings.warn(message, ValidityWarning, stacklevel=2)
+        return method(self, *args, **kwargs)
+
+    checked._sampling_checked = True
+    return checked
+
+
     "mie": "wavebrdf.solver.fiber.model:MieModel",
     "po": "wavebrdf.solver.approx.physical_optics:POModel",
     "ghs": "wavebrdf.solver.approx.harvey_shack:GHSModel",

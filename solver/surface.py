@@ -36,6 +36,7 @@ __all__ = [
 ]
 
 MIN_NODES = 4  # at least 3×3 cells
+MAX_SEARCHED_CELLS = 4096  # minimal_cells searches grids up to this (its spectrum sums stay ~100 MB)
 PERIOD_TOLERANCE = 1e-6  # relative: size_um / period_um must be this close to an integer
 
 
@@ -80,10 +81,84 @@ class GaussianEnsemble:
         """rms slopes along x' and y': √2 σ/T (the Beckmann roughness is α = 2σ/T = √2 × this)."""
         return tuple(np.sqrt(2.0) * self.rms_height_um / t for t in self.correlation_um)
 
+    def grid_statistics(self) -> dict[str, float]:
+        """The ensemble's statistics along the grid axes: 1/e correlation lengths along x and y (µm)
+        and the rms |∇z| = σ √(2/T_x'² + 2/T_y'²)."""
+        a = np.deg2rad(self.angle_deg)
+        c2, s2 = np.cos(a) ** 2, np.sin(a) ** 2
+        tx, ty = self.correlation_um
+        return {"correlation_x_um": float(1.0 / np.sqrt(c2 / tx**2 + s2 / ty**2)),
+                "correlation_y_um": float(1.0 / np.sqrt(s2 / tx**2 + c2 / ty**2)),
+                "rms_slope": float(self.rms_height_um * np.sqrt(2.0 / tx**2 + 2.0 / ty**2))}
+
+    def sampled_statistics(self, cells: int, size_um: float) -> dict[str, float]:
+        """The statistics a realization of the generators (:func:`_gaussian_tile`) has in
+        expectation on ``cells`` × ``cells`` nodes of a ``size_um`` patch, as
+        :meth:`HeightField.statistics` measures them: the spectrum is the ensemble's PSD on the
+        grid's DFT frequencies (cut at Nyquist π/d, mean removed), so the 1/e lengths of its
+        autocorrelation along x and y (µm, linear between lags) and the rms slope of the
+        bilinear cells' gradient (transfer |2 sin(k_x d/2)/d · cos(k_y d/2)|², and in y) follow
+        without drawing one. Deterministic: no seed enters."""
+        return _sampled_statistics(self, int(cells), float(size_um))
+
+    def minimal_cells(self, size_um: float, tolerance: float, start: int = MIN_NODES - 1) -> int | None:
+        """The fewest cells (≥ ``start``) on a ``size_um`` patch whose :meth:`sampled_statistics`
+        are within ``tolerance`` (relative) of :meth:`grid_statistics`; None when no grid of up to
+        :data:`MAX_SEARCHED_CELLS` reaches them (the patch is too small: finite size, not spacing)."""
+        wanted = self.grid_statistics()
+
+        def within(cells: int) -> bool:
+            got = self.sampled_statistics(cells, size_um)
+            return all(abs(got[key] / wanted[key] - 1) <= tolerance for key in wanted)
+
+        low, high = int(start), int(start)
+        while not within(high):
+            low, high = high, 2 * high
+            if high > MAX_SEARCHED_CELLS:
+                return None
+        while high - low > 1:
+            mid = (low + high) // 2
+            low, high = (low, mid) if within(mid) else (mid, high)
+        return high
+
     def attributes(self) -> dict:
         """Flat, HDF5-storable description (prefix ``ensemble_``)."""
         return {"ensemble": "gaussian", "ensemble_rms_height_um": self.rms_height_um,
                 "ensemble_correlation_um": list(self.correlation_um), "ensemble_angle_deg": self.angle_deg}
+
+
+def _sampled_statistics(ensemble: GaussianEnsemble, cells: int, size_um: float) -> dict[str, float]:
+    """:meth:`GaussianEnsemble.sampled_statistics` (separable sums where the PSD's axes are the
+    grid's, else the N×N spectrum)."""
+    d = size_um / cells
+    k = 2 * np.pi * np.fft.fftfreq(cells, d)
+    tx, ty = ensemble.correlation_um
+    lags = np.arange(cells // 2 + 1)
+    phase = np.cos(np.outer(lags, k) * d)  # (lags, k)
+    slope = 4 * np.sin(0.5 * k * d) ** 2 / d**2
+    half = np.cos(0.5 * k * d) ** 2
+    quarter = np.isclose(np.mod(ensemble.angle_deg, 90.0), 0.0) or np.isclose(np.mod(ensemble.angle_deg, 90.0), 90.0)
+    if tx == ty or quarter:
+        turned = tx != ty and np.isclose(np.mod(ensemble.angle_deg, 180.0), 90.0)
+        ax, ay = (ty, tx) if turned else (tx, ty)
+        px, py = np.exp(-(k * ax) ** 2 / 4), np.exp(-(k * ay) ** 2 / 4)  # psd = px ⊗ py, minus the k = 0 term
+        total = px.sum() * py.sum() - 1.0
+        acf_x = (phase @ px * py.sum() - 1.0) / total
+        acf_y = (phase @ py * px.sum() - 1.0) / total
+        grad = ((slope @ px) * (half @ py) + (half @ px) * (slope @ py)) / total  # k = 0 adds nothing
+    else:
+        kx, ky = np.meshgrid(k, k, indexing="ij")
+        kr, ks = ensemble.rotated(kx, ky)
+        psd = np.exp(-((kr * tx) ** 2 + (ks * ty) ** 2) / 4)
+        psd[0, 0] = 0.0
+        total = psd.sum()
+        acf_x = phase @ psd.sum(axis=1) / total
+        acf_y = phase @ psd.sum(axis=0) / total
+        grad = float(np.sum(psd * (slope[:, None] * half[None, :] + half[:, None] * slope[None, :]))) / total
+    level = np.exp(-1.0)
+    return {"correlation_x_um": float(_first_crossing(acf_x, level) * d),
+            "correlation_y_um": float(_first_crossing(acf_y, level) * d),
+            "rms_slope": float(ensemble.rms_height_um * np.sqrt(grad))}
 
 
 def checked_heights(z, *, square: bool) -> np.ndarray:
@@ -393,9 +468,20 @@ def _brushed(cells: int, size_um: float, rng, *, rms_height_um: float, correlati
 def _sinusoid(
     cells: int, size_um: float, rng, *, amplitude_um: float, period_um: float, angle_deg: float = 0.0
 ) -> np.ndarray:
-    """h = a cos(2π (x cos α + y sin α)/Λ) with x, y the node coordinates."""
+    """h = a cos(2π (x cos α + y sin α)/Λ) with x, y the node coordinates; the period along each
+    grid axis, Λ/|cos α| and Λ/|sin α|, must exceed two spacings (Nyquist), else the nodes hold
+    another, longer sinusoid (refused, naming the fewest cells)."""
     if period_um <= 0:
         raise SurfaceError(f"surface.period_um must be > 0, got {period_um}")
+    a = np.deg2rad(angle_deg)
+    along = max(abs(np.cos(a)), abs(np.sin(a)))  # the grid axis the sinusoid varies fastest along
+    d = size_um / cells
+    if period_um <= 2 * d * along:
+        fewest = int(np.floor(2 * size_um * along / period_um)) + 1
+        raise SurfaceError(f"surface.period_um = {period_um:g} is not above two spacings (Nyquist) of the grid along "
+                           f"its direction: 2·size_um/cells·max(|cos α|, |sin α|) = 2·{size_um:g}/{cells}·{along:.4g} "
+                           f"= {2 * d * along:.4g} µm, so the nodes would hold an aliased, longer sinusoid; use "
+                           f"surface.cells ≥ {fewest}")
     x = -0.5 * size_um + size_um / cells * np.arange(cells + 1)
     X, Y = np.meshgrid(x, x, indexing="ij")
     a = np.deg2rad(angle_deg)

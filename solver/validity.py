@@ -65,3 +65,179 @@ def check_waist(scene, diagnostics: dict, model: str) -> None:
                    f"waist ≥ {lambda1 / np.pi * np.sqrt(SPREAD_COEFFICIENT / SPREAD_ERROR) / mu_i:.3g} µm, or ghs")
         _append(diagnostics, message)
         warnings.warn(message, ValidityWarning, stacklevel=3)
+
+
+# --- sampling validity (the Model seam runs it on every surface scene: solver/models.py) ----------
+
+ALIAS_SIGMAS = 5.0  # a lobe reaches this many of its σ (intensity e^{−12.5}: Ω_K ∝ 1/μ_o lifts replica tails at the horizon)
+PIXEL_ERROR = 0.005  # warn above this predicted relative albedo error of point-sampled lobes
+STATISTICS_TOLERANCE = 0.1  # warn when a realization's expected statistic differs by more than this share
+
+SAMPLING_FLAGS = ("lattice", "pixels", "realization")
+"""What a model's figure depends on, each checked by :func:`check_sampling`:
+
+* ``lattice`` — it sums e^{+jk s·x} over the surface nodes (the Kirchhoff family: kirchhoff, po,
+  ohs, ghs, ws-v, wm), a sum periodic in s with period λ₁/d: the specular lobe at s = 0 repeats at
+  s = m λ₁/d, i.e. at u_o = −u_i + m λ₁/d, inside the hemisphere unless λ₁/d exceeds
+  1 + sin θ_i plus the lobe's reach (footprint spread, surface slopes);
+* ``pixels`` — it point-samples its lobes at the pixel centres (the albedo is their Riemann sum);
+* ``realization`` — it takes the height field: a random one is checked against its ensemble.
+"""
+
+
+class _SurfaceFigures:
+    """rms height, rms slope and correlation length of a height field (µm), computed once per
+    surface object (plan and run ask for the same surface many times)."""
+
+    _cache: dict = {}
+
+    @classmethod
+    def of(cls, surface) -> dict:
+        key = id(surface)
+        hit = cls._cache.get(key)
+        if hit is not None and hit[0] is surface:
+            return hit[1]
+        z = surface.z - surface.z.mean()
+        flat = not np.ptp(z) > 0
+        ensemble = surface.ensemble
+        if ensemble is not None:
+            correlation = min(ensemble.correlation_um)
+        elif flat:
+            correlation = float("nan")
+        else:
+            correlation = float(np.nanmin(surface.correlation_lengths()))
+        figures = {"rms_height_um": float(np.sqrt(np.mean(z**2))), "flat": flat,
+                   "rms_slope": 0.0 if flat else surface.rms_slope(), "correlation_um": correlation}
+        if len(cls._cache) > 8:
+            cls._cache.clear()
+        cls._cache[key] = (surface, figures)
+        return figures
+
+
+def alias_free_spacing(scene, rms_slope: float = 0.0) -> float:
+    """The largest surface spacing (µm) whose node sum keeps its specular lobe's replicas (at
+    s = m λ₁/d) outside the hemisphere: λ₁/(1 + sin θ_i + 5σ_w + 5 (1 + μ_i) s/√2), with
+    σ_w = λ₁/(2πw) the specular lobe's σ in direction cosines and s the rms slope (the diffuse
+    lobe's reach along one axis, 0: the specular lobe only)."""
+    lambda1 = scene.wavelength_um / scene.exterior_index
+    reach = np.sin(scene.theta_i) + ALIAS_SIGMAS * lambda1 / (2 * np.pi * scene.waist_um)
+    reach += ALIAS_SIGMAS * (1 + np.cos(scene.theta_i)) * rms_slope / np.sqrt(2.0)
+    return lambda1 / (1.0 + reach)
+
+
+def _where(scene) -> str:
+    return (f"λ = {scene.wavelength_um:g} µm (λ₁ = {scene.wavelength_um / scene.exterior_index:g} µm), θ_i = "
+            f"{np.rad2deg(scene.theta_i):.4g}°, waist {scene.waist_um:g} µm")
+
+
+def _cells_fix(surface, spacing_um: float) -> str:
+    cells = int(np.ceil(surface.size_um / spacing_um * (1 + 1e-9)))
+    key = "surface.cells" if surface.parameters is not None else "a height file resampled to"
+    return f"{key} ≥ {cells} (spacing ≤ {spacing_um:.4g} µm)"
+
+
+def _check_lattice(model: str, scene, figures: dict) -> list[str]:
+    """Refuse a spacing whose node sum repeats the specular lobe inside the hemisphere; warn when
+    the diffuse lobe's tails (the rms slope) reach a replica."""
+    surface = scene.surface
+    d = surface.spacing_um
+    limit = alias_free_spacing(scene)
+    head = (f"{model}: surface spacing d = size_um/cells = {surface.size_um:g}/{surface.cells} = {d:.4g} µm at "
+            f"{_where(scene)}")
+    if d > limit:
+        lambda1 = scene.wavelength_um / scene.exterior_index
+        raise ValueError(f"{head}: the node sum repeats the specular lobe every λ₁/d in direction cosines, so a "
+                         f"false lobe appears at u = −sin θ_i + λ₁/d = {lambda1 / d - np.sin(scene.theta_i):.3g} "
+                         f"inside the hemisphere (alias-free below λ₁/(1 + sin θ_i + 5λ₁/(2πw)) = {limit:.4g} µm); "
+                         f"use {_cells_fix(surface, limit)}")
+    rough = alias_free_spacing(scene, figures["rms_slope"])
+    if figures["rms_slope"] > 0 and d > rough:
+        return [f"{head}: the diffuse lobe of rms slope {figures['rms_slope']:.3g} reaches its replica at λ₁/d "
+                f"(alias-free below {rough:.4g} µm = λ₁/(1 + sin θ_i + 5σ_w + 5(1 + μ_i)·slope/√2)), so part "
+                f"of it folds back into the hemisphere; use {_cells_fix(surface, rough)}"]
+    return []
+
+
+def point_sampling_error(sigma: float, pixel: float) -> float:
+    """Relative error of the point-sampled integral of a 2-D Gaussian lobe of σ ``sigma`` on a
+    lattice of pitch ``pixel`` (worst offset; Poisson summation): 4 exp(−2π²σ²/pixel²)."""
+    return float(4.0 * np.exp(-2.0 * (np.pi * sigma / pixel) ** 2))
+
+
+def lobes(scene, figures: dict) -> list[tuple[str, float, float]]:
+    """The narrowest lobes of a scene: (name, share of the reflected power, σ in direction
+    cosines). The specular lobe: share e^{−g}, g = (2kσ_h μ_i)², σ = λ₁/(2πw) (the footprint's
+    spectrum); the first diffuse term: share g e^{−g}, σ = √(1/w² + 2/T²)/k (Stam's m = 1 term)."""
+    k = 2 * np.pi * scene.exterior_index / scene.wavelength_um
+    g = (2 * k * figures["rms_height_um"] * np.cos(scene.theta_i)) ** 2
+    out = [("specular", float(np.exp(-g)), 1.0 / (k * scene.waist_um))]
+    correlation = figures["correlation_um"]
+    if g > 0 and np.isfinite(correlation):
+        out.append(("diffuse (correlation length)", float(g * np.exp(-g)),
+                    float(np.sqrt(1.0 / scene.waist_um**2 + 2.0 / correlation**2) / k)))
+    return out
+
+
+def _check_pixels(model: str, scene, figures: dict) -> list[str]:
+    """Warn when a lobe narrower than the output pixel is point-sampled beyond PIXEL_ERROR."""
+    pixel = 2.0 / scene.grid.resolution
+    out = []
+    for name, share, sigma in lobes(scene, figures):
+        error = share * point_sampling_error(sigma, pixel)
+        if error > PIXEL_ERROR:
+            # pitch at which share · 4 exp(−2π²σ²/p²) = PIXEL_ERROR / 2
+            pitch = np.pi * sigma * np.sqrt(2.0 / np.log(8.0 * share / PIXEL_ERROR))
+            resolution = int(np.ceil(2.0 / pitch))
+            fix = f"use output.resolution ≥ {resolution}"
+            if name == "specular":
+                fix += f" or illumination.waist_um ≤ {scene.waist_um * pitch / pixel:.3g}"
+            out.append(f"{model}: the {name} lobe (σ = {sigma:.3g} in direction cosines, {share:.3g} of the reflected "
+                       f"power) is narrower than the output pixel (2/resolution = {pixel:.3g}, resolution "
+                       f"{scene.grid.resolution}) at {_where(scene)} and is point-sampled: the albedo is off by up "
+                       f"to {error:.2g} (relative); {fix}")
+    return out
+
+
+def _check_realization(model: str, scene) -> list[str]:
+    """Warn when the expected statistics of a random realization on this grid differ from its
+    ensemble's by more than STATISTICS_TOLERANCE (the spectrum is cut at the grid's Nyquist)."""
+    surface = scene.surface
+    ensemble = surface.ensemble
+    if ensemble is None or ensemble.rms_height_um == 0:
+        return []
+    realized = ensemble.sampled_statistics(surface.cells, surface.size_um)
+    wanted = ensemble.grid_statistics()
+    worst = max(abs(realized[key] / wanted[key] - 1) for key in wanted)
+    if worst <= STATISTICS_TOLERANCE:
+        return []
+    cells = ensemble.minimal_cells(surface.size_um, STATISTICS_TOLERANCE, start=surface.cells)
+    names = {"correlation_x_um": "correlation length along x (µm)", "correlation_y_um": "along y (µm)",
+             "rms_slope": "rms slope"}
+    pairs = ", ".join(f"{names[key]} {realized[key]:.3g} vs {wanted[key]:.3g}" for key in wanted)
+    return [f"{model}: the realization on {surface.cells} cells of {surface.spacing_um:.4g} µm does not have the "
+            f"requested statistics (expected on this grid vs the ensemble: {pairs}; tolerance "
+            f"{STATISTICS_TOLERANCE:.0%}): " + (
+                f"the grid cuts the spectrum at its Nyquist frequency; use surface.cells ≥ {cells}" if cells is not None
+                else f"no finer grid reaches them on this {surface.size_um} µm patch (too few correlation lengths: "
+                     "finite size); use a larger surface.size_um")]
+
+
+def check_sampling(model: str, flags, scene) -> list[str]:
+    """The sampling validity of ``scene`` for a model with ``flags`` (:data:`SAMPLING_FLAGS`):
+    raises ValueError (naming the keys and the fix) where the figure would be wrong beyond repair,
+    returns the warnings (messages naming the number and the fix) otherwise. Runs nothing."""
+    flags = set(flags)
+    unknown = flags - set(SAMPLING_FLAGS)
+    if unknown:
+        raise ValueError(f"unknown sampling flags {sorted(unknown)}; known: {SAMPLING_FLAGS}")
+    if not flags:
+        return []
+    figures = _SurfaceFigures.of(scene.surface)
+    out = []
+    if "lattice" in flags:
+        out += _check_lattice(model, scene, figures)
+    if "pixels" in flags:
+        out += _check_pixels(model, scene, figures)
+    if "realization" in flags:
+        out += _check_realization(model, scene)
+    return out

@@ -276,6 +276,7 @@ class WSVModel(Model):
     """``[model] name = "ws-v"``: Falster's single-scattering term (Kirchhoff + ray-traced V_i V_o)."""
 
     name = "ws-v"
+    sampling = frozenset({"lattice", "pixels", "realization"})
     Options = WSVOptions
     capabilities = Capabilities(takes="height_field", returns="fields", polarized=True, steerable=False,
                                 reciprocal=False, conserves_energy=False)
@@ -293,6 +294,7 @@ class WMModel(Model):
     incoherent sum: intensity only."""
 
     name = "wm"
+    sampling = frozenset({"lattice", "pixels", "realization"})
     Options = WMOptions
     capabilities = Capabilities(takes="height_field", returns="intensity", polarized=True, steerable=False,
                                 reciprocal=False, conserves_energy=False)

@@ -59,6 +59,7 @@ class GSModel(Model):
 
     name = "gs"
     Options = GSOptions
+    sampling = frozenset({"realization"})  # rays: the spacing need not resolve λ, the slopes must be the ensemble's
     # Reciprocal only in expectation, not claimed: per realization the estimate averages f over the
     # output pixel at an exact ω_i, and a surface's own slope histogram has structure below a pixel;
     # on the conformance "rough" scene the pairs differ by 2–5% per pixel at 1–4M rays under a plane

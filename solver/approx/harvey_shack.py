@@ -497,3 +497,5 @@ class GHSModel(HarveyShackModel):
 
     name = "ghs"
     variant = "ghs"
+    sampling = frozenset({"lattice", "pixels", "realization"})
+    sampling = frozenset({"lattice", "realization"})  # renormalized: the albedo does not depend on the pixels

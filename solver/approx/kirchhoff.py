@@ -490,5 +490,6 @@ class KirchhoffModel(FootprintModel):
         nodes = scene.surface.cells + 1
         res = scene.grid.resolution
         orders = transform_orders(scene)
+    sampling = frozenset({"lattice", "pixels", "realization"})
         memory, seconds = chebyshev_cost(nodes, res, orders)
         return Estimate(memory, seconds, f"{orders} Chebyshev orders, {nodes}² nodes, {res}² pixels")
