@@ -178,11 +178,6 @@ class Model(ABC):
     name: ClassVar[str]
     capabilities: ClassVar[Capabilities]
     Options: ClassVar[type] = NoOptions
-
-    def __init__(self, options=None):
-        self.options = parse_options(self.Options, options, f"model.{self.name}")
-
-    @abstractmethod
     sampling: ClassVar[frozenset[str]] = frozenset()
 
     def __init_subclass__(cls, **kwargs):
@@ -191,6 +186,11 @@ class Model(ABC):
             own = cls.__dict__.get(method)
             if own is not None and not getattr(own, "_sampling_checked", False):
                 setattr(cls, method, _through_validity(own, method == "run"))
+
+    def __init__(self, options=None):
+        self.options = parse_options(self.Options, options, f"model.{self.name}")
+
+    @abstractmethod
     def run(self, ctx, scene):
         """Simulate ``scene`` on the OpenCL context ``ctx`` (a BRDFResult or a FiberResult)."""
 
@@ -220,11 +220,6 @@ class Model(ABC):
         """Free what the instance keeps between scenes (operators, factorizations)."""
 
 
-# name -> "module:ClassName" (imported on first use)
-_REGISTRY: dict[str, str] = {
-    "kirchhoff": "wavebrdf.solver.approx.kirchhoff:KirchhoffModel",
-    "bem": "wavebrdf.solver.bem3d.model:BEMModel",
-    "fiber-bem": "wavebrdf.solver.fiber.model:FiberBEMModel",
 def _through_validity(method, warn: bool):
     """``method`` (a subclass's run or check) preceded by :meth:`Model.validity`; ``warn``: issue
     its warnings (run) rather than only its refusals (check)."""
@@ -241,6 +236,11 @@ def _through_validity(method, warn: bool):
     return checked
 
 
+# name -> "module:ClassName" (imported on first use)
+_REGISTRY: dict[str, str] = {
+    "kirchhoff": "wavebrdf.solver.approx.kirchhoff:KirchhoffModel",
+    "bem": "wavebrdf.solver.bem3d.model:BEMModel",
+    "fiber-bem": "wavebrdf.solver.fiber.model:FiberBEMModel",
     "mie": "wavebrdf.solver.fiber.model:MieModel",
     "po": "wavebrdf.solver.approx.physical_optics:POModel",
     "ghs": "wavebrdf.solver.approx.harvey_shack:GHSModel",

@@ -488,6 +488,7 @@ class OHSModel(HarveyShackModel):
     """``[model] name = "ohs"``: original Harvey–Shack (c_z = 2k, Ω = μ_o/μ_i, Fresnel at θ_i)."""
 
     name = "ohs"
+    sampling = frozenset({"lattice", "pixels", "realization"})
     variant = "ohs"
 
 
@@ -496,6 +497,5 @@ class GHSModel(HarveyShackModel):
     θ_i, propagating part renormalized by Krywonos' K)."""
 
     name = "ghs"
-    variant = "ghs"
-    sampling = frozenset({"lattice", "pixels", "realization"})
     sampling = frozenset({"lattice", "realization"})  # renormalized: the albedo does not depend on the pixels
+    variant = "ghs"

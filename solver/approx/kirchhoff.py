@@ -474,6 +474,7 @@ class KirchhoffModel(FootprintModel):
     """Registry adapter: ``[model] name = "kirchhoff"`` (no options of its own)."""
 
     name = "kirchhoff"
+    sampling = frozenset({"lattice", "pixels", "realization"})
     capabilities = Capabilities(takes="height_field", returns="fields", polarized=True, steerable=True,
                                 reciprocal=True, conserves_energy=False)
 
@@ -490,6 +491,5 @@ class KirchhoffModel(FootprintModel):
         nodes = scene.surface.cells + 1
         res = scene.grid.resolution
         orders = transform_orders(scene)
-    sampling = frozenset({"lattice", "pixels", "realization"})
         memory, seconds = chebyshev_cost(nodes, res, orders)
         return Estimate(memory, seconds, f"{orders} Chebyshev orders, {nodes}² nodes, {res}² pixels")
