@@ -9,6 +9,7 @@ written in that case. Exit status 1: a run finished with failed tasks; 130: inte
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import math
 import os
@@ -232,12 +233,17 @@ def cmd_plan(args) -> int:
     print(f"total: {len(plan.tasks)} tasks, {total:.1f} s of compute ({total / 3600:.2f} h); about "
           f"{total / workers:.1f} s wall on {workers} worker(s); peak {peak / 2**30:.2f} GiB per worker "
           f"(node budget {budget / 2**30:.1f} GiB)")
-    auto = [(t, e) for t, e in zip(plan.tasks, estimates) if t.kind == "direct" and plan.model_name(t) == "auto"]
-    if auto:  # what auto chose per scene and the full-wave cost it avoids
+    auto = [(t, e) for t, e in zip(plan.tasks, estimates)
+            if t.kind in ("direct", "patch") and plan.model_spec(t).capabilities.spot_checks]
+    if auto:  # what auto expects per scene, the full-wave cost it avoids, and its spot checks
+        from wavebrdf.jobs.spot_checks import spot_check_summary
         from wavebrdf.solver.auto import plan_summary
 
         choices = [plan.model_spec(t).build().choice(plan.model_scene(t)) for t, _ in auto]
         print(plan_summary(choices, [e.seconds for _, e in auto]))
+        checks = spot_check_summary(plan, estimates)
+        if checks:
+            print(checks)
     return 0
 
 
@@ -308,9 +314,35 @@ def cmd_inspect(args) -> int:
             warns = [w.decode() if isinstance(w, bytes) else w for w in tasks.get("warnings", [])]
             for w in sorted({w for w in warns if w}):
                 print(f"  warning: {w}")
+            _print_spot_checks(tasks)
         if args.config:
             print("config:\n" + ds.config)
     return 0
+
+
+def _print_spot_checks(tasks: dict) -> None:
+    """``auto``'s measured figures: each spot check's errors per rung, and the rungs the tasks ran."""
+    text = lambda column: [x.decode() if isinstance(x, bytes) else str(x) for x in tasks.get(column, [])]  # noqa: E731
+    kinds, models, checks, where = text("kind"), text("model"), text("spot_check"), text("spot_check_where")
+    if "check" not in kinds:
+        return
+    print("auto spot checks (speckle-averaged relative L2 over the lobe vs the full wave, worst of s, p, unpolarized "
+          "[raw unpolarized]):")
+    for i, kind in enumerate(kinds):
+        if kind != "check" or not checks[i] or checks[i] == "nan":
+            continue
+        measured = json.loads(checks[i])
+        figures = ", ".join(f"{name} {m['error']:.3g} [{m['raw']:.3g}]" if m.get("error") is not None
+                            else f"{name} failed" for name, m in measured.items())
+        print(f"  task {tasks['id'][i]} ({where[i]}): {figures or 'no rung measured'}")
+    ran = {}
+    for kind, model in zip(kinds, models):
+        if kind in ("direct", "patch"):
+            ran[model] = ran.get(model, 0) + 1
+    measured_errors = np.asarray(tasks.get("model_measured_error", []), dtype=float)
+    worst = f"; worst measured error of the rung taken {np.nanmax(measured_errors):.3g}" if np.any(
+        np.isfinite(measured_errors)) else ""
+    print("  rungs run: " + ", ".join(f"{m} ×{k}" for m, k in sorted(ran.items(), key=lambda kv: -kv[1])) + worst)
 
 
 def _print_summary_table(ds, coords) -> None:

@@ -23,6 +23,7 @@ import numpy as np
 
 from wavebrdf.jobs.config import ModelSpec, Study, StudyConfig
 from wavebrdf.jobs.steering import HexagonTiling, PatchLayout
+from wavebrdf.jobs.spot_checks import add_spot_checks
 from wavebrdf.jobs.tasks import KINDS
 from wavebrdf.solver.farfield import HemisphereGrid
 from wavebrdf.solver.models import Estimate, FiberScene, SurfaceScene
@@ -41,7 +42,10 @@ class PlanError(ValueError):
 
 @dataclass(frozen=True)
 class Task:
-    """One unit of work. ``kind``: "direct" | "patch" | "synth" | "fiber" (``incidence`` = θ_i index)."""
+    """One unit of work. ``kind``: "direct" | "patch" | "synth" | "fiber" | "check" (``incidence`` = θ_i
+    index). A "check" (``auto``'s spot check, jobs/spot_checks.py) has the indices of the direct or
+    patch task whose scene it checks; ``checks``: the spot checks whose measurements a task's model
+    reads (also in ``depends``)."""
 
     id: int
     kind: str
@@ -52,6 +56,12 @@ class Task:
     basic: int = -1  # patch / synth: basic direction
     patch: tuple[int, ...] = ()  # patch: (a, b)
     depends: tuple[int, ...] = ()
+    checks: tuple[int, ...] = ()
+
+    @property
+    def on_patch(self) -> bool:
+        """It simulates one steering sub-area (a patch task or a patch's spot check)."""
+        return bool(self.patch)
 
     @property
     def label(self) -> str:
@@ -90,6 +100,7 @@ class Plan:
     steering: dict[int, CaseSteering] = field(default_factory=dict)
     _geometry: dict = field(default_factory=dict, repr=False)  # built height fields / cross sections
     tasks_per_node: int | None = None  # set by `plan`/`run` to what they check memory with (None: from [run])
+    spot_check_units: dict = field(default_factory=dict, repr=False)  # case → auto's CheckUnits (jobs/spot_checks.py)
 
     @property
     def study(self) -> Study:
@@ -158,7 +169,7 @@ class Plan:
         (fibers: θ_i from the plane normal to the axis, φ = 0)."""
         if task.kind == "fiber":
             return float(np.deg2rad(self.config.cases[task.case].illumination.theta_i_deg[task.incidence])), 0.0
-        if task.kind == "patch":
+        if task.on_patch:
             theta, phi = self.steering[task.case].basics_rad[task.basic]
             return float(theta), float(phi)
         theta, phi = self.config.cases[task.case].illumination.directions_deg[task.incidence]
@@ -170,9 +181,9 @@ class Plan:
         study = self.config.cases[task.case]
         surface = self.surface(task.case)
         z_reference = None
-        if task.kind == "patch" or basic is not None:
+        if task.on_patch or basic is not None:
             st = self.steering[task.case]
-            patch = task.patch if task.kind == "patch" else st.layout.indices[0]
+            patch = task.patch if task.on_patch else st.layout.indices[0]
             z_reference = float(np.mean(surface.z))
             surface = st.layout.cut(surface, patch)
             theta, phi = st.basics_rad[task.basic if basic is None else basic]
@@ -191,6 +202,7 @@ class Plan:
             precision=study.model.precision,
             z_reference=z_reference,
             memory_budget_bytes=self.task_memory_budget(task.case),
+            coherent=task.on_patch,
         )
 
     def task_memory_budget(self, case: int) -> float:
@@ -325,6 +337,7 @@ def plan_study(config: StudyConfig) -> Plan:
                     tasks.append(Task(len(tasks), "synth", case, tuple(map(int, case_index)), wl, inc, basic=b,
                                       depends=tuple(patch_ids[(case, wl, b)])))
     plan.tasks = tasks
+    add_spot_checks(plan)
     return plan
 
 

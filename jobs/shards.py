@@ -42,13 +42,16 @@ def _group(task) -> tuple:
 
 
 def shard_tasks(plan, index: int, shards: int) -> set[int]:
-    """Ids of the tasks of shard ``index`` of ``shards`` (contiguous groups, balanced by count)."""
+    """Ids of the tasks of shard ``index`` of ``shards`` (contiguous groups, balanced by count),
+    with the spot checks its tasks read (``Task.checks``: a check a task of two shards reads runs
+    in both; the same part either way)."""
     groups: dict[tuple, list[int]] = {}
     for task in plan.tasks:
         groups.setdefault(_group(task), []).append(task.id)
     ordered = list(groups.values())
     lo, hi = len(ordered) * index // shards, len(ordered) * (index + 1) // shards
-    return {i for ids in ordered[lo:hi] for i in ids}
+    ids = {i for ids in ordered[lo:hi] for i in ids}
+    return ids | {c for i in ids for c in plan.tasks[i].checks}
 
 
 def with_output(config, output: Path):

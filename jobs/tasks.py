@@ -8,6 +8,8 @@ direct     the model on the whole surface        BRDF per polarization        br
 patch      the model on one steering sub-area    its far field (global phase) task row only
 synth      beam steering of the patch fields     BRDF per polarization        brdf, albedo slot
 fiber      the fiber model, every φ_i at once    dC_s/dφ and cross sections   BCSDF slice
+check      auto's spot check of a direct/patch   the full-wave far field      task row only
+           task's scene (jobs/spot_checks.py)    (measured errors: row)
 =========  ====================================  ===========================  ==================
 
 Models are taken from a :class:`ModelPool`: one instance per model configuration and worker
@@ -24,6 +26,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from wavebrdf.jobs.spot_checks import twin_of
 from wavebrdf.jobs.steering import estimate_synthesis, synthesize_task
 from wavebrdf.solver.farfield import BRDFResult, albedo, combine_polarizations
 from wavebrdf.solver.models import Estimate, Model
@@ -81,8 +84,32 @@ class TaskKind:
 
 
 def _run_model(ctx, plan, task, pool, parts):
-    """The task's model on the task's scene (surface or fiber)."""
-    return pool.get(plan.model_spec(task)).run(ctx, plan.model_scene(task))
+    """The task's model on the task's scene (surface or fiber); a task with spot checks gives its
+    model their measurements (and the full-wave result of a check of this very scene)."""
+    model = pool.get(plan.model_spec(task))
+    if not task.checks:
+        return model.run(ctx, plan.model_scene(task))
+    twin = twin_of(plan, task)
+    full_wave = None if twin is None else (lambda: parts.load_farfield(twin))
+    return model.run_checked(ctx, plan.model_scene(task), [_check_diagnostics(parts, plan.tasks[i]) for i in task.checks],
+                             full_wave)
+
+
+_CHECKS: dict[tuple, dict] = {}  # (parts folder, check id, its key) → diagnostics, read once per worker process
+
+
+def _check_diagnostics(parts, check) -> dict:
+    key = (str(parts.path), check.id, check.key)
+    if key not in _CHECKS:
+        if len(_CHECKS) > 4096:
+            _CHECKS.clear()
+        _CHECKS[key] = parts.load_diagnostics(check)
+    return _CHECKS[key]
+
+
+def _run_check(ctx, plan, task, pool, parts):
+    """A spot check: the full wave and the cheaper rungs on the scene of the task it copies."""
+    return pool.get(plan.model_spec(task)).spot_check(ctx, plan.model_scene(task))
 
 
 def _run_patch(ctx, plan, task, pool, parts):
@@ -93,6 +120,10 @@ def _run_patch(ctx, plan, task, pool, parts):
 
 def _estimate_model(plan, task) -> Estimate:
     return plan.model_spec(task).build().estimate(plan.model_scene(task))
+
+
+def _estimate_check(plan, task) -> Estimate:
+    return plan.model_spec(task).build().estimate_spot_check(plan.model_scene(task))
 
 
 # --- save (parts folder) -----------------------------------------------------------------------
@@ -163,6 +194,7 @@ KINDS: dict[str, TaskKind] = {
     "patch": TaskKind(run=_run_patch, estimate=_estimate_model, save=_save_farfield, write=None),
     "synth": TaskKind(run=synthesize_task, estimate=estimate_synthesis, save=_save_brdf, write=_write_brdf),
     "fiber": TaskKind(run=_run_model, estimate=_estimate_model, save=_save_fiber, write=_write_fiber),
+    "check": TaskKind(run=_run_check, estimate=_estimate_check, save=_save_farfield, write=None),
 }
 
 

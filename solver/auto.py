@@ -20,9 +20,19 @@ Modelling only what a scene requires, in three steps (docs/auto.md):
    on a coarse grid of sentinel directions and escalates while they differ by more than the
    tolerance.
 
+In a study of many tasks the rule only chooses what to measure: the batch layer (jobs/spot_checks.py)
+adds **spot checks**, tasks chosen by :func:`select_spot_checks` to span the study (extremes of λ
+and θ_i, the steepest sub-areas) within a stated share of the all-full-wave cost, each running the
+full wave and every cheaper candidate rung on its scene (:meth:`AutoModel.spot_check`). Every other
+task then runs the cheapest rung whose *measured* error on the checks that represent it, times a
+margin, is within the tolerance (:meth:`AutoModel.run_checked`); one rung per (case, direction or
+sub-area) across wavelengths unless ``mix_wavelengths``.
+
 The choice and its reason are the result's diagnostics ``model`` and ``model_reason`` (the
 dataset's task table); ``estimate`` is the chosen rung's plus the pilot and the check, and its
-detail names the choice, the predicted error and the cost of the full-wave run avoided.
+detail names the choice, the predicted error and the cost of the full-wave run avoided. When no
+rung can meet the tolerance within the task's memory budget a :class:`ToleranceWarning` says so
+(run log, task table, ``plan``, ``inspect``).
 """
 
 from __future__ import annotations
@@ -30,15 +40,20 @@ from __future__ import annotations
 import csv
 import dataclasses
 import functools
+import hashlib
+import json
+import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from wavebrdf.solver.models import Capabilities, Estimate, Model, SurfaceScene, get_model, model_names
+from wavebrdf.solver.models import Capabilities, Estimate, Model, SurfaceScene, get_model, model_class, model_names
 from wavebrdf.solver.options import option
 
-__all__ = ["AutoModel", "Choice", "Rule", "SceneFeatures", "choose", "measure_scene", "TRADE_TABLE"]
+__all__ = ["AutoModel", "CheckUnit", "Choice", "Rule", "SceneFeatures", "ToleranceWarning", "choose", "measure_scene",
+           "select_spot_checks", "TRADE_TABLE"]
 
 TRADE_TABLE = Path(__file__).parent / "data" / "trade.csv"
 ERROR_COLUMN = "rel_l2_smooth"
@@ -48,6 +63,11 @@ SENTINEL_RESOLUTION = 32
 REFERENCE = "bem"
 # rungs whose paths end after one reflection: they miss the energy of longer paths
 SINGLE_SCATTERING = frozenset({"gs", "ohs", "ghs", "kirchhoff", "po", "stam", "ws-v"})
+CHECKED_RUNG_SHARE = 0.25  # a spot check measures the candidate rungs estimated at most this share of the full wave
+
+
+class ToleranceWarning(UserWarning):
+    """No rung can meet ``auto``'s tolerance within the task's memory budget: the figure may miss it."""
 
 
 @dataclass(frozen=True)
@@ -184,13 +204,17 @@ class Choice:
     candidates: dict[str, tuple[float, float]]
     avoided: Estimate | None
     reason: str
+    within: bool = True  # false: no rung (the full wave included) can meet the tolerance within the budget
 
 
 def candidate_models(scene: SurfaceScene) -> list[str]:
-    """Registered surface rungs that can take ``scene`` (statistics rungs only with an ensemble)."""
+    """Registered surface rungs that can take ``scene`` (statistics rungs only with an ensemble;
+    steerable rungs only where the scene must give coherent fields)."""
     names = [n for n in model_names("height_field") if n != "auto"]
     if scene.surface.ensemble is not None:
         names += list(model_names("statistics"))
+    if scene.coherent:
+        names = [n for n in names if model_class(n).capabilities.steerable]
     usable = []
     for name in names:
         try:
@@ -201,13 +225,22 @@ def candidate_models(scene: SurfaceScene) -> list[str]:
     return usable
 
 
-def memory_budget_bytes() -> float:
-    """Memory the full-wave fallback may use: 80% of this machine's RAM (the same on every call, so
-    ``plan`` and ``run`` agree when they run on machines of the same size; ``plan``'s own budget
-    check then applies to the choice)."""
+def memory_budget_bytes(scene: SurfaceScene | None = None) -> float:
+    """Memory the full-wave fallback may use: the task's budget (``scene.memory_budget_bytes``: [run]
+    memory_gb or the node's over the tasks at once, which AIM fits its settings to), else 80% of this
+    machine's RAM (the same on every call, so ``plan`` and ``run`` agree on machines of one size)."""
     from wavebrdf.solver.resources import meminfo_bytes
 
+    if scene is not None and scene.memory_budget_bytes is not None:
+        return float(scene.memory_budget_bytes)
     return 0.8 * meminfo_bytes("MemTotal")
+
+
+def budgeted(scene: SurfaceScene) -> SurfaceScene:
+    """``scene`` with the memory budget the full wave fits its settings to (:func:`memory_budget_bytes`)."""
+    if scene.memory_budget_bytes is not None:
+        return scene
+    return dataclasses.replace(scene, memory_budget_bytes=memory_budget_bytes())
 
 
 def reference_model():
@@ -217,11 +250,14 @@ def reference_model():
 
 def choose(scene: SurfaceScene, tolerance: float, rule: Rule | None = None,
            features: SceneFeatures | None = None) -> Choice:
-    """The cheapest candidate predicted within ``tolerance``; none: the full-wave reference, or,
-    where the full-wave model cannot take the scene (its ValueError) or would not fit
-    :func:`memory_budget_bytes`, the approximation predicted best — said so in the reason."""
+    """The cheapest candidate predicted within ``tolerance``; none: the full-wave reference with the
+    settings fitted to the task's memory budget, or, where the full-wave model cannot take the scene
+    (its ValueError) or would not fit :func:`memory_budget_bytes`, the approximation predicted best —
+    said so in the reason (``Choice.within`` false)."""
     rule = rule or default_rule()
     features = features or measure_scene(scene)
+    scene = budgeted(scene)
+    budget = memory_budget_bytes(scene)
     candidates = {}
     for name in candidate_models(scene):
         try:
@@ -232,7 +268,7 @@ def choose(scene: SurfaceScene, tolerance: float, rule: Rule | None = None,
     full_wave = None
     if REFERENCE in candidates:
         full_wave = reference_model().estimate(scene)
-        if full_wave.memory_bytes > memory_budget_bytes():  # it could not run here: not a candidate
+        if full_wave.memory_bytes > budget:  # it could not run within the task's budget: not a candidate
             candidates.pop(REFERENCE)
             full_wave = None
     fitting = sorted((seconds, name) for name, (error, seconds) in candidates.items()
@@ -252,11 +288,11 @@ def choose(scene: SurfaceScene, tolerance: float, rule: Rule | None = None,
         return Choice(REFERENCE, 0.0, candidates, None, reason)
     if best is None:
         raise ValueError(f"[model] name = \"auto\": no rung of the trade table can take this scene and {REFERENCE} "
-                         f"cannot run it within {memory_budget_bytes() / 2**30:.1f} GiB; choose a model")
+                         f"cannot run it within {budget / 2**30:.1f} GiB; choose a model")
     reason = (f"{best[1]}: no rung predicted within tolerance {tolerance:g} and {REFERENCE} cannot take this "
-              f"scene or exceeds {memory_budget_bytes() / 2**30:.1f} GiB; the best approximation, predicted "
+              f"scene or exceeds the task's {budget / 2**30:.1f} GiB; the best approximation, predicted "
               f"{best[0]:.3g} ({features.describe()})")
-    return Choice(best[1], best[0], candidates, None, reason)
+    return Choice(best[1], best[0], candidates, None, reason, within=False)
 
 
 def next_rung_up(choice: Choice, name: str) -> str | None:
@@ -271,15 +307,87 @@ def next_rung_up(choice: Choice, name: str) -> str | None:
 class AutoOptions:
     tolerance: float = option(0.05, low=1e-4, high=10.0,
                               doc="relative L2 over the lobe (speckle-averaged) the chosen rung must meet")
-    check: bool = option(True, doc="escalation check: compare with the next rung up on sentinel directions")
+    check: bool = option(True, doc="escalation check where no spot check represents a task: compare with the "
+                                   "next rung up on sentinel directions")
+    spot_check_share: float = option(0.1, low=0.0, high=1.0,
+                                     doc="share of the all-full-wave estimate a study of several tasks spends on "
+                                         "spot checks (full wave and candidate rungs on sampled tasks; 0: the rule alone)")
+    margin: float = option(1.25, low=1.0, high=10.0,
+                           doc="a rung is taken where its worst measured error times this is within the tolerance")
+    mix_wavelengths: bool = option(False, doc="let a direction's (or sub-area's) rung change across wavelengths, each "
+                                              "wavelength represented by the nearest checked one")
+
+
+@dataclass(frozen=True)
+class CheckUnit:
+    """One task ``auto`` decides, as the spot-check selection sees it (θ_i in radians, λ in µm).
+    ``series``: the tasks that share one rung across wavelengths (case and direction or sub-area)."""
+
+    task: int
+    series: tuple
+    wavelength_um: float
+    theta_i: float
+    rms_slope: float
+    full_wave_seconds: float
+    full_wave_fits: bool
+
+
+def select_spot_checks(units: list[CheckUnit], share: float, mix_wavelengths: bool = False
+                       ) -> tuple[list[CheckUnit], dict[int, tuple[int, ...]]]:
+    """The units to spot-check and, per unit, the indices (into that list) of the checks that
+    represent it.
+
+    Candidates, hardest first: θ_i largest, smallest, median × λ shortest, longest, each the steepest
+    unit there (rms slope: the steepest sub-area), then the median-slope sub-area at (largest θ_i,
+    shortest λ). They are taken in that order while their full-wave estimates add up to at most
+    ``share`` of the all-full-wave estimate (the first always, when ``share`` > 0 and there are two
+    units or more). A unit is represented by the checks at the nearest θ_i at or above its own and,
+    among those, the nearest rms slope at or above its own (the tangent-plane rungs' errors grow
+    with both), at every checked λ — or, with ``mix_wavelengths``, only the nearest checked λ."""
+    eligible = [u for u in units if u.full_wave_fits and np.isfinite(u.full_wave_seconds)]
+    if len(units) < 2 or share <= 0 or not eligible:
+        return [], {}
+    lams = sorted({u.wavelength_um for u in eligible})
+    thetas = sorted({u.theta_i for u in eligible})
+    wanted = [(t, l) for t in (thetas[-1], thetas[0], thetas[len(thetas) // 2]) for l in (lams[0], lams[-1])]
+    picked: list[CheckUnit] = []
+    for theta, lam in wanted:
+        at = [u for u in eligible if u.theta_i == theta and u.wavelength_um == lam]
+        if at and (steepest := max(at, key=lambda u: (u.rms_slope, -u.task))) not in picked:
+            picked.append(steepest)
+    hardest = sorted((u for u in eligible if u.theta_i == thetas[-1] and u.wavelength_um == lams[0]),
+                     key=lambda u: (u.rms_slope, u.task))
+    if len({u.rms_slope for u in hardest}) > 2 and hardest[len(hardest) // 2] not in picked:
+        picked.append(hardest[len(hardest) // 2])
+    budget = share * sum(u.full_wave_seconds for u in units if np.isfinite(u.full_wave_seconds))
+    checks, spent = [], 0.0
+    for unit in picked:
+        if not checks or spent + unit.full_wave_seconds <= budget:
+            checks.append(unit)
+            spent += unit.full_wave_seconds
+    return checks, {u.task: _representatives(u, checks, mix_wavelengths) for u in units}
+
+
+def _representatives(unit: CheckUnit, checks: list[CheckUnit], mix_wavelengths: bool) -> tuple[int, ...]:
+    """Indices of the checks that represent ``unit`` (select_spot_checks)."""
+    tiny = 1e-12
+    pool = [i for i, c in enumerate(checks) if c.theta_i >= unit.theta_i - tiny and c.rms_slope >= unit.rms_slope - tiny]
+    pool = pool or list(range(len(checks)))  # harder than every check: all of them (the reason says so)
+    for key in (lambda c: c.theta_i, lambda c: c.rms_slope) + (
+            (lambda c: abs(c.wavelength_um - unit.wavelength_um),) if mix_wavelengths else ()):
+        nearest = min(key(checks[i]) for i in pool)
+        pool = [i for i in pool if key(checks[i]) <= nearest + tiny]
+    return tuple(pool)
 
 
 class AutoModel(Model):
-    """``[model] name = "auto"``: chooses a rung per scene (module docstring) and runs it."""
+    """``[model] name = "auto"``: chooses a rung per scene (module docstring) and runs it. Steered
+    sub-areas (``scene.coherent``) choose among steerable rungs, so it returns coherent fields
+    there; elsewhere it returns what the chosen rung returns."""
 
     name = "auto"
-    capabilities = Capabilities(takes="height_field", returns="intensity", polarized=True, steerable=False,
-                                reciprocal=False, conserves_energy=False)
+    capabilities = Capabilities(takes="height_field", returns="fields", polarized=True, steerable=True,
+                                reciprocal=False, conserves_energy=False, spot_checks=True)
     Options = AutoOptions
 
     def __init__(self, options=None):
@@ -297,22 +405,29 @@ class AutoModel(Model):
         self._rungs.clear()
 
     def choice(self, scene: SurfaceScene) -> Choice:
-        """The choice for ``scene`` (measured once per scene and tolerance in this process)."""
-        key = (id(scene.surface), scene.wavelength_um, complex(scene.index), scene.theta_i, scene.phi_i,
-               scene.waist_um, scene.grid.resolution, scene.exterior_index, self.options.tolerance)
-        kept = _CHOICES.get(key)
-        if kept is None or kept[0] is not scene.surface:
-            if len(_CHOICES) > 256:
+        """The rule's choice for ``scene`` (measured once per scene and tolerance in this process)."""
+        z = np.ascontiguousarray(scene.surface.z)
+        key = (hashlib.sha1(z.tobytes()).hexdigest(), z.shape, scene.surface.size_um, scene.wavelength_um,
+               complex(scene.index), scene.theta_i, scene.phi_i, scene.waist_um, scene.grid.resolution,
+               scene.exterior_index, scene.memory_budget_bytes, scene.coherent, scene.precision, scene.beam,
+               self.options.tolerance)
+        if key not in _CHOICES:
+            if len(_CHOICES) > 4096:
                 _CHOICES.clear()
-            kept = _CHOICES[key] = (scene.surface, choose(scene, self.options.tolerance))
-        return kept[1]
+            _CHOICES[key] = choose(scene, self.options.tolerance)
+        return _CHOICES[key]
+
+    def incident_fields(self, scene: SurfaceScene, points):
+        """The full-wave reference's beam: the steerable rungs' patch fields are normalized to the
+        same incident power within O((λ/πw)²), so one beam serves sub-areas of mixed rungs."""
+        return self.rung(REFERENCE).incident_fields(scene, points)
 
     def estimate(self, scene: SurfaceScene) -> Estimate:
         """The chosen rung's estimate, plus the pilot and the escalation check's coarse runs."""
         from wavebrdf.solver.farfield import HemisphereGrid
 
         choice = self.choice(scene)
-        chosen = self.rung(choice.model).estimate(scene)
+        chosen = self.rung(choice.model).estimate(budgeted(scene))
         extra = PILOT_SECONDS
         up = next_rung_up(choice, choice.model) if self.options.check and choice.model != REFERENCE else None
         if up is not None:
@@ -326,16 +441,136 @@ class AutoModel(Model):
         chosen = dataclasses.replace(chosen, seconds=chosen.seconds + extra, memory_bytes=memory)
         avoided = "" if choice.avoided is None else (
             f"; avoids {REFERENCE} ≈ {choice.avoided.seconds:.3g} s, {choice.avoided.memory_bytes / 2**30:.2f} GiB")
-        detail = (f"auto → {choice.model} (predicted error {choice.predicted_error:.2g}{avoided}): "
+        missed = "" if choice.within else f"; cannot meet tolerance {self.options.tolerance:g} within the budget"
+        detail = (f"auto → {choice.model} (predicted error {choice.predicted_error:.2g}{avoided}{missed}): "
                   f"{chosen.detail}")
         return dataclasses.replace(chosen, detail=detail)
+
+    def plan_spot_checks(self, units: list[CheckUnit]) -> tuple[list[CheckUnit], dict[int, tuple[int, ...]]]:
+        """:func:`select_spot_checks` with these options."""
+        return select_spot_checks(units, self.options.spot_check_share, self.options.mix_wavelengths)
+
+    def check_unit(self, task: int, series: tuple, scene: SurfaceScene) -> CheckUnit:
+        """What :func:`select_spot_checks` needs of one task's scene."""
+        full = self.full_wave_estimate(scene)
+        fits = full is not None and full.memory_bytes <= memory_budget_bytes(budgeted(scene))
+        return CheckUnit(task, series, scene.wavelength_um, scene.theta_i, scene.surface.rms_slope(),
+                         full.seconds if full is not None else float("inf"), fits)
+
+    def full_wave_estimate(self, scene: SurfaceScene) -> Estimate | None:
+        """The full wave's estimate with the settings fitted to the task's budget (None: it cannot take
+        the scene)."""
+        try:
+            return self.rung(REFERENCE).estimate(budgeted(scene))
+        except ValueError:
+            return None
+
+    def checked_rungs(self, scene: SurfaceScene) -> list[str]:
+        """The candidate rungs a spot check of ``scene`` measures: every approximation estimated at
+        most :data:`CHECKED_RUNG_SHARE` of the full wave's time, cheapest first."""
+        choice = self.choice(scene)
+        full = choice.avoided.seconds if choice.avoided is not None else choice.candidates.get(REFERENCE, (0, np.inf))[1]
+        return [n for n, (_, seconds) in sorted(choice.candidates.items(), key=lambda kv: kv[1][1])
+                if n != REFERENCE and seconds <= CHECKED_RUNG_SHARE * full]
+
+    def estimate_spot_check(self, scene: SurfaceScene) -> Estimate:
+        """A spot check: the full wave and every checked rung on ``scene``."""
+        full = self.rung(REFERENCE).estimate(budgeted(scene))
+        rungs = [self.rung(n).estimate(scene) for n in self.checked_rungs(scene)]
+        return Estimate(max([full.memory_bytes] + [e.memory_bytes for e in rungs]),
+                        full.seconds + sum(e.seconds for e in rungs),
+                        f"spot check: {REFERENCE} + {', '.join(self.checked_rungs(scene)) or 'no rung'}; {full.detail}")
+
+    def spot_check(self, ctx, scene: SurfaceScene):
+        """The full wave on ``scene`` (settings fitted to its budget) and every checked rung measured
+        against it: relative L2 over the lobe per polarization and unpolarized, speckle-averaged
+        (the footprint's spread λ₁/(πw)) and raw. Returns the full-wave result; its diagnostics
+        ``spot_check`` hold the measured errors (JSON: rung → figures; ``error`` is the largest
+        speckle-averaged one of s, p and unpolarized, the figure the choice uses)."""
+        from wavebrdf.solver.metrics import speckle_errors, speckle_sigma_u
+
+        scene = budgeted(scene)
+        reference = self.rung(REFERENCE).run(ctx, scene)
+        reference_sp = reference.brdf()
+        sigma = speckle_sigma_u(scene.wavelength_um, scene.waist_um, scene.grid, scene.exterior_index)
+        choice = self.choice(scene)
+        measured = {}
+        for name in self.checked_rungs(scene):
+            started = time.process_time()
+            try:
+                with warnings.catch_warnings(record=True) as caught:  # the rung's warnings are not the result's
+                    warnings.simplefilter("always")
+                    brdf_sp = self.rung(name).run(ctx, scene).brdf()
+                errors = speckle_errors(brdf_sp, reference_sp, scene.grid, sigma)
+            except (ValueError, ArithmeticError, RuntimeError) as exc:
+                measured[name] = {"error": None, "failure": f"{type(exc).__name__}: {exc}"[:300],
+                                  "seconds": choice.candidates[name][1]}
+                continue
+            worst = max(errors["s"], errors["p"], errors["unpolarized"])
+            measured[name] = {"error": worst if np.isfinite(worst) else None, **errors,
+                              "predicted": choice.candidates[name][0], "seconds": choice.candidates[name][1],
+                              "cpu_s": time.process_time() - started, "warnings": len(caught)}
+        where = (f"λ {scene.wavelength_um:g} µm, θ_i {np.degrees(scene.theta_i):.3g}°, rms slope "
+                 f"{scene.surface.rms_slope():.3g}")
+        summary = ", ".join(f"{n} {m['error']:.3g}" if m["error"] is not None else f"{n} failed"
+                            for n, m in measured.items())
+        reference.diagnostics.update(model=REFERENCE, model_predicted_error=0.0, spot_check=json.dumps(measured),
+                                     spot_check_where=where,
+                                     model_reason=f"spot check at {where}: {REFERENCE}, and measured against it "
+                                                  f"{summary or 'no rung'}")
+        return reference
+
+    def run_checked(self, ctx, scene: SurfaceScene, checks: list[dict], full_wave=None):
+        """``scene`` with the cheapest rung whose worst measured error over ``checks`` (the
+        diagnostics of the spot checks that represent it), times the margin, is within the
+        tolerance; none: the full wave (``full_wave()``, when given, returns a check's result of this
+        very scene instead of solving it again); where the full wave cannot run within the task's
+        budget, the rung measured best, with a :class:`ToleranceWarning`."""
+        scene = budgeted(scene)
+        tolerance, margin = self.options.tolerance, self.options.margin
+        measured = [json.loads(c["spot_check"]) for c in checks]
+        where = "; ".join(c.get("spot_check_where", "?") for c in checks)
+        rows = []
+        for name in set(candidate_models(scene)) - {REFERENCE}:
+            errors = [m[name]["error"] for m in measured if name in m]
+            if len(errors) == len(measured) and None not in errors:
+                rows.append((sum(m[name]["seconds"] for m in measured), name, max(errors)))
+        within = sorted(r for r in rows if r[2] * margin <= tolerance)
+        best = min(rows, key=lambda r: r[2], default=None)
+        closest = f"; best measured {best[1]} {best[2]:.3g}" if best else ""
+        if within:
+            _, name, error = within[0]
+            reason = (f"{name}: the cheapest rung measured within tolerance {tolerance:g} (worst {error:.3g} × margin "
+                      f"{margin:g} over {len(checks)} spot check(s): {where})")
+            result = self.rung(name).run(ctx, scene)
+        elif self.rung(REFERENCE).estimate(scene).memory_bytes <= memory_budget_bytes(scene):
+            name, error = REFERENCE, 0.0
+            reason = (f"{REFERENCE}: no rung measured within tolerance {tolerance:g} (margin {margin:g}) over "
+                      f"{len(checks)} spot check(s) ({where}){closest}")
+            result = full_wave() if full_wave is not None else self.rung(REFERENCE).run(ctx, scene)
+            result.diagnostics.pop("spot_check", None)
+        elif best is not None:
+            _, name, error = best
+            reason = (f"{name}: no rung measured within tolerance {tolerance:g} over {len(checks)} spot check(s) "
+                      f"({where}) and {REFERENCE} exceeds the task's {memory_budget_bytes(scene) / 2**30:.1f} GiB; "
+                      f"the rung measured best ({error:.3g})")
+            _warn_tolerance(reason)
+            result = self.rung(name).run(ctx, scene)
+        else:
+            return self.run(ctx, scene)
+        result.diagnostics.update(model=name, model_reason=reason, model_predicted_error=error,
+                                  model_measured_error=error, spot_checks=where)
+        return result
 
     def run(self, ctx, scene: SurfaceScene):
         from wavebrdf.solver.farfield import HemisphereGrid
         from wavebrdf.solver.metrics import blur, relative_l2
 
+        scene = budgeted(scene)
         choice = self.choice(scene)
         name, reason = choice.model, choice.reason
+        if not choice.within:
+            _warn_tolerance(reason)
         if self.options.check and name != REFERENCE:
             coarse = dataclasses.replace(scene, grid=HemisphereGrid(SENTINEL_RESOLUTION))
             lam = scene.wavelength_um / scene.exterior_index  # the footprint's angular spread λ₁/(πw)
@@ -362,11 +597,16 @@ class AutoModel(Model):
         return result
 
 
+def _warn_tolerance(reason: str) -> None:
+    warnings.warn(f"auto cannot meet its tolerance within the task's memory budget: {reason}", ToleranceWarning,
+                  stacklevel=3)
+
+
 def _unpolarized(brdf_sp: np.ndarray) -> np.ndarray:
     return 0.5 * (brdf_sp[0] + brdf_sp[1])
 
 
-_CHOICES: dict[tuple, tuple] = {}  # key → (surface kept alive, Choice)
+_CHOICES: dict[tuple, Choice] = {}  # (the heights' digest, the scene's other inputs, tolerance) → Choice
 
 
 def plan_summary(choices: list[Choice], chosen_seconds: list[float]) -> str:
@@ -383,4 +623,10 @@ def plan_summary(choices: list[Choice], chosen_seconds: list[float]) -> str:
         text += (f"; the approximate rungs ≈ {spent:.3g} s where {REFERENCE} would take ≈ {avoided:.3g} s "
                  f"({avoided / max(spent, 1e-9):.3g}× avoided)")
     worst = max((c.predicted_error for c in choices), default=0.0)
-    return text + f"; worst predicted error {worst:.2g}"
+    text += f"; worst predicted error {worst:.2g}"
+    missed = sum(not c.within for c in choices)
+    if missed:
+        text += (f"\nWARNING: {missed} of {len(choices)} task(s) cannot meet the tolerance within the task's memory "
+                 f"budget (no rung predicted within it and {REFERENCE} does not fit): "
+                 f"{next(c.reason for c in choices if not c.within)}")
+    return text

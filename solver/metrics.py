@@ -36,6 +36,8 @@ __all__ = [
     "misplaced_energy",
     "peak_direction",
     "relative_l2",
+    "speckle_errors",
+    "speckle_sigma_u",
 ]
 
 LOBE_FRACTION = 1e-3  # the lobe: pixels whose radiance f·μ_o exceeds this fraction of the peak
@@ -130,3 +132,24 @@ def blur(f: np.ndarray, grid: HemisphereGrid, sigma_u: float) -> np.ndarray:
     weight = scipy.ndimage.gaussian_filter(grid.inside.astype(float), sigma_px, mode="constant")
     out = scipy.ndimage.gaussian_filter(f, sigma, mode="constant") / np.where(grid.inside, weight, 1.0)
     return np.where(grid.inside, out, np.nan)
+
+
+def speckle_sigma_u(wavelength_um: float, waist_um: float | None, grid: HemisphereGrid,
+                    exterior_index: float = 1.0) -> float:
+    """Blur width (u units) of the speckle-averaged metrics: the footprint's angular spread
+    λ₁/(π w), at least one pixel."""
+    spread = 0.0 if not waist_um else wavelength_um / exterior_index / (np.pi * waist_um)
+    return max(2.0 / grid.resolution, spread)
+
+
+def speckle_errors(brdf_sp: np.ndarray, reference_sp: np.ndarray, grid: HemisphereGrid,
+                   sigma_u: float) -> dict[str, float]:
+    """Relative L2 over the reference's lobe of (s, p) BRDFs (2, res, res) against a reference:
+    per polarization and unpolarized, raw and speckle-averaged (both blurred by ``sigma_u``):
+    keys ``s``, ``p``, ``unpolarized`` (speckle-averaged) and ``raw_s``, ``raw_p``, ``raw``."""
+    out = {}
+    for key, f, g in (("s", brdf_sp[0], reference_sp[0]), ("p", brdf_sp[1], reference_sp[1]),
+                      ("unpolarized", 0.5 * (brdf_sp[0] + brdf_sp[1]), 0.5 * (reference_sp[0] + reference_sp[1]))):
+        out[key] = float(relative_l2(blur(f, grid, sigma_u), blur(g, grid, sigma_u), grid))
+        out["raw" if key == "unpolarized" else f"raw_{key}"] = float(relative_l2(f, g, grid))
+    return out

@@ -62,6 +62,8 @@ class Capabilities:
     reciprocal  claims f(ω_i, ω_o) = f(ω_o, ω_i) (checked by the conformance suite)
     conserves_energy   claims albedo ≤ 1 for κ ≥ 0 at every angle (models that do not, e.g.
                 Kirchhoff without shadowing at grazing angles, report the excess instead)
+    spot_checks measures its own choice on sampled tasks of a study: the plan adds "check" tasks
+                (``plan_spot_checks``, ``spot_check``, ``run_checked``; jobs/spot_checks.py)
     """
 
     INPUTS: ClassVar[tuple[str, ...]] = ("height_field", "cross_section", "statistics")
@@ -73,6 +75,7 @@ class Capabilities:
     steerable: bool = False
     reciprocal: bool = False
     conserves_energy: bool = False
+    spot_checks: bool = False
 
     def __post_init__(self):
         if self.takes not in self.INPUTS:
@@ -93,6 +96,7 @@ class SurfaceScene:
     the beam centre in patch coordinates. ``precision``: "double" | "single" (kernels and FFTs).
     ``memory_budget_bytes``: the memory one task may use ([run] memory_gb or the node's, over the
     tasks at once; None: not limited), which models that can trade time for memory fit.
+    ``coherent``: the result must be a coherent FarField (a steered sub-area, summed with others).
     """
 
     surface: HeightField
@@ -108,6 +112,7 @@ class SurfaceScene:
     z_reference: float | None = None
     footprint_centre_um: tuple[float, float] = (0.0, 0.0)
     memory_budget_bytes: float | None = None
+    coherent: bool = False
 
 
 @dataclass(frozen=True)

@@ -110,6 +110,8 @@ def test_smooth_low_slope_random_surfaces_never_get_bem():
 
 
 def test_an_auto_study_plans_and_runs_storing_the_rung_and_its_reason(tmp_path):
+    """The rule's path (no spot checks: ``spot_check_share = 0``; tests/test_auto_measured.py has
+    the measured one): plan shows the choice, run stores the rung and its reason per task."""
     import h5py
 
     config = tmp_path / "auto.toml"
@@ -118,7 +120,7 @@ def test_an_auto_study_plans_and_runs_storing_the_rung_and_its_reason(tmp_path):
         '[surface]\ngenerator = "gaussian"\nsize_um = 4.0\ncells = 64\nrms_height_um = 0.008\ncorrelation_um = 0.6\n'
         'seed = 5\n[material]\nname = "aluminium"\n'
         '[illumination]\nwavelengths_um = [0.6]\ndirections_deg = [[0, 0], [30, 0]]\nwaist_um = 0.6\n'
-        '[model]\nname = "auto"\ntolerance = 0.05\n[output]\nresolution = 48\n')
+        '[model]\nname = "auto"\ntolerance = 0.05\nspot_check_share = 0\n[output]\nresolution = 48\n')
     wavebrdf = [sys.executable, "-m", "wavebrdf"]
     plan = subprocess.run(wavebrdf + ["plan", str(config)], cwd=tmp_path, capture_output=True, text=True)
     assert plan.returncode == 0, plan.stderr

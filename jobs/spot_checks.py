@@ -1,0 +1,73 @@
+"""``auto``'s spot checks in a study of several tasks (solver/auto.py, docs/auto.md).
+
+A model whose capabilities say ``spot_checks`` measures its own choice: :func:`add_spot_checks`
+describes every task it decides — direct tasks, or the patch tasks of a steered case — to the
+model (``check_unit``), which picks a few to check (``plan_spot_checks``: extremes of λ and θ_i,
+the steepest sub-areas, within its share of the all-full-wave estimate). Each pick becomes a
+"check" task with the indices of the task it copies (same scene); every decided task depends on
+the checks that represent it and reads their measurements when it runs (jobs/tasks.py).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+__all__ = ["add_spot_checks", "spot_check_summary", "twin_of"]
+
+
+def _series(task) -> tuple:
+    """The tasks that share one rung across wavelengths: a case's direction or sub-area."""
+    return (task.case, task.basic, task.patch) if task.on_patch else (task.case, task.incidence)
+
+
+def add_spot_checks(plan) -> None:
+    """Append the spot-check tasks of every case whose model measures its choice, and point the
+    tasks it decides at the checks that represent them (``Task.checks``, also in ``depends``)."""
+    tasks = list(plan.tasks)
+    for case, study in enumerate(plan.config.cases):
+        if study.is_fiber or not study.model.capabilities.spot_checks:
+            continue
+        decided = [t for t in tasks if t.case == case and t.kind in ("direct", "patch")]
+        if len(decided) < 2:
+            continue
+        model = study.model.build()
+        units = [model.check_unit(t.id, _series(t), plan.scene(t)) for t in decided]
+        picked, represented = model.plan_spot_checks(units)
+        plan.spot_check_units[case] = units
+        ids = []
+        for unit in picked:
+            ids.append(len(tasks))
+            tasks.append(replace(tasks[unit.task], id=len(tasks), kind="check", depends=(), checks=()))
+        for task in decided:
+            checks = tuple(ids[i] for i in represented.get(task.id, ()))
+            if checks:
+                tasks[task.id] = replace(task, checks=checks, depends=task.depends + checks)
+    plan.tasks = tasks
+
+
+def twin_of(plan, task):
+    """The spot check among ``task.checks`` that simulates ``task``'s very scene (None: none)."""
+    for i in task.checks:
+        check = plan.tasks[i]
+        if (check.wavelength, check.incidence, check.basic, check.patch) == (
+                task.wavelength, task.incidence, task.basic, task.patch):
+            return check
+    return None
+
+
+def spot_check_summary(plan, estimates) -> str | None:
+    """``plan``'s lines on the spot checks: which tasks, their share of the all-full-wave estimate
+    (an estimate, from the models' own cost models), and how many tasks they represent."""
+    checks = [(t, e) for t, e in zip(plan.tasks, estimates) if t.kind == "check"]
+    if not checks:
+        return None
+    decided = [t for t in plan.tasks if t.checks]
+    all_full = sum(u.full_wave_seconds for units in plan.spot_check_units.values() for u in units
+                   if u.full_wave_fits)
+    spent = sum(e.seconds for _, e in checks)
+    where = ", ".join(f"#{t.id} ({t.label})" for t, _ in checks[:8]) + (" ..." if len(checks) > 8 else "")
+    return (f"auto spot checks: {len(checks)} task(s) [{where}] run the full wave and the cheaper rungs, ≈ {spent:.3g} s "
+            f"= {spent / max(all_full, 1e-9):.1%} of the all-full-wave estimate {all_full:.3g} s "
+            f"({all_full / 3600:.3g} CPU-h); {len(decided)} task(s) take the cheapest rung measured within tolerance "
+            "there (the rung per task above is the rule's expectation)")
+
