@@ -233,6 +233,7 @@ def cmd_plan(args) -> int:
     print(f"total: {len(plan.tasks)} tasks, {total:.1f} s of compute ({total / 3600:.2f} h); about "
           f"{total / workers:.1f} s wall on {workers} worker(s); peak {peak / 2**30:.2f} GiB per worker "
           f"(node budget {budget / 2**30:.1f} GiB)")
+    _print_validity(plan)
     auto = [(t, e) for t, e in zip(plan.tasks, estimates)
             if t.kind in ("direct", "patch") and plan.model_spec(t).capabilities.spot_checks]
     if auto:  # what auto expects per scene, the full-wave cost it avoids, and its spot checks
@@ -318,6 +319,26 @@ def cmd_inspect(args) -> int:
         if args.config:
             print("config:\n" + ds.config)
     return 0
+
+
+def _print_validity(plan) -> None:
+    """The sampling-validity warnings (and refusals) each task's model would carry (Model.validity),
+    once per message with the tasks that carry it."""
+    models, notes = {}, {}
+    for task in plan.tasks:
+        if task.kind not in ("direct", "patch", "fiber"):
+            continue
+        spec = plan.model_spec(task)
+        model = models.setdefault(id(spec), spec.build())
+        try:
+            found = model.validity(plan.model_scene(task))
+        except ValueError as exc:
+            found = [f"refused: {exc}"]
+        for message in found:
+            notes.setdefault(message, []).append(task.id)
+    for message, ids in notes.items():
+        more = f", ... ({len(ids)} tasks)" if len(ids) > 3 else ""
+        print(f"WARNING (task {', '.join(f'#{i}' for i in ids[:3])}{more}): {message}")
 
 
 def _print_spot_checks(tasks: dict) -> None:

@@ -417,6 +417,13 @@ class AutoModel(Model):
             _CHOICES[key] = choose(scene, self.options.tolerance)
         return _CHOICES[key]
 
+    def validity(self, scene) -> list[str]:
+        """The sampling validity of the rung the rule expects for ``scene`` (what ``plan`` shows;
+        spot checks and the escalation check may run others, each through its own validity)."""
+        if not isinstance(scene, SurfaceScene):
+            return []
+        return self.rung(self.choice(scene).model).validity(scene)
+
     def incident_fields(self, scene: SurfaceScene, points):
         """The full-wave reference's beam: the steerable rungs' patch fields are normalized to the
         same incident power within O((λ/πw)²), so one beam serves sub-areas of mixed rungs."""

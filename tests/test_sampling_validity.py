@@ -201,3 +201,32 @@ def test_sweep_has_no_silent_miss_ci(cl_ctx):
 def test_sweep_has_no_silent_miss(cl_ctx):
     out = _sweep(cl_ctx, SWEEP)
     assert not out["misses"], out["misses"]
+
+
+def test_sampling_warnings_reach_plan_task_table_and_inspect(tmp_path):
+    """Issue item 4's realization (correlation 0.05 µm at d = 0.156 µm) through the batch layer:
+    ``plan`` prints the warning with the fix before anything runs, the run stores it in the task
+    table, and ``inspect`` prints it."""
+    import subprocess
+    import sys
+
+    import h5py
+
+    config = tmp_path / "coarse.toml"
+    config.write_text(
+        '[study]\nname = "coarse"\noutput = "coarse.h5"\n'
+        '[surface]\ngenerator = "gaussian"\nsize_um = 10.0\ncells = 64\nrms_height_um = 0.005\ncorrelation_um = 0.05\n'
+        'seed = 3\n[material]\nname = "aluminium"\n[illumination]\nwavelengths_um = [0.55]\n'
+        'directions_deg = [[0, 0]]\nwaist_um = 1.9\n[model]\nname = "kirchhoff"\n[output]\nresolution = 32\n')
+    wavebrdf = [sys.executable, "-m", "wavebrdf"]
+    plan = subprocess.run(wavebrdf + ["plan", str(config)], cwd=tmp_path, capture_output=True, text=True)
+    assert plan.returncode == 0, plan.stderr
+    assert "WARNING (task #0)" in plan.stdout and "surface.cells ≥" in plan.stdout, plan.stdout
+    run = subprocess.run(wavebrdf + ["run", str(config), "-q", "--no-render"], cwd=tmp_path, capture_output=True,
+                         text=True)
+    assert run.returncode == 0, run.stderr
+    with h5py.File(tmp_path / "coarse.h5") as h5:
+        stored = h5["tasks/warnings"][0]
+    assert "requested statistics" in (stored.decode() if isinstance(stored, bytes) else stored)
+    shown = subprocess.run(wavebrdf + ["inspect", "coarse.h5"], cwd=tmp_path, capture_output=True, text=True)
+    assert "requested statistics" in shown.stdout and "surface.cells ≥" in shown.stdout
