@@ -43,6 +43,7 @@ from wavebrdf.solver.metrics import (
     misplaced_energy,
     peak_direction,
     relative_l2,
+    speckle_sigma_u,
 )
 
 logger = logging.getLogger(__name__)
@@ -196,12 +197,6 @@ def measure(name: str, options, scene, label: str) -> Measurement:
     """Run model ``name`` (Options or mapping) on ``scene`` in a fresh measuring process."""
     with MeasuringProcess() as process:
         return process.measure(name, options, scene, label)
-
-
-def speckle_sigma_u(wavelength_um: float, waist_um: float, grid: HemisphereGrid, exterior_index: float = 1.0) -> float:
-    """Blur width (u units) of the speckle-averaged metrics: the footprint's angular spread
-    λ₁/(π w), at least one pixel."""
-    return max(2.0 / grid.resolution, wavelength_um / exterior_index / (np.pi * waist_um))
 
 
 def choose_reference(models: list[str], scene, memory_budget_bytes: float) -> tuple[str, str]:

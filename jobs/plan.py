@@ -66,8 +66,8 @@ class Task:
     @property
     def label(self) -> str:
         where = f"case {self.case}, λ#{self.wavelength}"
-        if self.kind == "patch":
-            return f"patch {self.patch} of basic #{self.basic} ({where})"
+        if self.on_patch:
+            return f"{self.kind} {self.patch} of basic #{self.basic} ({where})"
         return f"{self.kind} incidence #{self.incidence} ({where})"
 
     @property
