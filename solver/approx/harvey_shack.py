@@ -67,6 +67,7 @@ from wavebrdf.solver.approx.kirchhoff import (
     KirchhoffSetup,
     albedo_excess,
     chebyshev_cost,
+    chebyshev_device_bytes,
     chebyshev_order,
     chebyshev_transform,
     chebyshev_transform_numpy,
@@ -471,14 +472,22 @@ class HarveyShackModel(FootprintModel):
         if not self._all_incidence(scene):
             orders = transform_orders(scene) if self.variant == "ghs" else 1
             memory, seconds = chebyshev_cost(nodes, res, orders)
-            return Estimate(memory, seconds, f"per incidence: {orders} order(s), {nodes}² nodes, {res}² pixels")
+            held, largest = chebyshev_device_bytes(nodes, res, orders, precision=scene.precision)
+            return Estimate(memory, seconds, f"per incidence: {orders} order(s), {nodes}² nodes, {res}² pixels",
+                            device_bytes=held, largest_buffer_bytes=largest)
         # the first incidence builds the grid (one M² FFT per order); each incidence then grids
         # separably: orders × 2·spread × res × (M + res) complex multiply-adds
         build = 3e-9 * orders * M * M * np.log2(M)
         per_incidence = 6e-9 * orders * 2 * self.options.spread * res * (M + res) + 1.5e-7 * res * res + 0.05
         memory = 2.0 * self._grid_bytes(scene) + 16.0 * (orders * nodes**2 + 2 * M * M + 8 * res * res) + 150e6
+        # device: the grid's orders (one M² buffer each, kept), the build's order fields, the
+        # gridded rows (res × M at most), the accumulator and the field planes
+        item = 16.0 if scene.precision == "double" else 8.0
+        fields, rows, planes = item * orders * nodes**2, item * res * M, item * 6 * res * res
         return Estimate(memory, build + per_incidence,
-                        f"all incidences: {orders} order(s) on a {M}² s grid (built once, {build:.2g} s), {res}² pixels")
+                        f"all incidences: {orders} order(s) on a {M}² s grid (built once, {build:.2g} s), {res}² pixels",
+                        device_bytes=self._grid_bytes(scene) + fields + rows + planes + item * res * res,
+                        largest_buffer_bytes=max(item * M * M, fields, rows, planes))
 
     def release(self) -> None:
         self._grids.clear()

@@ -58,6 +58,7 @@ __all__ = [
     "chebyshev_order",
     "chebyshev_transform",
     "chebyshev_cost",
+    "chebyshev_device_bytes",
     "chebyshev_transform_numpy",
     "check_incidence",
     "footprint_power",
@@ -268,6 +269,21 @@ def chebyshev_cost(nodes: int, res: int, orders: int, channels: int = 1) -> tupl
     # measured here: ~3e-9 s per (order × line × FFT-length × log2 length), plus the pixel work
     seconds = 3e-9 * channels * orders * length * length * np.log2(length) + 1.5e-7 * res * res + 0.05
     return memory, seconds
+
+
+def chebyshev_device_bytes(nodes: int, res: int, orders: int, channels: int = 1,
+                           precision: str = "double") -> tuple[float, float]:
+    """(held, largest) device bytes of :func:`chebyshev_transform` plus the pixel assembly: the
+    orders' fields (orders × nodes²), one transformed block of orders (chunk × res × (nodes + res)),
+    the ``channels`` accumulators and the field planes (6 × res²); ``largest`` is the biggest single
+    buffer, which must fit the device's max allocation."""
+    item = 16.0 if precision == "double" else 8.0
+    length = nodes + res
+    fields = item * orders * nodes**2
+    block = item * _chunk_orders(orders, res, length) * res * length
+    planes = item * 6 * res * res
+    held = fields + block + planes + item * channels * res * res + 1.5 * item * nodes**2  # + heights, window
+    return held, max(fields, block, planes)
 
 
 def kirchhoff_farfield(
@@ -492,4 +508,6 @@ class KirchhoffModel(FootprintModel):
         res = scene.grid.resolution
         orders = transform_orders(scene)
         memory, seconds = chebyshev_cost(nodes, res, orders)
-        return Estimate(memory, seconds, f"{orders} Chebyshev orders, {nodes}² nodes, {res}² pixels")
+        held, largest = chebyshev_device_bytes(nodes, res, orders, precision=scene.precision)
+        return Estimate(memory, seconds, f"{orders} Chebyshev orders, {nodes}² nodes, {res}² pixels",
+                        device_bytes=held, largest_buffer_bytes=largest)

@@ -259,4 +259,5 @@ class StamModel(Model):
         terms = 1 + int(np.ceil(max(3 * g_max, g_max + 10 * np.sqrt(g_max) + 10))) if g_max > 0 else 1
         memory = 40 * 8.0 * pixels + 8 * 8.0 * scene.grid.resolution**2 + 60e6  # + the OpenCL context
         seconds = 2.5e-8 * terms * pixels + 2e-7 * pixels + 0.01
-        return Estimate(memory, seconds, f"{terms} series terms, {int(pixels)} pixels")
+        return Estimate(memory, seconds, f"{terms} series terms, {int(pixels)} pixels",
+                        device_bytes=0.0, largest_buffer_bytes=0.0)  # host NumPy only: nothing on the device
