@@ -186,7 +186,7 @@ def _run_and_report(args, plan, executor: str, workers: int, comm) -> int:
 
 def cmd_plan(args) -> int:
     from wavebrdf.jobs.config import load_config
-    from wavebrdf.jobs.plan import check_memory, device_info, plan_study
+    from wavebrdf.jobs.plan import check_memory, device_info, format_bytes, format_number, plan_study
 
     overrides = list(args.set or [])
     if args.memory_gb:  # the tasks' budget too: the AIM solver fits its settings to it
@@ -227,12 +227,12 @@ def cmd_plan(args) -> int:
             model += f" ({est.detail})"
         phi = phi_text(plan, task).rstrip("°")
         print(f"{task.id:6d} {task.kind:6} {task.case:4d} {lam:7.3f} {theta:7.2f} {phi:>7} {patch:>6} "
-              f"{est.memory_bytes / 2**30:12.2f} {est.seconds:9.2f}  {model}")
+              f"{format_number(est.memory_bytes / 2**30, 12)} {format_number(est.seconds, 9)}  {model}")
     total = sum(e.seconds for e in estimates)
     peak = max(e.memory_bytes for e in estimates)
-    print(f"total: {len(plan.tasks)} tasks, {total:.1f} s of compute ({total / 3600:.2f} h); about "
-          f"{total / workers:.1f} s wall on {workers} worker(s); peak {peak / 2**30:.2f} GiB per worker "
-          f"(node budget {budget / 2**30:.1f} GiB)")
+    print(f"total: {len(plan.tasks)} tasks, {format_number(total, decimals=1)} s of compute "
+          f"({format_number(total / 3600)} h); about {format_number(total / workers, decimals=1)} s wall on {workers} "
+          f"worker(s); peak {format_bytes(peak)} per worker (node budget {format_bytes(budget)})")
     _print_validity(plan)
     auto = [(t, e) for t, e in zip(plan.tasks, estimates)
             if t.kind in ("direct", "patch") and plan.model_spec(t).capabilities.spot_checks]
@@ -253,15 +253,16 @@ def cmd_compare(args) -> int:
     from wavebrdf.jobs.config import load_config, make_output_folder
 
     config = load_config(args.config)
-    models = [m.strip() for m in args.models.split(",") if m.strip()] if args.models else None
+    models = None if args.models is None else [m.strip() for m in args.models.split(",") if m.strip()]
     stem = args.out or Path(config.output).with_suffix("").with_name(Path(config.output).stem + "_compare")
 
     def progress(what: str) -> None:
         if not args.quiet:
             print(f"  running {what}", file=sys.stderr, flush=True)
 
-    make_output_folder(stem)  # one missing folder level is created, as `run` does; deeper: a one-line error
-    comparison = compare_config(config, models, args.reference, args.memory_gb, progress)
+    # one missing folder level is created once the models pass their checks, as `run` does; deeper: an error
+    comparison = compare_config(config, models, args.reference, args.memory_gb, progress,
+                                before_run=lambda: make_output_folder(stem))
     print(comparison.markdown(), end="")
     for path in comparison.write(stem):
         print(f"wrote {path}")
@@ -409,8 +410,10 @@ def cmd_render(args) -> int:
         print(f"wrote {result['path']} (Mitsuba {result['variant']}: load {result['load_s']:.1f} s, "
               f"render {result['render_s']:.1f} s)")
         return 0
+    from wavebrdf.jobs.pictures.common import check_decades
     from wavebrdf.jobs.render import render_options
 
+    check_decades(args.decades)  # before the dataset is opened
     for png in render_dataset(args.file, args.out, **render_options(args)):
         print(f"wrote {png}")
     return 0

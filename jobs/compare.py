@@ -448,11 +448,12 @@ def surface_models(plan) -> list[str]:
 
 
 def compare_config(config, models: list[str] | None = None, reference: str | None = None,
-                   memory_gb: float | None = None, progress=None) -> Comparison:
+                   memory_gb: float | None = None, progress=None, before_run=None) -> Comparison:
     """Every (case, wavelength, incident direction) of a surface study config through ``models``
     (default: ``[compare] models``, else :func:`surface_models`) against ``reference`` (default:
     ``[compare] reference``, else chosen per scene). Options: ``[model]`` for the study's model,
-    ``[compare.<name>]`` tables for the others."""
+    ``[compare.<name>]`` tables for the others. Every model is checked against the study before
+    anything runs (a ConfigError naming the flag); ``before_run()`` is called once they pass."""
     import tomllib
 
     from wavebrdf.jobs.config import ConfigError
@@ -476,15 +477,51 @@ def compare_config(config, models: list[str] | None = None, reference: str | Non
             except ValueError as exc:
                 raise ConfigError(str(exc)) from None
     plan = plan_study(config)
-    models = list(models or section.get("models") or surface_models(plan))
+    if models is not None and not models:
+        raise ConfigError("--models: no model named (an empty list would run none); give comma-separated names, e.g. "
+                          f"--models {','.join(surface_models(plan)[:2])}, or leave --models out to run every surface "
+                          "model")
+    given = "--models" if models is not None else "[compare] models"
+    models = list(models if models is not None else section.get("models") or surface_models(plan))
     for name in models:
         if name not in model_names():
-            raise ConfigError(f"--models {name}: not a registered model (available: {', '.join(model_names())})")
+            raise ConfigError(f"{given} {name}: not a registered model (available: {', '.join(model_names())})")
+    _check_runnable(plan, models, given)
+    given = "--reference" if reference is not None else "[compare] reference"
+    if reference is not None and not reference.strip():
+        raise ConfigError("--reference: no model named; give one (e.g. --reference po) or leave it out to choose "
+                          "the most accurate rung that fits")
     reference = reference or section.get("reference")
-    if reference is not None and reference not in models:
-        models = [reference] + models
+    if reference is not None:
+        if reference not in model_names():
+            raise ConfigError(f"{given} {reference}: not a registered model (available: {', '.join(model_names())})")
+        _check_runnable(plan, [reference], given)
+        if reference not in models:
+            models = [reference] + models
     budget = None if memory_gb is None else memory_gb * 2**30
-    return compare_scenes(plan_scenes(plan), models, options, reference, budget, progress)
+    scenes = plan_scenes(plan)
+    if before_run is not None:
+        before_run()
+    return compare_scenes(scenes, models, options, reference, budget, progress)
+
+
+def _check_runnable(plan, names: list[str], given: str) -> None:
+    """Refuse, before anything runs, a model that cannot take the plan's surface scenes: a fiber
+    model, or a statistics model on a surface without a Gaussian ensemble (``given`` names the
+    flag or key the names came from)."""
+    from wavebrdf.jobs.config import ConfigError
+    from wavebrdf.solver.models import model_class
+
+    runnable = surface_models(plan)
+    for name in names:
+        if name in runnable or name == "auto":
+            continue
+        takes = model_class(name).capabilities.takes
+        why = ("takes a fiber cross section, not a surface" if takes == "cross_section" else
+               "takes surface statistics (a Gaussian ensemble), and this study's surface has none (surface.generator "
+               "= \"gaussian\" or \"brushed\" has)")
+        raise ConfigError(f"{given} {name}: the {name} model {why}; models that can run this study: "
+                          f"{', '.join(runnable)}")
 
 
 def plan_scenes(plan) -> list[tuple[str, object]]:

@@ -31,7 +31,8 @@ from wavebrdf.solver.resources import meminfo_bytes
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Plan", "PlanError", "Task", "check_memory", "device_info", "node_memory_bytes", "plan_study"]
+__all__ = ["Plan", "PlanError", "Task", "check_memory", "device_info", "format_bytes", "format_number",
+           "node_memory_bytes", "plan_study"]
 
 DEFAULT_PHI_I_BINS = 72  # fiber tables of non-circular cross sections
 
@@ -110,13 +111,15 @@ class Plan:
     def grid(self) -> HemisphereGrid:
         return HemisphereGrid(self.study.output_options.resolution)
 
-    @property
+    @cached_property
     def wavelengths_um(self) -> np.ndarray:
-        return np.array(self.study.illumination.wavelengths_um)
+        """The study's vacuum wavelengths (µm), built once (read-only: shared by every task)."""
+        return _read_only(np.array(self.study.illumination.wavelengths_um))
 
-    @property
+    @cached_property
     def directions_deg(self) -> np.ndarray:
-        return np.array(self.study.illumination.directions_deg)
+        """The requested incident directions (θ, φ) in degrees, built once (read-only)."""
+        return _read_only(np.array(self.study.illumination.directions_deg))
 
     @property
     def is_fiber(self) -> bool:
@@ -161,8 +164,13 @@ class Plan:
         return 360.0 * np.arange(bins) / bins
 
     def index(self, case: int) -> np.ndarray:
-        """Material index n − jκ of ``case`` at every wavelength."""
-        return _material_index(self.config.cases[case].material, tuple(self.wavelengths_um))
+        """Material index n − jκ of ``case`` at every wavelength, computed once per case (a task
+        reads its entry in O(1), so planning stays linear in the number of tasks)."""
+        key = ("index", case)
+        if key not in self._geometry:
+            material = self.config.cases[case].material
+            self._geometry[key] = _read_only(_material_index(material, self.study.illumination.wavelengths_um))
+        return self._geometry[key]
 
     def direction_rad(self, task: Task) -> tuple[float, float]:
         """(θ, φ) simulated by ``task``: the basic direction for patches, else the requested one
@@ -267,9 +275,14 @@ class Plan:
         return [t for t in self.tasks if t.writes_result]
 
 
-@lru_cache(maxsize=64)
 def _material_index(material_spec, wavelengths: tuple[float, ...]) -> np.ndarray:
+    """n − jκ of ``material_spec`` at ``wavelengths`` (µm)."""
     return material_spec.build().index(np.array(wavelengths))
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    array.flags.writeable = False
+    return array
 
 
 @lru_cache(maxsize=64)
@@ -357,9 +370,22 @@ def device_info(spec: str | None = None):
         return None
 
 
+def format_bytes(size: float) -> str:
+    """``size`` bytes in GiB with 3 significant digits ("9.4 GiB", "0.0143 GiB", "9.31e+240 GiB"):
+    never a long string of digits, whatever the size."""
+    return f"{size / 2**30:.3g} GiB"
+
+
+def format_number(value: float, width: int = 0, decimals: int = 2) -> str:
+    """``value`` with ``decimals`` decimals while that stays short (< 1e6), else in engineering
+    form ("4.72e+12"), right-aligned in ``width``: table cells of `plan` never run to many digits."""
+    text = f"{value:.{decimals}f}" if abs(value) < 1e6 else f"{value:.3g}"
+    return text.rjust(width)
+
+
 def _largest(rows, value):
-    """(value, task) of the largest reported ``value(estimate)`` (None when no task reports it)."""
-    found = [(value(e), t) for e, t in rows if value(e) is not None]
+    """(value, task, estimate) of the largest reported ``value(estimate)`` (None when no task reports it)."""
+    found = [(value(e), t, e) for e, t in rows if value(e) is not None]
     return max(found, key=lambda x: x[0]) if found else None
 
 
@@ -375,12 +401,12 @@ def check_memory(plan: Plan, workers_per_node: int, memory_gb: float | None = No
     when already computed."""
     budget = (memory_gb * 2**30) if memory_gb else node_memory_bytes()
     rows = list(zip(estimates or [plan.estimate(t) for t in plan.tasks], plan.tasks))
-    need, task = _largest(rows, lambda e: e.memory_bytes)
+    need, task, _ = _largest(rows, lambda e: e.memory_bytes)
     gib = 2**30
     if need * workers_per_node > budget:
         raise PlanError(
-            f"{task.label} needs about {need / gib:.1f} GiB; with {workers_per_node} task(s) at once per node "
-            f"that is {need * workers_per_node / gib:.1f} GiB, more than the node's {budget / gib:.1f} GiB "
+            f"{task.label} needs about {format_bytes(need)}; with {workers_per_node} task(s) at once per node "
+            f"that is {format_bytes(need * workers_per_node)}, more than the node's {format_bytes(budget)} "
             "([run] memory_gb). Use fewer workers/ranks per node, a coarser grid or smaller patches."
         )
     if device is None:
@@ -388,19 +414,20 @@ def check_memory(plan: Plan, workers_per_node: int, memory_gb: float | None = No
     where = f"device {device.name!r}"
     largest = _largest(rows, lambda e: e.largest_buffer_bytes)
     if largest is not None and largest[0] > device.max_alloc_gib * gib:
-        size, task = largest
+        size, task, estimate = largest
         raise PlanError(
-            f"{task.label} needs one device buffer of {size / gib:.2f} GiB, more than the max allocation of the "
-            f"{where} ({device.max_alloc_gib:.2f} GiB). Use a coarser grid or smaller patches, or another device "
+            f"{task.label} needs one device buffer of {format_bytes(size)} ({estimate.detail}), more than the max "
+            f"allocation of the {where} "
+            f"({format_bytes(device.max_alloc_gib * gib)}). Use a coarser grid or smaller patches, or another device "
             "(WAVEBRDF_DEVICE; 'wavebrdf devices' lists them)."
         )
     held = _largest(rows, lambda e: e.device_bytes or e.largest_buffer_bytes)
     if held is not None and held[0] * workers_per_node > device.global_mem_gib * gib:
-        size, task = held
+        size, task, _ = held
         raise PlanError(
-            f"{task.label} holds about {size / gib:.2f} GiB on the device; with {workers_per_node} task(s) at once "
-            f"that is {size * workers_per_node / gib:.2f} GiB, more than the global memory of the {where} "
-            f"({device.global_mem_gib:.2f} GiB). Use fewer workers/ranks per node, a coarser grid or smaller "
-            "patches, or another device (WAVEBRDF_DEVICE)."
+            f"{task.label} holds about {format_bytes(size)} on the device; with {workers_per_node} task(s) at once "
+            f"that is {format_bytes(size * workers_per_node)}, more than the global memory of the {where} "
+            f"({format_bytes(device.global_mem_gib * gib)}). Use fewer workers/ranks per node, a coarser grid or "
+            "smaller patches, or another device (WAVEBRDF_DEVICE)."
         )
     return budget

@@ -18,10 +18,12 @@ import numpy as np
 
 from wavebrdf.solver.spectrum import spectral_weights, srgb_encode, xyz_to_linear_srgb
 
-__all__ = ["DECADES", "MAX_CURVES", "Picture", "PictureOptions", "colours", "draw_spectral_image", "figure", "finish",
-           "line_panel", "log_limits", "log_tone_map", "polar_log_slices", "some", "spectral_note"]
+__all__ = ["DECADES", "MAX_CURVES", "MAX_DECADES", "Picture", "PictureOptions", "check_decades", "colours",
+           "draw_spectral_image", "figure", "finish", "line_panel", "log_limits", "log_tone_map", "polar_log_slices",
+           "some", "spectral_note"]
 
 DECADES = 5.0  # dynamic range shown below the peak
+MAX_DECADES = 100.0  # a log scale over more shows nothing more (and 10^-decades underflows beyond ~300)
 MAX_CURVES = 8  # curves per panel (wavelengths or directions are subsampled evenly beyond)
 VISIBLE_UM = (0.38, 0.78)
 
@@ -37,6 +39,21 @@ class PictureOptions:
     decades: float = DECADES
     limits: tuple[float, float] | None = None
     directions: tuple[tuple[float, float], ...] | None = None
+
+    def __post_init__(self):
+        check_decades(self.decades)
+
+
+def check_decades(decades) -> float:
+    """``decades`` (the log range below the peak) if it is a number in (0, MAX_DECADES], else a
+    ConfigError naming ``--decades`` and the value."""
+    from wavebrdf.jobs.config import ConfigError
+
+    if isinstance(decades, bool) or not isinstance(decades, (int, float)) or not (
+            math.isfinite(decades) and 0 < decades <= MAX_DECADES):
+        raise ConfigError(f"--decades {decades}: must be a number in (0, {MAX_DECADES:g}] (the log range shown "
+                          f"below the peak; default {DECADES:g})")
+    return float(decades)
 
 
 @dataclass(frozen=True)
@@ -72,7 +89,7 @@ def log_limits(values: np.ndarray, decades: float, limits=None) -> tuple[float, 
     if finite.size == 0:
         return None
     top = float(finite.max())
-    return top * 10.0**-decades, top
+    return max(top * 10.0**-decades, np.finfo(float).tiny), top
 
 
 def log_tone_map(rgb_linear: np.ndarray, luminance: np.ndarray, vmin: float, vmax: float) -> np.ndarray:
