@@ -2,6 +2,9 @@
 
 Every problem is reported as a :class:`ConfigError` whose one-line message names the key, the
 value and what is allowed, e.g. ``[illumination] wavelengths_um = [-0.4]: values must be > 0``.
+Every numeric key has a physical range (:class:`Number`: lengths 1 pm to 1 m, vacuum wavelengths
+1 nm to 1 mm, ...), so a typo or a unit slip is refused at load, not in a task; keys that would
+be ignored (``kappa`` with ``name``, ``cells`` with ``file``) are refused with the reason.
 Relative ``surface.file``, ``material.file`` and ``illumination.directions_file`` paths are resolved
 against the config file's folder; ``study.output``
 against the working directory. Lists of numbers may be ``{start, stop, count}`` ranges and
@@ -44,11 +47,11 @@ Sections (see configs/*.toml and the README for a full example)::
 from __future__ import annotations
 
 import copy
+import dataclasses
 import difflib
 import itertools
 import math
 import os
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -102,33 +105,159 @@ def _fail(section: str, key: str, value: Any, problem: str) -> ConfigError:
 
 # ---------------------------------------------------------------------------------------------
 # Value checkers: each takes (section, key, value) and returns the converted value or raises.
+# Numeric keys are :class:`Number` (or :class:`Rows` of them): their type, domain and physical
+# range are data, stated in the refusal (and read by tests/test_inputs.py, which tries extreme
+# values on every numeric key of SCHEMA).
 
 
-def _number(section, key, value, *, integer=False, low=None, high=None, low_open=False, high_open=False):
-    ok_type = isinstance(value, int) if integer else isinstance(value, (int, float))
-    if isinstance(value, bool) or not ok_type:
-        raise _fail(section, key, value, f"must be {'an integer' if integer else 'a number'}")
-    if integer and abs(value) >= 2**63:  # TOML integers are unbounded; numpy and HDF5 are not
-        raise _fail(section, key, value, "is too large (integers must lie within ±2**63)")
-    if not integer and not math.isfinite(value):
-        raise _fail(section, key, value, "must be finite (not NaN/inf)")
-    if low is not None and (value <= low if low_open else value < low):
-        raise _fail(section, key, value, f"must be {'>' if low_open else '>='} {low}")
-    if high is not None and (value >= high if high_open else value > high):
-        raise _fail(section, key, value, f"must be {'<' if high_open else '<='} {high}")
-    return int(value) if integer else float(value)
+def _interval(low, high, low_open=False, high_open=False) -> str:
+    lo = "(-inf" if low is None else f"{'(' if low_open else '['}{low:g}"
+    hi = "inf)" if high is None else f"{high:g}{')' if high_open else ']'}"
+    return f"{lo}, {hi}"
 
 
-def _positive(section, key, value):
-    return _number(section, key, value, low=0, low_open=True)
+@dataclass(frozen=True)
+class Number:
+    """A numeric key: its type, its domain and its physical range.
+
+    ``low``/``high`` (``*_open``: excluded) are the domain (a negative length is refused as
+    "must be > 0"); ``span`` = (smallest, largest) non-zero magnitude that is physics rather than
+    a typo or a unit slip (lengths from 1 pm to 1 m), in ``unit``, explained by ``note``.
+    ``form``: "one" (a number), "pair" ([a, b]), "one_or_pair" (either) or "list" (a non-empty
+    list of distinct numbers, or a {start, stop, count} range, jobs/ranges.py)."""
+
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    high_open: bool = False
+    integer: bool = False
+    span: tuple[float, float] | None = None
+    unit: str = ""
+    note: str = ""
+    form: str = "one"
+
+    @property
+    def range_text(self) -> str:
+        """The accepted values in words, e.g. "0.001 to 1000 µm (vacuum wavelengths: 1 nm to 1 mm)"."""
+        unit = f" {self.unit}" if self.unit else ""
+        note = f" ({self.note})" if self.note else ""
+        if self.span is None:
+            return f"{_interval(self.low, self.high, self.low_open, self.high_open)}{unit}{note}"
+        zero_allowed = self.low is None or (self.low == 0 and not self.low_open)
+        zero = "0 or " if zero_allowed and self.span[0] > 0 else ""
+        sign = "±" if self.low is None or self.low < 0 else ""
+        return f"{zero}{sign}{self.span[0]:g} to {sign}{self.span[1]:g}{unit}{note}"
+
+    @property
+    def domain_text(self) -> str:
+        if self.high is not None:
+            return f"in {_interval(self.low, self.high, self.low_open, self.high_open)}"
+        return "" if self.low is None else f"{'>' if self.low_open else '>='} {self.low:g}"
+
+    def problem(self, value) -> str | None:
+        """Why ``value`` is refused (None: accepted): type, finiteness, domain, physical range."""
+        ok_type = isinstance(value, int) if self.integer else isinstance(value, (int, float))
+        if isinstance(value, bool) or not ok_type:
+            return f"must be {'an integer' if self.integer else 'a number'}"
+        if self.integer and abs(value) >= 2**63:  # TOML integers are unbounded; numpy and HDF5 are not
+            return "is too large (integers must lie within ±2**63)"
+        if not self.integer and not math.isfinite(value):
+            return "must be finite (not NaN/inf)"
+        low, high = self.low, self.high
+        if low is not None and (value <= low if self.low_open else value < low):
+            return f"must be {'>' if self.low_open else '>='} {low}"
+        if high is not None and (value >= high if self.high_open else value > high):
+            note = f" ({self.note})" if self.note else ""
+            return f"must be {'<' if self.high_open else '<='} {high:g}{' ' + self.unit if self.unit else ''}{note}"
+        if self.span is not None and value != 0 and not self.span[0] <= abs(value) <= self.span[1]:
+            return f"is {'below' if abs(value) < self.span[0] else 'above'} the physical range {self.range_text}"
+        return None
+
+    def item(self, section, key, value, whole=None):
+        """``value`` converted (int or float), or a ConfigError naming the key and the value
+        (``whole``: the key's list that holds ``value``, named instead, with the bad element)."""
+        problem = self.problem(value)
+        if problem is None:
+            return int(value) if self.integer else float(value)
+        if whole is None:
+            raise _fail(section, key, value, problem)
+        if problem.startswith("is "):
+            problem = f"values must lie within the physical range {self.range_text}"
+        else:
+            problem = f"values must be finite {'integers' if self.integer else 'numbers'} {self.domain_text}".rstrip()
+        raise _fail(section, key, whole, f"{problem} (bad: {_fmt(value)})")
+
+    def __call__(self, section, key, value):
+        if self.form == "list":
+            from wavebrdf.jobs.ranges import expand_range
+
+            value = expand_range(section, key, value)  # {start, stop, count}
+            if not isinstance(value, list) or not value:
+                raise _fail(section, key, value, "must be a non-empty list of numbers")
+            out = tuple(self.item(section, key, item, whole=value) for item in value)
+            if len(set(out)) != len(out):
+                raise _fail(section, key, value, "values must be distinct")
+            return out
+        if self.form == "pair" or (self.form == "one_or_pair" and isinstance(value, list)):
+            if not isinstance(value, list) or len(value) != 2:
+                either = "a number, or " if self.form == "one_or_pair" else ""
+                raise _fail(section, key, value, f"must be {either}[a, b] with two numbers {self.domain_text}")
+            return tuple(self.item(section, key, v, whole=value) for v in value)
+        return self.item(section, key, value)
 
 
-def _nonnegative(section, key, value):
-    return _number(section, key, value, low=0)
+@dataclass(frozen=True)
+class Rows:
+    """A non-empty list of rows of numbers, e.g. [[θ, φ], ...] or [[λ, n, κ], ...]: ``columns``
+    are (name, Number) pairs; ``row`` names a row in messages; ``distinct``: rows may not repeat;
+    ``expand``: turns a table form into the list first (direction grids, jobs/ranges.py)."""
+
+    columns: tuple[tuple[str, Number], ...]
+    row: str
+    distinct: bool = False
+    expand: Callable | None = None
+
+    @property
+    def shape_text(self) -> str:
+        return "[" + ", ".join(name for name, _ in self.columns) + "]"
+
+    def __call__(self, section, key, value):
+        if self.expand is not None:
+            value = self.expand(section, key, value)
+        if not isinstance(value, list) or not value:
+            raise _fail(section, key, value, f"must be a non-empty list of {self.shape_text} rows")
+        out = []
+        for row in value:
+            if not isinstance(row, list) or len(row) != len(self.columns):
+                raise _fail(section, key, value, f"each {self.row} must be {self.shape_text} (bad: {_fmt(row)})")
+            for (name, check), x in zip(self.columns, row):
+                problem = check.problem(x)
+                if problem is not None:
+                    raise _fail(section, key, value, f"{name} {problem} (bad: {_fmt(x)} in {_fmt(row)})")
+            out.append(tuple(float(x) for x in row))
+        if self.distinct and len(set(out)) != len(out):
+            raise _fail(section, key, value, f"{self.row}s must be distinct")
+        return tuple(out)
 
 
-def _integer_at_least(minimum: int) -> Callable:
-    return lambda s, k, v: _number(s, k, v, integer=True, low=minimum)
+# Physical ranges (µm, degrees): what the solvers are meant for, with room to spare; a value
+# outside is a typo or a unit slip (nm for µm), refused at load rather than failing in a task.
+LENGTH_SPAN = (1e-6, 1e6)
+
+
+def _length(low: float = 0, low_open: bool = True, form: str = "one") -> Number:
+    """A length in µm (> 0, unless ``low``/``low_open`` say otherwise) within LENGTH_SPAN."""
+    return Number(low=low, low_open=low_open, span=LENGTH_SPAN, unit="µm", note="lengths: 1 pm to 1 m", form=form)
+
+
+WAVELENGTH = Number(low=0, low_open=True, span=(1e-3, 1e3), unit="µm", note="vacuum wavelengths: 1 nm to 1 mm")
+INDEX_N = Number(low=0, low_open=True, span=(1e-3, 1e4), note="the real part n of the index n − jκ")
+INDEX_KAPPA = Number(low=0, high=1e4, note="κ of n − jκ; 1e3 is already a perfect conductor")
+ANGLE_DEG = Number(low=-360, high=360, unit="degrees")
+
+
+def _integer(low: int, high: int | None = None) -> Number:
+    return Number(low=low, high=high, integer=True)
 
 
 def _string(section, key, value):
@@ -176,81 +305,6 @@ def _choice(*choices: str) -> Callable:
     return check
 
 
-def _positive_list(section, key, value):
-    from wavebrdf.jobs.ranges import expand_range
-
-    value = expand_range(section, key, value)  # {start, stop, count}
-    if not isinstance(value, list) or not value:
-        raise _fail(section, key, value, "must be a non-empty list of numbers")
-    out = []
-    for item in value:
-        if isinstance(item, bool) or not isinstance(item, (int, float)) or not math.isfinite(item) or item <= 0:
-            raise _fail(section, key, value, f"values must be finite numbers > 0 (bad: {_fmt(item)})")
-        out.append(float(item))
-    if len(set(out)) != len(out):
-        raise _fail(section, key, value, "values must be distinct")
-    return tuple(out)
-
-
-def _directions(section, key, value):
-    from wavebrdf.jobs.ranges import expand_directions
-
-    value = expand_directions(section, key, value)  # {theta = ..., phi = ...} grid
-    if not isinstance(value, list) or not value:
-        raise _fail(section, key, value, "must be a non-empty list of [theta_deg, phi_deg] pairs")
-    out = []
-    for item in value:
-        if (
-            not isinstance(item, list)
-            or len(item) != 2
-            or any(isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x) for x in item)
-        ):
-            raise _fail(section, key, value, f"each direction must be [theta_deg, phi_deg] (bad: {_fmt(item)})")
-        theta, phi = float(item[0]), float(item[1])
-        if not 0.0 <= theta < 90.0:
-            raise _fail(section, key, value, f"theta must be in [0, 90) degrees (bad: {theta:g})")
-        out.append((theta, phi))
-    if len(set(out)) != len(out):
-        raise _fail(section, key, value, "directions must be distinct")
-    return tuple(out)
-
-
-def _angle_list(low: float, high: float) -> Callable:
-    """A non-empty list of distinct angles (degrees) in the open interval (low, high)."""
-
-    def check(section, key, value):
-        from wavebrdf.jobs.ranges import expand_range
-
-        value = expand_range(section, key, value)  # {start, stop, count}
-        if not isinstance(value, list) or not value:
-            raise _fail(section, key, value, "must be a non-empty list of angles in degrees")
-        out = []
-        for item in value:
-            if isinstance(item, bool) or not isinstance(item, (int, float)) or not math.isfinite(item):
-                raise _fail(section, key, value, f"values must be finite numbers (bad: {_fmt(item)})")
-            if not low < item < high:
-                raise _fail(section, key, value, f"values must lie in ({low:g}, {high:g}) degrees (bad: {item:g})")
-            out.append(float(item))
-        if len(set(out)) != len(out):
-            raise _fail(section, key, value, "values must be distinct")
-        return tuple(out)
-
-    return check
-
-
-def _positive_pair(section, key, value):
-    if (not isinstance(value, list) or len(value) != 2
-            or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0
-                   for v in value)):
-        raise _fail(section, key, value, "must be [a, b] with two numbers > 0")
-    return (float(value[0]), float(value[1]))
-
-
-def _positive_or_pair(section, key, value):
-    """A number > 0, or [a, b] with two numbers > 0 (e.g. anisotropic correlation lengths)."""
-    return _positive_pair(section, key, value) if isinstance(value, list) else _positive(section, key, value)
-
-
 def _patches(section, key, value):
     """"auto", or [mx, my] with integers >= 1 or "auto" (as many as fit along that axis)."""
     if value == "auto":
@@ -264,19 +318,15 @@ def _patches(section, key, value):
     return tuple(v if v == "auto" else int(v) for v in value)
 
 
-def _cells(section, key, value):
-    """N (int >= 3), or [N_x, N_y] for a rectangular surface."""
-    if isinstance(value, list):
-        if len(value) != 2 or any(isinstance(v, bool) or not isinstance(v, int) or v < 3 for v in value):
-            raise _fail(section, key, value, "must be an integer >= 3, or [N_x, N_y] with two integers >= 3")
-        return (int(value[0]), int(value[1]))
-    return _number(section, key, value, integer=True, low=3)
+def _direction_grid(section, key, value):
+    from wavebrdf.jobs.ranges import expand_directions
+
+    return expand_directions(section, key, value)  # {theta = ..., phi = ...} grid
 
 
-def _table(section, key, value):
-    if not isinstance(value, list) or not value or not all(isinstance(r, list) and len(r) == 3 for r in value):
-        raise _fail(section, key, value, "must be a list of [wavelength_um, n, kappa] rows")
-    return value
+DIRECTIONS = Rows((("theta_deg", Number(low=0, high=90, high_open=True, unit="degrees")), ("phi_deg", ANGLE_DEG)),
+                  "direction", distinct=True, expand=_direction_grid)
+MATERIAL_TABLE = Rows((("wavelength_um", WAVELENGTH), ("n", INDEX_N), ("kappa", INDEX_KAPPA)), "row")
 
 
 @dataclass(frozen=True)
@@ -293,37 +343,39 @@ SCHEMA: dict[str, dict[str, Spec]] = {
     },
     "surface": {
         "file": Spec(_string),
-        "size_um": Spec(_positive_or_pair, required=True),  # L, or [L_x, L_y] (rectangles: steering only)
+        "size_um": Spec(_length(form="one_or_pair"), required=True),  # L, or [L_x, L_y] (rectangles: steering only)
         "generator": Spec(_choice(*SURFACE_GENERATORS)),
-        "cells": Spec(_cells, default=256),  # N, or [N_x, N_y]
-        "seed": Spec(_integer_at_least(0), default=0),
-        "rms_height_um": Spec(_nonnegative),
-        "correlation_um": Spec(_positive_or_pair),
-        "amplitude_um": Spec(lambda s, k, v: _number(s, k, v)),
-        "period_um": Spec(_positive),
-        "angle_deg": Spec(lambda s, k, v: _number(s, k, v)),
-        "radius_um": Spec(_positive),
-        "depth_um": Spec(_positive),
-        "fill": Spec(lambda s, k, v: _number(s, k, v, low=0, low_open=True, high=1)),
+        "cells": Spec(Number(low=3, integer=True, form="one_or_pair"), default=256),  # N, or [N_x, N_y]
+        "seed": Spec(_integer(0), default=0),
+        "rms_height_um": Spec(_length(low=0, low_open=False)),  # 0: a flat realization of the ensemble
+        "correlation_um": Spec(_length(form="one_or_pair")),
+        "amplitude_um": Spec(_length(low=None)),  # either sign
+        "period_um": Spec(_length()),
+        "angle_deg": Spec(ANGLE_DEG),
+        "radius_um": Spec(_length()),
+        "depth_um": Spec(_length()),
+        "fill": Spec(Number(low=0, low_open=True, high=1, span=(1e-6, 1), note="area fraction")),
         "placement": Spec(_choice("square", "random")),
         "shape": Spec(_choice("triangular", "full")),
     },
     "material": {
         "name": Spec(_string),
-        "table": Spec(_table),
+        "table": Spec(MATERIAL_TABLE),
         "file": Spec(_string),  # the reference simulator's wvl.txt: rows λ (µm), n, κ
-        "n": Spec(_positive),
-        "kappa": Spec(_nonnegative, default=0.0),
-        "exterior_index": Spec(lambda s, k, v: _number(s, k, v, low=1.0), default=1.0),
+        "n": Spec(INDEX_N),
+        "kappa": Spec(INDEX_KAPPA, default=0.0),
+        # the medium above: air 1, water 1.33, an immersion oil 1.5, a semiconductor up to ~4
+        "exterior_index": Spec(Number(low=1.0, high=10.0, note="the index of the medium above the surface"),
+                               default=1.0),
     },
     "illumination": {
-        "wavelengths_um": Spec(_positive_list),  # required; default with material.file: its wavelengths
-        "directions_deg": Spec(_directions),  # surfaces
+        "wavelengths_um": Spec(dataclasses.replace(WAVELENGTH, form="list")),  # required; default with material.file: its wavelengths
+        "directions_deg": Spec(DIRECTIONS),  # surfaces
         "directions_file": Spec(_string),  # surfaces: the reference simulator's wi.txt, rows θ, φ
         "angles": Spec(_choice("rad", "deg")),  # units of directions_file (default "rad", as wi.txt)
-        "waist_um": Spec(_positive),  # surfaces
-        "theta_i_deg": Spec(_angle_list(-90.0, 90.0)),  # fibers: from the plane normal to the axis
-        "phi_i_deg": Spec(_angle_list(-360.0, 360.0)),  # fibers: incidence azimuths (else bins)
+        "waist_um": Spec(_length()),  # surfaces
+        "theta_i_deg": Spec(Number(low=-90, high=90, low_open=True, high_open=True, unit="degrees", form="list")),  # fibers: from the plane normal to the axis
+        "phi_i_deg": Spec(Number(low=-360, high=360, low_open=True, high_open=True, unit="degrees", form="list")),  # fibers: incidence azimuths (else bins)
         "polarization": Spec(_choice(*POLARIZATION_CHOICES), default="unpolarized"),
         "beam": Spec(_choice(*BEAM_CHOICES), default="exact"),
     },
@@ -333,9 +385,9 @@ SCHEMA: dict[str, dict[str, Spec]] = {
     },
     "steering": {
         "patches": Spec(_patches, required=True),
-        "patch_size_um": Spec(_positive, required=True),
-        "shift_um": Spec(_positive),  # default: the waist
-        "hexagon_fill": Spec(lambda s, k, v: _number(s, k, v, low=0.05, high=10.0), default=0.97),
+        "patch_size_um": Spec(_length(), required=True),
+        "shift_um": Spec(_length()),  # default: the waist
+        "hexagon_fill": Spec(Number(low=0.05, high=10.0), default=0.97),
     },
     "compare": {  # `wavebrdf compare` only; [compare.<model>] tables hold other models' options
         "models": Spec(_model_names),
@@ -343,25 +395,25 @@ SCHEMA: dict[str, dict[str, Spec]] = {
     },
     "run": {
         "executor": Spec(_choice("auto", "serial", "processes", "mpi"), default="auto"),
-        "workers": Spec(_integer_at_least(1)),
-        "memory_gb": Spec(_positive),
-        "retries": Spec(_integer_at_least(0), default=1),
+        "workers": Spec(_integer(1, 4096)),  # per node
+        "memory_gb": Spec(Number(low=0, low_open=True, span=(1e-3, 1e6), unit="GiB", note="per node")),
+        "retries": Spec(_integer(0, 100), default=1),
         "prologue": Spec(_string),  # `wavebrdf submit`: shell lines before the run (module loads, venv)
     },
     "fiber": {
         "shape": Spec(_choice("circle", "ellipse", "polygon"), required=True),
-        "radius_um": Spec(_positive),
-        "semi_axes_um": Spec(_positive_pair),
+        "radius_um": Spec(_length()),
+        "semi_axes_um": Spec(_length(form="pair")),
         "points_file": Spec(_string),
-        "segments": Spec(_integer_at_least(8)),
-        "rotation_deg": Spec(lambda s, k, v: _number(s, k, v), default=0.0),
+        "segments": Spec(_integer(8, 20_000)),  # a 50 µm fiber at 0.4 µm needs ~15 000
+        "rotation_deg": Spec(ANGLE_DEG, default=0.0),
         # d'Eon's longitudinal variance v (rad²): the dataset's default for M0, overridable at render time
-        "longitudinal_variance": Spec(lambda s, k, v: _number(s, k, v, low=1e-3, high=10.0), default=0.02),
+        "longitudinal_variance": Spec(Number(low=1e-3, high=10.0), default=0.02),
     },
     "output": {
-        "phi_r_bins": Spec(_integer_at_least(8), default=360),
-        "phi_i_bins": Spec(_integer_at_least(1)),
-        "resolution": Spec(lambda s, k, v: _number(s, k, v, integer=True, low=16, high=8192), default=512),
+        "phi_r_bins": Spec(_integer(8, 100_000), default=360),
+        "phi_i_bins": Spec(_integer(1, 100_000)),
+        "resolution": Spec(_integer(16, 8192), default=512),
         "per_polarization": Spec(_boolean, default=False),
     },
 }
@@ -695,7 +747,7 @@ def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: di
     output = _check_output_path(str(output or v["study"]["output"] or f"{name}.h5"))
     if ("surface" in data) == ("fiber" in data):
         raise ConfigError("give exactly one of [surface] (a height field) or [fiber] (a fiber cross section)")
-    surface = _surface_spec(v["surface"], base_dir) if "surface" in data else None
+    surface = _surface_spec(v["surface"], base_dir, data["surface"]) if "surface" in data else None
     fiber = _fiber_spec(v["fiber"], base_dir) if "fiber" in data else None
 
     m = v["material"]
@@ -775,7 +827,7 @@ def _model_spec(m: dict, is_fiber: bool) -> ModelSpec:
     return ModelSpec(m["name"], m["precision"], options)
 
 
-def _surface_spec(s: dict, base_dir: Path) -> SurfaceSpec:
+def _surface_spec(s: dict, base_dir: Path, given: dict) -> SurfaceSpec:
     _exactly_one("surface", s, ("file", "generator"))
     file = None
     size, cells = s["size_um"], s["cells"]
@@ -784,6 +836,11 @@ def _surface_spec(s: dict, base_dir: Path) -> SurfaceSpec:
         extra = [k for k in GENERATOR_KEYS if s[k] is not None]
         if extra:
             raise ConfigError(f"[surface] {extra[0]}: only used with a generator, not with surface.file")
+        for key, why in (("cells", "the file's matrix of (N+1)×(N+1) heights gives N"),
+                         ("seed", "the heights are read, not drawn")):
+            if key in given:  # it would be ignored
+                raise ConfigError(f"[surface] {key} = {_fmt(given[key])} and file = {_fmt(s['file'])}: {key} would "
+                                  f"be ignored ({why}); remove {key}")
     elif isinstance(size, tuple) or isinstance(cells, tuple):  # a rectangle: L_x/N_x = L_y/N_y
         sides = size if isinstance(size, tuple) else (size, size)
         counts = cells if isinstance(cells, tuple) else (cells, cells)
@@ -822,6 +879,12 @@ def _material_source(m: dict, given: dict) -> None:
         raise ConfigError(f"[material] file and kappa: give one of them (material.file = {_fmt(m['file'])} holds "
                           "κ per wavelength; kappa goes with a constant n)")
     _exactly_one("material", m, ("name", "table", "file", "n"))
+    if "kappa" in given and m.get("n") is None:  # it would be ignored: the source gives its own κ
+        source = "name" if m.get("name") is not None else "table"
+        what = (f"material.name = {_fmt(m['name'])} gives its own κ per wavelength" if source == "name"
+                else "material.table gives κ in its third column")
+        raise ConfigError(f"[material] kappa = {_fmt(given['kappa'])} and {source}: kappa would be ignored ({what}); "
+                          "remove kappa, or give a constant index as n and kappa instead")
 
 
 def _read_material_file(value: str, path: Path) -> list:
@@ -832,9 +895,16 @@ def _read_material_file(value: str, path: Path) -> list:
     if problem is not None:
         raise _fail("material", "file", value, f"{str(path)!r} {problem}" if str(path) != value else problem)
     try:
-        return read_index_file(path, label=value).tolist()
+        rows = read_index_file(path, label=value).tolist()
     except MaterialError as exc:
         raise ConfigError(f"[material] {exc}") from None
+    for number, row in enumerate(rows, start=1):  # the physical ranges of [material] table
+        for (name, check), x in zip(MATERIAL_TABLE.columns, row):
+            problem = check.problem(x)
+            if problem is not None:
+                raise _fail("material", "file", value, f"row {number}: {name} {problem} (bad: {x:g} in λ, n, κ = "
+                            f"{', '.join(f'{v:g}' for v in row)})")
+    return rows
 
 
 FIBER_SHAPE_KEYS = {"circle": "radius_um", "ellipse": "semi_axes_um", "polygon": "points_file"}
@@ -917,6 +987,8 @@ def _read_directions_file(value: str, path: Path, angles: str) -> tuple[tuple[fl
                 hint = (" (the file looks like degrees: set angles = \"deg\")" if angles == "rad"
                         and theta > math.pi / 2 and theta < 90.0 else "")
                 raise bad(line_no, line, f"theta = {theta:g} {unit} must be in [0, {limit}){hint}")
+            if ANGLE_DEG.problem(phi_deg) is not None:
+                raise bad(line_no, line, f"phi = {phi:g} {unit} must lie within ±{'2π rad' if angles == 'rad' else '360°'}")
             if (theta_deg, phi_deg) in rows:
                 raise bad(line_no, line, f"repeats the direction of line {rows[(theta_deg, phi_deg)]}; directions "
                                          "must be distinct")
@@ -1053,11 +1125,9 @@ def _set_dotted(data: dict, dotted: str, value: Any) -> None:
 def parse_config(text: str, path: Path | None = None, output: str | Path | None = None) -> StudyConfig:
     """Parse and validate config ``text`` (from ``path`` if given, for relative file paths);
     ``output`` replaces ``[study] output`` (it alone is checked)."""
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        where = f"{path}: " if path else ""
-        raise ConfigError(f"{where}not valid TOML: {exc}") from None
+    from wavebrdf.jobs.overrides import parse_toml
+
+    data = parse_toml(text, f"{path}: " if path else "")
     base_dir = path.parent.resolve() if path else Path.cwd()
     default_name = path.stem if path else "study"
 

@@ -24,10 +24,12 @@ import tomllib
 from pathlib import Path
 from typing import Any, Iterable
 
-__all__ = ["apply_overrides", "dict_config_text", "dump_toml", "overridden_text", "parse_assignment"]
+__all__ = ["apply_overrides", "check_nesting", "dict_config_text", "dump_toml", "overridden_text",
+           "parse_assignment", "parse_toml"]
 
 BARE_WORD = re.compile(r"[A-Za-z_][A-Za-z0-9_.+-]*")
 BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
+MAX_NESTING = 32  # levels of tables and arrays; a config needs a handful (section, table, rows, row)
 
 
 def _error(message: str):
@@ -44,6 +46,34 @@ def _show(value: Any) -> str:
     return text if len(text) <= 80 else text[:77] + "..."
 
 
+def check_nesting(data: Any, where: str = "") -> None:
+    """Refuse ``data`` nested more than MAX_NESTING tables/arrays deep (checked without recursion)."""
+    stack = [(data, 1)]
+    while stack:
+        value, depth = stack.pop()
+        children = value.values() if isinstance(value, dict) else value if isinstance(value, (list, tuple)) else ()
+        for child in children:
+            if isinstance(child, (dict, list, tuple)):
+                if depth + 1 > MAX_NESTING:
+                    raise _error(f"{where}tables or arrays nested more than {MAX_NESTING} levels deep; a config "
+                                 "nests a few (sections, their tables, lists of rows)")
+                stack.append((child, depth + 1))
+
+
+def parse_toml(text: str, where: str = "") -> dict:
+    """``text`` as TOML data; a one-line ConfigError (prefixed by ``where``) for text that is not
+    TOML or that nests too deeply (tomllib recurses per level: a RecursionError beyond ~1000)."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise _error(f"{where}not valid TOML: {exc}") from None
+    except RecursionError:
+        raise _error(f"{where}tables or arrays nested too deeply to read (more than {MAX_NESTING} levels); a config "
+                     "nests a few (sections, their tables, lists of rows)") from None
+    check_nesting(data, where)
+    return data
+
+
 def parse_assignment(text: str) -> tuple[str, Any]:
     """``"key=value"`` from the command line → (key, value); the value is TOML (or a bare word)."""
     key, sep, raw = text.partition("=")
@@ -52,6 +82,10 @@ def parse_assignment(text: str) -> tuple[str, Any]:
         raise _error(f"--set {text}: expected key=value, e.g. --set surface.rms_height_um=0.1")
     try:
         value = tomllib.loads(f"v = {raw}")["v"]
+        check_nesting(value, f"--set {key}: ")
+    except RecursionError:
+        raise _error(f"--set {key}: the value nests arrays or tables too deeply to read (more than {MAX_NESTING} "
+                     "levels)") from None
     except tomllib.TOMLDecodeError:
         if not BARE_WORD.fullmatch(raw):
             raise _error(f"--set {key}={raw}: {raw} is not a TOML value (e.g. 0.5, [0.45, 0.55], \"text\", "
@@ -104,11 +138,7 @@ def apply_overrides(data: dict, overrides: dict | Iterable[tuple[str, Any]]) -> 
 
 def overridden_text(text: str, overrides, path: Path | None = None) -> str:
     """Config ``text`` with ``overrides`` applied, as TOML text with a provenance header."""
-    where = f"{path}: " if path else ""
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise _error(f"{where}not valid TOML: {exc}") from None
+    data = parse_toml(text, f"{path}: " if path else "")
     items = list(overrides.items() if isinstance(overrides, dict) else overrides)
     header = (f"# {path or 'config'} with overrides: "
               + "; ".join(f"{key} = {_show(value)}" for key, value in items))
@@ -119,6 +149,7 @@ def dict_config_text(data: dict) -> str:
     """A config given as a dict (``wavebrdf.run({...})``) as TOML text."""
     if not isinstance(data, dict):
         raise _error(f"a config is a TOML file or a dict of sections, not {type(data).__name__}")
+    check_nesting(data, "config dict: ")
     try:
         return "# config given as a dict\n" + dump_toml(data)
     except TypeError as exc:

@@ -10,6 +10,9 @@ unknown keys and bad values with a one-line message naming the table, the key an
                                   doc="relative residual of the solve")
         solver: str = option("gmres", choices=("gmres", "csym"))
 
+A float setting whose magnitude lies outside :data:`FLOAT_SPAN` (other than 0) is refused
+whatever its own range: no setting of a model means 1e-300 or 1e300, so such a value is a typo.
+
 Field types understood: ``bool``, ``int``, ``float`` (finite), ``str``, ``tuple[int, ...]`` (a
 list of integers, with ``length`` in the metadata when it is fixed) and a nested options
 dataclass (a sub-table, e.g. ``[model.aim]``). Checks that involve several fields stay in the
@@ -26,6 +29,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 __all__ = ["NoOptions", "OptionsError", "describe_options", "option", "parse_options"]
+
+
+FLOAT_SPAN = (1e-15, 1e15)  # the magnitudes a float setting may take (besides 0)
+INTEGER_LIMIT = 2**63  # TOML integers are unbounded; numpy and HDF5 are not
 
 
 class OptionsError(ValueError):
@@ -78,6 +85,8 @@ def _convert(table: str, key: str, value: Any, kind, meta: dict):
     if kind is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise _fail(table, key, value, "must be an integer")
+        if abs(value) >= INTEGER_LIMIT:
+            raise _fail(table, key, value, "is too large (integers must lie within ±2**63)")
         return _check_range(table, key, int(value), meta)
     if kind is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
@@ -85,6 +94,9 @@ def _convert(table: str, key: str, value: Any, kind, meta: dict):
         if not math.isfinite(value):
             raise _fail(table, key, value, "must be finite (not NaN/inf)")
         _check_range(table, key, value, meta)
+        if value != 0 and not FLOAT_SPAN[0] <= abs(value) <= FLOAT_SPAN[1]:
+            raise _fail(table, key, value, f"lies outside the magnitudes {FLOAT_SPAN[0]:g} to {FLOAT_SPAN[1]:g} that a "
+                                           "setting may take (a typo?)")
         return float(value)
     if kind is str:
         choices = meta.get("choices")
@@ -98,6 +110,8 @@ def _convert(table: str, key: str, value: Any, kind, meta: dict):
                 or any(isinstance(v, bool) or not isinstance(v, int) for v in value)):
             size = f"{length} " if length is not None else ""
             raise _fail(table, key, value, f"must be a list of {size}integers")
+        if any(abs(v) >= INTEGER_LIMIT for v in value):
+            raise _fail(table, key, value, "holds an integer too large (integers must lie within ±2**63)")
         return tuple(_check_range(table, key, int(v), meta) for v in value)
     raise TypeError(f"option {key!r}: unsupported field type {kind!r}")  # pragma: no cover - a model bug
 
@@ -130,7 +144,20 @@ def parse_options(cls, values: dict | None, table: str):
     except (TypeError, ValueError) as exc:
         if isinstance(exc, OptionsError):
             raise
-        raise OptionsError(f"[{table}] {exc}") from None
+        culprit = next((key for key in converted if not _accepted_alone(cls, key, converted[key])), None)
+        if culprit is None:  # a combination of keys: name them all
+            raise OptionsError(f"[{table}] {', '.join(converted) or '(defaults)'}: {exc}") from None
+        raise _fail(table, culprit, values[culprit], str(exc)) from None
+
+
+def _accepted_alone(cls, key: str, value) -> bool:
+    """Whether ``cls`` accepts ``key = value`` with every other field at its default (to name the
+    key that a check spanning several fields refuses)."""
+    try:
+        cls(**{key: value})
+    except (TypeError, ValueError):
+        return False
+    return True
 
 
 def describe_options(cls) -> list[tuple[str, str, Any, str]]:

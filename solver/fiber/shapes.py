@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import logging
 import re
+import stat
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -55,6 +56,7 @@ __all__ = [
 ]
 
 MIN_NODES = 3
+SHAPE_FILE_MAX_BYTES = 16 * 2**20  # a shape file is a few thousand x y rows
 _SETTING = re.compile(r"^\s*#\s*([A-Za-z_]+)\s*=\s*(\S+)\s*$")
 
 
@@ -189,14 +191,16 @@ def _check_simple(pts: np.ndarray, name: str) -> None:
     n = len(pts)
     p = pts
     r = np.roll(pts, -1, axis=0) - pts
-    # all edge pairs (i, j), i < j, that are not neighbours
-    i, j = np.triu_indices(n, k=2)
-    keep = ~((i == 0) & (j == n - 1))
-    i, j = i[keep], j[keep]
-    if i.size == 0:
+    if _strictly_convex(r):  # circles, ellipses: simple without the O(N²) pair test
         return
-    for start in range(0, i.size, 1 << 20):  # bounded memory for large N
-        a, b = i[start : start + (1 << 20)], j[start : start + (1 << 20)]
+    rows = max(1, (1 << 20) // n)  # all edge pairs (i, j), i < j, not neighbours, ~2**20 at a time
+    for i0 in range(0, n - 2, rows):
+        first = np.arange(i0, min(i0 + rows, n - 2))[:, None]
+        second = np.arange(n)[None, :]
+        keep = (second >= first + 2) & ~((first == 0) & (second == n - 1))
+        a, b = np.broadcast_to(first, keep.shape)[keep], np.broadcast_to(second, keep.shape)[keep]
+        if a.size == 0:
+            continue
         denom = r[a, 0] * r[b, 1] - r[a, 1] * r[b, 0]
         qp = p[b] - p[a]
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -217,6 +221,17 @@ def _check_simple(pts: np.ndarray, name: str) -> None:
                 f"cross section {name!r} intersects itself: edge {a[k]} ({p[a[k]].tolist()} -> "
                 f"{(p[a[k]] + r[a[k]]).tolist()}) crosses edge {b[k]}"
             )
+
+
+def _strictly_convex(edges: np.ndarray) -> bool:
+    """Whether the closed polygon of edge vectors ``edges`` turns the same way at every node and
+    once around in all (total turning 2π): then no two of its edges cross."""
+    following = np.roll(edges, -1, axis=0)
+    turn = edges[:, 0] * following[:, 1] - edges[:, 1] * following[:, 0]
+    if not (np.all(turn > 0) or np.all(turn < 0)):
+        return False
+    angles = np.arctan2(turn, np.sum(edges * following, axis=1))
+    return bool(abs(abs(np.sum(angles)) - 2 * np.pi) < 1e-6)
 
 
 def _positive(value, what: str) -> float:
@@ -353,11 +368,9 @@ def spline(points, segments: int, preserve_area: bool = True) -> CrossSection:
 def load_shape(path, segments: int | None = None) -> CrossSection:
     """Read a shape file (format in the module docstring); ``segments`` overrides the file's."""
     path = Path(path)
-    if not path.is_file():
-        raise ShapeError(f"points_file {str(path)!r} does not exist")
     settings: dict[str, str] = {}
     rows = []
-    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
+    for lineno, line in enumerate(_shape_text(path).splitlines(), start=1):
         m = _SETTING.match(line)
         if m:
             settings[m.group(1).lower()] = m.group(2)
@@ -387,6 +400,34 @@ def load_shape(path, segments: int | None = None) -> CrossSection:
     else:
         shape = polygon(rows, segments, corner_grading=grading)
     return CrossSection(shape.nodes, name=path.stem)
+
+
+def _shape_text(path: Path) -> str:
+    """The UTF-8 text of shape file ``path``; a ShapeError saying what it is otherwise (missing, a
+    folder, a named pipe or device — never opened, as a pipe would block —, too large, not text)."""
+    shown = f"points_file {str(path)!r}"
+    try:
+        mode = path.stat()
+    except FileNotFoundError:
+        raise ShapeError(f"{shown} does not exist") from None
+    except OSError as exc:
+        raise ShapeError(f"{shown} cannot be read ({exc.strerror})") from None
+    if stat.S_ISDIR(mode.st_mode):
+        raise ShapeError(f"{shown} is a folder, not a file")
+    if not stat.S_ISREG(mode.st_mode):
+        kind = "a named pipe" if stat.S_ISFIFO(mode.st_mode) else "a device or socket"
+        raise ShapeError(f"{shown} is not a regular file ({kind})")
+    if mode.st_size > SHAPE_FILE_MAX_BYTES:
+        raise ShapeError(f"{shown} is {mode.st_size / 2**20:.0f} MiB; a shape file is a small text file of x y rows")
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise ShapeError(f"{shown} cannot be read ({exc.strerror})") from None
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ShapeError(f"{shown} is not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start}); a shape "
+                         "file is text: x y rows in µm (module docstring of solver/fiber/shapes.py)") from None
 
 
 def _int_setting(text: str, key: str, path: Path) -> int:
