@@ -237,10 +237,10 @@ def cmd_plan(args) -> int:
     auto = [(t, e) for t, e in zip(plan.tasks, estimates)
             if t.kind in ("direct", "patch") and plan.model_spec(t).capabilities.spot_checks]
     if auto:  # what auto expects per scene, the full-wave cost it avoids, and its spot checks
-        from wavebrdf.jobs.spot_checks import spot_check_summary
+        from wavebrdf.jobs.spot_checks import expectation_scene, spot_check_summary
         from wavebrdf.solver.auto import plan_summary
 
-        choices = [plan.model_spec(t).build().choice(plan.model_scene(t)) for t, _ in auto]
+        choices = [plan.model_spec(t).build().choice(expectation_scene(plan, t)) for t, _ in auto]
         print(plan_summary(choices, [e.seconds for _, e in auto]))
         checks = spot_check_summary(plan, estimates)
         if checks:
@@ -325,14 +325,16 @@ def cmd_inspect(args) -> int:
 def _print_validity(plan) -> None:
     """The sampling-validity warnings (and refusals) each task's model would carry (Model.validity),
     once per message with the tasks that carry it."""
+    from wavebrdf.jobs.spot_checks import expectation_scene
+
     models, notes = {}, {}
     for task in plan.tasks:
         if task.kind not in ("direct", "patch", "fiber"):
             continue
         spec = plan.model_spec(task)
         model = models.setdefault(id(spec), spec.build())
-        try:
-            found = model.validity(plan.model_scene(task))
+        try:  # a task with spot checks: the rung expected for its series (jobs/spot_checks.py)
+            found = model.validity(plan.model_scene(task), *([expectation_scene(plan, task)] if task.checks else []))
         except ValueError as exc:
             found = [f"refused: {exc}"]
         for message in found:

@@ -102,6 +102,7 @@ class Plan:
     _geometry: dict = field(default_factory=dict, repr=False)  # built height fields / cross sections
     tasks_per_node: int | None = None  # set by `plan`/`run` to what they check memory with (None: from [run])
     spot_check_units: dict = field(default_factory=dict, repr=False)  # case → auto's CheckUnits (jobs/spot_checks.py)
+    series_heads: dict = field(default_factory=dict, repr=False)  # task → first task of its series (spot checks)
 
     @property
     def study(self) -> Study:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-__all__ = ["add_spot_checks", "spot_check_summary", "twin_of"]
+__all__ = ["add_spot_checks", "expectation_scene", "spot_check_summary", "twin_of"]
 
 
 def _series(task) -> tuple:
@@ -38,11 +38,20 @@ def add_spot_checks(plan) -> None:
         for unit in picked:
             ids.append(len(tasks))
             tasks.append(replace(tasks[unit.task], id=len(tasks), kind="check", depends=(), checks=()))
+        heads = {}
         for task in decided:
             checks = tuple(ids[i] for i in represented.get(task.id, ()))
             if checks:
                 tasks[task.id] = replace(task, checks=checks, depends=task.depends + checks)
+                plan.series_heads[task.id] = heads.setdefault(_series(task), task.id)
     plan.tasks = tasks
+
+
+def expectation_scene(plan, task):
+    """The scene whose rule choice stands for ``task``'s expected rung in ``plan``: the first task
+    of its series for a task with spot checks (its series takes one rung), else its own."""
+    head = plan.series_heads.get(task.id)
+    return plan.model_scene(task if head is None else plan.tasks[head])
 
 
 def twin_of(plan, task):

@@ -26,7 +26,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from wavebrdf.jobs.spot_checks import twin_of
+from wavebrdf.jobs.spot_checks import expectation_scene, twin_of
 from wavebrdf.jobs.steering import estimate_synthesis, synthesize_task
 from wavebrdf.solver.farfield import BRDFResult, albedo, combine_polarizations
 from wavebrdf.solver.models import Estimate, Model
@@ -119,7 +119,10 @@ def _run_patch(ctx, plan, task, pool, parts):
 
 
 def _estimate_model(plan, task) -> Estimate:
-    return plan.model_spec(task).build().estimate(plan.model_scene(task))
+    model = plan.model_spec(task).build()
+    if task.checks:  # the rung its series is expected to take (jobs/spot_checks.py)
+        return model.estimate(plan.model_scene(task), like=expectation_scene(plan, task))
+    return model.estimate(plan.model_scene(task))
 
 
 def _estimate_check(plan, task) -> Estimate:

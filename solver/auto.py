@@ -417,23 +417,26 @@ class AutoModel(Model):
             _CHOICES[key] = choose(scene, self.options.tolerance)
         return _CHOICES[key]
 
-    def validity(self, scene) -> list[str]:
-        """The sampling validity of the rung the rule expects for ``scene`` (what ``plan`` shows;
-        spot checks and the escalation check may run others, each through its own validity)."""
+    def validity(self, scene, like: SurfaceScene | None = None) -> list[str]:
+        """The sampling validity of the rung the rule expects for ``scene`` (or, given, for ``like``:
+        the scene whose choice stands for it) — what ``plan`` shows; spot checks and the escalation
+        check may run others, each through its own validity."""
         if not isinstance(scene, SurfaceScene):
             return []
-        return self.rung(self.choice(scene).model).validity(scene)
+        return self.rung(self.choice(like or scene).model).validity(scene)
 
     def incident_fields(self, scene: SurfaceScene, points):
         """The full-wave reference's beam: the steerable rungs' patch fields are normalized to the
         same incident power within O((λ/πw)²), so one beam serves sub-areas of mixed rungs."""
         return self.rung(REFERENCE).incident_fields(scene, points)
 
-    def estimate(self, scene: SurfaceScene) -> Estimate:
-        """The chosen rung's estimate, plus the pilot and the escalation check's coarse runs."""
+    def estimate(self, scene: SurfaceScene, like: SurfaceScene | None = None) -> Estimate:
+        """The chosen rung's estimate, plus the pilot and the escalation check's coarse runs; with
+        ``like``, the rung chosen for that scene (another wavelength of the same direction or
+        sub-area: a series with spot checks takes one rung) estimated on ``scene``."""
         from wavebrdf.solver.farfield import HemisphereGrid
 
-        choice = self.choice(scene)
+        choice = self.choice(like or scene)
         chosen = self.rung(choice.model).estimate(budgeted(scene))
         extra = PILOT_SECONDS
         up = next_rung_up(choice, choice.model) if self.options.check and choice.model != REFERENCE else None
@@ -474,11 +477,14 @@ class AutoModel(Model):
 
     def checked_rungs(self, scene: SurfaceScene) -> list[str]:
         """The candidate rungs a spot check of ``scene`` measures: every approximation estimated at
-        most :data:`CHECKED_RUNG_SHARE` of the full wave's time, cheapest first."""
+        most :data:`CHECKED_RUNG_SHARE` of the full wave's time and within the task's memory budget,
+        cheapest first."""
         choice = self.choice(scene)
         full = choice.avoided.seconds if choice.avoided is not None else choice.candidates.get(REFERENCE, (0, np.inf))[1]
+        budget = memory_budget_bytes(budgeted(scene))
         return [n for n, (_, seconds) in sorted(choice.candidates.items(), key=lambda kv: kv[1][1])
-                if n != REFERENCE and seconds <= CHECKED_RUNG_SHARE * full]
+                if n != REFERENCE and seconds <= CHECKED_RUNG_SHARE * full
+                and self.rung(n).estimate(scene).memory_bytes <= budget]
 
     def estimate_spot_check(self, scene: SurfaceScene) -> Estimate:
         """A spot check: the full wave and every checked rung on ``scene``."""
