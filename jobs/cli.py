@@ -317,6 +317,7 @@ def cmd_inspect(args) -> int:
             for w in sorted({w for w in warns if w}):
                 print(f"  warning: {w}")
             _print_spot_checks(tasks)
+            _print_spectral_seams(ds, tasks)
         if args.config:
             print("config:\n" + ds.config)
     return 0
@@ -367,6 +368,46 @@ def _print_spot_checks(tasks: dict) -> None:
     worst = f"; worst measured error of the rung taken {np.nanmax(measured_errors):.3g}" if np.any(
         np.isfinite(measured_errors)) else ""
     print("  rungs run: " + ", ".join(f"{m} ×{k}" for m, k in sorted(ran.items(), key=lambda kv: -kv[1])) + worst)
+
+
+def _print_spectral_seams(ds, tasks: dict) -> None:
+    """Where the rung a direction's result came from changes between neighbouring wavelengths
+    (``auto`` with ``mix_wavelengths``): the albedo step there beside the median step between
+    neighbours of one rung (the spectrum's own smoothness)."""
+    text = lambda column: [x.decode() if isinstance(x, bytes) else str(x) for x in tasks.get(column, [])]  # noqa: E731
+    kinds, models = text("kind"), text("model")
+    if ds.kind != "surface" or "check" not in kinds:
+        return
+    number = lambda column: np.asarray(tasks.get(column, []), dtype=int)  # noqa: E731
+    case, wl, inc, basic = number("case"), number("wavelength_index"), number("incidence_index"), number("basic_index")
+    rungs = {}  # (case, λ index, incidence) → the rung(s) its result came from
+    for i, kind in enumerate(kinds):
+        if kind == "direct":
+            rungs[(case[i], wl[i], inc[i])] = models[i]
+    patches = {}
+    for i, kind in enumerate(kinds):
+        if kind == "patch":
+            patches.setdefault((case[i], wl[i], basic[i]), []).append(models[i])
+    for i, kind in enumerate(kinds):
+        if kind == "synth":
+            rungs[(case[i], wl[i], inc[i])] = "+".join(sorted(set(patches.get((case[i], wl[i], basic[i]), []))))
+    albedo = np.asarray(ds.albedo)
+    lead = albedo.shape[:-2]
+    lams = ds.coords["wavelength_um"]
+    seams, smooth = [], []
+    for c, d in sorted({(c, d) for c, _, d in rungs}):
+        series = albedo[np.unravel_index(c, lead) if lead else ()][:, d]
+        for k in range(len(lams) - 1):
+            a, b = rungs.get((c, k, d)), rungs.get((c, k + 1, d))
+            step = abs(float(series[k + 1] - series[k]))
+            (smooth if a == b else seams).append((step, c, d, k, a, b))
+    if not seams:
+        return
+    baseline = float(np.median([x[0] for x in smooth])) if smooth else float("nan")
+    print(f"spectral seams (the rung changes between neighbouring wavelengths; median albedo step elsewhere "
+          f"{baseline:.3g}):")
+    for step, c, d, k, a, b in seams[:20]:
+        print(f"  case {c}, incidence #{d}: {a} → {b} between λ {lams[k]:g} and {lams[k + 1]:g} µm: albedo step {step:.3g}")
 
 
 def _print_summary_table(ds, coords) -> None:

@@ -211,3 +211,21 @@ def test_a_steered_auto_study_checks_sub_areas_among_coherent_rungs(tmp_path):
         assert scene.coherent
         assert all(model_class(n).capabilities.steerable for n in model.checked_rungs(scene))
         assert model.choice(scene).model in {n for n in model.choice(scene).candidates}
+
+
+@pytest.mark.slow
+def test_mixed_wavelengths_report_their_spectral_seams(tmp_path):
+    """``mix_wavelengths = true``: each wavelength takes the rung measured at its nearest checked λ,
+    and ``inspect`` lists every place where a direction's rung changes along the spectrum."""
+    path = tmp_path / "mixed.toml"
+    path.write_text(STUDY.format(name="mixed", model="auto", rms=0.01, options="tolerance = 0.05\nspot_check_share = 1.0\n"
+                                 "mix_wavelengths = true")
+                    .replace("wavelengths_um = [0.5, 0.65]", "wavelengths_um = [0.5, 0.6, 0.7]")
+                    .replace("directions_deg = [[0, 0], [25, 0]]", "directions_deg = [[0, 0], [60, 0]]"))
+    run(tmp_path, "run", path, "-q", "--no-render")
+    rows = task_table(tmp_path / "mixed.h5")
+    rung = {(rows["wavelength_index"][i], rows["incidence_index"][i]): rows["model"][i]
+            for i, k in enumerate(rows["kind"]) if k == "direct"}
+    changes = sum(rung[(k, d)] != rung[(k + 1, d)] for k in range(2) for d in range(2))
+    shown = run(tmp_path, "inspect", "mixed.h5")
+    assert shown.count(" → ") == changes and (changes == 0) == ("spectral seams" not in shown), shown
