@@ -446,3 +446,33 @@ def test_plan_numbers_stay_short(value, text):
 
     assert format_number(value) == text
     assert format_bytes(value * 2**30) == f"{float(text):.3g} GiB" and format_bytes(9.4 * 2**30) == "9.4 GiB"
+
+
+@pytest.mark.parametrize("model", ["kirchhoff", "po", "ghs", "ohs", "ws-v", "wm", "gm"])  # gs: right already
+def test_the_reported_largest_buffer_covers_every_buffer_the_run_allocates(cl_ctx, monkeypatch, model):
+    """Each model's run, on a smooth and a rough scene, allocates no device buffer larger than its
+    estimate says (the reference: the sizes pyopencl is asked for), and the estimate is not more
+    than 1.5 times the largest one."""
+    import pyopencl as cl
+
+    from wavebrdf.jobs.plan import plan_study
+
+    sizes = []
+    real_buffer = cl.Buffer
+
+    def recording(context, flags, size=0, hostbuf=None):
+        sizes.append(size if hostbuf is None else np.asarray(hostbuf).nbytes)
+        return real_buffer(context, flags, size, hostbuf=hostbuf) if hostbuf is not None else \
+            real_buffer(context, flags, size)
+
+    monkeypatch.setattr(cl, "Buffer", recording)
+    options = {"rays": 1 << 17} if model in ("gs", "gm", "wm") else {}
+    for rms, cells, resolution in ((0.02, 12, 16), (0.25, 32, 64)):
+        config = {**copy.deepcopy(BASE), "model": {"name": model, **options}, "output": {"resolution": resolution},
+                  "surface": {**SURFACE, "rms_height_um": rms, "cells": cells, "size_um": 0.25 * cells}}
+        plan = plan_study(load_config(config))
+        task = plan.tasks[0]
+        reported = plan.estimate(task).largest_buffer_bytes
+        sizes.clear()
+        plan.model_spec(task).build().run(cl_ctx, plan.scene(task))
+        assert max(sizes) <= reported <= 1.5 * max(sizes), (rms, max(sizes), reported)

@@ -145,7 +145,11 @@ class GSModel(Model):
         memory = 120e6 + kept + batch * 60.0 + 16.0 * (n + 1) ** 2 + 64.0 * res * res
         device = (kept * 0.9 + records + batch * (9 + 2 * real.itemsize) + real.itemsize * (n + 1) ** 2
                   + 4.0 * res * res)
-        largest = max(batch * 1.25 * bounces * 3 * real.itemsize, real.itemsize * (n + 1) ** 2, 4.0 * res * res)
+        # the record buffers of a batch: 1.25 × the records per ray, and for the first batch of a
+        # multiple-scattering trace (its depth not yet measured) 1.625 per ray (raytrace.trace_paths)
+        per_ray = max(1.25 * bounces, 1.625 if self.max_depth > 1 else 1.0)
+        largest = max(batch * per_ray * 3 * real.itemsize + 64 * 3 * real.itemsize, real.itemsize * (n + 1) ** 2,
+                      4.0 * res * res)
         return Estimate(memory, seconds, f"{rays} rays, ~{cells:.0f} cells per segment, {bounces:.2f} bounces",
                         device_bytes=device, largest_buffer_bytes=largest)
 
