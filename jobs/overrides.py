@@ -128,10 +128,11 @@ def apply_overrides(data: dict, overrides: dict | Iterable[tuple[str, Any]]) -> 
             if not isinstance(table, dict):
                 where = ".".join(path[: depth + 1])
                 raise _error(f"override {key} = {_show(value)}: {where} is {_show(table)}, not a table")
+        check_nesting(value, f"override {key}: ")
         try:
             _value(value)
         except TypeError as exc:
-            raise _error(f"override {key} = {value!r}: {exc}") from None
+            raise _error(f"override {key} = {_show(value)}: {exc}") from None
         _merge(table, path[-1], value)
     return out
 
@@ -140,6 +141,8 @@ def overridden_text(text: str, overrides, path: Path | None = None) -> str:
     """Config ``text`` with ``overrides`` applied, as TOML text with a provenance header."""
     data = parse_toml(text, f"{path}: " if path else "")
     items = list(overrides.items() if isinstance(overrides, dict) else overrides)
+    for key, value in items:  # before anything recurses into them
+        check_nesting(value, f"override {key}: ")
     header = (f"# {path or 'config'} with overrides: "
               + "; ".join(f"{key} = {_show(value)}" for key, value in items))
     return f"{' '.join(header.splitlines())}\n{dump_toml(apply_overrides(data, items))}"

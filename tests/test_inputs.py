@@ -328,6 +328,20 @@ def test_a_config_nested_1200_deep_is_refused_in_one_line(tmp_path, capsys, text
                   tmp_path, "--set surface.x", "nest")
 
 
+def test_python_api_configs_and_overrides_nested_1200_deep_are_refused():
+    deep: list = []
+    for _ in range(1200):
+        deep = [deep]
+    with pytest.raises(ConfigError, match=r"^override surface.x: tables or arrays nested more than 32 levels"):
+        load_config(_default_config(), overrides={"surface.x": deep})
+    with pytest.raises(ConfigError, match=r"^config dict: tables or arrays nested more than 32 levels"):
+        load_config({**copy.deepcopy(BASE), "surface": {"x": deep}})
+
+
+def _default_config() -> Path:
+    return Path(__file__).resolve().parents[1] / "configs" / "default.toml"
+
+
 def test_render_decades_beyond_the_range_are_refused_and_tiny_data_keep_a_positive_scale(tmp_path, capsys):
     config = {**copy.deepcopy(FIBER), "study": {"name": "f", "output": str(tmp_path / "f.h5")}}
     path = tmp_path / "f.toml"
