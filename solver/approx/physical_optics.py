@@ -209,6 +209,7 @@ class POModel(FootprintModel):
     """``[model] name = "po"``: vector physical optics, first order (approx.md §3.6)."""
 
     name = "po"
+    sampling = frozenset({"lattice", "pixels", "realization"})
     Options = POOptions
     capabilities = Capabilities(takes="height_field", returns="fields", polarized=True, steerable=True,
                                 reciprocal=False, conserves_energy=False)
