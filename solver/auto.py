@@ -446,9 +446,8 @@ class AutoModel(Model):
         # escalation may run any rung predicted more accurate: the memory to plan for is the largest
         reachable = [n for n, (e, _) in choice.candidates.items()
                      if n != REFERENCE and np.isfinite(e) and e < choice.candidates.get(choice.model, (0.0,))[0]]
-        memory = max([chosen.memory_bytes] + [self.rung(n).estimate(scene).memory_bytes
-                                              for n in (reachable if self.options.check else [])])
-        chosen = dataclasses.replace(chosen, seconds=chosen.seconds + extra, memory_bytes=memory)
+        others = [self.rung(n).estimate(scene) for n in (reachable if self.options.check else [])]
+        chosen = dataclasses.replace(_largest_of([chosen] + others), seconds=chosen.seconds + extra, detail=chosen.detail)
         avoided = "" if choice.avoided is None else (
             f"; avoids {REFERENCE} ≈ {choice.avoided.seconds:.3g} s, {choice.avoided.memory_bytes / 2**30:.2f} GiB")
         missed = "" if choice.within else f"; cannot meet tolerance {self.options.tolerance:g} within the budget"
@@ -489,10 +488,10 @@ class AutoModel(Model):
     def estimate_spot_check(self, scene: SurfaceScene) -> Estimate:
         """A spot check: the full wave and every checked rung on ``scene``."""
         full = self.rung(REFERENCE).estimate(budgeted(scene))
-        rungs = [self.rung(n).estimate(scene) for n in self.checked_rungs(scene)]
-        return Estimate(max([full.memory_bytes] + [e.memory_bytes for e in rungs]),
-                        full.seconds + sum(e.seconds for e in rungs),
-                        f"spot check: {REFERENCE} + {', '.join(self.checked_rungs(scene)) or 'no rung'}; {full.detail}")
+        names = self.checked_rungs(scene)
+        rungs = [self.rung(n).estimate(scene) for n in names]
+        return dataclasses.replace(_largest_of([full] + rungs), seconds=full.seconds + sum(e.seconds for e in rungs),
+                                   detail=f"spot check: {REFERENCE} + {', '.join(names) or 'no rung'}; {full.detail}")
 
     def spot_check(self, ctx, scene: SurfaceScene):
         """The full wave on ``scene`` (settings fitted to its budget) and every checked rung measured
@@ -608,6 +607,18 @@ class AutoModel(Model):
         result.diagnostics.update(model=name, model_reason=reason,
                                   model_predicted_error=choice.candidates.get(name, (0.0,))[0])
         return result
+
+
+def _largest_of(estimates: list[Estimate]) -> Estimate:
+    """An estimate whose memory and device figures are the largest of ``estimates`` (rungs run one
+    after another in one task); time and detail those of the first."""
+    def most(values):
+        known = [v for v in values if v is not None]
+        return max(known) if known else None
+
+    return dataclasses.replace(estimates[0], memory_bytes=max(e.memory_bytes for e in estimates),
+                               device_bytes=most(e.device_bytes for e in estimates),
+                               largest_buffer_bytes=most(e.largest_buffer_bytes for e in estimates))
 
 
 def _warn_tolerance(reason: str) -> None:

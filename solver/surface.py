@@ -138,23 +138,26 @@ def _sampled_statistics(ensemble: GaussianEnsemble, cells: int, size_um: float) 
     slope = 4 * np.sin(0.5 * k * d) ** 2 / d**2
     half = np.cos(0.5 * k * d) ** 2
     quarter = np.isclose(np.mod(ensemble.angle_deg, 90.0), 0.0) or np.isclose(np.mod(ensemble.angle_deg, 90.0), 90.0)
-    if tx == ty or quarter:
-        turned = tx != ty and np.isclose(np.mod(ensemble.angle_deg, 180.0), 90.0)
-        ax, ay = (ty, tx) if turned else (tx, ty)
-        px, py = np.exp(-(k * ax) ** 2 / 4), np.exp(-(k * ay) ** 2 / 4)  # psd = px ⊗ py, minus the k = 0 term
-        total = px.sum() * py.sum() - 1.0
-        acf_x = (phase @ px * py.sum() - 1.0) / total
-        acf_y = (phase @ py * px.sum() - 1.0) / total
-        grad = ((slope @ px) * (half @ py) + (half @ px) * (slope @ py)) / total  # k = 0 adds nothing
-    else:
-        kx, ky = np.meshgrid(k, k, indexing="ij")
-        kr, ks = ensemble.rotated(kx, ky)
-        psd = np.exp(-((kr * tx) ** 2 + (ks * ty) ** 2) / 4)
-        psd[0, 0] = 0.0
-        total = psd.sum()
-        acf_x = phase @ psd.sum(axis=1) / total
-        acf_y = phase @ psd.sum(axis=0) / total
-        grad = float(np.sum(psd * (slope[:, None] * half[None, :] + half[:, None] * slope[None, :]))) / total
+    with np.errstate(invalid="ignore", divide="ignore"):  # total = 0: handled below
+        if tx == ty or quarter:
+            turned = tx != ty and np.isclose(np.mod(ensemble.angle_deg, 180.0), 90.0)
+            ax, ay = (ty, tx) if turned else (tx, ty)
+            px, py = np.exp(-(k * ax) ** 2 / 4), np.exp(-(k * ay) ** 2 / 4)  # psd = px ⊗ py, minus the k = 0 term
+            total = px.sum() * py.sum() - 1.0
+            acf_x = (phase @ px * py.sum() - 1.0) / total
+            acf_y = (phase @ py * px.sum() - 1.0) / total
+            grad = ((slope @ px) * (half @ py) + (half @ px) * (slope @ py)) / total  # k = 0 adds nothing
+        else:
+            kx, ky = np.meshgrid(k, k, indexing="ij")
+            kr, ks = ensemble.rotated(kx, ky)
+            psd = np.exp(-((kr * tx) ** 2 + (ks * ty) ** 2) / 4)
+            psd[0, 0] = 0.0
+            total = psd.sum()
+            acf_x = phase @ psd.sum(axis=1) / total
+            acf_y = phase @ psd.sum(axis=0) / total
+            grad = float(np.sum(psd * (slope[:, None] * half[None, :] + half[:, None] * slope[None, :]))) / total
+    if not total > 0:  # the grid holds none of the ensemble's power beyond the mean (T ≫ the patch)
+        return {"correlation_x_um": float("inf"), "correlation_y_um": float("inf"), "rms_slope": 0.0}
     level = np.exp(-1.0)
     return {"correlation_x_um": float(_first_crossing(acf_x, level) * d),
             "correlation_y_um": float(_first_crossing(acf_y, level) * d),

@@ -213,7 +213,9 @@ def _check_realization(model: str, scene) -> list[str]:
     cells = ensemble.minimal_cells(surface.size_um, STATISTICS_TOLERANCE, start=surface.cells)
     names = {"correlation_x_um": "correlation length along x (µm)", "correlation_y_um": "along y (µm)",
              "rms_slope": "rms slope"}
-    pairs = ", ".join(f"{names[key]} {realized[key]:.3g} vs {wanted[key]:.3g}" for key in wanted)
+    pairs = ", ".join(f"{names[key]} {realized[key]:.3g} vs {wanted[key]:.3g}" if np.isfinite(realized[key])
+                      else f"{names[key]} beyond the patch (the autocorrelation stays above 1/e) vs {wanted[key]:.3g}"
+                      for key in wanted)
     return [f"{model}: the realization on {surface.cells} cells of {surface.spacing_um:.4g} µm does not have the "
             f"requested statistics (expected on this grid vs the ensemble: {pairs}; tolerance "
             f"{STATISTICS_TOLERANCE:.0%}): " + (

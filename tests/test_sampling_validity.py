@@ -230,3 +230,14 @@ def test_sampling_warnings_reach_plan_task_table_and_inspect(tmp_path):
     assert "requested statistics" in (stored.decode() if isinstance(stored, bytes) else stored)
     shown = subprocess.run(wavebrdf + ["inspect", "coarse.h5"], cwd=tmp_path, capture_output=True, text=True)
     assert "requested statistics" in shown.stdout and "surface.cells ≥" in shown.stdout
+
+
+def test_a_correlation_far_beyond_the_patch_is_warned_with_the_patch_fix():
+    """T = 10⁶ µm on a 3 µm patch: the grid holds none of the ensemble's power beyond the mean; the
+    warning says so without NaN and asks for a larger patch, not more cells."""
+    surface = generate("gaussian", cells=64, size_um=3.0, seed=1, rms_height_um=0.01, correlation_um=1e6)
+    scene = SurfaceScene(surface, 0.5, complex(1.5), 0.2, 0.0, 0.8, HemisphereGrid(32))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        found = get_model("kirchhoff").validity(scene)
+    assert len(found) == 1 and "nan" not in found[0] and "larger surface.size_um" in found[0], found
