@@ -1027,7 +1027,7 @@ def _check_physics(study: Study) -> None:
             raise _rectangle_outside_steering(f"file = {_fmt(str(study.surface.file))} holds "
                                               f"{surface.z.shape[0]}x{surface.z.shape[1]} heights")
         if study.steering is None:
-            _check_model_scene(study, surface, index[0])
+            _check_model_scene(study, surface, index)
     if study.fiber is not None:
         from wavebrdf.solver.fiber import ShapeError
 
@@ -1101,20 +1101,27 @@ def _check_surface_size(study: Study) -> None:
                     "([run] memory_gb)")
 
 
-def _check_model_scene(study: Study, surface, index: complex) -> None:
-    """The model's own checks (Model.check) on the case's first scene."""
+def _check_model_scene(study: Study, surface, index) -> None:
+    """The model's own checks (Model.check: its options and the sampling refusals) at the case's
+    shortest and longest wavelength, each with the most oblique direction and the first one
+    (the lattice and lobe limits are hardest at short λ and large θ_i; ``index``: n − jκ at every
+    wavelength)."""
     from wavebrdf.solver.farfield import HemisphereGrid
     from wavebrdf.solver.models import SurfaceScene
 
     ill = study.illumination
-    theta, phi = np.deg2rad(ill.directions_deg[0])
-    scene = SurfaceScene(surface, ill.wavelengths_um[0], complex(index), float(theta), float(phi), ill.waist_um,
-                         HemisphereGrid(study.output_options.resolution), study.material.exterior_index, ill.beam,
-                         study.model.precision)
-    try:
-        study.model.build().check(scene)
-    except ValueError as exc:
-        raise ConfigError(str(exc)) from None
+    lams = np.asarray(ill.wavelengths_um, dtype=float)
+    directions = np.deg2rad(np.asarray(ill.directions_deg, dtype=float))
+    model, grid = study.model.build(), HemisphereGrid(study.output_options.resolution)
+    for w in sorted({int(np.argmin(lams)), int(np.argmax(lams))}):
+        for d in sorted({0, int(np.argmax(directions[:, 0]))}):
+            theta, phi = directions[d]
+            scene = SurfaceScene(surface, float(lams[w]), complex(index[w]), float(theta), float(phi), ill.waist_um,
+                                 grid, study.material.exterior_index, ill.beam, study.model.precision)
+            try:
+                model.check(scene)
+            except ValueError as exc:
+                raise ConfigError(str(exc)) from None
 
 
 def _set_dotted(data: dict, dotted: str, value: Any) -> None:

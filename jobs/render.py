@@ -19,6 +19,7 @@ from pathlib import Path
 
 from wavebrdf.jobs.parts import StorageError, storage_error
 from wavebrdf.jobs.pictures import DECADES, KINDS, PictureOptions, pictures
+from wavebrdf.jobs.pictures.common import MAX_DECADES
 from wavebrdf.jobs.store import Dataset
 
 __all__ = ["MAX_IMAGES", "RenderedPictures", "add_render_flags", "render_dataset", "render_options"]
@@ -164,7 +165,8 @@ def add_render_flags(p: argparse.ArgumentParser) -> None:
                    help="indices along incidence (fibers: theta_i) for the per-direction pictures (default: all)")
     p.add_argument("--max-images", type=int, default=MAX_IMAGES, metavar="N",
                    help=f"draw at most N pictures (default {MAX_IMAGES}); a warning says how many were left out")
-    p.add_argument("--decades", type=float, default=DECADES, help=f"log range below the peak (default {DECADES:g})")
+    p.add_argument("--decades", type=float, default=DECADES,
+                   help=f"log range below the peak, in (0, {MAX_DECADES:g}] (default {DECADES:g})")
     p.add_argument("--limits", type=float, nargs=2, metavar=("VMIN", "VMAX"),
                    help="fixed log colour/radius range in the variable's units (1/sr, 1/rad) instead of --decades")
     p.add_argument("--direction", type=direction, action="append", dest="directions", metavar="THETA,PHI",

@@ -443,7 +443,7 @@ def test_plan_reads_the_index_once_per_case_whatever_the_number_of_wavelengths(m
     monkeypatch.setattr(plan_module, "_material_index", lambda spec, wl: asked.append(len(wl)) or real(spec, wl))
     for n in (50, 200):
         asked.clear()
-        config = {**copy.deepcopy(BASE), "surface": {"generator": "flat", "size_um": 3.0, "cells": 12},
+        config = {**copy.deepcopy(BASE), "surface": {"generator": "flat", "size_um": 3.0, "cells": 24},
                   "illumination": {**ILLUMINATION, "wavelengths_um": {"start": 0.4, "stop": 0.8, "count": n},
                                    "directions_deg": [[0, 0], [30, 0]]}}
         plan = plan_module.plan_study(load_config(config))

@@ -241,3 +241,22 @@ def test_a_correlation_far_beyond_the_patch_is_warned_with_the_patch_fix():
         warnings.simplefilter("error", RuntimeWarning)
         found = get_model("kirchhoff").validity(scene)
     assert len(found) == 1 and "nan" not in found[0] and "larger surface.size_um" in found[0], found
+
+
+def test_a_lattice_that_aliases_only_at_another_wavelength_and_angle_is_refused_at_load(tmp_path):
+    """The first scene (λ 0.7 µm, normal incidence) is resolved; the case's shortest wavelength at
+    its most oblique direction (0.55 µm, 30°) aliases: refused when the config loads, not as a
+    failed task."""
+    from wavebrdf.jobs.config import ConfigError, load_config
+
+    config = tmp_path / "alias.toml"
+    config.write_text(
+        '[study]\nname = "alias"\noutput = "alias.h5"\n'
+        '[surface]\ngenerator = "flat"\nsize_um = 10.0\ncells = 28\n[material]\nn = 1.5\n'
+        '[illumination]\nwavelengths_um = [0.7, 0.55]\ndirections_deg = [[0, 0], [30, 0]]\nwaist_um = 1.9\n'
+        '[model]\nname = "kirchhoff"\n[output]\nresolution = 64\n')
+    with pytest.raises(ConfigError, match="cells"):
+        load_config(config)
+    fine = tmp_path / "fine.toml"
+    fine.write_text(config.read_text().replace("cells = 28", "cells = 40"))
+    load_config(fine)  # resolved at every wavelength and direction
