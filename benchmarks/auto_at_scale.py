@@ -1,0 +1,196 @@
+"""``auto`` where users work: a reduced steered study at the reference simulator's discretization
+and waist regime, run end to end all-full-wave and with ``auto`` (its spot checks included), each
+with ``wavebrdf run`` in a child process, CPU measured from the children's resource usage.
+
+    .venv/bin/python benchmarks/auto_at_scale.py bumpy        # rough Al bumps, rms slope ~0.14: auto simplifies
+    .venv/bin/python benchmarks/auto_at_scale.py pits         # spherical pits at λ scale: auto must choose BEM
+    .venv/bin/python benchmarks/auto_at_scale.py bumpy --tolerance 0.05 0.01 --keep out/auto_at_scale
+    .venv/bin/python benchmarks/auto_at_scale.py single       # one-task studies at waist 5λ: rule vs measured
+
+Regime (both surfaces): 2 × 2 sub-areas of 5.4 µm at d = 0.03 µm (≤ λ/16 at λ ≥ 0.48 µm; 129 600
+cells, ~130 000 unknowns each), shifted by the waist 1.5 µm (≥ 2.5 λ), the reference's aluminium
+``wvl.txt``, exact beams, normal incidence plus the reference's four neighbouring ``wi.txt``
+directions (one basic direction), 256² output. ``bumpy``: 3 wavelengths (0.5, 0.55, 0.6 µm): 12
+patch solves. ``pits``: 1 wavelength (0.5 µm): 4 patch solves.
+
+``single``: three one-task scenes not in the trade table (smooth, bumpy, steep), aluminium at
+λ = 0.5 µm, waist 2.5 µm (5 λ), θ_i = 20°, 9 µm patches at d = 0.05 µm (λ/10; |k₂|d = 3.9 ≤ 4), 256²
+output: every rung and AIM BEM (``compare_scenes``), the rule's predicted error of each rung beside
+its measured error, and the rung ``auto`` (the rule: one task has no spot checks) picks.
+
+Printed per direction and wavelength: the speckle-averaged relative L2 over the lobe of the
+``auto`` dataset's BRDF against the all-full-wave one (per polarization and unpolarized, raw
+beside), the rungs ``auto`` ran per patch task, and the CPU of each run (user + system of the
+``wavebrdf run`` child) with their ratio.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+SURFACES = {
+    "bumpy": ('generator = "gaussian"\nrms_height_um = 0.1\ncorrelation_um = 1.0\nseed = 7', [0.5, 0.55, 0.6]),
+    "pits": ('generator = "spherical-pits"\nradius_um = 0.4\ndepth_um = 0.3\nperiod_um = 1.0', [0.5]),
+}
+
+STUDY = """[study]
+name = "{name}"
+output = "{name}.h5"
+[surface]
+{surface}
+size_um = 6.9
+cells = 230
+[material]
+file = "{root}/configs/data/aluminium_wvl.txt"
+[illumination]
+wavelengths_um = {wavelengths}
+directions_file = "{root}/configs/data/reference_subareas_wi.txt"
+angles = "rad"
+waist_um = 1.5
+beam = "exact"
+[model]
+{model}
+[output]
+resolution = 256
+per_polarization = true
+[steering]
+patches = [2, 2]
+patch_size_um = 5.4
+shift_um = 1.5
+"""
+
+
+def run_study(folder: Path, name: str, surface: str, wavelengths: list[float], model: str) -> dict:
+    """``wavebrdf run`` of one study in a child process: its CPU seconds (user + system), wall time."""
+    config = folder / f"{name}.toml"
+    config.write_text(STUDY.format(name=name, surface=surface, wavelengths=wavelengths, model=model, root=ROOT))
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    done = subprocess.run([sys.executable, "-m", "wavebrdf", "run", str(config), "--no-render", "-q"],
+                          cwd=folder, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if done.returncode != 0:
+        raise SystemExit(f"{name}: wavebrdf run failed:\n{done.stdout[-3000:]}\n{done.stderr[-3000:]}")
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return {"name": name, "cpu_s": cpu, "wall_s": wall, "path": folder / f"{name}.h5", "log": done.stdout + done.stderr}
+
+
+def compare(auto_path: Path, bem_path: Path) -> list[dict]:
+    """Per (wavelength, direction): the auto dataset's errors against the all-BEM one."""
+    from wavebrdf.solver.farfield import HemisphereGrid
+    from wavebrdf.solver.metrics import speckle_errors, speckle_sigma_u
+
+    rows = []
+    with h5py.File(auto_path) as a, h5py.File(bem_path) as b:
+        lams, theta, phi = b["wavelength_um"][()], b["theta_i"][()], b["phi_i"][()]
+        grid = HemisphereGrid(a["brdf_sp"].shape[-1])
+        for w, lam in enumerate(lams):
+            for d in range(len(theta)):
+                errors = speckle_errors(a["brdf_sp"][w, d], b["brdf_sp"][w, d], grid, speckle_sigma_u(lam, 1.5, grid))
+                rows.append({"wavelength_um": float(lam), "theta_i": float(theta[d]), "phi_i": float(phi[d]),
+                             "albedo_auto": float(a["albedo"][w, d]), "albedo_bem": float(b["albedo"][w, d]), **errors})
+    return rows
+
+
+def rungs(path: Path) -> dict[str, int]:
+    with h5py.File(path) as h5:
+        kinds = [k.decode() for k in h5["tasks/kind"][()]]
+        models = [m.decode() for m in h5["tasks/model"][()]]
+    out = {}
+    for kind, model in zip(kinds, models):
+        if kind in ("patch", "check"):
+            out[f"{kind}:{model}"] = out.get(f"{kind}:{model}", 0) + 1
+    return out
+
+
+SINGLE = {  # not in the trade table: new generators' parameters, seeds, waist and patch
+    "smooth": ("gaussian", dict(rms_height_um=0.01, correlation_um=1.2, seed=41)),
+    "bumpy": ("gaussian", dict(rms_height_um=0.1, correlation_um=1.0, seed=42)),
+    "steep": ("hemispheres", dict(radius_um=0.5, fill=0.3, placement="random", seed=43)),
+}
+
+
+def single_task_studies(tolerances: list[float]) -> int:
+    """The one-task scenes of ``SINGLE`` through every rung and BEM, with the rule's predictions."""
+    from wavebrdf.jobs.compare import compare_scenes
+    from wavebrdf.solver.auto import REFERENCE, candidate_models, choose, default_rule, measure_scene
+    from wavebrdf.solver.farfield import HemisphereGrid
+    from wavebrdf.solver.materials import Material
+    from wavebrdf.solver.models import SurfaceScene
+    from wavebrdf.solver.surface import generate
+
+    lam = 0.5
+    index = complex(Material.from_file(ROOT / "configs" / "data" / "aluminium_wvl.txt").index(lam))
+    scenes = []
+    for label, (generator, params) in SINGLE.items():
+        params = dict(params)
+        seed = params.pop("seed")
+        surface = generate(generator, cells=180, size_um=9.0, seed=seed, **params)
+        scenes.append((label, SurfaceScene(surface, lam, index, np.deg2rad(20.0), 0.0, 2.5, HemisphereGrid(256))))
+    rungs = sorted({n for _, scene in scenes for n in candidate_models(scene)} - {REFERENCE})
+    comparison = compare_scenes(scenes, rungs + [REFERENCE], {REFERENCE: {"method": "aim"}}, reference=REFERENCE,
+                                progress=lambda what: print(f"  running {what}", flush=True))
+    rule = default_rule()
+    print("| scene | rms slope | rung | predicted | measured (speckle-avg) | raw | CPU (s) |")
+    print("|---|---|---|---|---|---|---|")
+    for label, scene in scenes:
+        features = measure_scene(scene)
+        rows = {r["model"]: r for r in comparison.rows if r["scene"] == label}
+        for name, row in sorted(rows.items(), key=lambda kv: kv[1].get("cpu_s", np.inf)):
+            print(f"| {label} | {features.rms_slope:.3g} | {name} | {rule.predict(name, features):.3g} | "
+                  f"{row.get('rel_l2_smooth', np.nan):.3g} | {row.get('rel_l2', np.nan):.3g} | {row.get('cpu_s', np.nan):.3g} |")
+        for tolerance in tolerances:
+            picked = choose(scene, tolerance, rule, features).model
+            within = sorted((r["cpu_s"], m) for m, r in rows.items() if r.get("rel_l2_smooth", np.inf) <= tolerance)
+            print(f"{label}, tolerance {tolerance:g}: auto picks {picked} (measured {rows[picked].get('rel_l2_smooth', 0):.3g}); "
+                  f"cheapest measured within: {within[0][1] if within else REFERENCE}")
+    return 0
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("surface", choices=sorted(SURFACES) + ["single"])
+    parser.add_argument("--tolerance", type=float, nargs="+", default=[0.05, 0.01])
+    parser.add_argument("--keep", type=Path, default=ROOT / "out" / "auto_at_scale")
+    args = parser.parse_args(argv)
+    if args.surface == "single":
+        return single_task_studies(args.tolerance)
+    folder = args.keep / args.surface
+    folder.mkdir(parents=True, exist_ok=True)
+    surface, wavelengths = SURFACES[args.surface]
+    bem = run_study(folder, "bem", surface, wavelengths, 'name = "bem"\nmethod = "aim"')
+    print(f"all-BEM: {bem['cpu_s']:.0f} CPU-s, {bem['wall_s']:.0f} s wall; {rungs(bem['path'])}", flush=True)
+    summary = {"surface": args.surface, "bem_cpu_s": bem["cpu_s"], "bem_wall_s": bem["wall_s"], "auto": []}
+    for tolerance in args.tolerance:
+        name = f"auto_{tolerance:g}"
+        auto = run_study(folder, name, surface, wavelengths, f'name = "auto"\ntolerance = {tolerance}')
+        rows = compare(auto["path"], bem["path"])
+        worst = max(max(r["s"], r["p"], r["unpolarized"]) for r in rows)
+        print(f"\nauto, tolerance {tolerance:g}: {auto['cpu_s']:.0f} CPU-s, {auto['wall_s']:.0f} s wall; all-BEM / auto CPU "
+              f"{bem['cpu_s'] / auto['cpu_s']:.2f}x; rungs {rungs(auto['path'])}; worst error vs all-BEM {worst:.3g}")
+        print("| λ (µm) | θ_i (°) | φ_i (°) | s | p | unpolarized | raw | albedo auto | albedo BEM |")
+        print("|---|---|---|---|---|---|---|---|---|")
+        for r in rows:
+            print(f"| {r['wavelength_um']:.3g} | {r['theta_i']:.2f} | {r['phi_i']:.0f} | {r['s']:.3g} | {r['p']:.3g} | "
+                  f"{r['unpolarized']:.3g} | {r['raw']:.3g} | {r['albedo_auto']:.4f} | {r['albedo_bem']:.4f} |")
+        summary["auto"].append({"tolerance": tolerance, "cpu_s": auto["cpu_s"], "wall_s": auto["wall_s"],
+                                "ratio": bem["cpu_s"] / auto["cpu_s"], "worst_error": worst, "rungs": rungs(auto["path"]),
+                                "rows": rows})
+    (folder / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
