@@ -333,7 +333,9 @@ def _print_validity(plan) -> None:
         if task.kind not in ("direct", "patch", "fiber"):
             continue
         spec = plan.model_spec(task)
-        model = models.setdefault(id(spec), spec.build())
+        if id(spec) not in models:
+            models[id(spec)] = spec.build()
+        model = models[id(spec)]
         try:  # a task with spot checks: the rung expected for its series (jobs/spot_checks.py)
             found = model.validity(plan.model_scene(task), *([expectation_scene(plan, task)] if task.checks else []))
         except ValueError as exc:
@@ -345,10 +347,14 @@ def _print_validity(plan) -> None:
         print(f"WARNING (task {', '.join(f'#{i}' for i in ids[:3])}{more}): {message}")
 
 
+def _texts(tasks: dict, column: str) -> list[str]:
+    """A task-table column as strings."""
+    return [x.decode() if isinstance(x, bytes) else str(x) for x in tasks.get(column, [])]
+
+
 def _print_spot_checks(tasks: dict) -> None:
     """``auto``'s measured figures: each spot check's errors per rung, and the rungs the tasks ran."""
-    text = lambda column: [x.decode() if isinstance(x, bytes) else str(x) for x in tasks.get(column, [])]  # noqa: E731
-    kinds, models, checks, where = text("kind"), text("model"), text("spot_check"), text("spot_check_where")
+    kinds, models, checks, where = (_texts(tasks, c) for c in ("kind", "model", "spot_check", "spot_check_where"))
     if "check" not in kinds:
         return
     print("auto spot checks (speckle-averaged relative L2 over the lobe vs the full wave, worst of s, p, unpolarized "
@@ -374,8 +380,7 @@ def _print_spectral_seams(ds, tasks: dict) -> None:
     """Where the rung a direction's result came from changes between neighbouring wavelengths
     (``auto`` with ``mix_wavelengths``): the albedo step there beside the median step between
     neighbours of one rung (the spectrum's own smoothness)."""
-    text = lambda column: [x.decode() if isinstance(x, bytes) else str(x) for x in tasks.get(column, [])]  # noqa: E731
-    kinds, models = text("kind"), text("model")
+    kinds, models = _texts(tasks, "kind"), _texts(tasks, "model")
     if ds.kind != "surface" or "check" not in kinds:
         return
     number = lambda column: np.asarray(tasks.get(column, []), dtype=int)  # noqa: E731

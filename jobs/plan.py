@@ -101,7 +101,7 @@ class Plan:
     steering: dict[int, CaseSteering] = field(default_factory=dict)
     _geometry: dict = field(default_factory=dict, repr=False)  # built height fields / cross sections
     tasks_per_node: int | None = None  # set by `plan`/`run` to what they check memory with (None: from [run])
-    spot_check_units: dict = field(default_factory=dict, repr=False)  # case → auto's CheckUnits (jobs/spot_checks.py)
+    spot_check_units: dict = field(default_factory=dict, repr=False)  # case → auto's (CheckUnits, checked ones)
     series_heads: dict = field(default_factory=dict, repr=False)  # task → first task of its series (spot checks)
 
     @property

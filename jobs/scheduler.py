@@ -128,15 +128,17 @@ class TaskBoard:
             logger.info("resuming: %d of %d tasks already done", len(self.done), len(plan.tasks))
 
     def next_task(self) -> Task | None:
-        """A task whose dependencies are done (None if nothing is ready now)."""
+        """A task whose dependencies are done (None if nothing is ready now). A spot check
+        (``Task.checks``) is a soft dependency: done or failed, the task may run (without it)."""
         t0 = time.perf_counter()
         blocked = set(self.failed)
         for i, task in enumerate(self.waiting):
-            if any(d in blocked for d in task.depends):
+            hard = [d for d in task.depends if d not in task.checks]
+            if any(d in blocked for d in hard):
                 self.waiting.pop(i)
-                self.fail(task, {"error": "a task it depends on failed", "depends": list(task.depends)}, final=True)
+                self.fail(task, {"error": "a task it depends on failed", "depends": hard}, final=True)
                 return self.next_task()
-            if all(d in self.done for d in task.depends):
+            if all(d in self.done for d in hard) and all(d in self.done or d in blocked for d in task.checks):
                 self.waiting.pop(i)
                 self.running.add(task.id)
                 self.attempts[task.id] = self.attempts.get(task.id, 0) + 1

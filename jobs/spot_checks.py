@@ -10,6 +10,7 @@ the checks that represent it and reads their measurements when it runs (jobs/tas
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import replace
 
 __all__ = ["add_spot_checks", "expectation_scene", "spot_check_summary", "twin_of"]
@@ -31,9 +32,13 @@ def add_spot_checks(plan) -> None:
         if len(decided) < 2:
             continue
         model = study.model.build()
-        units = [model.check_unit(t.id, _series(t), plan.scene(t)) for t in decided]
+        # chosen from the config alone (the same on every machine, so run, shards and merge agree):
+        # [run] memory_gb for the whole node, else the full wave's default settings
+        budget = study.run.memory_gb * 2**30 if study.run.memory_gb else float("inf")
+        units = [model.check_unit(t.id, _series(t), dataclasses.replace(plan.scene(t), memory_budget_bytes=budget))
+                 for t in decided]
         picked, represented = model.plan_spot_checks(units)
-        plan.spot_check_units[case] = units
+        plan.spot_check_units[case] = (units, picked)
         ids = []
         for unit in picked:
             ids.append(len(tasks))
@@ -58,25 +63,27 @@ def twin_of(plan, task):
     """The spot check among ``task.checks`` that simulates ``task``'s very scene (None: none)."""
     for i in task.checks:
         check = plan.tasks[i]
-        if (check.wavelength, check.incidence, check.basic, check.patch) == (
-                task.wavelength, task.incidence, task.basic, task.patch):
+        if (check.case, check.wavelength, check.incidence, check.basic, check.patch) == (
+                task.case, task.wavelength, task.incidence, task.basic, task.patch):
             return check
     return None
 
 
 def spot_check_summary(plan, estimates) -> str | None:
     """``plan``'s lines on the spot checks: which tasks, their share of the all-full-wave estimate
-    (an estimate, from the models' own cost models), and how many tasks they represent."""
+    (an estimate, from the models' own cost models, at the selection's budget), and how many tasks
+    they represent."""
     checks = [(t, e) for t, e in zip(plan.tasks, estimates) if t.kind == "check"]
     if not checks:
         return None
     decided = [t for t in plan.tasks if t.checks]
-    all_full = sum(u.full_wave_seconds for units in plan.spot_check_units.values() for u in units
-                   if u.full_wave_fits)
+    all_full = sum(u.full_wave_seconds for units, _ in plan.spot_check_units.values() for u in units if u.full_wave_fits)
+    checked = sum(u.full_wave_seconds for _, picked in plan.spot_check_units.values() for u in picked)
     spent = sum(e.seconds for _, e in checks)
     where = ", ".join(f"#{t.id} ({t.label})" for t, _ in checks[:8]) + (" ..." if len(checks) > 8 else "")
-    return (f"auto spot checks: {len(checks)} task(s) [{where}] run the full wave and the cheaper rungs, ≈ {spent:.3g} s "
-            f"= {spent / max(all_full, 1e-9):.1%} of the all-full-wave estimate {all_full:.3g} s "
-            f"({all_full / 3600:.3g} CPU-h); {len(decided)} task(s) take the cheapest rung measured within tolerance "
-            "there (the rung per task above is the rule's expectation)")
+    return (f"auto spot checks: {len(checks)} task(s) [{where}] run the full wave and the cheaper rungs (≈ {spent:.3g} s "
+            f"as planned here); their full wave is {checked / max(all_full, 1e-9):.1%} of the all-full-wave estimate "
+            f"{all_full:.3g} s ({all_full / 3600:.3g} CPU-h, default settings or [run] memory_gb); {len(decided)} "
+            "task(s) take the cheapest rung measured within tolerance there (the rung per task above is the rule's "
+            "expectation)")
 

@@ -87,19 +87,19 @@ def _run_model(ctx, plan, task, pool, parts):
     """The task's model on the task's scene (surface or fiber); a task with spot checks gives its
     model their measurements (and the full-wave result of a check of this very scene)."""
     model = pool.get(plan.model_spec(task))
-    if not task.checks:
+    checks = [plan.tasks[i] for i in task.checks if parts.done(plan.tasks[i])]  # a failed check is left out
+    if not checks:
         return model.run(ctx, plan.model_scene(task))
     twin = twin_of(plan, task)
-    full_wave = None if twin is None else (lambda: parts.load_farfield(twin))
-    return model.run_checked(ctx, plan.model_scene(task), [_check_diagnostics(parts, plan.tasks[i]) for i in task.checks],
-                             full_wave)
+    full_wave = None if twin is None or twin not in checks else (lambda: parts.load_farfield(twin))
+    return model.run_checked(ctx, plan.model_scene(task), [_check_diagnostics(parts, c) for c in checks], full_wave)
 
 
-_CHECKS: dict[tuple, dict] = {}  # (parts folder, check id, its key) → diagnostics, read once per worker process
+_CHECKS: dict[tuple, dict] = {}  # (parts folder, fingerprint, check id, key) → diagnostics, read once per process
 
 
 def _check_diagnostics(parts, check) -> dict:
-    key = (str(parts.path), check.id, check.key)
+    key = (str(parts.path), parts.plan.fingerprint, check.id, check.key)
     if key not in _CHECKS:
         if len(_CHECKS) > 4096:
             _CHECKS.clear()

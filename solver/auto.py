@@ -258,19 +258,17 @@ def choose(scene: SurfaceScene, tolerance: float, rule: Rule | None = None,
     features = features or measure_scene(scene)
     scene = budgeted(scene)
     budget = memory_budget_bytes(scene)
-    candidates = {}
+    candidates, full_wave = {}, None
     for name in candidate_models(scene):
         try:
             estimate = (reference_model() if name == REFERENCE else get_model(name)).estimate(scene)
         except ValueError:  # e.g. AIM's grid limits: not a candidate for this scene
             continue
+        if name == REFERENCE:
+            if estimate.memory_bytes > budget:  # it could not run within the task's budget: not a candidate
+                continue
+            full_wave = estimate
         candidates[name] = (rule.predict(name, features), estimate.seconds)
-    full_wave = None
-    if REFERENCE in candidates:
-        full_wave = reference_model().estimate(scene)
-        if full_wave.memory_bytes > budget:  # it could not run within the task's budget: not a candidate
-            candidates.pop(REFERENCE)
-            full_wave = None
     fitting = sorted((seconds, name) for name, (error, seconds) in candidates.items()
                      if name != REFERENCE and np.isfinite(error) and error <= tolerance)
     avoided = "" if full_wave is None else (
@@ -340,8 +338,8 @@ def select_spot_checks(units: list[CheckUnit], share: float, mix_wavelengths: bo
     Candidates, hardest first: θ_i largest, smallest, median × λ shortest, longest, each the steepest
     unit there (rms slope: the steepest sub-area), then the median-slope sub-area at (largest θ_i,
     shortest λ). They are taken in that order while their full-wave estimates add up to at most
-    ``share`` of the all-full-wave estimate (the first always, when ``share`` > 0 and there are two
-    units or more). A unit is represented by the checks at the nearest θ_i at or above its own and,
+    ``share`` of the all-full-wave estimate of the units where it fits (the first always, when
+    ``share`` > 0 and there are two units or more). A unit is represented by the checks at the nearest θ_i at or above its own and,
     among those, the nearest rms slope at or above its own (the tangent-plane rungs' errors grow
     with both), at every checked λ — or, with ``mix_wavelengths``, only the nearest checked λ."""
     eligible = [u for u in units if u.full_wave_fits and np.isfinite(u.full_wave_seconds)]
@@ -359,7 +357,7 @@ def select_spot_checks(units: list[CheckUnit], share: float, mix_wavelengths: bo
                      key=lambda u: (u.rms_slope, u.task))
     if len({u.rms_slope for u in hardest}) > 2 and hardest[len(hardest) // 2] not in picked:
         picked.append(hardest[len(hardest) // 2])
-    budget = share * sum(u.full_wave_seconds for u in units if np.isfinite(u.full_wave_seconds))
+    budget = share * sum(u.full_wave_seconds for u in eligible)
     checks, spent = [], 0.0
     for unit in picked:
         if not checks or spent + unit.full_wave_seconds <= budget:
@@ -372,7 +370,7 @@ def _representatives(unit: CheckUnit, checks: list[CheckUnit], mix_wavelengths: 
     """Indices of the checks that represent ``unit`` (select_spot_checks)."""
     tiny = 1e-12
     pool = [i for i, c in enumerate(checks) if c.theta_i >= unit.theta_i - tiny and c.rms_slope >= unit.rms_slope - tiny]
-    pool = pool or list(range(len(checks)))  # harder than every check: all of them (the reason says so)
+    pool = pool or list(range(len(checks)))  # harder than every check: all of them (the task's reason lists them)
     for key in (lambda c: c.theta_i, lambda c: c.rms_slope) + (
             (lambda c: abs(c.wavelength_um - unit.wavelength_um),) if mix_wavelengths else ()):
         nearest = min(key(checks[i]) for i in pool)
@@ -410,7 +408,7 @@ class AutoModel(Model):
         key = (hashlib.sha1(z.tobytes()).hexdigest(), z.shape, scene.surface.size_um, scene.wavelength_um,
                complex(scene.index), scene.theta_i, scene.phi_i, scene.waist_um, scene.grid.resolution,
                scene.exterior_index, scene.memory_budget_bytes, scene.coherent, scene.precision, scene.beam,
-               self.options.tolerance)
+               scene.z_reference, scene.footprint_centre_um, repr(scene.surface.ensemble), self.options.tolerance)
         if key not in _CHOICES:
             if len(_CHOICES) > 4096:
                 _CHOICES.clear()
@@ -462,7 +460,7 @@ class AutoModel(Model):
     def check_unit(self, task: int, series: tuple, scene: SurfaceScene) -> CheckUnit:
         """What :func:`select_spot_checks` needs of one task's scene."""
         full = self.full_wave_estimate(scene)
-        fits = full is not None and full.memory_bytes <= memory_budget_bytes(budgeted(scene))
+        fits = full is not None and full.memory_bytes <= memory_budget_bytes(scene)
         return CheckUnit(task, series, scene.wavelength_um, scene.theta_i, scene.surface.rms_slope(),
                          full.seconds if full is not None else float("inf"), fits)
 
@@ -480,14 +478,16 @@ class AutoModel(Model):
         cheapest first."""
         choice = self.choice(scene)
         full = choice.avoided.seconds if choice.avoided is not None else choice.candidates.get(REFERENCE, (0, np.inf))[1]
-        budget = memory_budget_bytes(budgeted(scene))
+        budget = memory_budget_bytes(scene)
         return [n for n, (_, seconds) in sorted(choice.candidates.items(), key=lambda kv: kv[1][1])
                 if n != REFERENCE and seconds <= CHECKED_RUNG_SHARE * full
                 and self.rung(n).estimate(scene).memory_bytes <= budget]
 
     def estimate_spot_check(self, scene: SurfaceScene) -> Estimate:
         """A spot check: the full wave and every checked rung on ``scene``."""
-        full = self.rung(REFERENCE).estimate(budgeted(scene))
+        full = self.full_wave_estimate(scene)
+        if full is None:
+            raise ValueError(f"{REFERENCE} cannot take this scene: no spot check of it")
         names = self.checked_rungs(scene)
         rungs = [self.rung(n).estimate(scene) for n in names]
         return dataclasses.replace(_largest_of([full] + rungs), seconds=full.seconds + sum(e.seconds for e in rungs),
@@ -504,6 +504,7 @@ class AutoModel(Model):
         scene = budgeted(scene)
         reference = self.rung(REFERENCE).run(ctx, scene)
         reference_sp = reference.brdf()
+        self.rung(REFERENCE).release()  # the rungs run after it, not beside it
         sigma = speckle_sigma_u(scene.wavelength_um, scene.waist_um, scene.grid, scene.exterior_index)
         choice = self.choice(scene)
         measured = {}
@@ -512,15 +513,20 @@ class AutoModel(Model):
             try:
                 with warnings.catch_warnings(record=True) as caught:  # the rung's warnings are not the result's
                     warnings.simplefilter("always")
-                    brdf_sp = self.rung(name).run(ctx, scene).brdf()
+                    result = self.rung(name).run(ctx, scene)
+                brdf_sp = result.brdf()
+                if scene.coherent:  # a synthesis divides the summed fields by the reference beam's power
+                    brdf_sp = brdf_sp * (np.asarray(result.incident_power) / np.asarray(reference.incident_power))[:, None, None]
                 errors = speckle_errors(brdf_sp, reference_sp, scene.grid, sigma)
-            except (ValueError, ArithmeticError, RuntimeError) as exc:
+            except Exception as exc:  # noqa: BLE001 - a rung that fails here is not measured, not chosen
                 measured[name] = {"error": None, "failure": f"{type(exc).__name__}: {exc}"[:300],
                                   "seconds": choice.candidates[name][1]}
                 continue
-            worst = max(errors["s"], errors["p"], errors["unpolarized"])
-            measured[name] = {"error": worst if np.isfinite(worst) else None, **errors,
-                              "predicted": choice.candidates[name][0], "seconds": choice.candidates[name][1],
+            finally:
+                self.rung(name).release()
+            worst = float(np.max([errors["s"], errors["p"], errors["unpolarized"]]))  # NaN stays NaN
+            measured[name] = {"error": worst if np.isfinite(worst) else None, **_finite(errors),
+                              **_finite({"predicted": choice.candidates[name][0]}), "seconds": choice.candidates[name][1],
                               "cpu_s": time.process_time() - started, "warnings": len(caught)}
         where = (f"λ {scene.wavelength_um:g} µm, θ_i {np.degrees(scene.theta_i):.3g}°, rms slope "
                  f"{scene.surface.rms_slope():.3g}")
@@ -543,7 +549,7 @@ class AutoModel(Model):
         measured = [json.loads(c["spot_check"]) for c in checks]
         where = "; ".join(c.get("spot_check_where", "?") for c in checks)
         rows = []
-        for name in set(candidate_models(scene)) - {REFERENCE}:
+        for name in sorted(set(candidate_models(scene)) - {REFERENCE}):
             errors = [m[name]["error"] for m in measured if name in m]
             if len(errors) == len(measured) and None not in errors:
                 rows.append((sum(m[name]["seconds"] for m in measured), name, max(errors)))
@@ -554,12 +560,12 @@ class AutoModel(Model):
             _, name, error = within[0]
             reason = (f"{name}: the cheapest rung measured within tolerance {tolerance:g} (worst {error:.3g} × margin "
                       f"{margin:g} over {len(checks)} spot check(s): {where})")
-            result = self.rung(name).run(ctx, scene)
-        elif self.rung(REFERENCE).estimate(scene).memory_bytes <= memory_budget_bytes(scene):
+            result = self._only(name).run(ctx, scene)
+        elif (full := self.full_wave_estimate(scene)) is not None and full.memory_bytes <= memory_budget_bytes(scene):
             name, error = REFERENCE, 0.0
             reason = (f"{REFERENCE}: no rung measured within tolerance {tolerance:g} (margin {margin:g}) over "
                       f"{len(checks)} spot check(s) ({where}){closest}")
-            result = full_wave() if full_wave is not None else self.rung(REFERENCE).run(ctx, scene)
+            result = full_wave() if full_wave is not None else self._only(REFERENCE).run(ctx, scene)
             result.diagnostics.pop("spot_check", None)
         elif best is not None:
             _, name, error = best
@@ -567,16 +573,22 @@ class AutoModel(Model):
                       f"({where}) and {REFERENCE} exceeds the task's {memory_budget_bytes(scene) / 2**30:.1f} GiB; "
                       f"the rung measured best ({error:.3g})")
             _warn_tolerance(reason)
-            result = self.rung(name).run(ctx, scene)
+            result = self._only(name).run(ctx, scene)
         else:
             return self.run(ctx, scene)
-        result.diagnostics.update(model=name, model_reason=reason, model_predicted_error=error,
-                                  model_measured_error=error, spot_checks=where)
+        result.diagnostics.update(model=name, model_reason=reason, model_measured_error=error, spot_checks=where)
         return result
+
+    def _only(self, name: str) -> Model:
+        """Rung ``name``, the others released first (one rung's kept operator in memory at a time)."""
+        for other, model in self._rungs.items():
+            if other != name:
+                model.release()
+        return self.rung(name)
 
     def run(self, ctx, scene: SurfaceScene):
         from wavebrdf.solver.farfield import HemisphereGrid
-        from wavebrdf.solver.metrics import blur, relative_l2
+        from wavebrdf.solver.metrics import blur, relative_l2, speckle_sigma_u
 
         scene = budgeted(scene)
         choice = self.choice(scene)
@@ -585,8 +597,7 @@ class AutoModel(Model):
             _warn_tolerance(reason)
         if self.options.check and name != REFERENCE:
             coarse = dataclasses.replace(scene, grid=HemisphereGrid(SENTINEL_RESOLUTION))
-            lam = scene.wavelength_um / scene.exterior_index  # the footprint's angular spread λ₁/(πw)
-            sigma = max(2.0 / SENTINEL_RESOLUTION, lam / (np.pi * (scene.waist_um or np.inf)))
+            sigma = speckle_sigma_u(scene.wavelength_um, scene.waist_um, coarse.grid, scene.exterior_index)
             coarse_brdf = {}
 
             def sentinel(n: str) -> np.ndarray:
@@ -603,10 +614,15 @@ class AutoModel(Model):
                     break
                 reason += f"; escalated to {up} ({name} and {up} differ by {differ:.3g} > {self.options.tolerance:g})"
                 name = up
-        result = self.rung(name).run(ctx, scene)
+        result = self._only(name).run(ctx, scene)
         result.diagnostics.update(model=name, model_reason=reason,
                                   model_predicted_error=choice.candidates.get(name, (0.0,))[0])
         return result
+
+
+def _finite(figures: dict) -> dict:
+    """``figures`` with NaN and inf as None (JSON has neither)."""
+    return {k: (float(v) if np.isfinite(v) else None) for k, v in figures.items()}
 
 
 def _largest_of(estimates: list[Estimate]) -> Estimate:
