@@ -41,7 +41,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 SURFACES = {
     "bumpy": ('generator = "gaussian"\nrms_height_um = 0.1\ncorrelation_um = 1.0\nseed = 7', [0.5, 0.55, 0.6]),
-    "pits": ('generator = "spherical-pits"\nradius_um = 0.4\ndepth_um = 0.3\nperiod_um = 1.0', [0.5]),
+    "pits": ('generator = "spherical-pits"\nradius_um = 0.45\ndepth_um = 0.3\nperiod_um = 1.15', [0.5]),
 }
 
 STUDY = """[study]
