@@ -10,7 +10,6 @@ the checks that represent it and reads their measurements when it runs (jobs/tas
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import replace
 
 __all__ = ["add_spot_checks", "expectation_scene", "spot_check_summary", "twin_of"]
@@ -35,7 +34,7 @@ def add_spot_checks(plan) -> None:
         # chosen from the config alone (the same on every machine, so run, shards and merge agree):
         # [run] memory_gb for the whole node, else the full wave's default settings
         budget = study.run.memory_gb * 2**30 if study.run.memory_gb else float("inf")
-        units = [model.check_unit(t.id, _series(t), dataclasses.replace(plan.scene(t), memory_budget_bytes=budget))
+        units = [model.check_unit(t.id, _series(t), replace(plan.scene(t), memory_budget_bytes=budget))
                  for t in decided]
         picked, represented = model.plan_spot_checks(units)
         plan.spot_check_units[case] = (units, picked)
