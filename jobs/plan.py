@@ -4,7 +4,8 @@ Without steering, one ``direct`` task per (sweep case, wavelength, incident dire
 ``[steering]``, the requested directions are mapped to basic directions (hexagon territories,
 jobs/steering.py) and the plan holds one ``patch`` task per (case, wavelength, basic direction,
 sub-area) plus one ``synth`` task per (case, wavelength, requested direction) that depends on
-the patch tasks of its basic direction. Every task's result slot in the dataset is given by
+the patch tasks of its basic direction; patch tasks run sub-area → wavelength → basic direction
+(the scheduler keeps a sub-area on one worker, jobs/scheduler.py). Every task's result slot in the dataset is given by
 (case, wavelength, incidence) of the direct/synth tasks. Fiber studies have one ``fiber`` task
 per (case, wavelength, θ_i) that solves every φ_i and both polarizations at once. What each kind
 runs, estimates, saves and writes is the table jobs/tasks.py ``KINDS``.
@@ -312,7 +313,8 @@ def _case_steering(plan: Plan, case: int) -> CaseSteering:
 
 
 def plan_study(config: StudyConfig) -> Plan:
-    """All tasks of ``config``: patch tasks first (case-major), then the result tasks."""
+    """All tasks of ``config``: patch tasks first (case, sub-area, wavelength, basic direction),
+    then the result tasks (case, wavelength, direction)."""
     plan = Plan(config)
     shape = config.case_shape
     n_wl = len(config.cases[0].illumination.wavelengths_um)
@@ -334,8 +336,10 @@ def plan_study(config: StudyConfig) -> Plan:
             raise PlanError(f"[steering]: model {model.name!r} cannot be steered (it returns "
                             f"{model.capabilities.returns}); remove [steering] or choose a steerable model")
         st = plan.steering[case] = _case_steering(plan, case)
-        for wl in range(n_wl):
-            for patch in st.layout.indices:  # patch-major: one operator serves all basic directions
+        # sub-area-major, then wavelength: one operator serves all basic directions, and each
+        # solve starts from the previous wavelength's solution of its sub-area (bem3d/warm_start.py)
+        for patch in st.layout.indices:
+            for wl in range(n_wl):
                 for b in range(len(st.basics_rad)):
                     patch_ids.setdefault((case, wl, b), []).append(len(tasks))
                     tasks.append(Task(len(tasks), "patch", case, tuple(map(int, case_index)), wl, basic=b,

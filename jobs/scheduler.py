@@ -12,7 +12,11 @@ diagnostics and retried ``[run] retries`` times; if it still fails, its slot sta
 dataset is written with ``status = "failed"`` for it, the parts folder is kept (a re-run retries
 it) and the command exits non-zero.
 
-Executors share one :class:`TaskBoard` (dependencies, retries, progress):
+Executors share one :class:`TaskBoard` (dependencies, retries, progress). It hands out ready
+tasks in plan order, except that a steered sub-area stays with the worker that ran its last task
+(its wavelengths in order, one operator for its basic directions and each solve warm-started
+from the previous wavelength, solver/bem3d/warm_start.py), and a worker done with its sub-area
+takes one no other worker holds while there is one:
 
 - ``serial``: tasks run in this process.
 - ``processes``: a pool of local worker processes (spawned; PoCL threads and FFT workers bounded
@@ -56,6 +60,7 @@ __all__ = [
     "prepare_output",
     "run_plan",
     "share_from_root",
+    "sub_area",
     "worker_environment",
 ]
 
@@ -104,6 +109,11 @@ def apply_worker_environment(env: dict[str, str]) -> None:
 # Coordination
 
 
+def sub_area(task: Task) -> tuple | None:
+    """(case, sub-area) of a task that simulates a steering sub-area, else None."""
+    return (task.case, task.patch) if task.on_patch else None
+
+
 class TaskBoard:
     """Which tasks are ready, running, done or failed; retries; the progress bar."""
 
@@ -117,6 +127,7 @@ class TaskBoard:
         self.run_info: dict[int, dict] = {}  # per-task scheduling facts (rank, dispatch wait) for the table
         self.attempts: dict[int, int] = {}
         self.running: set[int] = set()
+        self.held: dict = {}  # worker → the sub-area of its last task (next_task)
         self.waiting = [t for t in plan.tasks if t.id not in self.done and (only is None or t.id in only)]
         for task in self.waiting:
             parts.clear_failure(task)
@@ -127,25 +138,46 @@ class TaskBoard:
         if self.done:
             logger.info("resuming: %d of %d tasks already done", len(self.done), len(plan.tasks))
 
-    def next_task(self) -> Task | None:
+    def next_task(self, worker=None) -> Task | None:
         """A task whose dependencies are done (None if nothing is ready now). A spot check
-        (``Task.checks``) is a soft dependency: done or failed, the task may run (without it)."""
+        (``Task.checks``) is a soft dependency: done or failed, the task may run (without it).
+        ``worker`` (any hashable, e.g. a rank) names the asking worker: it gets the next ready
+        task of the sub-area it holds, else of a sub-area no other worker holds, else the first
+        ready one (module docstring); None: the first ready one."""
         t0 = time.perf_counter()
         blocked = set(self.failed)
+        held = {a for w, a in self.held.items() if w != worker}
+        mine = self.held.get(worker)
+        chosen = free = first = None
         for i, task in enumerate(self.waiting):
             hard = [d for d in task.depends if d not in task.checks]
             if any(d in blocked for d in hard):
                 self.waiting.pop(i)
                 self.fail(task, {"error": "a task it depends on failed", "depends": hard}, final=True)
-                return self.next_task()
-            if all(d in self.done for d in hard) and all(d in self.done or d in blocked for d in task.checks):
-                self.waiting.pop(i)
-                self.running.add(task.id)
-                self.attempts[task.id] = self.attempts.get(task.id, 0) + 1
                 self.dispatch_seconds += time.perf_counter() - t0
-                return task
+                return self.next_task(worker)
+            if not (all(d in self.done for d in hard) and all(d in self.done or d in blocked for d in task.checks)):
+                continue
+            area = sub_area(task)
+            if worker is None or (mine is not None and area == mine):
+                chosen = i
+                break
+            if first is None:
+                first = i
+            if free is None and (area is None or area not in held):
+                free = i
+        if chosen is None:
+            chosen = free if free is not None else first
+        if chosen is None:
+            self.dispatch_seconds += time.perf_counter() - t0
+            return None
+        task = self.waiting.pop(chosen)
+        self.running.add(task.id)
+        self.attempts[task.id] = self.attempts.get(task.id, 0) + 1
+        if worker is not None and sub_area(task) is not None:
+            self.held[worker] = sub_area(task)
         self.dispatch_seconds += time.perf_counter() - t0
-        return None
+        return task
 
     def finish(self, task: Task, diagnostics: dict) -> None:
         self.running.discard(task.id)
@@ -269,9 +301,11 @@ def _run_processes(board: TaskBoard, workers: int) -> None:
     running: dict = {}
     try:
         while not board.finished:
-            idle = [p for p in pools if p not in {pool for pool, _ in running.values()}]
-            for pool in idle:
-                task = board.next_task()
+            busy = {pool for pool, _ in running.values()}
+            for worker, pool in enumerate(pools):
+                if pool in busy:
+                    continue
+                task = board.next_task(worker)
                 if task is None:
                     break
                 running[pool.submit(_process_run, task.id)] = (pool, task)
@@ -333,7 +367,7 @@ def _mpi_coordinator(board: TaskBoard, comm, size: int, error: list) -> None:
             waiting_ranks.append(rank)
             still = []
             for r in waiting_ranks:
-                task = board.next_task()
+                task = board.next_task(r)
                 if task is not None:
                     comm.send(task.id, dest=r, tag=Tag.TASK)
                 elif board.finished:

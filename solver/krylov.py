@@ -20,6 +20,12 @@ Methods (``method``):
 Preconditioning (``preconditioner``, a callable M(X) ≈ A⁻¹X on blocks): right preconditioning,
 A M u = b, x = M u, so the residual is that of the original system ("gmres", "bicgstab").
 
+Initial guess (``x0``): taken scaled by the complex factor α = (A x0)ᴴ b / ‖A x0‖² per right-hand
+side, the least-squares fit of A x0 to b (one product; its residual ‖b − α A x0‖ is never above
+‖b‖, and α = 0 where A x0 = 0 or the fit gains less than :data:`MIN_GUESS_GAIN`). The solver then
+finds the correction u from zero, A (M) u = b − α A x0, preconditioned as a cold solve is, to the
+same stopping rule on the residual of the original system, x = α x0 + (M) u.
+
 Stopping: the recurrence estimate of ‖r‖/‖b‖ ≤ ``tol``; the true residual ‖b − A x‖/‖b‖ is then
 computed and must also be ≤ ``tol`` (otherwise the solver restarts from x, up to ``max_iterations``
 products in all). A solve that does not reach it raises :class:`KrylovNotConverged`, which
@@ -38,9 +44,10 @@ from wavebrdf.solver.progress import RateLimit
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["KRYLOV_METHODS", "KrylovNotConverged", "KrylovResult", "solve"]
+__all__ = ["KRYLOV_METHODS", "MIN_GUESS_GAIN", "KrylovNotConverged", "KrylovResult", "solve"]
 
 KRYLOV_METHODS = ("gmres", "csym", "bicgstab")
+MIN_GUESS_GAIN = 0.1  # an initial guess is used where it lowers ‖r‖/‖b‖ to 0.9 or less
 
 
 class KrylovNotConverged(RuntimeError):
@@ -63,9 +70,10 @@ class KrylovResult:
     converged: np.ndarray
     seconds: float
     history: list = field(default_factory=list)
+    initial_residual: np.ndarray | None = None  # ‖b − α A x0‖/‖b‖ per right-hand side (1: zero start)
 
     def diagnostics(self) -> dict:
-        return {
+        figures = {
             "krylov_method": self.method,
             "iterations": [int(i) for i in self.iterations],
             "residual": [float(r) for r in self.true_residual],
@@ -73,6 +81,9 @@ class KrylovResult:
             "converged": bool(np.all(self.converged)),
             "solve_s": self.seconds,
         }
+        if self.initial_residual is not None:
+            figures["initial_residual"] = [float(r) for r in self.initial_residual]
+        return figures
 
 
 def _norms(X: np.ndarray) -> np.ndarray:
@@ -163,9 +174,8 @@ def _gmres_cycle(A: _Counter, x, r, bnorm, which, tol, m, budget):
     return np.abs(g[np.arange(P), steps]) / bnorm
 
 
-def _gmres(A, b, x, tol, max_iterations, restart):
+def _gmres(A, b, x, tol, max_iterations, restart, bnorm):
     P = len(b)
-    bnorm = _norms(b)
     everyone = np.arange(P)
     r = b - A(x, everyone) if np.any(x) else b.copy()
     true = _norms(r) / bnorm
@@ -182,12 +192,11 @@ def _gmres(A, b, x, tol, max_iterations, restart):
     return x, estimate, true
 
 
-def _csym(A, b, x, tol, max_iterations):
+def _csym(A, b, x, tol, max_iterations, bnorm):
     """Complex-symmetric MINRES on the SSY tridiagonalization; the right-hand sides iterate in
     lockstep (one product call serves all that are still iterating), each with its own
     recurrence, exactly as if solved alone."""
     P, n = b.shape
-    bnorm = _norms(b)
     estimate = np.zeros(P)
     true = np.zeros(P)
     pending = np.arange(P)
@@ -253,9 +262,8 @@ def _csym_cycle(A, x, rows, r0, beta1, bnorm, tol, max_iterations, estimate):
         active = a[(estimate[rows[a]] > tol) & (beta_next != 0)]
 
 
-def _bicgstab(A, b, x, tol, max_iterations):
+def _bicgstab(A, b, x, tol, max_iterations, bnorm):
     P = len(b)
-    bnorm = _norms(b)
     everyone = np.arange(P)
     estimate = np.zeros(P)
     while True:
@@ -292,20 +300,37 @@ def _bicgstab(A, b, x, tol, max_iterations):
         # loop back: true residual check and restart if needed
 
 
+def _scaled_guess(A: _Counter, apply, b: np.ndarray, x0: np.ndarray, bnorm: np.ndarray):
+    """(α x0, b − α A x0, ‖b − α A x0‖/‖b‖) with the least-squares α per right-hand side (module
+    docstring); one product of ``apply`` (the unpreconditioned operator) for the rows with x0 ≠ 0."""
+    start = np.zeros_like(b)
+    r = b.copy()
+    rows = np.flatnonzero(np.any(x0 != 0, axis=1))
+    if len(rows):
+        A.products[rows] += 1
+        w = apply(x0[rows])
+        ww = np.sum(np.abs(w) ** 2, axis=1)
+        alpha = np.sum(np.conj(w) * b[rows], axis=1) / np.where(ww > 0, ww, 1.0)
+        fitted = b[rows] - alpha[:, None] * w
+        useful = (ww > 0) & (_norms(fitted) <= (1.0 - MIN_GUESS_GAIN) * bnorm[rows])
+        start[rows[useful]] = alpha[useful, None] * x0[rows[useful]]
+        r[rows[useful]] = fitted[useful]
+    return start, r, _norms(r) / bnorm
+
+
 def solve(matvec, b: np.ndarray, *, method: str = "gmres", tol: float = 1e-4, max_iterations: int = 1000,
           restart: int = 60, x0: np.ndarray | None = None, preconditioner=None, progress=None) -> KrylovResult:
     """Solve A x = b for right-hand sides b (P, n); see the module docstring.
 
-    ``max_iterations`` bounds the operator products per right-hand side. ``progress`` (solver/progress.py)
-    receives ``("krylov", None, products=, residual=)`` about once a second. Raises
-    :class:`KrylovNotConverged` (with ``diagnostics``) if the true residual misses ``tol``.
+    ``max_iterations`` bounds the operator products per right-hand side (the initial guess's one
+    included). ``x0`` (P, n): an initial guess, least-squares scaled (module docstring). ``progress``
+    (solver/progress.py) receives ``("krylov", None, products=, residual=)`` about once a second.
+    Raises :class:`KrylovNotConverged` (with ``diagnostics``) if the true residual misses ``tol``.
     """
     if method not in KRYLOV_METHODS:
         raise ValueError(f"krylov method must be one of {KRYLOV_METHODS}, got {method!r}")
     if preconditioner is not None and method == "csym":
         raise ValueError("krylov method 'csym' takes no preconditioner (it needs a symmetric one); use 'gmres'")
-    if preconditioner is not None and x0 is not None:
-        raise ValueError("krylov: x0 cannot be combined with a preconditioner")
     if not (0 < tol < 1):
         raise ValueError(f"krylov tolerance must be in (0, 1), got {tol!r}")
     if int(max_iterations) != max_iterations or max_iterations < 1:
@@ -315,25 +340,38 @@ def solve(matvec, b: np.ndarray, *, method: str = "gmres", tol: float = 1e-4, ma
     b = np.atleast_2d(np.asarray(b))
     dtype = np.result_type(b, np.complex64)
     b = b.astype(dtype, copy=False)
-    if np.any(_norms(b) == 0):
+    bnorm = _norms(b)
+    if np.any(bnorm == 0):
         raise ValueError("krylov: a right-hand side is zero")
-    x = np.zeros_like(b) if x0 is None else np.array(np.atleast_2d(x0), dtype=dtype)
+
+    def apply(X):
+        return np.asarray(matvec(X)).astype(dtype, copy=False)
+
     if preconditioner is None:
-        A = _Counter(lambda X: np.asarray(matvec(X)).astype(dtype, copy=False), len(b), progress)
+        A = _Counter(apply, len(b), progress)
     else:
-        A = _Counter(lambda X: np.asarray(matvec(preconditioner(X))).astype(dtype, copy=False), len(b),
-                     progress)
+        A = _Counter(lambda X: apply(preconditioner(X)), len(b), progress)
     t0 = time.perf_counter()
+    start, r, initial = None, b, None
+    if x0 is not None:
+        x0 = np.atleast_2d(np.asarray(x0))
+        if x0.shape != b.shape:
+            raise ValueError(f"krylov: x0 has shape {x0.shape}, the right-hand sides {b.shape}")
+        start, r, initial = _scaled_guess(A, apply, b, x0.astype(dtype, copy=False), bnorm)
+    x = np.zeros_like(b)
     if method == "gmres":
-        x, estimate, true = _gmres(A, b, x, tol, max_iterations, int(restart))
+        x, estimate, true = _gmres(A, r, x, tol, max_iterations, int(restart), bnorm)
     elif method == "csym":
-        x, estimate, true = _csym(A, b, x, tol, max_iterations)
+        x, estimate, true = _csym(A, r, x, tol, max_iterations, bnorm)
     else:
-        x, estimate, true = _bicgstab(A, b, x, tol, max_iterations)
+        x, estimate, true = _bicgstab(A, r, x, tol, max_iterations, bnorm)
     if preconditioner is not None:
         x = np.asarray(preconditioner(x)).astype(dtype, copy=False)
+    if start is not None:
+        x = start + x
     result = KrylovResult(x=x, method=method, iterations=A.products.copy(), residual=estimate, true_residual=true,
-                          converged=true <= tol, seconds=time.perf_counter() - t0, history=A.history)
+                          converged=true <= tol, seconds=time.perf_counter() - t0, history=A.history,
+                          initial_residual=initial)
     logger.info("%s: %s products, true residual %s (tol %g) in %.2f s", method, result.iterations.tolist(),
                 np.array2string(true, precision=2), tol, result.seconds)
     if not np.all(result.converged):

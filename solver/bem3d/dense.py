@@ -138,9 +138,10 @@ class DenseOperator:
         """Set-up figures of the operator (for the run's diagnostics)."""
         return dict(self._diagnostics)
 
-    def solve(self, rhs: np.ndarray, diagnostics: dict | None = None) -> DenseSolve:
+    def solve(self, rhs: np.ndarray, diagnostics: dict | None = None, x0: np.ndarray | None = None) -> DenseSolve:
         """Solve Z x = b for right-hand sides ``rhs`` (P, n); records the residual and the time into
-        ``diagnostics`` (if given), with a SolverWarning when a residual exceeds RESIDUAL."""
+        ``diagnostics`` (if given), with a SolverWarning when a residual exceeds RESIDUAL. ``x0``
+        is not used (the LU solve is direct)."""
         t0 = time.perf_counter()
         rhs = np.atleast_2d(rhs)
         b = rhs[:, self.unknown_order]  # documented → blocked ordering

@@ -15,7 +15,9 @@ and both polarizations:
 An operator has ``mesh``, ``solve(b, diagnostics)`` → a result with ``x`` (P, 2N_b) that records
 its figures (residual, iterations, times) into ``diagnostics``, ``farfield(mesh, x, grid, rule,
 theta_i=, phi_i=, incident_power=, diagnostics=)`` → FarField, and ``diagnostics()`` (set-up
-figures). :func:`bem_farfield` is the one-shot entry point of both methods.
+figures). :func:`bem_farfield` is the one-shot entry point of both methods. Given a
+:class:`~wavebrdf.solver.bem3d.warm_start.WarmStarts`, an AIM solve starts from the previous
+wavelength's solution of the same surface and incidence (warm_start.py).
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ from wavebrdf.solver.bem3d.farfield import radiated_fields
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.bem3d.quadrature import QuadratureOptions
+from wavebrdf.solver.bem3d.warm_start import WarmStarts, surface_key
 from wavebrdf.solver.farfield import FarField, HemisphereGrid
 from wavebrdf.solver.resources import peak_memory_mb
 from wavebrdf.solver.stages import StageClock
@@ -66,12 +69,15 @@ class BEMSolver:
     or AIM_QUADRATURE for AIM), ``z_reference`` (height subtracted from the surface, default its
     mean, or the border's with the flat continuation), ``aim`` (AIMOptions or a mapping; method
     "aim" only), ``residual`` ("auto" | "copy" | "reassemble" | "none") and ``memory_limit_bytes``
-    (default 85% of MemAvailable) of the dense path, ``progress`` (callable(stage, fraction)).
+    (default 85% of MemAvailable) of the dense path, ``progress`` (callable(stage, fraction)),
+    ``warm_starts`` (a WarmStarts the AIM solves read their initial guess from and keep their
+    solution in, when ``aim.warm_start``; None: every solve starts from zero).
     """
 
     def __init__(self, ctx, surface: HeightField, wavelength_um: float, index: complex, *, method: str = "dense",
                  exterior_index: float = 1.0, quadrature=None, z_reference: float | None = None, aim=None,
-                 residual: str = "auto", memory_limit_bytes: float | None = None, progress=None):
+                 residual: str = "auto", memory_limit_bytes: float | None = None, progress=None,
+                 warm_starts: WarmStarts | None = None):
         if method not in METHODS:
             raise ValueError(f"bem method must be one of {METHODS}, got {method!r}")
         if method == "aim" and ctx is None:
@@ -88,6 +94,9 @@ class BEMSolver:
         if continued and z_reference is None:
             z_reference = border_height(surface)  # the continuation plane is z = 0
         self.mesh = BEMMesh(surface, z_reference)
+        self.warm_starts = warm_starts if self.aim is not None and self.aim.warm_start else None
+        self._warm_key = None if self.warm_starts is None else surface_key(
+            self.mesh, float(exterior_index), self.aim.precision, id(ctx))
         if quadrature is None and method == "aim":
             quadrature = AIM_QUADRATURE
         if not isinstance(quadrature, QuadratureOptions):
@@ -191,14 +200,22 @@ class BEMSolver:
             record.update(edge="flat", continuation_cells=margin, continuation_s=time.perf_counter() - t_fixed,
                           extended_unknowns=fixed.shape[1])
         self.progress("solve", 0.0)
+        incidence = (float(theta_i), float(phi_i), waist_um, beam, tuple(map(float, focus_um)))
+        k1 = float(self.media.wavenumbers[0].real)
+        guess = None if self.warm_starts is None else self.warm_starts.guess(
+            self._warm_key, incidence, self.mesh, k1, theta_i, phi_i)
+        if guess is not None:
+            record["warm_start_from_um"] = guess[1]
         try:
             with self.clock("Krylov solve"):
-                result = self.operator.solve(b, record)
+                result = self.operator.solve(b, record, x0=None if guess is None else guess[0])
         except Exception as exc:  # keep the set-up diagnostics with the failure
             extra = getattr(exc, "diagnostics", None)
             if isinstance(extra, dict):
                 extra.update({k: v for k, v in record.items() if k not in extra and k != "aim_options"})
             raise
+        if self.warm_starts is not None:
+            self.warm_starts.keep(self._warm_key, incidence, k1, self.media.wavelength_um, result.x)
         mesh, x, part = self.mesh, result.x, None
         if margin is not None:  # the far field of the patch's and the continued currents
             mesh, x = self.continuation.extended_solution(margin, fixed, result.x)

@@ -7,9 +7,11 @@
 
 The operator of one (surface, wavelength, material) serves every incident direction and both
 polarizations (the LU factors, or the AIM near-field matrix, grid spectra and preconditioner), so
-a model instance keeps the last one and reuses it while consecutive scenes share it (the planner
-orders tasks case → wavelength → direction, and steered patches patch → basic direction, to make
-that the common case).
+a model instance keeps the last one and reuses it while consecutive scenes share it; its AIM
+solves start from the previous wavelength's solution of the same surface and incidence
+(bem3d/warm_start.py; ``[model.aim] warm_start``). The planner orders tasks case → wavelength →
+direction, and steered patches patch → wavelength → basic direction, and the scheduler keeps a
+patch on one worker, to make both the common case.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import numpy as np
 
 from wavebrdf.solver.beams import make_beam
 from wavebrdf.solver.bem3d.aim.options import AIMOptions
+from wavebrdf.solver.bem3d.warm_start import WarmStarts
 from wavebrdf.solver.farfield import FarField
 from wavebrdf.solver.models import Capabilities, Estimate, Model, SurfaceScene
 from wavebrdf.solver.options import OptionsError, option
@@ -63,6 +66,7 @@ class BEMModel(Model):
         super().__init__(options)
         self._kept: tuple | None = None  # (key, BEMSolver) of the last scene
         self._fits: dict = {}  # budget fits by scene geometry (aim/budget.py)
+        self.warm_starts = WarmStarts()  # the last solutions of one surface, the next wavelength's guesses
 
     def aim_options(self, scene: SurfaceScene) -> AIMOptions:
         """[model.aim] with [model] precision = "single" applied, fitted to the scene's memory
@@ -109,12 +113,13 @@ class BEMModel(Model):
             aim = self.aim_options(scene) if self.options.method == "aim" else None
             solver = BEMSolver(ctx, scene.surface, scene.wavelength_um, scene.index, method=self.options.method,
                                exterior_index=scene.exterior_index, z_reference=scene.z_reference, aim=aim,
-                               progress=_reporter(ctx))
+                               progress=_reporter(ctx), warm_starts=self.warm_starts)
             self._kept = (key, solver)
         return self._kept[1]
 
     def release(self) -> None:
         self._kept = None
+        self.warm_starts.clear()
 
     def check(self, scene: SurfaceScene) -> None:
         """Refuse, before anything runs, what the flat edge continuation cannot do."""

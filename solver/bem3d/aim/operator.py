@@ -166,20 +166,22 @@ class AIMOperator:
         """NumPy reference of :meth:`matvec`."""
         return self.near.apply_numpy(x) + self.base.apply_numpy(x)
 
-    def solve(self, rhs: np.ndarray, diagnostics: dict | None = None) -> KrylovResult:
-        """Krylov solve of Z x = b for right-hand sides (P, 2N_b); returns a KrylovResult (x unscaled)
-        and records its figures and the matvec timings so far into ``diagnostics`` (if given).
-        Raises KrylovNotConverged (with ``diagnostics``) when the tolerance is missed."""
+    def solve(self, rhs: np.ndarray, diagnostics: dict | None = None, x0: np.ndarray | None = None) -> KrylovResult:
+        """Krylov solve of Z x = b for right-hand sides (P, 2N_b), from the initial guess ``x0``
+        (P, 2N_b; least-squares scaled, solver/krylov.py) or zero; returns a KrylovResult (x
+        unscaled) and records its figures and the matvec timings so far into ``diagnostics`` (if
+        given). Raises KrylovNotConverged (with ``diagnostics``) when the tolerance is missed."""
         o = self.options
         apply = self.matvec if self.ctx is not None else self.matvec_numpy
         try:
             if self.preconditioner is not None:
                 result = solve(apply, rhs, method=o.solver, tol=o.tolerance, max_iterations=o.max_iterations,
-                               restart=o.restart, preconditioner=self.preconditioner, progress=self.progress)
+                               restart=o.restart, x0=x0, preconditioner=self.preconditioner, progress=self.progress)
             else:
-                s = symmetric_scaling(self.mesh.n_bases, self.dtype)
+                s = symmetric_scaling(self.mesh.n_bases, self.dtype)  # entries 1 and j: S⁻¹ = S̄
                 result = solve(lambda Y: s * apply(s * Y), s * rhs, method=o.solver, tol=o.tolerance,
-                               max_iterations=o.max_iterations, restart=o.restart, progress=self.progress)
+                               max_iterations=o.max_iterations, restart=o.restart,
+                               x0=None if x0 is None else np.conj(s) * x0, progress=self.progress)
                 result.x = s * result.x
         finally:
             self.base.release_work()  # the products' arrays: the far field and the next set-up need the memory

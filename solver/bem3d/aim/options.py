@@ -51,6 +51,10 @@ class AIMOptions:
     tolerance           ‖r‖/‖b‖ of the Krylov solve (checked on the true residual)
     max_iterations      operator products per polarization
     restart             GMRES restart length
+    warm_start          true: a solve starts from the previous wavelength's solution of the same
+                        surface and incidence in this worker, phase-moved and least-squares
+                        scaled (bem3d/warm_start.py); false: from zero (bitwise the same result
+                        whatever the task order)
     preconditioner      "near" (sparse LU of the exact entries within preconditioner_cells) | "none"
     preconditioner_cells   radius of the preconditioner's pairs (cells)
     preconditioner_tile_cells   side of the preconditioner's LU tiles in cells (0: one LU)
@@ -86,6 +90,7 @@ class AIMOptions:
     tolerance: float = option(1e-4, low=0, low_open=True, high=1, high_open=True)
     max_iterations: int = option(3000, low=1)
     restart: int = option(60, low=1)
+    warm_start: bool = option(True)
     preconditioner: str = option("near", choices=PRECONDITIONERS)
     preconditioner_cells: float = option(2.3, low=0, low_open=True)
     preconditioner_tile_cells: int = option(0, low=0)
