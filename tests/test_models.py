@@ -13,7 +13,7 @@ Cases (VALIDATION.md items 1, 3, 4, 5):
   and aluminium at several angles, lobe peak at the mirror direction;
 * reciprocity (models claiming it): f(ω_i, ω_o) = f(ω_o, ω_i), directions on pixel centres;
 * no gain for κ ≥ 0 (surfaces: albedo ≤ 1; fibers: C_abs ≥ 0, C_ext = C_sca + C_abs, ...);
-* ``estimate()`` within a stated factor of the measured peak memory and time (subprocess);
+* ``estimate()`` within a stated factor of the measured peak memory and CPU time (subprocess);
 * capability flags enforced by the real config/plan/CLI layer, and an intensity-only test model
   (Lambertian) run end to end into a dataset.
 """
@@ -24,6 +24,7 @@ import dataclasses
 import json
 import logging
 import math
+import os
 import subprocess
 import sys
 import textwrap
@@ -520,10 +521,10 @@ else:
                        spec["phi_r_bins"], radius_um=spec["radius_um"])
 model = get_model(spec["name"], spec["options"])
 estimate = model.estimate(scene)
-t0 = time.perf_counter()
+t0, cpu0 = time.perf_counter(), time.process_time()
 model.run(ctx, scene)  # first run: kernel builds come from the disk cache (POCL_CACHE_DIR)
-seconds = time.perf_counter() - t0
-print(json.dumps({"baseline": baseline, "peak": peak_bytes(), "seconds": seconds,
+seconds, cpu_seconds = time.perf_counter() - t0, time.process_time() - cpu0
+print(json.dumps({"baseline": baseline, "peak": peak_bytes(), "seconds": seconds, "cpu_seconds": cpu_seconds,
                   "estimate_bytes": estimate.memory_bytes, "estimate_seconds": estimate.seconds,
                   "detail": estimate.detail}))
 """
@@ -533,7 +534,9 @@ print(json.dumps({"baseline": baseline, "peak": peak_bytes(), "seconds": seconds
 def test_estimate_within_factor_of_measured(name, tmp_path):
     """One scene per model in a fresh interpreter: Estimate.memory_bytes within 4× of the measured
     peak RSS (VmHWM) over the baseline after importing the same modules (context creation and the
-    run are counted), Estimate.seconds within 20× of the measured run (floors: 32 MB, 0.05 s)."""
+    run are counted), Estimate.seconds within 20× of the run's wall time on an idle machine,
+    bounded by its CPU time, which other processes' load does not change: an idle run with c cores
+    takes between cpu/c and cpu seconds (floors: 32 MB, 0.05 s)."""
     caps = model_class(name).capabilities
     if caps.takes == "cross_section":
         spec = dict(ESTIMATE_FIBER)
@@ -553,13 +556,15 @@ def test_estimate_within_factor_of_measured(name, tmp_path):
                 name, m["estimate_bytes"] / 2**20, m["estimate_seconds"], m["detail"], used / 2**20,
                 m["baseline"] / 2**20, m["seconds"])
     print(f"{name}: estimate {m['estimate_bytes'] / 2**20:.1f} MB / {m['estimate_seconds']:.3g} s; measured "
-          f"{used / 2**20:.1f} MB / {m['seconds']:.3g} s")
+          f"{used / 2**20:.1f} MB / {m['seconds']:.3g} s wall, {m['cpu_seconds']:.3g} s CPU")
     measured_bytes = max(used, MEMORY_FLOOR_BYTES)
     assert measured_bytes / MEMORY_FACTOR <= m["estimate_bytes"] <= measured_bytes * MEMORY_FACTOR, \
         f"{name}: memory estimate {m['estimate_bytes'] / 2**20:.1f} MB vs measured {used / 2**20:.1f} MB"
-    measured_seconds = max(m["seconds"], TIME_FLOOR_S)
-    assert measured_seconds / TIME_FACTOR <= m["estimate_seconds"] <= measured_seconds * TIME_FACTOR, \
-        f"{name}: time estimate {m['estimate_seconds']:.3g} s vs measured {m['seconds']:.3g} s"
+    cpu_seconds = max(m["cpu_seconds"], TIME_FLOOR_S)
+    cores = len(os.sched_getaffinity(0))
+    assert cpu_seconds / cores / TIME_FACTOR <= m["estimate_seconds"] <= cpu_seconds * TIME_FACTOR, \
+        (f"{name}: time estimate {m['estimate_seconds']:.3g} s vs {m['cpu_seconds']:.3g} CPU s measured "
+         f"({cores} cores; wall {m['seconds']:.3g} s)")
 
 
 # ============================================================================================
