@@ -4,6 +4,7 @@
 #
 #   bash tools/setup.sh            # system PoCL via apt (needs root or sudo), then .venv
 #   WAVEBRDF_POCL=pip bash tools/setup.sh   # no root: PoCL from the pocl-binary-distribution wheel
+#   WAVEBRDF_INTEL=1 bash tools/setup.sh    # also Intel's CPU OpenCL runtime (tools/intel-opencl.sh)
 #
 # Environment knobs: PYTHON (interpreter, default python3), VENV (default .venv),
 # WAVEBRDF_EXTRAS (pip extras, default dev).
@@ -62,5 +63,8 @@ if [ "$EXTRAS" != "${EXTRAS#dev}" ]; then
     echo "[setup] creating $VENV/xarray-min (xarray and h5netcdf at their pinned minimum versions)"
     "$PYTHON" -m venv "$VENV/xarray-min"
     "$VENV/xarray-min/bin/python" -m pip install -q -r tools/xarray-min.txt
+fi
+if [ "${WAVEBRDF_INTEL:-0}" = 1 ]; then
+    VENV="$VENV" bash tools/intel-opencl.sh
 fi
 echo "[setup] done: activate with 'source $VENV/bin/activate'"
