@@ -160,7 +160,8 @@ def _run_and_report(args, plan, executor: str, workers: int, comm) -> int:
     rank = comm.Get_rank() if comm is not None else 0
     if rank == 0:
         prepare_output(plan)  # a parts folder that cannot be used is refused before anything starts
-    ctx = create_context(args.device, local_rank=local_rank())  # one GPU per local rank
+    ctx = create_context(args.device, require_fp64=plan.needs_fp64,
+                         local_rank=local_rank())  # one GPU per local rank
     if rank == 0:
         how = {"mpi": f"{comm.Get_size() if comm else 1} MPI ranks", "processes": f"{workers} worker processes",
                "serial": "this process"}[executor]

@@ -127,6 +127,11 @@ class Plan:
     def is_fiber(self) -> bool:
         return self.study.is_fiber
 
+    @property
+    def needs_fp64(self) -> bool:
+        """Whether a case runs at [model] precision = "double" (the device needs cl_khr_fp64)."""
+        return any(case.model.precision == "double" for case in self.config.cases)
+
     def cross_section(self, case: int):
         """The fiber cross section of ``case``, built once."""
         key = ("fiber", case)

@@ -278,7 +278,8 @@ def _process_init(config_text, config_path, output, env, parent_pid):
     from wavebrdf.solver.opencl import create_context
 
     plan = plan_study(parse_config(config_text, Path(config_path), output=output))
-    _WORKER.update(plan=plan, parts=PartsFolder(plan), ctx=create_context(), pool=ModelPool(), pid=os.getpid())
+    ctx = create_context(require_fp64=plan.needs_fp64)
+    _WORKER.update(plan=plan, parts=PartsFolder(plan), ctx=ctx, pool=ModelPool(), pid=os.getpid())
 
 
 def _process_run(task_id: int):

@@ -89,6 +89,8 @@ class DeviceInfo:
     compute_units: int
     global_mem_gib: float
     max_alloc_gib: float
+    unified_memory: bool = False  # CL_DEVICE_HOST_UNIFIED_MEMORY: CPUs and integrated GPUs
+    max_work_group_size: int = 256
 
     @property
     def spec(self) -> str:
@@ -142,7 +144,18 @@ def _describe(pi: int, di: int, platform, device) -> DeviceInfo:
         compute_units=int(device.max_compute_units),
         global_mem_gib=device.global_mem_size / 2**30,
         max_alloc_gib=device.max_mem_alloc_size / 2**30,
+        unified_memory=_unified_memory(device, kinds),
+        max_work_group_size=int(device.max_work_group_size),
     )
+
+
+def _unified_memory(device, kinds: list[str]) -> bool:
+    """Whether the device works in host memory (CL_DEVICE_HOST_UNIFIED_MEMORY; its kind where a
+    runtime does not answer the deprecated query)."""
+    try:
+        return bool(device.host_unified_memory)
+    except Exception:
+        return "CPU" in kinds
 
 
 def list_devices() -> list[DeviceInfo]:
@@ -256,8 +269,13 @@ class ComputeContext:
 
     @property
     def shares_host_memory(self) -> bool:
-        """True where buffers can live in host memory at no cost (CPU devices: USE_HOST_PTR)."""
-        return "CPU" in self.info.kind
+        """True where buffers can live in host memory at no cost (USE_HOST_PTR): devices on the
+        host's memory (CPUs, integrated GPUs), not discrete GPUs."""
+        return self.info.unified_memory
+
+    def work_group(self, size: int) -> int:
+        """``size`` work-items per group, or fewer where the device allows fewer."""
+        return max(1, min(int(size), self.info.max_work_group_size))
 
     def host_buffer(self, array: np.ndarray, access: str = "read"):
         """A buffer over the host ``array`` (C-contiguous, non-empty) for ``access`` "read" |
@@ -302,8 +320,10 @@ class ComputeContext:
             raise ValueError(f"precision must be 'double' or 'single', got {precision!r}")
         if precision == "double" and not self.fp64:
             raise OpenCLUnavailable(
-                f"device {self.describe()} has no double precision (cl_khr_fp64); choose another "
-                "device with WAVEBRDF_DEVICE or precision = \"single\""
+                f"device {self.describe()} has no double precision (cl_khr_fp64), which these kernels "
+                "need (every model at [model] precision = \"double\"; the full-wave BEM's assembly at "
+                "any precision): choose another device with WAVEBRDF_DEVICE ('wavebrdf devices' lists "
+                "fp64), or precision = \"single\" for the approximate models"
             )
         return np.dtype(np.float64 if precision == "double" else np.float32)
 
@@ -359,7 +379,8 @@ def create_context(spec: str | None = None, *, require_fp64: bool = True, local_
     if require_fp64 and not info.fp64:
         raise OpenCLUnavailable(
             f"device {info.platform} / {info.name} has no double precision (cl_khr_fp64). "
-            "Pick another with WAVEBRDF_DEVICE (see 'wavebrdf devices')."
+            "Pick another with WAVEBRDF_DEVICE (see 'wavebrdf devices'), or run at "
+            "[model] precision = \"single\"."
         )
     device = cl.get_platforms()[info.platform_index].get_devices()[info.device_index]
     context = cl.Context([device])

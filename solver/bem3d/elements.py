@@ -181,11 +181,13 @@ WORK_GROUP = 8  # explicit small work-groups: PoCL keeps the large private table
 
 def launch_size(ctx, n: int) -> tuple[tuple[int], tuple[int]]:
     """(global, local) sizes for n items, WB_VW = ``ctx.vector_lanes("double")`` items per work-item
-    (SIMD lanes on CPUs, 1 on GPUs, where work-items are the lanes), padded to WORK_GROUP."""
+    (SIMD lanes on CPUs, 1 on GPUs, where work-items are the lanes), padded to WORK_GROUP (or the
+    device's largest work-group where smaller)."""
     lanes = ctx.vector_lanes("double")
+    group = ctx.work_group(WORK_GROUP)
     items = (n + lanes - 1) // lanes
-    items = (items + WORK_GROUP - 1) // WORK_GROUP * WORK_GROUP
-    return (items,), (WORK_GROUP,)
+    items = (items + group - 1) // group * group
+    return (items,), (group,)
 
 
 def _destination(out, shape, dtype) -> np.ndarray:
