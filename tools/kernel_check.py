@@ -109,7 +109,7 @@ def _bem_list(ctx):
     return {"ee": ee, "mm": mm, "em": em}
 
 
-# name -> (what it runs, function of ctx returning named arrays)
+# case name -> function of a ComputeContext returning the case's named output arrays
 CASES = {
     "kirchhoff": lambda ctx: _run_model(ctx, "kirchhoff", _surface_scene()),
     "kirchhoff-single": lambda ctx: _run_model(ctx, "kirchhoff", _surface_scene("single")),
@@ -178,13 +178,14 @@ LAUNCHES = {
 }
 
 
-def record_launches(ctx) -> dict[str, set]:
-    """Make ``ctx`` note, per case, the kernels it hands out; returns {case: kernel names}."""
+def record_launches(ctx, current: dict) -> dict[str, set]:
+    """Make ``ctx`` note the kernels it hands out under the case ``current["case"]``; returns
+    {case: kernel names}."""
     seen: dict[str, set] = {}
     original = ctx.kernel
 
     def kernel(source, name, defines=None):
-        seen.setdefault(ctx._current_case, set()).add(name)
+        seen.setdefault(current["case"], set()).add(name)
         return original(source, name, defines)
 
     ctx.kernel = kernel
@@ -196,10 +197,11 @@ def run_cases(names=None, save: str | None = None) -> dict:
     from wavebrdf.solver.opencl import create_context
 
     ctx = create_context()
-    seen = record_launches(ctx)
+    current = {"case": None}
+    seen = record_launches(ctx, current)
     arrays, seconds = {}, {}
     for case in names or CASES:
-        ctx._current_case = case
+        current["case"] = case
         t0 = time.perf_counter()
         for key, value in {**CASES, **PLANTED}[case](ctx).items():
             arrays[f"{case}/{key}"] = np.asarray(value)
