@@ -30,10 +30,10 @@ fi
 
 if [ "$POCL" = apt ]; then
     SUDO=""; [ "$(id -u)" = 0 ] || SUDO=sudo
-    echo "[setup] installing PoCL (CPU OpenCL) and OpenCL headers with apt"
+    echo "[setup] installing PoCL (CPU OpenCL), OpenCL headers and Oclgrind (the kernel checker) with apt"
     $SUDO apt-get update -qq
     DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends \
-        pocl-opencl-icd ocl-icd-opencl-dev binutils >/dev/null
+        pocl-opencl-icd ocl-icd-opencl-dev binutils oclgrind >/dev/null
 fi
 
 # Mitsuba 3's llvm variants (the JIT backend of wavebrdf.mitsuba) need libLLVM >= 17; without it
