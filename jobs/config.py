@@ -58,7 +58,17 @@ from typing import Any, Callable
 
 import numpy as np
 
+from wavebrdf.jobs.errors import ConfigError, fail, fmt
+from wavebrdf.jobs.overrides import dict_config_text, overridden_text, parse_toml
+from wavebrdf.jobs.ranges import RANGE_KEYS, expand_directions, expand_range
+from wavebrdf.jobs.steering import GlobalSurface
+from wavebrdf.solver.farfield import HemisphereGrid
+from wavebrdf.solver.materials import Material, MaterialError, read_index_file
+from wavebrdf.solver.models import SurfaceScene, get_model, model_class, model_names
 from wavebrdf.solver.number_rows import RowError, number_rows
+from wavebrdf.solver.options import parse_options
+from wavebrdf.solver.resources import meminfo_bytes
+from wavebrdf.solver.surface import HeightField, SurfaceError, generate, load_heights
 
 __all__ = [
     "ConfigError",
@@ -88,19 +98,6 @@ NOT_SWEEPABLE = {
     "study.name": "a study has one name",
     "steering.patches": "the patch layout is shared by all cases",
 }
-
-
-class ConfigError(ValueError):
-    """Invalid configuration; the message names the key, the value and what is allowed."""
-
-
-def _fmt(value: Any) -> str:
-    text = repr(value) if not isinstance(value, str) else f'"{value}"'
-    return text if len(text) <= 80 else text[:77] + "..."
-
-
-def _fail(section: str, key: str, value: Any, problem: str) -> ConfigError:
-    return ConfigError(f"[{section}] {key} = {_fmt(value)}: {problem}")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -180,28 +177,26 @@ class Number:
         if problem is None:
             return int(value) if self.integer else float(value)
         if whole is None:
-            raise _fail(section, key, value, problem)
+            raise fail(section, key, value, problem)
         if problem.startswith("is "):
             problem = f"values must lie within the physical range {self.range_text}"
         else:
             problem = f"values must be finite {'integers' if self.integer else 'numbers'} {self.domain_text}".rstrip()
-        raise _fail(section, key, whole, f"{problem} (bad: {_fmt(value)})")
+        raise fail(section, key, whole, f"{problem} (bad: {fmt(value)})")
 
     def __call__(self, section, key, value):
         if self.form == "list":
-            from wavebrdf.jobs.ranges import expand_range
-
             value = expand_range(section, key, value)  # {start, stop, count}
             if not isinstance(value, list) or not value:
-                raise _fail(section, key, value, "must be a non-empty list of numbers")
+                raise fail(section, key, value, "must be a non-empty list of numbers")
             out = tuple(self.item(section, key, item, whole=value) for item in value)
             if len(set(out)) != len(out):
-                raise _fail(section, key, value, "values must be distinct")
+                raise fail(section, key, value, "values must be distinct")
             return out
         if self.form == "pair" or (self.form == "one_or_pair" and isinstance(value, list)):
             if not isinstance(value, list) or len(value) != 2:
                 either = "a number, or " if self.form == "one_or_pair" else ""
-                raise _fail(section, key, value, f"must be {either}[a, b] with two numbers {self.domain_text}")
+                raise fail(section, key, value, f"must be {either}[a, b] with two numbers {self.domain_text}")
             return tuple(self.item(section, key, v, whole=value) for v in value)
         return self.item(section, key, value)
 
@@ -225,18 +220,18 @@ class Rows:
         if self.expand is not None:
             value = self.expand(section, key, value)
         if not isinstance(value, list) or not value:
-            raise _fail(section, key, value, f"must be a non-empty list of {self.shape_text} rows")
+            raise fail(section, key, value, f"must be a non-empty list of {self.shape_text} rows")
         out = []
         for row in value:
             if not isinstance(row, list) or len(row) != len(self.columns):
-                raise _fail(section, key, value, f"each {self.row} must be {self.shape_text} (bad: {_fmt(row)})")
+                raise fail(section, key, value, f"each {self.row} must be {self.shape_text} (bad: {fmt(row)})")
             for (name, check), x in zip(self.columns, row):
                 problem = check.problem(x)
                 if problem is not None:
-                    raise _fail(section, key, value, f"{name} {problem} (bad: {_fmt(x)} in {_fmt(row)})")
+                    raise fail(section, key, value, f"{name} {problem} (bad: {fmt(x)} in {fmt(row)})")
             out.append(tuple(float(x) for x in row))
         if self.distinct and len(set(out)) != len(out):
-            raise _fail(section, key, value, f"{self.row}s must be distinct")
+            raise fail(section, key, value, f"{self.row}s must be distinct")
         return tuple(out)
 
 
@@ -262,7 +257,7 @@ def _integer(low: int, high: int | None = None) -> Number:
 
 def _string(section, key, value):
     if not isinstance(value, str) or not value.strip():
-        raise _fail(section, key, value, "must be a non-empty string")
+        raise fail(section, key, value, "must be a non-empty string")
     return value
 
 
@@ -271,35 +266,33 @@ def _study_name(section, key, value):
     a plain file name (no folders, no "..", no control characters)."""
     name = _string(section, key, value)
     if any(sep in name for sep in ("/", "\\")) or ".." in name or not name.isprintable() or len(name) > 200:
-        raise _fail(section, key, value, "must be a plain name (no '/', '\\', '..' or control characters, at "
-                    "most 200 characters); choose the output path with [study] output")
+        raise fail(section, key, value, "must be a plain name (no '/', '\\', '..' or control characters, at "
+                   "most 200 characters); choose the output path with [study] output")
     return name
 
 
 def _model_names(section, key, value):
     """A registered model name, or a non-empty list of them."""
-    from wavebrdf.solver.models import model_names
-
     names = value if isinstance(value, list) else [value]
     if not names or not all(isinstance(n, str) for n in names):
-        raise _fail(section, key, value, "must be a model name or a non-empty list of model names")
+        raise fail(section, key, value, "must be a model name or a non-empty list of model names")
     unknown = [n for n in names if n not in model_names()]
     if unknown:
-        raise _fail(section, key, value, f"{unknown[0]!r} is not a registered model "
+        raise fail(section, key, value, f"{unknown[0]!r} is not a registered model "
                                          f"(available: {', '.join(model_names())})")
     return value
 
 
 def _boolean(section, key, value):
     if not isinstance(value, bool):
-        raise _fail(section, key, value, "must be true or false")
+        raise fail(section, key, value, "must be true or false")
     return value
 
 
 def _choice(*choices: str) -> Callable:
     def check(section, key, value):
         if value not in choices:
-            raise _fail(section, key, value, f"must be one of {', '.join(repr(c) for c in choices)}")
+            raise fail(section, key, value, f"must be one of {', '.join(repr(c) for c in choices)}")
         return value
 
     return check
@@ -314,13 +307,11 @@ def _patches(section, key, value):
         or len(value) != 2
         or any(v != "auto" and (isinstance(v, bool) or not isinstance(v, int) or v < 1) for v in value)
     ):
-        raise _fail(section, key, value, 'must be "auto" or [mx, my] with integers >= 1 (either may be "auto")')
+        raise fail(section, key, value, 'must be "auto" or [mx, my] with integers >= 1 (either may be "auto")')
     return tuple(v if v == "auto" else int(v) for v in value)
 
 
 def _direction_grid(section, key, value):
-    from wavebrdf.jobs.ranges import expand_directions
-
     return expand_directions(section, key, value)  # {theta = ..., phi = ...} grid
 
 
@@ -452,8 +443,6 @@ class SurfaceSpec:
         """Load or generate the :class:`~wavebrdf.solver.surface.HeightField` — or, for a
         rectangle (``size_um``/``cells`` pairs, or a non-square file), the steering layer's
         :class:`~wavebrdf.jobs.steering.GlobalSurface` (refused outside ``[steering]`` studies)."""
-        from wavebrdf.solver.surface import HeightField, SurfaceError, generate, load_heights
-
         if self.file is not None:
             z = load_heights(self.file)
             sides = self.size_um if isinstance(self.size_um, tuple) else None
@@ -462,7 +451,6 @@ class SurfaceSpec:
                     raise SurfaceError(f"height matrix must be square ((N+1)x(N+1)), got {z.shape[0]}x{z.shape[1]} "
                                        "(rows = x, columns = y); a rectangular global surface of a [steering] study "
                                        "needs size_um = [L_x, L_y]")
-                from wavebrdf.jobs.steering import GlobalSurface
 
                 return GlobalSurface(z, sides)
             if sides is not None and sides[0] != sides[1]:
@@ -470,8 +458,6 @@ class SurfaceSpec:
                                    f"{z.shape[0]}x{z.shape[1]} heights")
             return HeightField(z, sides[0] if sides else self.size_um)
         if self.rectangular:
-            from wavebrdf.jobs.steering import GlobalSurface
-
             return GlobalSurface.generated(self.generator, cells=self.cells, sides_um=self.size_um, seed=self.seed,
                                            **self.parameters)
         return generate(self.generator, cells=self.cells, size_um=self.size_um, seed=self.seed, **self.parameters)
@@ -487,8 +473,6 @@ class MaterialSpec:
     file: Path | None = None  # [material] file (its rows are ``table``)
 
     def build(self):
-        from wavebrdf.solver.materials import Material
-
         if self.name is not None:
             return Material.from_name(self.name)
         if self.table is not None:
@@ -545,14 +529,10 @@ class ModelSpec:
 
     def build(self):
         """A new instance of the model with these options."""
-        from wavebrdf.solver.models import get_model
-
         return get_model(self.name, self.options)
 
     @property
     def capabilities(self):
-        from wavebrdf.solver.models import model_class
-
         return model_class(self.name).capabilities
 
 
@@ -637,7 +617,7 @@ def _validate_section(section: str, raw: Any, present: bool = True) -> dict:
     """Check and convert one section; an absent optional section gets its defaults."""
     schema = SCHEMA[section]
     if not isinstance(raw, dict):
-        raise ConfigError(f"[{section}] must be a table, got {_fmt(raw)}")
+        raise ConfigError(f"[{section}] must be a table, got {fmt(raw)}")
     for key in raw:
         if key not in schema and section not in OPEN_SECTIONS:
             raise ConfigError(
@@ -697,21 +677,21 @@ def _check_output_path(raw_output: str) -> Path:
     configs write to out/); deeper missing folders are refused, nothing is created here."""
     path = Path(raw_output).expanduser()
     if path.suffix not in (".h5", ".hdf5", ".nc"):
-        raise _fail("study", "output", raw_output, "must end in .h5 (or .hdf5/.nc)")
+        raise fail("study", "output", raw_output, "must end in .h5 (or .hdf5/.nc)")
     parent = path.resolve().parent
     probe = parent
     while not probe.exists() and not probe.is_symlink():
         probe = probe.parent
     if not probe.is_dir():
-        raise _fail("study", "output", raw_output, f"folder {str(parent)!r} is not writable: {str(probe)!r} is "
-                    "not a folder")
+        raise fail("study", "output", raw_output, f"folder {str(parent)!r} is not writable: {str(probe)!r} is "
+                   "not a folder")
     if probe != parent and probe != parent.parent:
-        raise _fail("study", "output", raw_output, f"folder {str(parent)!r} does not exist, nor does "
-                    f"{str(parent.parent)!r}; create the folder first")
+        raise fail("study", "output", raw_output, f"folder {str(parent)!r} does not exist, nor does "
+                   f"{str(parent.parent)!r}; create the folder first")
     if not os.access(probe, os.W_OK | os.X_OK):
-        raise _fail("study", "output", raw_output, f"folder {str(probe)!r} is not writable")
+        raise fail("study", "output", raw_output, f"folder {str(probe)!r} is not writable")
     if path.exists() and path.is_dir():
-        raise _fail("study", "output", raw_output, "is a folder")
+        raise fail("study", "output", raw_output, "is a folder")
     return path
 
 
@@ -770,8 +750,8 @@ def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: di
         raise ConfigError(f"[fiber] segments: required by the fiber-bem model for shape = \"{fiber.shape}\" "
                           "(e.g. 300 for a 1 µm radius at 0.4 µm: >= 10 elements per interior wavelength)")
     if model.name == "mie" and fiber.shape != "circle":
-        raise _fail("model", "name", "mie", f"the Mie series solves circular fibers only, not fiber.shape = "
-                    f"{fiber.shape!r}; use \"fiber-bem\"")
+        raise fail("model", "name", "mie", f"the Mie series solves circular fibers only, not fiber.shape = "
+                   f"{fiber.shape!r}; use \"fiber-bem\"")
     o = v["output"]
     out = OutputSpec(o["resolution"], o["per_polarization"], o["phi_r_bins"], o["phi_i_bins"])
     steering = None
@@ -786,8 +766,8 @@ def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: di
                           f"{model.capabilities.returns}, not coherent fields with their incident beam); "
                           "remove [steering] or choose a steerable model")
     if surface is not None and surface.rectangular and "steering" not in data:
-        raise _rectangle_outside_steering(f"size_um = {_fmt(list(surface.size_um))}, cells = "
-                                          f"{_fmt(list(surface.cells))}")
+        raise _rectangle_outside_steering(f"size_um = {fmt(list(surface.size_um))}, cells = "
+                                          f"{fmt(list(surface.cells))}")
     if "steering" in data:
         st = v["steering"]
         steering = SteeringSpec(st["patches"], st["patch_size_um"], st["shift_um"] or illumination.waist_um,
@@ -802,20 +782,17 @@ def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: di
 
 def _model_spec(m: dict, is_fiber: bool) -> ModelSpec:
     """[model]: a registered model that takes this study's input, with its Options parsed."""
-    from wavebrdf.solver.models import model_class, model_names
-    from wavebrdf.solver.options import parse_options
-
     takes = ("cross_section",) if is_fiber else ("height_field", "statistics")
     if m["name"] not in model_names() or model_class(m["name"]).capabilities.takes not in takes:
         allowed = [n for t in takes for n in model_names(t)]  # imports every model: the error path only
         kind = "fiber" if is_fiber else "surface"
-        raise _fail("model", "name", m["name"], f"a {kind} study needs one of {', '.join(repr(n) for n in allowed)}")
+        raise fail("model", "name", m["name"], f"a {kind} study needs one of {', '.join(repr(n) for n in allowed)}")
     cls = model_class(m["name"])
     given = dict(m["options"])
     own = given.pop(m["name"], None)  # [model.<name>] table
     if own is not None:
         if not isinstance(own, dict):
-            raise _fail("model", m["name"], own, f"must be a table of the {m['name']} model's options")
+            raise fail("model", m["name"], own, f"must be a table of the {m['name']} model's options")
         both = sorted(set(own) & set(given))
         if both:
             raise ConfigError(f"[model.{m['name']}] {both[0]}: also given in [model]; give it once")
@@ -839,14 +816,14 @@ def _surface_spec(s: dict, base_dir: Path, given: dict) -> SurfaceSpec:
         for key, why in (("cells", "the file's matrix of (N+1)×(N+1) heights gives N"),
                          ("seed", "the heights are read, not drawn")):
             if key in given:  # it would be ignored
-                raise ConfigError(f"[surface] {key} = {_fmt(given[key])} and file = {_fmt(s['file'])}: {key} would "
+                raise ConfigError(f"[surface] {key} = {fmt(given[key])} and file = {fmt(s['file'])}: {key} would "
                                   f"be ignored ({why}); remove {key}")
     elif isinstance(size, tuple) or isinstance(cells, tuple):  # a rectangle: L_x/N_x = L_y/N_y
         sides = size if isinstance(size, tuple) else (size, size)
         counts = cells if isinstance(cells, tuple) else (cells, cells)
         dx, dy = sides[0] / counts[0], sides[1] / counts[1]
         if abs(dx - dy) > 1e-9 * max(dx, dy):
-            raise ConfigError(f"[surface] size_um = {_fmt(list(sides))}, cells = {_fmt(list(counts))}: cells must be "
+            raise ConfigError(f"[surface] size_um = {fmt(list(sides))}, cells = {fmt(list(counts))}: cells must be "
                               f"square (spacing {dx:.6g} µm along x, {dy:.6g} µm along y); for a rectangle give "
                               "both as [x, y] pairs with size_um[0]/cells[0] = size_um[1]/cells[1]")
         size, cells = (float(sides[0]), float(sides[1])), (int(counts[0]), int(counts[1]))
@@ -873,27 +850,25 @@ def _material_source(m: dict, given: dict) -> None:
     sources = [k for k in ("name", "table", "file", "n") if m.get(k) is not None]
     if "file" in sources and len(sources) > 1:
         other = next(k for k in sources if k != "file")
-        raise ConfigError(f"[material] file and {other}: give one of them (material.file = {_fmt(m['file'])} is a "
+        raise ConfigError(f"[material] file and {other}: give one of them (material.file = {fmt(m['file'])} is a "
                           f"table of λ, n, κ rows; material.{other} is another source of the index)")
     if "kappa" in given and m.get("file") is not None:
-        raise ConfigError(f"[material] file and kappa: give one of them (material.file = {_fmt(m['file'])} holds "
+        raise ConfigError(f"[material] file and kappa: give one of them (material.file = {fmt(m['file'])} holds "
                           "κ per wavelength; kappa goes with a constant n)")
     _exactly_one("material", m, ("name", "table", "file", "n"))
     if "kappa" in given and m.get("n") is None:  # it would be ignored: the source gives its own κ
         source = "name" if m.get("name") is not None else "table"
-        what = (f"material.name = {_fmt(m['name'])} gives its own κ per wavelength" if source == "name"
+        what = (f"material.name = {fmt(m['name'])} gives its own κ per wavelength" if source == "name"
                 else "material.table gives κ in its third column")
-        raise ConfigError(f"[material] kappa = {_fmt(given['kappa'])} and {source}: kappa would be ignored ({what}); "
+        raise ConfigError(f"[material] kappa = {fmt(given['kappa'])} and {source}: kappa would be ignored ({what}); "
                           "remove kappa, or give a constant index as n and kappa instead")
 
 
 def _read_material_file(value: str, path: Path) -> list:
     """The rows (λ, n, κ) of ``[material] file`` as plain lists (ConfigError naming the key)."""
-    from wavebrdf.solver.materials import MaterialError, read_index_file
-
     problem = input_file_problem(path)
     if problem is not None:
-        raise _fail("material", "file", value, f"{str(path)!r} {problem}" if str(path) != value else problem)
+        raise fail("material", "file", value, f"{str(path)!r} {problem}" if str(path) != value else problem)
     try:
         rows = read_index_file(path, label=value).tolist()
     except MaterialError as exc:
@@ -902,8 +877,8 @@ def _read_material_file(value: str, path: Path) -> list:
         for (name, check), x in zip(MATERIAL_TABLE.columns, row):
             problem = check.problem(x)
             if problem is not None:
-                raise _fail("material", "file", value, f"row {number}: {name} {problem} (bad: {x:g} in λ, n, κ = "
-                            f"{', '.join(f'{v:g}' for v in row)})")
+                raise fail("material", "file", value, f"row {number}: {name} {problem} (bad: {x:g} in λ, n, κ = "
+                           f"{', '.join(f'{v:g}' for v in row)})")
     return rows
 
 
@@ -934,11 +909,11 @@ def _illumination_spec(ill: dict, given: dict, is_fiber: bool, base_dir: Path) -
     if ill["directions_file"] is not None:
         if ill["directions_deg"] is not None:
             raise ConfigError(f"[illumination] directions_deg and directions_file: give one of them (directions_file = "
-                              f"{_fmt(ill['directions_file'])} lists the directions already)")
+                              f"{fmt(ill['directions_file'])} lists the directions already)")
         path = _input_path(ill["directions_file"], base_dir)  # its directions, in degrees:
         ill["directions_deg"] = _read_directions_file(ill["directions_file"], path, ill["angles"] or "rad")
     elif ill["angles"] is not None:
-        raise ConfigError(f"[illumination] angles = {_fmt(ill['angles'])}: only used with directions_file (the units "
+        raise ConfigError(f"[illumination] angles = {fmt(ill['angles'])}: only used with directions_file (the units "
                           "of its θ, φ columns); directions_deg is in degrees")
     needed = ("theta_i_deg",) if is_fiber else ("directions_deg", "waist_um")
     for key in needed:
@@ -964,11 +939,11 @@ def _read_directions_file(value: str, path: Path, angles: str) -> tuple[tuple[fl
         problem = f"is {path.stat().st_size / 2**20:.0f} MiB; a list of θ, φ rows is a small text file"
     if problem is not None:
         where = f"{str(path)!r} {problem}" if str(path) != value else problem
-        raise _fail("illumination", "directions_file", value, where)
+        raise fail("illumination", "directions_file", value, where)
     try:
         lines = path.read_text(encoding="utf-8-sig").splitlines()
     except (UnicodeDecodeError, OSError) as exc:
-        raise _fail("illumination", "directions_file", value, f"cannot be read as text ({exc})") from None
+        raise fail("illumination", "directions_file", value, f"cannot be read as text ({exc})") from None
     unit, to_deg = ("rad", math.degrees) if angles == "rad" else ("deg", float)
     limit = "π/2 rad" if angles == "rad" else "90°"
     out: list[tuple[float, float]] = []
@@ -976,7 +951,7 @@ def _read_directions_file(value: str, path: Path, angles: str) -> tuple[tuple[fl
 
     def bad(line_no, line, problem):
         text = line if len(line) <= 60 else line[:57] + "..."
-        return _fail("illumination", "directions_file", value, f"line {line_no} ({text!r}): {problem}")
+        return fail("illumination", "directions_file", value, f"line {line_no} ({text!r}): {problem}")
 
     try:
         for line_no, line, (theta, phi) in number_rows(lines, ("theta", "phi")):
@@ -997,15 +972,12 @@ def _read_directions_file(value: str, path: Path, angles: str) -> tuple[tuple[fl
     except RowError as exc:
         raise bad(exc.line_no, exc.line, f"{exc.problem}; rows are θ, φ in {unit} (angles = \"{angles}\")") from None
     if not out:
-        raise _fail("illumination", "directions_file", value, "holds no rows of θ, φ")
+        raise fail("illumination", "directions_file", value, "holds no rows of θ, φ")
     return tuple(out)
 
 
 def _check_physics(study: Study) -> None:
     """Checks that need the built objects: material range, height matrix contents."""
-    from wavebrdf.solver.materials import MaterialError
-    from wavebrdf.solver.surface import SurfaceError
-
     try:
         material = study.material.build()
         if study.material.file is not None:
@@ -1021,10 +993,10 @@ def _check_physics(study: Study) -> None:
             surface = study.surface.build()
         except SurfaceError as exc:
             file = study.surface.file
-            where = f" (file = {_fmt(str(file))})" if file is not None and str(file) not in str(exc) else ""
+            where = f" (file = {fmt(str(file))})" if file is not None and str(file) not in str(exc) else ""
             raise ConfigError(f"[surface] {exc}{where}") from None
         if study.steering is None and study.surface.file is not None and surface.z.shape[0] != surface.z.shape[1]:
-            raise _rectangle_outside_steering(f"file = {_fmt(str(study.surface.file))} holds "
+            raise _rectangle_outside_steering(f"file = {fmt(str(study.surface.file))} holds "
                                               f"{surface.z.shape[0]}x{surface.z.shape[1]} heights")
         if study.steering is None:
             _check_model_scene(study, surface, index)
@@ -1044,8 +1016,8 @@ def _check_file_range(study: Study, valid: tuple[float, float]) -> None:
     outside = [lam for lam in wavelengths if lam < lo - 1e-12 or lam > hi + 1e-12]
     if outside:
         given = study.sections["material"]["file"]
-        raise ConfigError(f"[illumination] wavelengths_um = {_fmt(list(wavelengths))}: {_fmt(outside)} µm lie(s) "
-                          f"outside material.file = {_fmt(given)}, which tabulates {lo:g}–{hi:g} µm (the index is "
+        raise ConfigError(f"[illumination] wavelengths_um = {fmt(list(wavelengths))}: {fmt(outside)} µm lie(s) "
+                          f"outside material.file = {fmt(given)}, which tabulates {lo:g}–{hi:g} µm (the index is "
                           "interpolated between its rows, never extrapolated)")
 
 
@@ -1075,13 +1047,11 @@ def height_file_shape(path: Path) -> tuple[int, ...] | None:
 def _check_surface_size(study: Study) -> None:
     """Refuse a height field that cannot fit in memory before anything is allocated: its node
     count from [surface] cells, or from the file's header."""
-    from wavebrdf.solver.resources import meminfo_bytes
-
     spec = study.surface
     if spec.file is not None:
         problem = input_file_problem(spec.file)
         if problem is not None:
-            raise _fail("surface", "file", str(spec.file), problem)
+            raise fail("surface", "file", str(spec.file), problem)
         shape = height_file_shape(spec.file)
         if shape is None or len(shape) != 2:
             return  # the loader names what is wrong with it
@@ -1096,9 +1066,9 @@ def _check_surface_size(study: Study) -> None:
     memory_gb = study.run.memory_gb
     budget = memory_gb * 2**30 if memory_gb else float(meminfo_bytes("MemTotal"))
     if need > budget:
-        raise _fail("surface", key, value, f"{what} about {need / 2**30:.3g} GiB to build and analyse "
-                    f"({SURFACE_BYTES_PER_NODE} bytes per node), more than the node's {budget / 2**30:.1f} GiB "
-                    "([run] memory_gb)")
+        raise fail("surface", key, value, f"{what} about {need / 2**30:.3g} GiB to build and analyse "
+                   f"({SURFACE_BYTES_PER_NODE} bytes per node), more than the node's {budget / 2**30:.1f} GiB "
+                   "([run] memory_gb)")
 
 
 def _check_model_scene(study: Study, surface, index) -> None:
@@ -1106,9 +1076,6 @@ def _check_model_scene(study: Study, surface, index) -> None:
     shortest and longest wavelength, each with the most oblique direction and the first one
     (the lattice and lobe limits are hardest at short λ and large θ_i; ``index``: n − jκ at every
     wavelength)."""
-    from wavebrdf.solver.farfield import HemisphereGrid
-    from wavebrdf.solver.models import SurfaceScene
-
     ill = study.illumination
     lams = np.asarray(ill.wavelengths_um, dtype=float)
     directions = np.deg2rad(np.asarray(ill.directions_deg, dtype=float))
@@ -1132,17 +1099,14 @@ def _set_dotted(data: dict, dotted: str, value: Any) -> None:
 def parse_config(text: str, path: Path | None = None, output: str | Path | None = None) -> StudyConfig:
     """Parse and validate config ``text`` (from ``path`` if given, for relative file paths);
     ``output`` replaces ``[study] output`` (it alone is checked)."""
-    from wavebrdf.jobs.overrides import parse_toml
-
     data = parse_toml(text, f"{path}: " if path else "")
     base_dir = path.parent.resolve() if path else Path.cwd()
     default_name = path.stem if path else "study"
 
     sweep = data.pop("sweep", {})
     if not isinstance(sweep, dict):
-        raise ConfigError(f"[sweep] must be a table of \"section.key\" = [values], got {_fmt(sweep)}")
+        raise ConfigError(f"[sweep] must be a table of \"section.key\" = [values], got {fmt(sweep)}")
     axes: dict[str, tuple] = {}
-    from wavebrdf.jobs.ranges import expand_range
 
     for dotted, values in _flatten_sweep(sweep).items():
         values = expand_range("sweep", dotted, values)  # {start, stop, count}
@@ -1152,11 +1116,11 @@ def parse_config(text: str, path: Path | None = None, output: str | Path | None 
         if dotted in NOT_SWEEPABLE:
             raise ConfigError(f"[sweep] {dotted}: cannot be swept ({NOT_SWEEPABLE[dotted]})")
         if not isinstance(values, list) or not values:
-            raise ConfigError(f"[sweep] {dotted} = {_fmt(values)}: must be a non-empty list of values")
+            raise ConfigError(f"[sweep] {dotted} = {fmt(values)}: must be a non-empty list of values")
         if len(set(map(repr, values))) != len(values):
-            raise ConfigError(f"[sweep] {dotted} = {_fmt(values)}: values must be distinct")
+            raise ConfigError(f"[sweep] {dotted} = {fmt(values)}: values must be distinct")
         if any(isinstance(v, (list, dict)) for v in values):  # e.g. correlation_um = [T_x, T_y]
-            raise ConfigError(f"[sweep] {dotted} = {_fmt(values)}: values must be single numbers or strings "
+            raise ConfigError(f"[sweep] {dotted} = {fmt(values)}: values must be single numbers or strings "
                               "(each becomes a point of a 1-D dataset coordinate); run one study per list value")
         axes[dotted] = tuple(values)
 
@@ -1170,7 +1134,7 @@ def parse_config(text: str, path: Path | None = None, output: str | Path | None 
             cases.append(_build_study(case_data, base_dir, default_name, values, output))
         except ConfigError as exc:
             if values:
-                where = ", ".join(f"{k} = {_fmt(x)}" for k, x in values.items())
+                where = ", ".join(f"{k} = {fmt(x)}" for k, x in values.items())
                 raise ConfigError(f"{exc} (in the sweep case {where})") from None
             raise
     return StudyConfig(text=text, path=path, sweep_axes=axes, cases=tuple(cases))
@@ -1178,8 +1142,6 @@ def parse_config(text: str, path: Path | None = None, output: str | Path | None 
 
 def _flatten_sweep(sweep: dict) -> dict:
     """Accept both ``"surface.seed" = [...]`` and a nested ``[sweep.surface] seed = [...]``."""
-    from wavebrdf.jobs.ranges import RANGE_KEYS
-
     flat = {}
     for key, value in sweep.items():
         if isinstance(value, dict) and set(value) != set(RANGE_KEYS):  # not a {start, stop, count} range
@@ -1203,15 +1165,11 @@ def load_config(path: str | Path | dict | StudyConfig, output: str | Path | None
     if isinstance(path, StudyConfig) and output is None and not overrides:
         return path
     if isinstance(path, (dict, StudyConfig)):
-        from wavebrdf.jobs.overrides import dict_config_text
-
         text, path = (dict_config_text(path), None) if isinstance(path, dict) else (path.text, path.path)
     else:
         path = Path(path)
         text = _read_config_text(path)
     if overrides:
-        from wavebrdf.jobs.overrides import overridden_text
-
         text = overridden_text(text, overrides, path)
     if output is None:
         return parse_config(text, path)

@@ -24,18 +24,14 @@ import tomllib
 from pathlib import Path
 from typing import Any, Iterable
 
+from wavebrdf.jobs.errors import ConfigError
+
 __all__ = ["apply_overrides", "check_nesting", "dict_config_text", "dump_toml", "overridden_text",
            "parse_assignment", "parse_toml"]
 
 BARE_WORD = re.compile(r"[A-Za-z_][A-Za-z0-9_.+-]*")
 BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
 MAX_NESTING = 32  # levels of tables and arrays; a config needs a handful (section, table, rows, row)
-
-
-def _error(message: str):
-    from wavebrdf.jobs.config import ConfigError
-
-    return ConfigError(message)
 
 
 def _show(value: Any) -> str:
@@ -55,8 +51,8 @@ def check_nesting(data: Any, where: str = "") -> None:
         for child in children:
             if isinstance(child, (dict, list, tuple)):
                 if depth + 1 > MAX_NESTING:
-                    raise _error(f"{where}tables or arrays nested more than {MAX_NESTING} levels deep; a config "
-                                 "nests a few (sections, their tables, lists of rows)")
+                    raise ConfigError(f"{where}tables or arrays nested more than {MAX_NESTING} levels deep; a config "
+                                      "nests a few (sections, their tables, lists of rows)")
                 stack.append((child, depth + 1))
 
 
@@ -66,10 +62,10 @@ def parse_toml(text: str, where: str = "") -> dict:
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise _error(f"{where}not valid TOML: {exc}") from None
+        raise ConfigError(f"{where}not valid TOML: {exc}") from None
     except RecursionError:
-        raise _error(f"{where}tables or arrays nested too deeply to read (more than {MAX_NESTING} levels); a config "
-                     "nests a few (sections, their tables, lists of rows)") from None
+        raise ConfigError(f"{where}tables or arrays nested too deeply to read (more than {MAX_NESTING} levels); "
+                          "a config nests a few (sections, their tables, lists of rows)") from None
     check_nesting(data, where)
     return data
 
@@ -79,17 +75,17 @@ def parse_assignment(text: str) -> tuple[str, Any]:
     key, sep, raw = text.partition("=")
     key, raw = key.strip(), raw.strip()
     if not sep or not key or not raw:
-        raise _error(f"--set {text}: expected key=value, e.g. --set surface.rms_height_um=0.1")
+        raise ConfigError(f"--set {text}: expected key=value, e.g. --set surface.rms_height_um=0.1")
     try:
         value = tomllib.loads(f"v = {raw}")["v"]
         check_nesting(value, f"--set {key}: ")
     except RecursionError:
-        raise _error(f"--set {key}: the value nests arrays or tables too deeply to read (more than {MAX_NESTING} "
-                     "levels)") from None
+        raise ConfigError(f"--set {key}: the value nests arrays or tables too deeply to read (more than {MAX_NESTING} "
+                          "levels)") from None
     except tomllib.TOMLDecodeError:
         if not BARE_WORD.fullmatch(raw):
-            raise _error(f"--set {key}={raw}: {raw} is not a TOML value (e.g. 0.5, [0.45, 0.55], \"text\", "
-                         "{start = 0.4, stop = 0.7, count = 4})") from None
+            raise ConfigError(f"--set {key}={raw}: {raw} is not a TOML value (e.g. 0.5, [0.45, 0.55], \"text\", "
+                              "{start = 0.4, stop = 0.7, count = 4})") from None
         value = raw
     return key, value
 
@@ -99,8 +95,8 @@ def _key_path(key: str) -> list[str]:
     try:
         data = tomllib.loads(f"{key} = 0")
     except tomllib.TOMLDecodeError:
-        raise _error(f"override {key}: not a dotted config key (e.g. surface.rms_height_um or "
-                     "sweep.\"surface.seed\")") from None
+        raise ConfigError(f"override {key}: not a dotted config key (e.g. surface.rms_height_um or "
+                          "sweep.\"surface.seed\")") from None
     path = []
     while isinstance(data, dict):
         (name, data), = data.items()
@@ -127,12 +123,12 @@ def apply_overrides(data: dict, overrides: dict | Iterable[tuple[str, Any]]) -> 
             table = table.setdefault(name, {})
             if not isinstance(table, dict):
                 where = ".".join(path[: depth + 1])
-                raise _error(f"override {key} = {_show(value)}: {where} is {_show(table)}, not a table")
+                raise ConfigError(f"override {key} = {_show(value)}: {where} is {_show(table)}, not a table")
         check_nesting(value, f"override {key}: ")
         try:
             _value(value)
         except TypeError as exc:
-            raise _error(f"override {key} = {_show(value)}: {exc}") from None
+            raise ConfigError(f"override {key} = {_show(value)}: {exc}") from None
         _merge(table, path[-1], value)
     return out
 
@@ -151,12 +147,12 @@ def overridden_text(text: str, overrides, path: Path | None = None) -> str:
 def dict_config_text(data: dict) -> str:
     """A config given as a dict (``wavebrdf.run({...})``) as TOML text."""
     if not isinstance(data, dict):
-        raise _error(f"a config is a TOML file or a dict of sections, not {type(data).__name__}")
+        raise ConfigError(f"a config is a TOML file or a dict of sections, not {type(data).__name__}")
     check_nesting(data, "config dict: ")
     try:
         return "# config given as a dict\n" + dump_toml(data)
     except TypeError as exc:
-        raise _error(f"config dict: {exc}") from None
+        raise ConfigError(f"config dict: {exc}") from None
 
 
 # ---------------------------------------------------------------------------------------------

@@ -22,15 +22,11 @@ from __future__ import annotations
 
 import math
 
+from wavebrdf.jobs.errors import fail
+
 __all__ = ["RANGE_KEYS", "expand_directions", "expand_range"]
 
 RANGE_KEYS = ("start", "stop", "count")
-
-
-def _fail(section: str, key: str, value, problem: str):
-    from wavebrdf.jobs.config import _fail as config_fail  # the config's one-line error format
-
-    return config_fail(section, key, value, problem)
 
 
 def expand_range(section: str, key: str, value):
@@ -38,17 +34,17 @@ def expand_range(section: str, key: str, value):
     if not isinstance(value, dict):
         return value
     if set(value) != set(RANGE_KEYS):
-        raise _fail(section, key, value, "a range is a table {start = a, stop = b, count = n} (exactly these keys)")
+        raise fail(section, key, value, "a range is a table {start = a, stop = b, count = n} (exactly these keys)")
     start, stop, count = (value[k] for k in RANGE_KEYS)
     for name, x in (("start", start), ("stop", stop)):
         if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
-            raise _fail(section, key, value, f"range {name} must be a finite number")
+            raise fail(section, key, value, f"range {name} must be a finite number")
     if isinstance(count, bool) or not isinstance(count, int) or not 1 <= count <= 100_000:
-        raise _fail(section, key, value, "range count must be an integer from 1 to 100000")
+        raise fail(section, key, value, "range count must be an integer from 1 to 100000")
     if count == 1:
         return [start]
     if start == stop:
-        raise _fail(section, key, value, "a range of count > 1 needs start != stop")
+        raise fail(section, key, value, "a range of count > 1 needs start != stop")
     if all(isinstance(x, int) for x in (start, stop)) and (stop - start) % (count - 1) == 0:
         step = (stop - start) // (count - 1)  # integers stay integers (seeds, cells)
         return [start + i * step for i in range(count)]
@@ -61,7 +57,7 @@ def expand_directions(section: str, key: str, value):
     if not isinstance(value, dict):
         return value
     if set(value) != {"theta", "phi"}:
-        raise _fail(section, key, value, "a direction grid is a table {theta = ..., phi = ...} (each a number, "
+        raise fail(section, key, value, "a direction grid is a table {theta = ..., phi = ...} (each a number, "
                                          "a list or a range {start, stop, count}), or list [[theta, phi], ...]")
     axes = []
     for name in ("theta", "phi"):

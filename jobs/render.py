@@ -17,6 +17,7 @@ import re
 import shutil
 from pathlib import Path
 
+from wavebrdf.jobs.errors import ConfigError
 from wavebrdf.jobs.parts import StorageError, storage_error
 from wavebrdf.jobs.pictures import DECADES, KINDS, PictureOptions, pictures
 from wavebrdf.jobs.pictures.common import MAX_DECADES
@@ -36,8 +37,6 @@ class RenderedPictures(list):
 
 def _options(kind: str, n_directions: int, plots, incidences, decades, limits, directions) -> PictureOptions:
     """Checked :class:`PictureOptions` (a one-line ConfigError naming the option and value)."""
-    from wavebrdf.jobs.config import ConfigError
-
     allowed = KINDS[kind]
     chosen = tuple(allowed) if plots is None else tuple(plots)
     unknown = [p for p in chosen if p not in allowed]
@@ -77,8 +76,6 @@ def render_dataset(path: str | Path, out_dir: str | Path | None = None, *, plots
     path = Path(path)
     out_dir = Path(out_dir) if out_dir else path.with_name(path.stem + "_png")
     if isinstance(max_images, bool) or not isinstance(max_images, int) or max_images < 1:
-        from wavebrdf.jobs.config import ConfigError
-
         raise ConfigError(f"--max-images {max_images}: must be an integer >= 1")
     with Dataset(path) as ds:  # opened and checked: its shapes are known
         opts = _options(ds.kind, ds.h5[ds.main_variable].shape[len(ds.sweep_keys) + 1], plots, incidences, decades,

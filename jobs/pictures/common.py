@@ -16,6 +16,7 @@ from typing import Callable
 
 import numpy as np
 
+from wavebrdf.jobs.errors import ConfigError
 from wavebrdf.solver.spectrum import spectral_weights, srgb_encode, xyz_to_linear_srgb
 
 __all__ = ["DECADES", "MAX_CURVES", "MAX_DECADES", "Picture", "PictureOptions", "check_decades", "colours",
@@ -47,8 +48,6 @@ class PictureOptions:
 def check_decades(decades) -> float:
     """``decades`` (the log range below the peak) if it is a number in (0, MAX_DECADES], else a
     ConfigError naming ``--decades`` and the value."""
-    from wavebrdf.jobs.config import ConfigError
-
     if isinstance(decades, bool) or not isinstance(decades, (int, float)) or not (
             math.isfinite(decades) and 0 < decades <= MAX_DECADES):
         raise ConfigError(f"--decades {decades}: must be a number in (0, {MAX_DECADES:g}] (the log range shown "

@@ -1,0 +1,25 @@
+"""The config's one-line refusals, shared by the modules that read config values
+(jobs/config.py, jobs/overrides.py, jobs/ranges.py, jobs/executors.py): ``[section] key = value:
+problem``."""
+
+from __future__ import annotations
+
+from typing import Any
+
+__all__ = ["ConfigError", "fail", "fmt"]
+
+
+class ConfigError(ValueError):
+    """Invalid configuration; the message names the key, the value and what is allowed."""
+
+
+def fmt(value: Any) -> str:
+    """``value`` as a refusal shows it: strings in double quotes, others as ``repr``, at most 80
+    characters."""
+    text = repr(value) if not isinstance(value, str) else f'"{value}"'
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+def fail(section: str, key: str, value: Any, problem: str) -> ConfigError:
+    """The refusal of ``[section] key = value``."""
+    return ConfigError(f"[{section}] {key} = {fmt(value)}: {problem}")
