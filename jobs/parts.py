@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wavebrdf import __version__
+from wavebrdf._version import __version__
 from wavebrdf.solver.farfield import FarField
 
 logger = logging.getLogger(__name__)

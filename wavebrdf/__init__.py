@@ -6,14 +6,12 @@ Subpackages: ``wavebrdf.solver`` (numerics), ``wavebrdf.kernels`` (OpenCL C sour
 
 from __future__ import annotations
 
-from importlib.metadata import PackageNotFoundError, version as _version
-
-try:
-    __version__ = _version("wavebrdf")
-except PackageNotFoundError:  # pragma: no cover - running from a source tree without install
-    __version__ = "0+unknown"
+from wavebrdf._version import __version__
 
 __all__ = ["__version__", "open", "run"]
+
+# open and run import the batch layer when called: importing any subpackage (wavebrdf.solver...)
+# runs this file, which must not load h5py and the jobs modules for it
 
 
 def open(path):  # noqa: A001 - mirrors xarray.open_dataset / h5py.File usage

@@ -13,6 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
+from wavebrdf.jobs.store import Dataset
+from wavebrdf.mitsuba.bsdfs import fiber_radius, fiber_tables_for, register, tables_for
+from wavebrdf.mitsuba.fiber_scene import GEOMETRIC_RADIUS, write_fiber_wisp
+
 __all__ = ["DEFAULT_SUN", "default_variant", "environment", "llvm_usable", "render_scene", "scene_dict", "tone_map"]
 
 DEFAULT_SUN = {"elevation_deg": 38.0, "azimuth_deg": -125.0, "radius_deg": 2.0, "radiance": 1500.0}
@@ -136,8 +140,6 @@ def render_scene(dataset, scene: str = "sphere", out: str | Path | None = None, 
     """
     import mitsuba as mi
 
-    from wavebrdf.mitsuba import register, tables_for
-
     variant = variant or default_variant()
     scalar = variant.startswith("scalar")
     spp = spp or (16 if scalar else 64)
@@ -175,8 +177,6 @@ def _finish(scn, dataset, scene, out, exposure, tonemap, variant, load_s, diagno
 
 
 def _is_fiber(dataset) -> bool:
-    from wavebrdf.jobs.store import Dataset
-
     with Dataset(dataset) as ds:
         return ds.kind == "fiber"
 
@@ -189,9 +189,6 @@ def _render_fibers(dataset, scene, out, *, spp, resolution, channels, case, env,
     import tempfile
 
     import mitsuba as mi
-
-    from wavebrdf.mitsuba import fiber_radius, fiber_tables_for
-    from wavebrdf.mitsuba.fiber_scene import GEOMETRIC_RADIUS, write_fiber_wisp
 
     if scene != "fibers" or not _is_fiber(dataset):
         raise ValueError(f"{dataset}: scene = {scene!r} needs a {'fiber' if scene == 'fibers' else 'surface'} "

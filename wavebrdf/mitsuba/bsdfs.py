@@ -1,0 +1,93 @@
+"""The BSDFs ``"wavebrdf"`` and ``"wavebrdf_fiber"``: their registration with Mitsuba and the
+tables they read, loaded once per (file, options, channel kind) and kept (:data:`_CACHE`;
+:func:`clear_cache`)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from wavebrdf.mitsuba.fiber import make_fiber_plugin_class
+from wavebrdf.mitsuba.fiber_tables import load_fiber_tables
+from wavebrdf.mitsuba.plugin import make_plugin_class
+from wavebrdf.mitsuba.tables import Tables, load_tables
+
+__all__ = ["clear_cache", "fiber_radius", "fiber_tables_for", "register", "tables_for"]
+
+_CACHE: dict = {}
+
+
+def _mitsuba():
+    try:
+        import mitsuba as mi
+    except ImportError as exc:  # pragma: no cover - depends on the installation
+        raise ImportError("wavebrdf.mitsuba needs Mitsuba 3: pip install 'wavebrdf[render]' "
+                          f"(or pip install 'mitsuba>=3.5'): {exc}") from None
+    return mi
+
+
+def tables_for(filename, *, channels: str, case: int = 0, smooth_sigma: float | None = None,
+               isotropic: bool | None = None) -> Tables:
+    """The (cached) tables of a dataset for one channel kind ("rgb", "spectral", "mono")."""
+    return _cached(filename, ("surface", channels, int(case), smooth_sigma, isotropic),
+                   lambda path: load_tables(path, case=int(case), channels=channels, smooth_sigma=smooth_sigma,
+                                            isotropic=isotropic))
+
+
+def _cached(filename, options: tuple, load):
+    """``load(path)``, cached per (resolved path, its mtime and size, ``options``)."""
+    path = Path(filename).resolve()
+    try:
+        stamp = os.stat(path)
+        stamp = (stamp.st_mtime_ns, stamp.st_size)
+    except OSError:
+        stamp = None  # the loader names the missing file
+    key = (str(path), stamp) + options
+    if key not in _CACHE:
+        _CACHE[key] = load(path)
+    return _CACHE[key]
+
+
+def clear_cache() -> None:
+    _CACHE.clear()
+
+
+def _load_from_props(props, channels: str) -> Tables:
+    if "filename" not in props:
+        raise ValueError("[wavebrdf plugin] filename: missing (a wavebrdf surface dataset, .h5)")
+    sigma = props.get("smooth_sigma", None)
+    iso = props.get("isotropic", None)
+    return tables_for(str(props["filename"]), channels=channels, case=int(props.get("case", 0)),
+                      smooth_sigma=None if sigma is None else float(sigma),
+                      isotropic=None if iso is None else bool(iso))
+
+
+def fiber_tables_for(filename, *, channels: str, case: int = 0):
+    """The (cached) tables of a fiber dataset for one channel kind ("rgb", "spectral", "mono")."""
+    return _cached(filename, ("fiber", channels, int(case)),
+                   lambda path: load_fiber_tables(path, case=int(case), channels=channels))
+
+
+def _load_fiber_from_props(props, channels: str):
+    if "filename" not in props:
+        raise ValueError("[wavebrdf_fiber plugin] filename: missing (a wavebrdf fiber dataset, .h5)")
+    variance = props.get("variance", None)
+    tables = fiber_tables_for(str(props["filename"]), channels=channels, case=int(props.get("case", 0)))
+    return tables, None if variance is None else float(variance)
+
+
+def fiber_radius(filename, geometric_radius: float, case: int = 0) -> float:
+    """The radius to give a scene's cylinders/curves for fibers of ``geometric_radius`` (scene
+    units): the bounding width C_b = max C_e of the dataset, scaled like the geometric width."""
+    tables = fiber_tables_for(filename, channels="mono", case=case)
+    return geometric_radius * tables.bounding_width_um / tables.geometric_width_um
+
+
+def register() -> None:
+    """Register BSDFs ``"wavebrdf"`` (surfaces) and ``"wavebrdf_fiber"`` (fibers) for the current
+    Mitsuba variant (call after ``mi.set_variant``; again after switching variants)."""
+    mi = _mitsuba()
+    cls = make_plugin_class(mi, _load_from_props)
+    mi.register_bsdf("wavebrdf", lambda props: cls(props))
+    fiber_cls = make_fiber_plugin_class(mi, _load_fiber_from_props)
+    mi.register_bsdf("wavebrdf_fiber", lambda props: fiber_cls(props))
