@@ -21,6 +21,10 @@ from __future__ import annotations
 import warnings
 from pathlib import Path
 
+from wavebrdf.jobs.cli import build_parser, detect_mpi_launch
+from wavebrdf.jobs.config import load_config
+from wavebrdf.jobs.store import open_dataset
+
 __all__ = ["run"]
 
 
@@ -32,10 +36,6 @@ def run(config, /, *, device: str | None = None, progress: bool = False, render:
     ``wait``: wait for another run holding the output instead of raising; ``force``: recompute
     an up-to-date output. Under ``mpiexec`` every rank calls it; rank 0 gets the dataset, the
     others None. Failed tasks are NaN in the dataset and raise a warning naming how many."""
-    from wavebrdf.jobs.cli import build_parser, detect_mpi_launch
-    from wavebrdf.jobs.config import load_config
-    from wavebrdf.jobs.store import open_dataset
-
     study = load_config(config if isinstance(config, dict) else Path(config), overrides=overrides or None)
     flags = ["--quiet"] * (not progress) + ["--no-render"] * (not render) + ["--wait"] * wait + ["--force"] * force
     args = build_parser().parse_args(["run", str(study.path or "config.toml"), *flags]

@@ -20,22 +20,36 @@ from pathlib import Path
 
 import numpy as np
 
+from wavebrdf._version import __version__
+from wavebrdf.jobs.batch import run_scope, stop_on_sigterm
+from wavebrdf.jobs.config import ConfigError, load_config, make_output_folder
+from wavebrdf.jobs.executors import Executor, executor_names, resolve_executor, share_from_root
+from wavebrdf.jobs.node import local_rank
+from wavebrdf.jobs.overrides import parse_assignment
+from wavebrdf.jobs.parts import OutputBusy, OutputLock, ResumeError, StorageError
+from wavebrdf.jobs.pictures.common import check_decades
+from wavebrdf.jobs.plan import PlanError, check_memory, device_info, format_bytes, format_number, plan_study
+from wavebrdf.jobs.progress import add_verbosity_flags, configure_logging, phi_text
+from wavebrdf.jobs.render import add_render_flags, render_dataset, render_options
+from wavebrdf.jobs.scheduler import prepare_output, run_plan
+from wavebrdf.jobs.shards import add_merge_parser
+from wavebrdf.jobs.spot_checks import expectation_scene, spot_check_summary
+from wavebrdf.jobs.store import Dataset, StoreError
+from wavebrdf.jobs.submit import add_submit_parser
+from wavebrdf.solver.auto import plan_summary
+from wavebrdf.solver.materials import MaterialError
+from wavebrdf.solver.models import model_class, model_names
+from wavebrdf.solver.opencl import OpenCLUnavailable, choose_device, create_context, list_devices
+from wavebrdf.solver.options import describe_options
+from wavebrdf.solver.surface import SurfaceError
+
 __all__ = ["main"]
 
 logger = logging.getLogger("wavebrdf")
 
 
-def _user_errors():
-    from wavebrdf.jobs.config import ConfigError
-    from wavebrdf.jobs.parts import OutputBusy, ResumeError
-    from wavebrdf.jobs.plan import PlanError
-    from wavebrdf.jobs.store import StoreError
-    from wavebrdf.solver.materials import MaterialError
-    from wavebrdf.solver.opencl import OpenCLUnavailable
-    from wavebrdf.solver.surface import SurfaceError
-
-    return (ConfigError, PlanError, ResumeError, OutputBusy, StoreError, MaterialError, OpenCLUnavailable,
-            SurfaceError, OSError)
+USER_ERRORS = (ConfigError, PlanError, ResumeError, OutputBusy, StoreError, MaterialError, OpenCLUnavailable,
+               SurfaceError, OSError)  # printed as one line, exit status 2
 
 
 @dataclass(frozen=True)
@@ -68,44 +82,22 @@ def detect_mpi_launch() -> MpiLaunch | None:
     return MpiLaunch(int(size), rank, local)
 
 
-def _choose_executor(requested: str, launch: MpiLaunch | None) -> str:
-    from wavebrdf.jobs.config import ConfigError
-
-    if requested == "auto":
-        return "mpi" if launch else "serial"
-    if requested == "mpi" and launch is None:
-        raise ConfigError("[run] executor = \"mpi\": start the run with mpiexec -n N (or srun) to use MPI")
-    return requested
-
-
 def cmd_run(args) -> int:
-    from wavebrdf.jobs.config import load_config, make_output_folder
-    from wavebrdf.jobs.parts import OutputLock
-    from wavebrdf.jobs.plan import check_memory, device_info, plan_study
-    from wavebrdf.jobs.batch import run_scope, stop_on_sigterm, workers_per_node
-
     loaded = load_config(args.config, output=args.output, overrides=args.set)
     scope = run_scope(args, loaded)  # None: up to date
     if scope is None:
         return 0
-    from wavebrdf.jobs.scheduler import apply_worker_environment, worker_environment
-
     stop_on_sigterm()
     args.scope, config = scope, scope.config
     study = config.cases[0]
     launch = detect_mpi_launch()
-    executor = _choose_executor(args.executor or study.run.executor, launch)
-    workers = workers_per_node("processes", args.workers, study)
-    comm = None
-    if executor == "mpi":
-        apply_worker_environment(worker_environment(launch.local_size, launch.rank))
-        from mpi4py import MPI
-
-        comm = MPI.COMM_WORLD
+    executor = resolve_executor(args.executor or study.run.executor, launch)
+    executor.check(launch)
+    workers = executor.tasks_per_node(study, args.workers, launch)
+    comm = executor.start(launch)
     plan = plan_study(config)
-    per_node = {"mpi": launch.local_size if launch else 1, "processes": workers}.get(executor, 1)
-    plan.tasks_per_node = per_node  # the AIM settings are fitted to the memory each of them may use
-    check_memory(plan, per_node, study.run.memory_gb, device=device_info(args.device))
+    plan.tasks_per_node = workers  # the AIM settings are fitted to the memory each of them may use
+    check_memory(plan, workers, study.run.memory_gb, device=device_info(args.device))
     make_output_folder(config.output)
     lock = OutputLock(config.output)
 
@@ -137,9 +129,6 @@ def _mpi_lock(comm, lock, wait: bool, still_to_run) -> int | None:
     """Rank 0 takes the output's lock before any rank works, checks under it that there is work
     (``still_to_run()``), and tells every rank the outcome: None to run, else the exit status (0 up
     to date, 2 refused: said once by rank 0)."""
-    from wavebrdf.jobs.parts import OutputBusy, ResumeError, StorageError
-    from wavebrdf.jobs.scheduler import share_from_root
-
     code = None
     if comm.Get_rank() == 0:
         try:
@@ -151,21 +140,15 @@ def _mpi_lock(comm, lock, wait: bool, still_to_run) -> int | None:
     return share_from_root(comm, code)
 
 
-def _run_and_report(args, plan, executor: str, workers: int, comm) -> int:
-    from wavebrdf.jobs.render import render_dataset
-    from wavebrdf.jobs.node import local_rank
-    from wavebrdf.jobs.scheduler import prepare_output, run_plan
-    from wavebrdf.solver.opencl import create_context
-
+def _run_and_report(args, plan, executor: Executor, workers: int, comm) -> int:
     rank = comm.Get_rank() if comm is not None else 0
     if rank == 0:
         prepare_output(plan)  # a parts folder that cannot be used is refused before anything starts
     ctx = create_context(args.device, require_fp64=plan.needs_fp64,
                          local_rank=local_rank())  # one GPU per local rank
     if rank == 0:
-        how = {"mpi": f"{comm.Get_size() if comm else 1} MPI ranks", "processes": f"{workers} worker processes",
-               "serial": "this process"}[executor]
-        print(f"study {plan.config.name!r}: {len(plan.tasks)} task(s) on {ctx.describe()}, {how}", file=sys.stderr)
+        print(f"study {plan.config.name!r}: {len(plan.tasks)} task(s) on {ctx.describe()}, "
+              f"{executor.describe(workers, comm)}", file=sys.stderr)
     summary = run_plan(plan, ctx, executor=executor, workers=workers, comm=comm, progress=rank == 0,
                        quiet=args.quiet, only=args.scope.only)
     if summary is None:
@@ -186,20 +169,13 @@ def _run_and_report(args, plan, executor: str, workers: int, comm) -> int:
 
 
 def cmd_plan(args) -> int:
-    from wavebrdf.jobs.config import load_config
-    from wavebrdf.jobs.plan import check_memory, device_info, format_bytes, format_number, plan_study
-
     overrides = list(args.set or [])
     if args.memory_gb:  # the tasks' budget too: the AIM solver fits its settings to it
         overrides.append(("run.memory_gb", args.memory_gb))
     config = load_config(args.config, overrides=overrides)
     study = config.cases[0]
     plan = plan_study(config)
-    from wavebrdf.jobs.batch import workers_per_node
-    from wavebrdf.jobs.progress import phi_text
-
-    executor = "serial" if study.run.executor == "auto" else study.run.executor
-    workers = args.workers or workers_per_node(executor, None, study)  # what `run` would use
+    workers = args.workers or resolve_executor(study.run.executor).tasks_per_node(study)  # as `run` counts
     plan.tasks_per_node = workers  # the AIM settings are fitted to the memory each task may use
     estimates = [plan.estimate(t) for t in plan.tasks]
     budget = check_memory(plan, workers, args.memory_gb or study.run.memory_gb, device=device_info(),
@@ -238,8 +214,6 @@ def cmd_plan(args) -> int:
     auto = [(t, e) for t, e in zip(plan.tasks, estimates)
             if t.kind in ("direct", "patch") and plan.model_spec(t).capabilities.spot_checks]
     if auto:  # what auto expects per scene, the full-wave cost it avoids, and its spot checks
-        from wavebrdf.jobs.spot_checks import expectation_scene, spot_check_summary
-        from wavebrdf.solver.auto import plan_summary
 
         choices = [plan.model_spec(t).build().choice(expectation_scene(plan, t)) for t, _ in auto]
         print(plan_summary(choices, [e.seconds for _, e in auto]))
@@ -250,8 +224,7 @@ def cmd_plan(args) -> int:
 
 
 def cmd_compare(args) -> int:
-    from wavebrdf.jobs.compare import compare_config
-    from wavebrdf.jobs.config import load_config, make_output_folder
+    from wavebrdf.jobs.compare import compare_config  # its scipy.ndimage (solver/metrics.py) costs every command 0.3 s
 
     config = load_config(args.config)
     models = None if args.models is None else [m.strip() for m in args.models.split(",") if m.strip()]
@@ -272,9 +245,6 @@ def cmd_compare(args) -> int:
 
 def cmd_models(args) -> int:
     """Every registered model: what it takes and returns, its flags and its options."""
-    from wavebrdf.solver.models import model_class, model_names
-    from wavebrdf.solver.options import describe_options
-
     for name in model_names():
         cls = model_class(name)
         caps = cls.capabilities
@@ -287,8 +257,6 @@ def cmd_models(args) -> int:
 
 
 def cmd_inspect(args) -> int:
-    from wavebrdf.jobs.store import Dataset
-
     with Dataset(args.file) as ds, ds.reading():
         attrs = ds.attrs
         print(f"{ds.path}: {ds.kind} study {attrs.get('study')!r}, wavebrdf {attrs.get('software_version')}, "
@@ -327,8 +295,6 @@ def cmd_inspect(args) -> int:
 def _print_validity(plan) -> None:
     """The sampling-validity warnings (and refusals) each task's model would carry (Model.validity),
     once per message with the tasks that carry it."""
-    from wavebrdf.jobs.spot_checks import expectation_scene
-
     models, notes = {}, {}
     for task in plan.tasks:
         if task.kind not in ("direct", "patch", "fiber"):
@@ -445,8 +411,6 @@ def _print_summary_table(ds, coords) -> None:
 
 
 def cmd_render(args) -> int:
-    from wavebrdf.jobs.render import render_dataset
-
     if getattr(args, "scene", None):
         try:
             from wavebrdf.mitsuba import render_scene
@@ -459,8 +423,6 @@ def cmd_render(args) -> int:
         print(f"wrote {result['path']} (Mitsuba {result['variant']}: load {result['load_s']:.1f} s, "
               f"render {result['render_s']:.1f} s)")
         return 0
-    from wavebrdf.jobs.pictures.common import check_decades
-    from wavebrdf.jobs.render import render_options
 
     check_decades(args.decades)  # before the dataset is opened
     for png in render_dataset(args.file, args.out, **render_options(args)):
@@ -469,8 +431,6 @@ def cmd_render(args) -> int:
 
 
 def cmd_devices(args) -> int:
-    from wavebrdf.solver.opencl import choose_device, list_devices
-
     infos = list_devices()
     import os
 
@@ -539,8 +499,6 @@ def _gib(flag: str):
 
 def _assignment(text: str):
     """argparse type of ``--set key=value`` (jobs/overrides.py)."""
-    from wavebrdf.jobs.overrides import parse_assignment
-
     try:
         return parse_assignment(text)
     except ValueError as exc:
@@ -554,8 +512,6 @@ def _add_set_flag(p) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from wavebrdf import __version__
-
     parser = _Parser(prog="wavebrdf", description="Wave-optics BRDFs of microgeometry.")
     parser.add_argument("--version", action="version", version=f"wavebrdf {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="log every task")
@@ -566,7 +522,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_set_flag(p)
     p.add_argument("--output", "-o", type=Path, help="override [study] output")
     p.add_argument("--device", help="OpenCL device (overrides WAVEBRDF_DEVICE)")
-    p.add_argument("--executor", choices=["auto", "serial", "processes", "mpi"],
+    p.add_argument("--executor", choices=executor_names(),
                    help="override [run] executor (auto: MPI under mpiexec/srun, else serial)")
     p.add_argument("--workers", type=_count("--workers"), help="worker processes for --executor processes")
     p.add_argument("--wait", action="store_true",
@@ -604,8 +560,6 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("models", help="list the registered models, their capabilities and options")
     p.set_defaults(func=cmd_models)
 
-    from wavebrdf.jobs.shards import add_merge_parser
-    from wavebrdf.jobs.submit import add_submit_parser
 
     add_submit_parser(sub, _count, _gib)
     add_merge_parser(sub)
@@ -619,7 +573,6 @@ def build_parser() -> argparse.ArgumentParser:
                                       "height maps, fiber cross sections (docs/pictures.md)")
     p.add_argument("file", type=Path)
     p.add_argument("--out", type=Path, help="output folder (default: <file stem>_png)")
-    from wavebrdf.jobs.render import add_render_flags
 
     add_render_flags(p)
     p.add_argument("--scene", choices=["sphere", "plate", "fibers"],
@@ -634,7 +587,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("name", help="e.g. kirchhoff")
     p.add_argument("rest", nargs=argparse.REMAINDER)
     p.set_defaults(func=cmd_bench)
-    from wavebrdf.jobs.progress import add_verbosity_flags
 
     add_verbosity_flags(parser, sub)  # -v/-q before or after the subcommand
     return parser
@@ -645,12 +597,11 @@ def main(argv: list[str] | None = None) -> int:
         args = build_parser().parse_args(argv)
     except SystemExit as exc:  # --help, --version, or a flag refused in one line
         return exc.code if isinstance(exc.code, int) else 0
-    from wavebrdf.jobs.progress import configure_logging
 
     configure_logging(args.verbose)  # timestamped, printed above the progress bar
     try:
         return args.func(args)
-    except _user_errors() as exc:
+    except USER_ERRORS as exc:
         print(f"wavebrdf: error: {one_line(str(exc))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -59,6 +59,7 @@ from typing import Any, Callable
 import numpy as np
 
 from wavebrdf.jobs.errors import ConfigError, fail, fmt
+from wavebrdf.jobs.executors import AUTO, executor_names
 from wavebrdf.jobs.overrides import dict_config_text, overridden_text, parse_toml
 from wavebrdf.jobs.ranges import RANGE_KEYS, expand_directions, expand_range
 from wavebrdf.jobs.steering import GlobalSurface
@@ -385,7 +386,7 @@ SCHEMA: dict[str, dict[str, Spec]] = {
         "reference": Spec(_model_names),
     },
     "run": {
-        "executor": Spec(_choice("auto", "serial", "processes", "mpi"), default="auto"),
+        "executor": Spec(_choice(*executor_names()), default=AUTO),
         "workers": Spec(_integer(1, 4096)),  # per node
         "memory_gb": Spec(Number(low=0, low_open=True, span=(1e-3, 1e6), unit="GiB", note="per node")),
         "retries": Spec(_integer(0, 100), default=1),

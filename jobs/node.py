@@ -1,12 +1,15 @@
 """What this process may use on its node: CPUs (affinity, ``SLURM_CPUS_PER_TASK``, a user's
 ``OMP_NUM_THREADS``), its local rank among the node's ranks (from the launcher's environment) and
-so its GPU. Read before MPI or OpenCL start; nothing here imports them."""
+so its GPU, and the environment that bounds a worker's threads to its share
+(:func:`worker_environment`). Read before MPI or OpenCL start; nothing here imports them."""
 
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
-__all__ = ["LOCAL_RANK_VARIABLES", "allowed_cpus", "local_rank", "threads_per_rank"]
+__all__ = ["LOCAL_RANK_VARIABLES", "allowed_cpus", "apply_worker_environment", "local_rank", "threads_per_rank",
+           "worker_environment"]
 
 # launcher variables naming this process's rank among the ranks of its node, in order of trust
 LOCAL_RANK_VARIABLES = ("SLURM_LOCALID", "OMPI_COMM_WORLD_LOCAL_RANK", "MPI_LOCALRANKID", "PMI_LOCAL_RANK",
@@ -54,3 +57,35 @@ def local_rank(environ: dict | None = None) -> int:
         if value is not None or str(env.get(name, "")).strip() == "0":
             return value or 0
     return 0
+
+
+def worker_environment(workers_on_node: int, rank: int, cores: int | None = None) -> dict[str, str]:
+    """Environment for one of ``workers_on_node`` workers of a node: bounded threads
+    (:func:`threads_per_rank`: the CPU affinity or ``SLURM_CPUS_PER_TASK``, a user's
+    ``OMP_NUM_THREADS``) and the node's shared kernel cache (``POCL_CACHE_DIR``, built once, see
+    :meth:`~wavebrdf.solver.opencl.ComputeContext.program`). ``rank`` is kept for callers.
+
+    Must be applied before the worker first touches OpenCL (PoCL reads it at platform load).
+    """
+    threads = str(threads_per_rank(workers_on_node, cpus=cores))
+    base = Path(os.environ.get("POCL_CACHE_DIR", Path.home() / ".cache" / "pocl")).expanduser()
+    return {
+        "POCL_MAX_PTHREAD_COUNT": threads,
+        "POCL_CPU_MAX_CU_COUNT": threads,
+        "WAVEBRDF_FFT_WORKERS": threads,
+        "OMP_NUM_THREADS": threads,
+        "OPENBLAS_NUM_THREADS": threads,
+        "MKL_NUM_THREADS": threads,
+        "POCL_CACHE_DIR": str(base),
+    }
+
+
+def apply_worker_environment(env: dict[str, str]) -> None:
+    """Apply :func:`worker_environment` to this process: the variables for what starts later
+    (PoCL, host FFTs, libraries not loaded yet), and the same thread cap on the BLAS/OpenMP
+    pools already loaded (numpy's and scipy's OpenBLAS start their threads at import, before any
+    variable set here is read; an uncapped pool spins on the other workers' cores)."""
+    os.environ.update(env)
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(int(env["OMP_NUM_THREADS"]))

@@ -23,11 +23,13 @@ from functools import cached_property, lru_cache
 import numpy as np
 
 from wavebrdf.jobs.config import ModelSpec, Study, StudyConfig
-from wavebrdf.jobs.steering import HexagonTiling, PatchLayout
+from wavebrdf.jobs.executors import resolve_executor
 from wavebrdf.jobs.spot_checks import add_spot_checks
+from wavebrdf.jobs.steering import HexagonTiling, PatchLayout
 from wavebrdf.jobs.tasks import KINDS
 from wavebrdf.solver.farfield import HemisphereGrid
 from wavebrdf.solver.models import Estimate, FiberScene, SurfaceScene
+from wavebrdf.solver.opencl import OpenCLUnavailable, choose_device, list_devices
 from wavebrdf.solver.resources import meminfo_bytes
 
 logger = logging.getLogger(__name__)
@@ -222,15 +224,12 @@ class Plan:
 
     def task_memory_budget(self, case: int) -> float:
         """Bytes one task may use: [run] memory_gb (default: this node's memory) over the tasks at
-        once on a node, as ``plan`` and ``run`` count them (jobs/batch.py)."""
-        from wavebrdf.jobs.batch import workers_per_node
-
+        once on a node, as ``plan`` and ``run`` count them (jobs/executors.py)."""
         study = self.config.cases[case]
         node = study.run.memory_gb * 2**30 if study.run.memory_gb else node_memory_bytes()
         if self.tasks_per_node is not None:
             return node / max(1, self.tasks_per_node)
-        executor = "serial" if study.run.executor == "auto" else study.run.executor
-        return node / max(1, workers_per_node(executor, None, study))
+        return node / max(1, resolve_executor(study.run.executor).tasks_per_node(study))
 
     def fiber_scene(self, task: Task) -> FiberScene:
         """The (λ, θ_i) a fiber task solves, every φ_i at once."""
@@ -372,8 +371,6 @@ def node_memory_bytes() -> float:
 def device_info(spec: str | None = None):
     """The OpenCL device a run would use (``spec``, else WAVEBRDF_DEVICE, else auto) as a
     :class:`~wavebrdf.solver.opencl.DeviceInfo`, without creating a context; None without OpenCL."""
-    from wavebrdf.solver.opencl import OpenCLUnavailable, choose_device, list_devices
-
     try:
         return choose_device(spec or os.environ.get("WAVEBRDF_DEVICE", "auto"), list_devices())
     except OpenCLUnavailable:

@@ -14,15 +14,19 @@ import re
 import sys
 from pathlib import Path
 
+from wavebrdf.jobs.config import ConfigError, load_config
+from wavebrdf.jobs.finished import up_to_date
 from wavebrdf.jobs.parts import OutputLock, PartsFolder, ResumeError
+from wavebrdf.jobs.plan import Plan, plan_study
+from wavebrdf.jobs.render import render_dataset
+from wavebrdf.jobs.scheduler import prepare_output
+from wavebrdf.jobs.store import write_dataset
 
 __all__ = ["cmd_merge", "parse_shard", "shard_output", "shard_tasks", "with_output"]
 
 
 def parse_shard(text: str) -> tuple[int, int]:
     """``"i/K"`` → (i, K) with 0 <= i < K."""
-    from wavebrdf.jobs.config import ConfigError
-
     match = re.fullmatch(r"\s*(\d+)\s*/\s*(\d+)\s*", str(text))
     if not match or not 0 <= int(match.group(1)) < int(match.group(2)):
         raise ConfigError(f"--shard {text!r}: use i/K with 0 <= i < K, e.g. 0/4")
@@ -63,8 +67,6 @@ def with_output(config, output: Path):
 
 def _shard_plan(plan, index: int, shards: int):
     """The plan with the shard's output (same tasks, same fingerprint)."""
-    from wavebrdf.jobs.plan import Plan
-
     config = with_output(plan.config, shard_output(plan.config.output, index, shards))
     return Plan(config, plan.tasks, plan.steering, plan._geometry)
 
@@ -103,13 +105,6 @@ def _shard_state(plan, index: int, shards: int) -> tuple[PartsFolder, str | None
 def cmd_merge(args) -> int:
     """``wavebrdf merge CONFIG``: the shards' parts into the study's dataset. Everything is checked
     before anything is written or moved: a refusal leaves the shards' folders as they were."""
-    from wavebrdf.jobs.config import load_config
-    from wavebrdf.jobs.finished import up_to_date
-    from wavebrdf.jobs.plan import plan_study
-    from wavebrdf.jobs.render import render_dataset
-    from wavebrdf.jobs.scheduler import prepare_output
-    from wavebrdf.jobs.store import write_dataset
-
     plan = plan_study(load_config(args.config))
     output = Path(plan.config.output)
     with OutputLock(output).acquire(args.wait):

@@ -28,7 +28,8 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-from wavebrdf.jobs.config import ConfigError
+from wavebrdf.jobs.config import ConfigError, load_config
+from wavebrdf.jobs.plan import node_memory_bytes, plan_study
 
 __all__ = ["Layout", "add_submit_parser", "choose_layout", "cmd_submit", "parse_duration", "render_script",
            "slurm_duration"]
@@ -172,9 +173,6 @@ def _directives(scheduler: str, layout: Layout, args, job: str, seconds: int) ->
 
 def cmd_submit(args) -> int:
     """Write the batch script of ``args.config`` (see the module docstring)."""
-    from wavebrdf.jobs.config import load_config
-    from wavebrdf.jobs.plan import node_memory_bytes, plan_study
-
     scheduler = args.scheduler
     seconds = parse_duration(args.time)
     if args.gpus_per_node < 0:

@@ -80,7 +80,7 @@ def test_a_worker_uses_the_fft_threads_it_was_given(workers_on_node):
     import subprocess
     import sys
 
-    from wavebrdf.jobs.scheduler import worker_environment
+    from wavebrdf.jobs.node import worker_environment
 
     env = {**os.environ, **worker_environment(workers_on_node, 0, cores=2)}
     env["POCL_CACHE_DIR"] = os.environ["POCL_CACHE_DIR"]  # the suite's kernel cache: no rebuild

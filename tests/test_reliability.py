@@ -406,7 +406,7 @@ def test_defect6_plan_checks_the_device_limits(tmp_path, capsys, monkeypatch):
     """A task whose largest buffer exceeds the device's max allocation, or whose device memory
     (times the tasks at once) exceeds the device's global memory, is refused by plan and run
     (it was left to fail on the device, as NaN)."""
-    from wavebrdf.jobs import plan as plan_module
+    from wavebrdf.jobs import cli
     from wavebrdf.solver import models
     from wavebrdf.solver.opencl import choose_device, list_devices
 
@@ -415,14 +415,14 @@ def test_defect6_plan_checks_the_device_limits(tmp_path, capsys, monkeypatch):
     cfg = write_study(tmp_path)
     cfg.write_text(cfg.read_text().replace('name = "kirchhoff"', 'name = "buffered-test"'))
     buffer_gib = 16.0 * 33**2 / 2**30
-    monkeypatch.setattr(plan_module, "device_info", lambda spec=None: replace(device, max_alloc_gib=0.9 * buffer_gib))
+    monkeypatch.setattr(cli, "device_info", lambda spec=None: replace(device, max_alloc_gib=0.9 * buffer_gib))
     assert main(["plan", str(cfg)]) == 2
     line = one_line_error(capsys.readouterr().err)
     assert "max allocation" in line and "GiB" in line, line
     assert main(["run", str(cfg), "-q", "--no-render"]) == 2
     assert "max allocation" in one_line_error(capsys.readouterr().err)
     small = replace(device, max_alloc_gib=buffer_gib, global_mem_gib=3.5 * buffer_gib)  # 2 tasks hold 4 buffers
-    monkeypatch.setattr(plan_module, "device_info", lambda spec=None: small)
+    monkeypatch.setattr(cli, "device_info", lambda spec=None: small)
     assert main(["plan", str(cfg)]) == 0
     assert main(["plan", str(cfg), "--workers", "2"]) == 2
     assert "global memory" in one_line_error(capsys.readouterr().err)

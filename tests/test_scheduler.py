@@ -211,7 +211,7 @@ def test_a_worker_caps_the_blas_threads_already_loaded():
     workers' cores: measured 5-6x slower near-field LU under --executor processes)."""
     probe = ("import numpy, scipy.linalg, scipy.sparse.linalg\n"
              "from threadpoolctl import threadpool_info\n"
-             "from wavebrdf.jobs.scheduler import apply_worker_environment, worker_environment\n"
+             "from wavebrdf.jobs.node import apply_worker_environment, worker_environment\n"
              "apply_worker_environment(worker_environment(2, 0, cores=2))\n"
              "print(sorted({p['num_threads'] for p in threadpool_info()}), len(threadpool_info()))\n")
     env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")}
