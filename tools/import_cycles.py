@@ -3,8 +3,8 @@
     .venv/bin/python tools/import_cycles.py            # circles through any import
     .venv/bin/python tools/import_cycles.py --top      # circles through module-level imports only
 
-Reads pyproject.toml's ``[tool.setuptools.package-dir]`` to map folders to packages
-(``solver/`` → ``wavebrdf.solver``, ...), collects every ``import wavebrdf…`` / ``from wavebrdf…``
+Reads pyproject.toml's ``[tool.setuptools]`` packages and package-dir to map folders to packages
+(``solver/approx/`` → ``wavebrdf.solver.approx``, ...), collects every ``import wavebrdf…`` / ``from wavebrdf…``
 of every module (module level and inside functions, separately), and prints the strongly
 connected components of the import graph with more than one module (each an import circle),
 the function-level imports per module, and exits 1 when a circle exists.
@@ -23,15 +23,16 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def modules() -> dict[str, Path]:
-    """Module name → source file of every module of the installed package."""
-    folders = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-dir"]
+    """Module name → source file of every module of every package pyproject.toml installs."""
+    setuptools = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    folders = setuptools["package-dir"]
     out = {}
-    for package, folder in folders.items():
-        for path in sorted((ROOT / folder).glob("*.py")):
+    for package in setuptools["packages"]:
+        base = max((k for k in folders if package == k or package.startswith(k + ".")), key=len)
+        folder = ROOT / folders[base] / Path(*package[len(base):].lstrip(".").split(".")) if package != base \
+            else ROOT / folders[base]
+        for path in sorted(folder.glob("*.py")):
             out[package if path.stem == "__init__" else f"{package}.{path.stem}"] = path
-    for path in sorted((ROOT / "wavebrdf").rglob("*.py")):  # subpackages of the facade (wavebrdf.mitsuba)
-        parts = path.relative_to(ROOT).with_suffix("").parts
-        out[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
     return out
 
 
