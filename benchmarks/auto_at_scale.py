@@ -6,6 +6,7 @@ with ``wavebrdf run`` in a child process, CPU measured from the children's resou
     .venv/bin/python benchmarks/auto_at_scale.py pits         # spherical pits at λ scale: auto must choose BEM
     .venv/bin/python benchmarks/auto_at_scale.py bumpy --tolerance 0.05 0.01 --keep out/auto_at_scale
     .venv/bin/python benchmarks/auto_at_scale.py single       # one-task studies at waist 5λ: rule vs measured
+    .venv/bin/python benchmarks/auto_at_scale.py single --rule-only   # the rule's predictions alone
 
 Regime (both surfaces): 2 × 2 sub-areas of 5.4 µm at d = 0.03 µm (≤ λ/16 at λ ≥ 0.48 µm; 129 600
 cells, ~130 000 unknowns each), shifted by the waist 1.5 µm (≥ 2.5 λ), the reference's aluminium
@@ -122,8 +123,9 @@ SINGLE = {  # not in the trade table: new generators' parameters, seeds, waist a
 }
 
 
-def single_task_studies(tolerances: list[float]) -> int:
-    """The one-task scenes of ``SINGLE`` through every rung and BEM, with the rule's predictions."""
+def single_task_studies(tolerances: list[float], rule_only: bool = False) -> int:
+    """The one-task scenes of ``SINGLE`` through every rung and BEM, with the rule's predictions
+    (``rule_only``: the predictions and picks alone, no rung run)."""
     from wavebrdf.jobs.compare import compare_scenes
     from wavebrdf.solver.auto import REFERENCE, candidate_models, choose, default_rule, measure_scene
     from wavebrdf.solver.farfield import HemisphereGrid
@@ -140,6 +142,8 @@ def single_task_studies(tolerances: list[float]) -> int:
         surface = generate(generator, cells=180, size_um=9.0, seed=seed, **params)
         scenes.append((label, SurfaceScene(surface, lam, index, np.deg2rad(20.0), 0.0, 2.5, HemisphereGrid(256))))
     rungs = sorted({n for _, scene in scenes for n in candidate_models(scene)} - {REFERENCE})
+    if rule_only:
+        return print_rule(scenes, rungs, tolerances)
     comparison = compare_scenes(scenes, rungs + [REFERENCE], {REFERENCE: {"method": "aim"}}, reference=REFERENCE,
                                 progress=lambda what: print(f"  running {what}", flush=True))
     rule = default_rule()
@@ -159,14 +163,31 @@ def single_task_studies(tolerances: list[float]) -> int:
     return 0
 
 
+def print_rule(scenes, rungs: list[str], tolerances: list[float]) -> int:
+    """The rule's predicted error of each rung and its pick per tolerance, on each scene."""
+    from wavebrdf.solver.auto import choose, default_rule, measure_scene
+
+    rule = default_rule()
+    print("| scene | features | " + " | ".join(rungs) + " | " + " | ".join(f"picks at {t:g}" for t in tolerances) + " |")
+    print("|---|---|" + "---|" * (len(rungs) + len(tolerances)))
+    for label, scene in scenes:
+        features = measure_scene(scene)
+        picks = [choose(scene, t, rule, features).model for t in tolerances]
+        print(f"| {label} | {features.describe()} | " + " | ".join(f"{rule.predict(n, features):.3g}" for n in rungs) +
+              " | " + " | ".join(picks) + " |")
+    return 0
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("surface", choices=sorted(SURFACES) + ["single"])
     parser.add_argument("--tolerance", type=float, nargs="+", default=[0.05, 0.01])
     parser.add_argument("--keep", type=Path, default=ROOT / "out" / "auto_at_scale")
+    parser.add_argument("--rule-only", action="store_true",
+                        help="single: print the rule's predictions and picks only (no rung or BEM run)")
     args = parser.parse_args(argv)
     if args.surface == "single":
-        return single_task_studies(args.tolerance)
+        return single_task_studies(args.tolerance, args.rule_only)
     folder = args.keep / args.surface
     folder.mkdir(parents=True, exist_ok=True)
     surface, wavelengths = SURFACES[args.surface]

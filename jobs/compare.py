@@ -26,7 +26,6 @@ scene) and an HDF5 file with the same numbers and every BRDF.
 from __future__ import annotations
 
 import csv
-import json
 import logging
 import time
 import traceback
@@ -35,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wavebrdf.jobs.store import write_comparison
 from wavebrdf.solver.farfield import HemisphereGrid, albedo
 from wavebrdf.solver.metrics import (
     angular_distance_deg,
@@ -48,13 +48,15 @@ from wavebrdf.solver.metrics import (
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["LADDER", "Comparison", "Measurement", "choose_reference", "compare_scenes", "measure", "speckle_sigma_u"]
+__all__ = ["LADDER", "Comparison", "Measurement", "choose_reference", "compare_scenes", "comparison_metrics", "measure",
+           "speckle_sigma_u"]
 
 # The rungs from the cheapest to the most accurate (approx.md §2); models not listed rank below.
 LADDER = ("gs", "gm", "ohs", "ghs", "kirchhoff", "stam", "ws-v", "wm", "po", "bem")
 RETRO_CONE_DEG = 5.0
 COLUMNS = ("scene", "model", "reference", "wall_s", "cpu_s", "peak_mb", "albedo", "albedo_diff", "rel_l2",
-           "rel_l2_smooth", "misplaced", "peak_offset_deg", "retro", "failure")
+           "rel_l2_smooth", "rel_l2_s", "rel_l2_smooth_s", "rel_l2_p", "rel_l2_smooth_p", "misplaced",
+           "peak_offset_deg", "retro", "failure")
 
 
 @dataclass
@@ -225,10 +227,10 @@ class Comparison:
 
     def write(self, stem: Path) -> list[Path]:
         """``stem``.csv, .md, .png (error vs time), _gallery.png (every model's BRDF side by side)
-        and .h5 (returns the paths written)."""
+        and .h5 (returns the paths written); the stem's name is kept whole (``a0.6_compare`` →
+        ``a0.6_compare.csv``)."""
         stem = Path(stem)
-        paths = [stem.with_suffix(".csv"), stem.with_suffix(".md"), stem.with_suffix(".png"), stem.with_suffix(".h5"),
-                 stem.with_name(stem.name + "_gallery.png")]
+        paths = [stem.with_name(stem.name + ending) for ending in (".csv", ".md", ".png", ".h5", "_gallery.png")]
         with open(paths[0], "w", newline="") as fh:
             writer = csv.DictWriter(fh, COLUMNS)
             writer.writeheader()
@@ -306,25 +308,9 @@ class Comparison:
         plt.close(fig)
 
     def _write_h5(self, path: Path) -> None:
-        import h5py
-
-        with h5py.File(path, "w") as h5:
-            h5.attrs["wavebrdf_compare"] = 1
-            table = h5.create_group("table")
-            for key in COLUMNS:
-                values = [r.get(key) for r in self.rows]
-                if all(isinstance(v, (int, float)) for v in values):
-                    table.create_dataset(key, data=np.array(values, dtype=float))
-                else:
-                    table.create_dataset(key, data=np.array(["" if v is None else str(v) for v in values],
-                                                            dtype=h5py.string_dtype()))
-            brdfs = h5.create_group("brdf")
-            brdfs.attrs["grid_resolution"] = self.grid.resolution
-            for i, m in enumerate(self.measurements):
-                if m.brdf is not None:
-                    ds = brdfs.create_dataset(f"{i:04d}", data=m.brdf.astype(np.float32), compression="gzip")
-                    ds.attrs.update({"model": m.model, "scene": m.scene,
-                                     "diagnostics": json.dumps(m.diagnostics, default=repr)})
+        write_comparison(path, COLUMNS, self.rows, [(m.scene, m.model, m.brdf, m.diagnostics)
+                                                    for m in self.measurements if m.brdf is not None],
+                         self.grid.resolution)
 
 
 def plot_trade(rows: list[dict], path: Path, group: str = "scene", title: str | None = None,
@@ -372,12 +358,21 @@ def plot_trade(rows: list[dict], path: Path, group: str = "scene", title: str | 
     plt.close(fig)
 
 
-def _metrics(m: Measurement, ref: Measurement, grid: HemisphereGrid, sigma_u: float, theta: float, phi: float) -> dict:
+def comparison_metrics(m: Measurement, ref: Measurement, grid: HemisphereGrid, sigma_u: float, theta: float, phi: float) -> dict:
+    """The columns of one model against the reference: the unpolarized BRDF's albedo, relative L2
+    over the lobe raw and speckle-averaged (``_smooth``), the same per incident polarization
+    (``_s``, ``_p``), misplaced energy, peak offset and retro-reflected share."""
     f = 0.5 * (m.brdf[0] + m.brdf[1])
     f_ref = 0.5 * (ref.brdf[0] + ref.brdf[1])
     smooth, smooth_ref = blur(f, grid, sigma_u), blur(f_ref, grid, sigma_u)
     a, a_ref = albedo(f, grid), albedo(f_ref, grid)
+    per_polarization = {}
+    for k, pol in enumerate("sp"):
+        per_polarization[f"rel_l2_{pol}"] = float(relative_l2(m.brdf[k], ref.brdf[k], grid))
+        per_polarization[f"rel_l2_smooth_{pol}"] = float(relative_l2(blur(m.brdf[k], grid, sigma_u),
+                                                                     blur(ref.brdf[k], grid, sigma_u), grid))
     return {
+        **per_polarization,
         "albedo": float(a),
         "albedo_diff": float(a - a_ref),
         "rel_l2": float(relative_l2(f, f_ref, grid)),
@@ -431,7 +426,7 @@ def _compare_one(process, label, scene, models, options, reference, budget, kept
         row = {"scene": label, "model": name, "reference": ref_name if reference else f"{ref_name} ({why})",
                "wall_s": m.wall_s, "cpu_s": m.cpu_s, "peak_mb": m.peak_mb, "failure": m.failure}
         if m.failure is None and ref.failure is None:
-            row.update(_metrics(m, ref, grid, sigma_u, scene.theta_i, scene.phi_i))
+            row.update(comparison_metrics(m, ref, grid, sigma_u, scene.theta_i, scene.phi_i))
         rows.append(row)
     return rows
 

@@ -36,7 +36,8 @@ leaves the previous file as it was and raises a one-line
 :class:`~wavebrdf.jobs.parts.StorageError` naming the path. Reading (:class:`Dataset`) checks
 the format, its version and the variables of its layout before anything is read. This
 module owns every HDF5 write: :func:`write_dataset` assembles a run's dataset (surface or fiber
-layout) from its parts folder, each task's slot written by its kind (jobs/tasks.py ``KINDS``).
+layout) from its parts folder, each task's slot written by its kind (jobs/tasks.py ``KINDS``),
+and :func:`write_comparison` the file of ``wavebrdf compare`` (read back by :func:`read_comparison`).
 """
 
 from __future__ import annotations
@@ -51,6 +52,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from wavebrdf._version import __version__
 from wavebrdf.jobs.netcdf import (CF_CONVENTIONS, attach_scales, coordinate, describe_task_table, history_line,
                                   sweep_coordinate_attrs, units_from_name)
 from wavebrdf.jobs.parts import StorageError, fsync_folder, storage_error, temporary_path
@@ -65,6 +67,8 @@ __all__ = [
     "atomic_h5",
     "not_a_dataset",
     "open_dataset",
+    "read_comparison",
+    "write_comparison",
     "write_dataset",
 ]
 
@@ -246,6 +250,46 @@ def atomic_h5(path: Path):
     naming ``path``. The folder must exist (nothing is created but the file)."""
     with _guarded_h5(path) as (h5, _):
         yield h5
+
+
+COMPARISON_FORMAT = 1  # ``wavebrdf_compare`` attribute of a comparison file
+
+
+def write_comparison(path: Path, columns, rows: list[dict], brdfs: list[tuple[str, str, np.ndarray, dict]],
+                     grid_resolution: int) -> None:
+    """A comparison's file, atomically: ``table/<column>`` (one entry per row; numbers as float,
+    else strings) and ``brdf/<i>`` per (scene, model, BRDF (2, n, n) in 1/sr s/p, diagnostics)
+    stored as float32 with the scene, model and diagnostics (JSON) as attributes."""
+    with atomic_h5(path) as h5:
+        h5.attrs["wavebrdf_compare"] = COMPARISON_FORMAT
+        table = h5.create_group("table")
+        for key in columns:
+            values = [r.get(key) for r in rows]
+            if all(isinstance(v, (int, float)) for v in values):
+                table.create_dataset(key, data=np.array(values, dtype=float))
+            else:
+                table.create_dataset(key, data=np.array(["" if v is None else str(v) for v in values], dtype=STRING))
+        group = h5.create_group("brdf")
+        group.attrs["grid_resolution"] = grid_resolution
+        for i, (scene, model, brdf, diagnostics) in enumerate(brdfs):
+            ds = group.create_dataset(f"{i:04d}", data=np.asarray(brdf, dtype=np.float32), compression="gzip")
+            ds.attrs.update({"model": model, "scene": scene, "diagnostics": json.dumps(diagnostics, default=repr)})
+
+
+def read_comparison(path: Path) -> tuple[dict[str, list], dict[tuple[str, str], np.ndarray]]:
+    """(the table, column → values; (scene, model) → BRDF (2, n, n) in 1/sr) of a file written by
+    :func:`write_comparison`."""
+    path = Path(path)
+    try:
+        h5 = h5py.File(path, "r")
+    except OSError as exc:
+        raise StoreError(f"{path}: cannot be read as a comparison file ({exc})") from None
+    with h5:
+        if "wavebrdf_compare" not in h5.attrs:
+            raise StoreError(f"{path}: not a comparison file (no 'wavebrdf_compare' attribute)")
+        table = {k: [v.decode() if isinstance(v, bytes) else v for v in h5["table"][k][()]] for k in h5["table"]}
+        brdfs = {(ds.attrs["scene"], ds.attrs["model"]): ds[()].astype(float) for ds in h5["brdf"].values()}
+    return table, brdfs
 
 
 def _coordinate(h5: h5py.File, name: str, values, attrs: dict | None = None) -> h5py.Dataset:
@@ -586,7 +630,6 @@ def write_dataset(plan, parts, device: str, run_info: dict | None = None) -> Pat
 
     Tasks without a finished part get ``status = "failed"`` and keep NaN in their slot.
     """
-    from wavebrdf import __version__
     from wavebrdf.jobs.tasks import KINDS
 
     output = Path(plan.config.output)

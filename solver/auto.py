@@ -63,6 +63,7 @@ SENTINEL_RESOLUTION = 32
 REFERENCE = "bem"
 # rungs whose paths end after one reflection: they miss the energy of longer paths
 SINGLE_SCATTERING = frozenset({"gs", "ohs", "ghs", "kirchhoff", "po", "stam", "ws-v"})
+PLANE_WAVE_WAIST = 100.0  # waist/λ a plane wave (waist None) counts as in the rule
 CHECKED_RUNG_SHARE = 0.25  # a spot check measures the candidate rungs estimated at most this share of the full wave
 
 
@@ -82,19 +83,25 @@ class SceneFeatures:
     waist_over_wavelength: float
     shadowed: float
     multi_bounce: float
+    index_contrast: float  # |n₂| / n₁ of the material below the surface
 
-    REGRESSORS = ("1", "log10 σ/λ", "rms slope", "sin²θ_i", "multi-bounce", "shadowed")
+    REGRESSORS = ("1", "log10 σ/λ", "rms slope", "sin²θ_i", "multi-bounce", "shadowed", "log10 w/λ",
+                  "log10 |n₂|/n₁")
 
     def regressors(self) -> np.ndarray:
         """The rule's regressors: 1, log₁₀(σ/λ) (floored at 10⁻⁴), rms slope, sin²θ_i,
-        multiple-bounce share, shadowed fraction."""
+        multiple-bounce share, shadowed fraction, log₁₀(waist/λ) (a plane wave counts as
+        :data:`PLANE_WAVE_WAIST` wavelengths), log₁₀ of the index contrast."""
         return np.array([1.0, np.log10(max(self.height_over_wavelength, 1e-4)), self.rms_slope,
-                         np.sin(np.radians(self.theta_i_deg)) ** 2, self.multi_bounce, self.shadowed])
+                         np.sin(np.radians(self.theta_i_deg)) ** 2, self.multi_bounce, self.shadowed,
+                         np.log10(min(self.waist_over_wavelength, PLANE_WAVE_WAIST)),
+                         np.log10(max(self.index_contrast, 1.0))])
 
     def describe(self) -> str:
         return (f"σ/λ {self.height_over_wavelength:.3g}, rms slope {self.rms_slope:.3g}, max slope "
                 f"{self.max_slope:.3g}, θ_i {self.theta_i_deg:.0f}°, shadowed {self.shadowed:.3g}, "
-                f"multi-bounce {self.multi_bounce:.3g}")
+                f"multi-bounce {self.multi_bounce:.3g}, waist {self.waist_over_wavelength:.3g} λ, "
+                f"|n₂|/n₁ {self.index_contrast:.3g}")
 
 
 FEATURES = tuple(f.name for f in dataclasses.fields(SceneFeatures))
@@ -122,23 +129,28 @@ def measure_scene(scene: SurfaceScene) -> SceneFeatures:
         waist_over_wavelength=float((scene.waist_um or np.inf) / lam),
         shadowed=float(trace.shadowed_fraction),
         multi_bounce=multi,
+        index_contrast=float(abs(complex(scene.index)) / scene.exterior_index),
     )
 
 
 @dataclass(frozen=True)
 class Rule:
     """Per rung: coefficients of log₁₀(error) on :meth:`SceneFeatures.regressors` and the margin
-    (largest residual) added to every prediction; ``rows`` the number of table rows fitted."""
+    (largest residual) added to every prediction; ``rows`` the number of table rows fitted;
+    ``low``/``high`` the range of each regressor over them (outside it a prediction is the larger
+    of the extrapolated one and the one at the nearest fitted point: never below either)."""
 
     coefficients: dict[str, np.ndarray]
     margin: dict[str, float]
     rows: dict[str, int]
+    low: dict[str, np.ndarray]
+    high: dict[str, np.ndarray]
 
     @classmethod
     def fit(cls, table: list[dict], ridge: float = 1e-3) -> "Rule":
         """Least squares (with a small ridge) of log₁₀(:data:`ERROR_COLUMN`) per rung over the
         table's rows (dicts with the :data:`FEATURES` and ``model``; the reference's rows skipped)."""
-        coefficients, margin, rows = {}, {}, {}
+        coefficients, margin, rows, low, high = {}, {}, {}, {}, {}
         for name in sorted({r["model"] for r in table} - {REFERENCE}):
             mine = [r for r in table if r["model"] == name and np.isfinite(_float(r.get(ERROR_COLUMN)))]
             if len(mine) < 2 * len(SceneFeatures.REGRESSORS):  # too few rows to fit and bound the residual
@@ -148,7 +160,8 @@ class Rule:
             a = x.T @ x + ridge * np.eye(x.shape[1])
             w = np.linalg.solve(a, x.T @ y)
             coefficients[name], margin[name], rows[name] = w, float(max(0.0, np.max(y - x @ w))), len(mine)
-        return cls(coefficients, margin, rows)
+            low[name], high[name] = x.min(axis=0), x.max(axis=0)
+        return cls(coefficients, margin, rows, low, high)
 
     def predict(self, name: str, features: SceneFeatures) -> float:
         """Predicted error of rung ``name`` (NaN when the table does not cover it)."""
@@ -156,7 +169,10 @@ class Rule:
             return 0.0
         if name not in self.coefficients:
             return float("nan")
-        error = 10.0 ** (features.regressors() @ self.coefficients[name] + self.margin[name])
+        x = features.regressors()
+        nearest = np.clip(x, self.low[name], self.high[name])
+        log_error = max(x @ self.coefficients[name], nearest @ self.coefficients[name])
+        error = 10.0 ** (log_error + self.margin[name])
         if name in SINGLE_SCATTERING:
             error = max(error, features.multi_bounce)
         return float(min(error, 10.0))

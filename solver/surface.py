@@ -33,6 +33,7 @@ __all__ = [
     "checked_heights",
     "generate",
     "load_heights",
+    "refined",
 ]
 
 MIN_NODES = 4  # at least 3×3 cells
@@ -748,6 +749,60 @@ def generate(name: str, *, cells: int, size_um: float, seed: int = 0, **params) 
     recorded = {"generator": name, "seed": int(seed), **{k: _plain(v) for k, v in params.items()}, **extra,
                 "periodic": periodic}
     return HeightField(z, float(size_um), ensemble=ensemble, parameters=recorded)
+
+
+CELL_DEPENDENT_GENERATORS = frozenset({"gaussian", "brushed"})  # their realization is drawn on the grid itself
+
+
+def refined(field: HeightField, cells: int) -> HeightField:
+    """The same surface on a finer grid of ``cells`` cells a side (a mesh-convergence study).
+
+    Deterministic generators (and "hemispheres", whose disk centres do not depend on the grid)
+    are rebuilt at ``cells`` from their recorded parameters; a random realization drawn on the
+    grid ("gaussian", "brushed") is trigonometrically interpolated from its periodic tile, which
+    keeps every coarse node and adds no spectrum above the coarse grid's Nyquist frequency; any
+    other field (a file, a cut patch) by bicubic splines through its nodes.
+    """
+    if int(cells) != cells or cells < field.cells:
+        raise SurfaceError(f"refined: cells must be an integer >= the field's {field.cells}, got {cells!r}")
+    cells = int(cells)
+    params = dict(field.parameters or {})
+    name = params.pop("generator", None)
+    if name in GENERATORS and name not in CELL_DEPENDENT_GENERATORS:
+        func, required = GENERATORS[name]
+        allowed = set(required) | set(OPTIONAL_PARAMETERS.get(name, ()))
+        kept = {k: v for k, v in params.items() if k in allowed}
+        out = generate(name, cells=cells, size_um=field.size_um, seed=params.get("seed", 0), **kept)
+        return HeightField(out.z, field.size_um, field.origin_um, out.ensemble, out.parameters)
+    if name in CELL_DEPENDENT_GENERATORS and all(field.periodic):
+        z = _periodic_nodes(_fourier_interpolated(field.z[:-1, :-1], cells))
+    else:
+        from scipy.interpolate import RectBivariateSpline
+
+        t = np.linspace(0.0, 1.0, field.cells + 1)
+        z = RectBivariateSpline(t, t, field.z, kx=3, ky=3)(np.linspace(0.0, 1.0, cells + 1), np.linspace(0.0, 1.0, cells + 1))
+    recorded = None if field.parameters is None else {**field.parameters, "refined_from_cells": field.cells}
+    return HeightField(z, field.size_um, field.origin_um, field.ensemble, recorded)
+
+
+def _fourier_interpolated(tile: np.ndarray, cells: int) -> np.ndarray:
+    """The periodic N×N ``tile`` sampled on an M×M grid by trigonometric interpolation (its
+    spectrum zero-padded; an even N's Nyquist row and column split between ±N/2, so the result is
+    real and passes through every original node when M is a multiple of N)."""
+    n = tile.shape[0]
+    low = (n + 1) // 2  # frequencies 0 .. low−1, then the n − low negative ones
+    index = np.r_[0:low, cells - (n - low):cells]
+    padded = np.zeros((cells, cells), dtype=complex)
+    padded[np.ix_(index, index)] = np.fft.fft2(tile)
+    if n % 2 == 0 and cells > n:
+        minus, plus = cells - n // 2, n // 2
+        for axis in (0, 1):
+            half = 0.5 * np.take(padded, minus, axis=axis)
+            if axis == 0:
+                padded[minus, :], padded[plus, :] = half, half
+            else:
+                padded[:, minus], padded[:, plus] = half, half
+    return np.real(np.fft.ifft2(padded)) * (cells / n) ** 2
 
 
 def _plain(value):

@@ -1,8 +1,8 @@
 """``[model] name = "auto"`` (solver/auto.py, docs/auto.md): the cheapest rung expected to meet a
 tolerance, from scene features and a rule fitted to the trade table of record (docs/trade.md).
 
-* On the suite the rule was fitted to (configs/compare/trade/*.toml), the chosen rung's *measured*
-  error (solver/data/trade.csv, against AIM BEM) is within the tolerance in every scene, and it is
+* On the suites the rule was fitted to (configs/compare/trade/<suite>/*.toml: aluminium at waist
+  ≈ λ and 5 λ), the chosen rung's *measured* error (solver/data/trade.csv, against AIM BEM) is within the tolerance in every scene, and it is
   the cheapest such rung in most.
 * Scenes generated fresh here (new seeds, new parameters): cube corners and spherical pits never
   get a single-scattering rung; smooth low-slope random surfaces never get BEM.
@@ -33,7 +33,7 @@ from wavebrdf.solver.surface import generate
 
 logger = logging.getLogger(__name__)
 ROOT = Path(__file__).resolve().parents[1]
-SUITE = sorted((ROOT / "configs" / "compare" / "trade").glob("*.toml"))
+SUITE = sorted((ROOT / "configs" / "compare" / "trade").glob("*/*.toml"))
 TOLERANCE = 0.05
 DEG = np.pi / 180
 
@@ -47,7 +47,7 @@ def test_on_the_suite_auto_picks_a_rung_within_tolerance_also_when_the_scene_was
     measured error), and — the real check — fitted with each scene config left out in turn and
     asked about that config's scenes: the chosen rung's measured error is within the tolerance."""
     table = read_table()
-    assert len(SUITE) >= 7 and len({r["scene"] for r in table}) >= 28
+    assert len(SUITE) >= 11 and len({r["scene"] for r in table}) >= 36
     picks, cheapest = [], 0
     for path in SUITE:
         config = str(path.resolve().relative_to(ROOT))
@@ -173,7 +173,7 @@ def evaluate_auto_on(comparison, tolerance: float = TOLERANCE) -> list[dict]:
     """auto (escalation check included) on each scene of ``comparison``: its rung, error against
     the reference's BRDF, CPU time (pilot and check included), and the cheapest rung within
     ``tolerance`` by the comparison's measured errors."""
-    from wavebrdf.jobs.compare import MeasuringProcess, _metrics, speckle_sigma_u
+    from wavebrdf.jobs.compare import MeasuringProcess, comparison_metrics, speckle_sigma_u
     from wavebrdf.solver.auto import AutoModel
 
     out = []
@@ -188,7 +188,7 @@ def evaluate_auto_on(comparison, tolerance: float = TOLERANCE) -> list[dict]:
                 run = process.measure("auto", {"tolerance": tolerance}, scene, label)
                 assert run.failure is None, run.failure
                 sigma = speckle_sigma_u(scene.wavelength_um, scene.waist_um, comparison.grid)
-                error = _metrics(run, ref, comparison.grid, sigma, scene.theta_i, scene.phi_i)[ERROR_COLUMN]
+                error = comparison_metrics(run, ref, comparison.grid, sigma, scene.theta_i, scene.phi_i)[ERROR_COLUMN]
                 cpu, ran = run.cpu_s, run.diagnostics["model"]
             within = sorted((r["cpu_s"], m) for m, r in rows.items() if r.get(ERROR_COLUMN, np.inf) <= tolerance)
             out.append(dict(scene=label, picked=picked, ran=ran, error=error, cpu=cpu, bem_cpu=rows[REFERENCE]["cpu_s"],

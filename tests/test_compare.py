@@ -11,6 +11,7 @@ import pytest
 
 from references import fresnel_reflectance
 from wavebrdf.jobs.compare import LADDER, choose_reference, compare_scenes
+from wavebrdf.jobs.store import StoreError, read_comparison
 from wavebrdf.solver.farfield import HemisphereGrid
 from wavebrdf.solver.models import SurfaceScene
 from wavebrdf.solver.surface import generate
@@ -33,8 +34,8 @@ def test_a_model_against_itself_and_a_failing_one(flat_scene, tmp_path):
     assert ref["albedo"] == pytest.approx(np.mean(fresnel_reflectance(1.0, 1.5, np.deg2rad(30.0))), rel=5e-3)
     assert ref["wall_s"] > 0 and ref["cpu_s"] >= 0 and ref["peak_mb"] >= 0
     assert rows["bem"]["failure"] and "no_such_key" in rows["bem"]["failure"]
-    paths = comparison.write(tmp_path / "trade")
-    assert [p.suffix for p in paths] == [".csv", ".md", ".png", ".h5", ".png"]
+    paths = comparison.write(tmp_path / "al_waist0.6_trade")  # a dot in the study's name is kept
+    assert [p.name for p in paths] == [f"al_waist0.6_trade{e}" for e in (".csv", ".md", ".png", ".h5", "_gallery.png")]
     assert all(p.stat().st_size > 0 for p in paths)
     with open(paths[0]) as fh:
         table = list(csv.DictReader(fh))
@@ -42,6 +43,18 @@ def test_a_model_against_itself_and_a_failing_one(flat_scene, tmp_path):
     with h5py.File(paths[3]) as h5:
         assert list(h5["table/model"].asstr()) == ["kirchhoff", "bem"]
         assert h5["brdf"]["0000"].shape == (2, 96, 96)
+    table, brdfs = read_comparison(paths[3])
+    assert table["model"] == ["kirchhoff", "bem"] and table["failure"][1] == rows["bem"]["failure"]
+    assert list(brdfs) == [("flat glass 30°", "kirchhoff")]  # the failed model has no BRDF
+    assert not list(tmp_path.glob(".*.tmp"))  # written atomically: no temporary left
+    with pytest.raises(StoreError, match="not a comparison file"):
+        read_comparison(write_small_h5(tmp_path / "other.h5"))
+
+
+def write_small_h5(path):
+    with h5py.File(path, "w") as h5:
+        h5["x"] = 1
+    return path
 
 
 def test_the_reference_is_the_highest_rung_that_fits(flat_scene):
