@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
+import functools
 import logging
 import sys
 import time
@@ -53,6 +54,7 @@ def suite_configs() -> list[Path]:
     return sorted(p for suite in SUITES for p in (SUITE / suite).glob("*.toml"))
 
 
+@functools.cache
 def _stem(path: Path) -> Path:
     from wavebrdf.jobs.config import load_config
 
@@ -79,7 +81,9 @@ def compare_suite(configs: list[Path], force: bool, log) -> None:
             log(f"{path.relative_to(ROOT)}: {time.perf_counter() - t0:.0f} s")
 
 
+@functools.cache
 def _scenes(path: Path) -> list[tuple[str, object]]:
+    """The config's (label, scene) pairs, planned once per run."""
     from wavebrdf.jobs.compare import plan_scenes
     from wavebrdf.jobs.config import load_config
     from wavebrdf.jobs.plan import plan_study
@@ -148,7 +152,8 @@ def convergence(path: Path, force: bool, log, run: bool = True) -> dict:
     label, scene = hardest_scene(path)
     cells = scene.surface.cells
     fine_cells = int(round(REFINEMENT * cells))
-    store = WORK / f"{load_config(path).cases[0].name}_converged.h5"
+    case = load_config(path).cases[0]
+    store = WORK / f"{case.name}_converged.h5"
     cells_row = {"suite": path.parent.name, "config": str(path.resolve().relative_to(ROOT)), "scene": label,
                  "spacing_um": scene.surface.spacing_um, "fine_spacing_um": scene.surface.size_um / fine_cells,
                  "cells": cells, "fine_cells": fine_cells}
@@ -156,7 +161,7 @@ def convergence(path: Path, force: bool, log, run: bool = True) -> dict:
         return {**cells_row, "cpu_s": np.nan, "fine_cpu_s": np.nan, "failure": "not measured"}
     if force or not store.is_file():
         fine = dataclasses.replace(scene, surface=refined(scene.surface, fine_cells))
-        options = load_config(path).cases[0].model.options
+        options = case.model.options
         log(f"{label}: BEM at {fine_cells}² cells (d = {fine.surface.spacing_um:.4g} µm)")
         with MeasuringProcess() as process:
             m = process.measure(REFERENCE, options, fine, label)
@@ -191,6 +196,15 @@ def scene_features(configs: list[Path], log) -> dict[str, dict]:
     return features
 
 
+def _cheapest_within(rows: dict[str, dict], tolerance: float) -> str | None:
+    """The rung of ``rows`` (model → table row of one scene) with the least measured CPU time
+    whose measured error meets ``tolerance`` (None: none does)."""
+    from wavebrdf.solver.auto import ERROR_COLUMN
+
+    within = sorted((_num(r["cpu_s"]), m) for m, r in rows.items() if _num(r.get(ERROR_COLUMN)) <= tolerance)
+    return within[0][1] if within else None
+
+
 def evaluate_auto(configs: list[Path], table: list[dict], tolerance: float) -> list[dict]:
     """Per scene: auto's choice (the rule fitted to ``table``), its measured error and CPU time,
     the cheapest rung whose measured error meets ``tolerance`` (by measured CPU time), and BEM's."""
@@ -206,19 +220,19 @@ def evaluate_auto(configs: list[Path], table: list[dict], tolerance: float) -> l
             choice = choose(scene, tolerance, rule, features)
             error = {m: _num(r.get(ERROR_COLUMN)) for m, r in mine.items()}
             cpu = {m: _num(r["cpu_s"]) for m, r in mine.items()}
-            within = sorted((cpu[m], m) for m in mine if error[m] <= tolerance)
             check = next_rung_up(choice, choice.model) if choice.model != REFERENCE else None
             cost = float(first["pilot_s"]) + cpu[choice.model] + (cpu[check] if check else 0.0)
             rows.append({"suite": path.parent.name, "scene": label, "auto": choice.model,
                          "predicted": choice.predicted_error, "measured": error[choice.model],
                          "measured_s": _num(mine[choice.model].get("rel_l2_smooth_s")),
                          "measured_p": _num(mine[choice.model].get("rel_l2_smooth_p")),
-                         "cheapest_within": within[0][1] if within else "", "auto_cpu_s": cost, "check": check or "",
+                         "cheapest_within": _cheapest_within(mine, tolerance) or "", "auto_cpu_s": cost,
+                         "check": check or "",
                          "bem_cpu_s": cpu[REFERENCE], "reason": choice.reason})
     return rows
 
 
-def measured_auto(configs: list[Path], tolerance: float, log) -> list[dict]:
+def measured_auto(configs: list[Path], table: list[dict], tolerance: float, log) -> list[dict]:
     """``model = "auto"`` run on every scene (one task: the rule's path and its escalation check)
     in the measuring process, its rung's error against the stored BEM and its CPU time measured;
     where it picks BEM, that is the table's own full-wave run (its CPU plus the pilot's)."""
@@ -244,14 +258,11 @@ def measured_auto(configs: list[Path], tolerance: float, log) -> list[dict]:
                         raise RuntimeError(f"{label}: auto failed: {run.failure}")
                     metrics = comparison_metrics(run, ref, scene.grid, _speckle_sigma(scene), scene.theta_i, scene.phi_i)
                     cpu, ran = run.cpu_s, run.diagnostics.get("model", picked)
-                errors = {m: comparison_metrics(r, ref, scene.grid, _speckle_sigma(scene), scene.theta_i,
-                                                scene.phi_i)["rel_l2_smooth"]
-                          for (where, m), r in stored.items() if where == label and r.failure is None}
-                within = sorted((stored[label, m].cpu_s, m) for m, e in errors.items() if e <= tolerance)
                 rows.append({"suite": path.parent.name, "scene": label, "picked": picked, "ran": ran,
                              "error": metrics["rel_l2_smooth"], "error_s": metrics["rel_l2_smooth_s"],
                              "error_p": metrics["rel_l2_smooth_p"], "cpu_s": cpu, "bem_cpu_s": ref.cpu_s,
-                             "cheapest_within": within[0][1] if within else REFERENCE})
+                             "cheapest_within": _cheapest_within({r["model"]: r for r in table if r["scene"] == label},
+                                                                  tolerance) or REFERENCE})
                 log(f"auto on {label}: {ran} error {metrics['rel_l2_smooth']:.3g}, {cpu:.3g} CPU-s")
     return rows
 
@@ -308,7 +319,7 @@ def main(argv=None) -> int:
     log(f"wrote {TRADE_TABLE} and its convergence table")
     auto_rows = evaluate_auto(configs, table, args.tolerance)
     sweep = {tol: evaluate_auto(configs, table, tol) for tol in SWEEP}
-    ran = {tol: measured_auto(configs, tol, log) for tol in args.measured_tolerances}
+    ran = {tol: measured_auto(configs, table, tol, log) for tol in args.measured_tolerances}
     for suite in dict.fromkeys(r["suite"] for r in table):
         plot([r for r in table if r["suite"] == suite], args.tolerance, ROOT / "docs" / "images" / f"trade_{suite}.png",
              SUITES.get(suite, suite))

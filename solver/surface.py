@@ -779,8 +779,8 @@ def refined(field: HeightField, cells: int) -> HeightField:
     else:
         from scipy.interpolate import RectBivariateSpline
 
-        t = np.linspace(0.0, 1.0, field.cells + 1)
-        z = RectBivariateSpline(t, t, field.z, kx=3, ky=3)(np.linspace(0.0, 1.0, cells + 1), np.linspace(0.0, 1.0, cells + 1))
+        coarse, fine = np.linspace(0.0, 1.0, field.cells + 1), np.linspace(0.0, 1.0, cells + 1)
+        z = RectBivariateSpline(coarse, coarse, field.z, kx=3, ky=3)(fine, fine)
     recorded = None if field.parameters is None else {**field.parameters, "refined_from_cells": field.cells}
     return HeightField(z, field.size_um, field.origin_um, field.ensemble, recorded)
 
