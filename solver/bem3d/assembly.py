@@ -365,6 +365,13 @@ def basis_pair_entries(ctx, mesh: BEMMesh, media: Media, rows, cols,
     pair_map = np.full((len(test_elems), len(source_elems)), -1, dtype=np.int32)
     pair_map[row_elem[inv_r][:, :, None], col_elem[inv_c][:, None, :]] = 0
     pairs = np.flatnonzero(pair_map.ravel() == 0)
+    if ctx is not None and len(rows) > 1 and \
+            max(len(pairs) * 2 * TABLE * 16, pair_map.nbytes) > ctx.info.max_alloc_gib * 2**30:
+        # the tables or the pair map would exceed the device's largest buffer: the pairs in two halves
+        half = len(rows) // 2
+        parts = [basis_pair_entries(ctx, mesh, media, rows[sl], cols[sl], integrals)
+                 for sl in (slice(0, half), slice(half, None))]
+        return tuple(np.concatenate(arrays) for arrays in zip(*parts))
     lt_idx, ls_idx = np.divmod(pairs, len(source_elems))
     tables, index = integrals.indexed_tables(test_elems[lt_idx], source_elems[ls_idx], media.wavenumbers, scratch=True)
     pair_map.ravel()[pairs] = index
