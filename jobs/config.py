@@ -35,7 +35,8 @@ from wavebrdf.jobs.overrides import dict_config_text, overridden_text, parse_tom
 from wavebrdf.jobs.ranges import RANGE_KEYS, expand_range
 from wavebrdf.jobs.sections import (FIBER_SHAPE_KEYS, MODEL_SECTIONS, SCHEMA, SECTIONS, FiberSection,
                                     IlluminationSection, MaterialSection, ModelSection, OutputSection, RunSection,
-                                    StudySection, SurfaceSection, parse_generator, parse_section, section_record)
+                                    StudySection, SurfaceSection, config_errors, parse_generator, parse_section,
+                                    section_record)
 from wavebrdf.jobs.study import (FiberSpec, IlluminationSpec, MaterialSpec, ModelSpec, Study, StudyConfig,
                                  SurfaceSpec)
 from wavebrdf.jobs.study_checks import check_study, rectangle_outside_steering
@@ -158,10 +159,8 @@ def _model_spec(m: ModelSection, given: dict, is_fiber: bool) -> ModelSpec:
         if both:
             raise ConfigError(f"[model.{m.name}] {both[0]}: also given in [model]; give it once")
         given.update(own)
-    try:
+    with config_errors():
         options = parse_options(model_class(m.name).Options, given, "model")
-    except ValueError as exc:
-        raise ConfigError(str(exc)) from None
     return ModelSpec(m.name, m.precision, options)
 
 

@@ -16,6 +16,7 @@ study's fingerprint hashes (jobs/plan.py).
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -29,12 +30,12 @@ from wavebrdf.solver.models import model_names
 from wavebrdf.solver.opencl import PRECISIONS
 from wavebrdf.solver.options import (ANGLE_DEG, LENGTH_UM, WAVELENGTH_UM, Limits, OptionField, OptionsError, option,
                                      option_fields, parse_open_options, parse_options)
-from wavebrdf.solver.surface import GENERATORS, SurfaceError, generator_keys
+from wavebrdf.solver.surface import GENERATORS, SurfaceError
 
 __all__ = [
     "FIBER_SHAPE_KEYS", "MODEL_SECTIONS", "SCHEMA", "SECTIONS", "CompareSection", "FiberSection", "IlluminationSection",
     "MaterialSection", "ModelSection", "OutputSection", "RunSection", "SteeringSection", "StudySection",
-    "SurfaceSection", "check_key", "parse_generator", "parse_section", "section_record",
+    "SurfaceSection", "check_key", "config_errors", "parse_generator", "parse_section", "section_record",
 ]
 
 FIBER_SHAPE_KEYS = {"circle": "radius_um", "ellipse": "semi_axes_um", "polygon": "points_file"}  # shape → its key
@@ -209,17 +210,24 @@ SCHEMA: dict[str, dict[str, OptionField]] = {
 }
 
 
+@contextmanager
+def config_errors():
+    """An option's refusal (OptionsError) raised as the config's one-line ConfigError."""
+    try:
+        yield
+    except OptionsError as exc:
+        raise ConfigError(str(exc)) from None
+
+
 def parse_section(name: str, raw: Any) -> tuple[Any, dict]:
     """(section ``name`` parsed, its other keys as given: a generator's or a model's)."""
     cls = SECTIONS[name]
-    try:
+    with config_errors():
         if name == "surface":
-            return parse_open_options(cls, raw, name, generator_keys())
+            return parse_open_options(cls, raw, name, _generator_fields())
         if name in MODEL_SECTIONS:
             return parse_open_options(cls, raw, name)
         return parse_options(cls, raw, name), {}
-    except OptionsError as exc:
-        raise ConfigError(str(exc)) from None
 
 
 def parse_generator(name: str, given: dict) -> dict:
@@ -231,19 +239,15 @@ def parse_generator(name: str, given: dict) -> dict:
         chosen.check_keys(given)
     except SurfaceError as exc:
         raise ConfigError(f"[surface] {exc}") from None
-    try:
+    with config_errors():
         options = parse_options(chosen.Options, given, "surface")
-    except OptionsError as exc:
-        raise ConfigError(str(exc)) from None
     return {key: getattr(options, key) for key in option_fields(chosen.Options) if key in given}
 
 
 def check_key(section: str, key: str, value: Any):
     """``[section] key = value`` converted, alone (no check that spans keys), or its ConfigError."""
-    try:
+    with config_errors():
         return SCHEMA[section][key].convert(section, value)
-    except OptionsError as exc:
-        raise ConfigError(str(exc)) from None
 
 
 def section_record(name: str, section: Any = None, others: dict | None = None) -> dict:

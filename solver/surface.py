@@ -41,7 +41,6 @@ __all__ = [
     "checked_heights",
     "generate",
     "generator",
-    "generator_keys",
     "load_heights",
     "refined",
 ]
@@ -492,11 +491,6 @@ def generator(name: str, options: type, *, cell_dependent: bool = False) -> Call
         return draw
 
     return register
-
-
-def generator_keys() -> tuple[str, ...]:
-    """Every key some generator takes, in registration order."""
-    return tuple(dict.fromkeys(key for g in GENERATORS.values() for key in g.keys))
 
 
 def _length(doc: str, *, required: bool = True, limits: Limits = LENGTH_UM):
