@@ -22,9 +22,10 @@ import numpy as np
 
 from wavebrdf._version import __version__
 from wavebrdf.jobs.batch import run_scope, stop_on_sigterm
-from wavebrdf.jobs.config import ConfigError, load_config, make_output_folder
+from wavebrdf.jobs.config import ConfigError, load_config
 from wavebrdf.jobs.executors import Executor, executor_names, resolve_executor, share_from_root
 from wavebrdf.jobs.node import local_rank
+from wavebrdf.jobs.output_path import make_output_folder
 from wavebrdf.jobs.overrides import parse_assignment
 from wavebrdf.jobs.parts import OutputBusy, OutputLock, ResumeError, StorageError
 from wavebrdf.jobs.pictures.common import check_decades

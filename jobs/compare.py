@@ -449,8 +449,6 @@ def compare_config(config, models: list[str] | None = None, reference: str | Non
     ``[compare] reference``, else chosen per scene). Options: ``[model]`` for the study's model,
     ``[compare.<name>]`` tables for the others. Every model is checked against the study before
     anything runs (a ConfigError naming the flag); ``before_run()`` is called once they pass."""
-    import tomllib
-
     from wavebrdf.jobs.config import ConfigError
     from wavebrdf.jobs.plan import plan_study
     from wavebrdf.solver.models import model_class, model_names
@@ -461,9 +459,9 @@ def compare_config(config, models: list[str] | None = None, reference: str | Non
         raise ConfigError("wavebrdf compare: a surface study is needed (fiber models have no rungs to compare)")
     if study.steering is not None:
         raise ConfigError("[steering]: wavebrdf compare runs whole-surface scenes; remove [steering]")
-    section = tomllib.loads(config.text).get("compare", {})
+    section = study.sections["compare"]  # validated (jobs/sections.py); "options": the [compare.<name>] tables
     options = {study.model.name: study.model.options}
-    for name, table in section.items():
+    for name, table in section["options"].items():
         if isinstance(table, dict):
             if name not in model_names():
                 raise ConfigError(f"[compare.{name}]: not a registered model (available: {', '.join(model_names())})")
@@ -477,7 +475,8 @@ def compare_config(config, models: list[str] | None = None, reference: str | Non
                           f"--models {','.join(surface_models(plan)[:2])}, or leave --models out to run every surface "
                           "model")
     given = "--models" if models is not None else "[compare] models"
-    models = list(models if models is not None else section.get("models") or surface_models(plan))
+    models = models if models is not None else section["models"] or surface_models(plan)
+    models = [models] if isinstance(models, str) else list(models)
     for name in models:
         if name not in model_names():
             raise ConfigError(f"{given} {name}: not a registered model (available: {', '.join(model_names())})")
@@ -486,7 +485,7 @@ def compare_config(config, models: list[str] | None = None, reference: str | Non
     if reference is not None and not reference.strip():
         raise ConfigError("--reference: no model named; give one (e.g. --reference po) or leave it out to choose "
                           "the most accurate rung that fits")
-    reference = reference or section.get("reference")
+    reference = reference or section["reference"]
     if reference is not None:
         if reference not in model_names():
             raise ConfigError(f"{given} {reference}: not a registered model (available: {', '.join(model_names())})")

@@ -1,6 +1,6 @@
 """The config's one-line refusals, shared by the modules that read config values
-(jobs/config.py, jobs/overrides.py, jobs/ranges.py, jobs/executors.py): ``[section] key = value:
-problem``."""
+(jobs/config.py, jobs/sections.py, jobs/input_files.py, jobs/overrides.py, jobs/ranges.py,
+jobs/executors.py, ...): ``[section] key = value: problem``."""
 
 from __future__ import annotations
 

@@ -22,7 +22,7 @@ from functools import cached_property, lru_cache
 
 import numpy as np
 
-from wavebrdf.jobs.config import ModelSpec, Study, StudyConfig
+from wavebrdf.jobs.study import ModelSpec, Study, StudyConfig
 from wavebrdf.jobs.executors import resolve_executor
 from wavebrdf.jobs.spot_checks import add_spot_checks
 from wavebrdf.jobs.steering import HexagonTiling, PatchLayout

@@ -53,6 +53,7 @@ import h5py
 import numpy as np
 
 from wavebrdf._version import __version__
+from wavebrdf.jobs.input_files import input_file_problem
 from wavebrdf.jobs.netcdf import (CF_CONVENTIONS, attach_scales, coordinate, describe_task_table, history_line,
                                   sweep_coordinate_attrs, units_from_name)
 from wavebrdf.jobs.parts import StorageError, fsync_folder, storage_error, temporary_path
@@ -667,8 +668,6 @@ class Dataset:
     """
 
     def __init__(self, path: str | Path):
-        from wavebrdf.jobs.config import input_file_problem
-
         self.path = Path(path)
         problem = input_file_problem(self.path)
         if problem is not None:

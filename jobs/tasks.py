@@ -42,7 +42,7 @@ class ModelPool:
         self._models: dict[tuple, Model] = {}
 
     def get(self, spec) -> Model:
-        """The instance for a :class:`~wavebrdf.jobs.config.ModelSpec` (built on first use)."""
+        """The instance for a :class:`~wavebrdf.jobs.study.ModelSpec` (built on first use)."""
         key = (spec.name, spec.options)
         model = self._models.get(key)
         if model is None:

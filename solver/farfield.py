@@ -23,6 +23,7 @@ import numpy as np
 __all__ = [
     "ETA0",
     "POLARIZATIONS",
+    "POLARIZATION_MODES",
     "BRDFResult",
     "FarField",
     "HemisphereGrid",
@@ -35,6 +36,7 @@ __all__ = [
 
 ETA0 = 376.730313412  # free-space impedance, ohm
 POLARIZATIONS = ("s", "p")  # index 0: E ⟂ plane of incidence (TE); 1: E in it (TM)
+POLARIZATION_MODES = ("unpolarized", *POLARIZATIONS)  # what a study computes: the mean of s and p, or one
 
 
 def direction(theta: float | np.ndarray, phi: float | np.ndarray) -> np.ndarray:
@@ -233,7 +235,7 @@ def combine_polarizations(brdf_sp: np.ndarray, polarization: str) -> np.ndarray:
         return 0.5 * (brdf_sp[0] + brdf_sp[1])
     if polarization in POLARIZATIONS:
         return brdf_sp[POLARIZATIONS.index(polarization)]
-    raise ValueError(f"polarization must be 'unpolarized', 's' or 'p', got {polarization!r}")
+    raise ValueError(f"polarization must be one of {POLARIZATION_MODES}, got {polarization!r}")
 
 
 def albedo(brdf: np.ndarray, grid: HemisphereGrid) -> np.ndarray:

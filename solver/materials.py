@@ -17,10 +17,17 @@ from pathlib import Path
 import numpy as np
 
 from wavebrdf.solver.number_rows import RowError, number_rows
+from wavebrdf.solver.options import WAVELENGTH_UM, Limits
 
-__all__ = ["Material", "MaterialError", "BUILTIN", "builtin_names", "lorentz_drude_index", "read_index_file"]
+__all__ = ["INDEX_COLUMNS", "INDEX_KAPPA", "INDEX_N", "Material", "MaterialError", "BUILTIN", "builtin_names",
+           "lorentz_drude_index", "read_index_file"]
 
 HC_EV_UM = 1.239841984  # photon energy (eV) × wavelength (µm)
+
+# The physical range of a complex index n − jκ (a config's [material] n, kappa and table rows)
+INDEX_N = Limits(low=0, low_open=True, span=(1e-3, 1e4), note="the real part n of the index n − jκ")
+INDEX_KAPPA = Limits(low=0, high=1e4, note="κ of n − jκ; 1e3 is already a perfect conductor")
+INDEX_COLUMNS = (("wavelength_um", WAVELENGTH_UM), ("n", INDEX_N), ("kappa", INDEX_KAPPA))  # a table's rows
 
 
 class MaterialError(ValueError):

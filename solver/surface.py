@@ -5,8 +5,11 @@ patch of side L (µm): row index i ↔ x, column index j ↔ y, spacing d = L/N,
 coordinates x_i = −L/2 + i·d (the patch is centred on the origin). Between nodes the surface is
 the bilinear interpolant (the representation every model shares).
 
-Generators (:func:`generate`, docs/approx.md "Surface generators") return height fields that are
-periodic on the patch wherever their geometry allows (row N repeats row 0 and column N column 0
+Generators (:func:`generate`, docs/approx.md "Surface generators") are a registry,
+:data:`GENERATORS`: a new one is a function decorated with :func:`generator`, which names it and
+declares its options dataclass (keys, types, ranges: solver/options.py); the config's
+``[surface]`` section, :func:`generate` and the Mitsuba tables read the registry. They return
+height fields that are periodic on the patch wherever their geometry allows (row N repeats row 0 and column N column 0
 exactly), so periodic ray tracing and FFTs see no seam: "flat", "gaussian", "brushed",
 "sinusoid" (when the period divides the patch along its direction), "spherical-pits",
 "hemispheres"; "corner-cubes" is periodic along x only (its hexagonal lattice has the period
@@ -17,21 +20,27 @@ models (``stam``) take instead of the realization.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
+from wavebrdf.solver.options import ANGLE_DEG, LENGTH_UM, Limits, option, option_fields
+
 __all__ = [
     "GENERATORS",
-    "OPTIONAL_PARAMETERS",
     "GaussianEnsemble",
+    "Generator",
+    "GeneratorOptions",
     "HeightField",
     "SurfaceError",
     "checked_heights",
     "generate",
+    "generator",
     "load_heights",
     "refined",
 ]
@@ -422,37 +431,141 @@ def _gaussian_tile(cells: int, size_um: float, rng, rms_height_um: float, correl
     return tile * (rms_height_um / std) if std > 0 else tile
 
 
-def _flat(cells: int, size_um: float, rng) -> np.ndarray:
+# ---------------------------------------------------------------------------------------------
+# The generator registry: each generator below is its options dataclass and one decorated function
+
+
+class GeneratorOptions:
+    """Base of every generator's options dataclass. ``isotropic``: whether the surfaces they
+    describe are statistically invariant under rotations about z (the Mitsuba tables then use
+    rotation invariance in φ_i); no, unless a generator's options say so."""
+
+    isotropic = False
+
+
+@dataclass(frozen=True)
+class Generator:
+    """A registered generator: ``draw(cells, size_um, rng, options)`` returns the (N+1)×(N+1)
+    heights (µm), or (heights, its :class:`GaussianEnsemble` or None, further parameters to
+    record); ``Options`` is its options dataclass; ``cell_dependent``: a random realization drawn
+    on the grid itself (:func:`refined` interpolates it instead of drawing it again)."""
+
+    name: str
+    Options: type
+    draw: Callable
+    cell_dependent: bool = False
+
+    @property
+    def keys(self) -> tuple[str, ...]:
+        """The ``[surface]`` keys it takes (besides size_um, cells and seed)."""
+        return tuple(option_fields(self.Options))
+
+    def check_keys(self, params) -> None:
+        """SurfaceError unless ``params`` holds every key the generator needs and no other."""
+        fields = option_fields(self.Options)
+        missing = [key for key, f in fields.items() if f.required and key not in params]
+        if missing:
+            raise SurfaceError(f"surface.generator = {self.name!r} needs {', '.join('surface.' + m for m in missing)}")
+        unknown = sorted(set(params) - set(fields))
+        if unknown:
+            raise SurfaceError(
+                f"surface.generator = {self.name!r} does not take {', '.join('surface.' + u for u in unknown)}"
+            )
+
+    def options(self, params: dict):
+        """Its options from keyword values (:meth:`check_keys`). The values are checked by the
+        draw, and, from a config, by their declared ranges first (jobs/sections.py)."""
+        self.check_keys(params)
+        return self.Options(**params)
+
+
+GENERATORS: dict[str, Generator] = {}
+
+
+def generator(name: str, options: type, *, cell_dependent: bool = False) -> Callable:
+    """Register the decorated draw function as generator ``name`` with the options dataclass
+    ``options`` (a :class:`GeneratorOptions`)."""
+
+    def register(draw: Callable) -> Callable:
+        GENERATORS[name] = Generator(name, options, draw, cell_dependent)
+        return draw
+
+    return register
+
+
+def _length(doc: str, *, required: bool = True, limits: Limits = LENGTH_UM):
+    """A generator's length key (µm)."""
+    return option(None, required=required, limits=limits, doc=doc)
+
+
+def _rms_height():
+    return _length("rms height σ (0: a flat realization of the ensemble)",
+                   limits=dataclasses.replace(LENGTH_UM, low=0, low_open=False))
+
+
+@dataclass(frozen=True)
+class FlatOptions(GeneratorOptions):
+    """z = 0."""
+
+    isotropic = True
+
+
+@generator("flat", FlatOptions)
+def _flat(cells: int, size_um: float, rng, options: FlatOptions) -> np.ndarray:
     return np.zeros((cells + 1, cells + 1))
 
 
-def _gaussian(cells: int, size_um: float, rng, *, rms_height_um: float, correlation_um,
-              angle_deg: float | None = None):
+@dataclass(frozen=True)
+class GaussianOptions(GeneratorOptions):
+    rms_height_um: float = _rms_height()
+    correlation_um: float | tuple[float, float] = _length("1/e length T of exp(−r²/T²), or [T_x', T_y'] along axes "
+                                                          "rotated by angle_deg")
+    angle_deg: float | None = option(None, limits=ANGLE_DEG, doc="rotation of the x' axis from x (with a pair)")
+
+    @property
+    def isotropic(self) -> bool:
+        """A scalar correlation length, or two equal ones."""
+        c = self.correlation_um
+        return np.ndim(c) == 0 or bool(np.isclose(c[0], c[1]))
+
+
+@generator("gaussian", GaussianOptions, cell_dependent=True)
+def _gaussian(cells: int, size_um: float, rng, options: GaussianOptions):
     """Gaussian random surface, autocorrelation exp(−r²/T²) (scalar ``correlation_um``) or
     exp(−x'²/T_x'² − y'²/T_y'²) (``correlation_um = [T_x', T_y']``, x' rotated by ``angle_deg``
     from x), periodic on the patch; the rms height is exact."""
-    correlation = _correlation_pair(correlation_um)
+    correlation = _correlation_pair(options.correlation_um)
+    angle_deg = options.angle_deg
     if angle_deg is not None and np.ndim(correlation) == 0:
         raise SurfaceError(f"surface.angle_deg = {angle_deg:g} has no effect with a scalar surface.correlation_um "
                            f"= {correlation:g} (isotropic); give correlation_um = [T_x, T_y] to rotate")
     angle = 0.0 if angle_deg is None else float(angle_deg)
     pair = (correlation, correlation) if np.ndim(correlation) == 0 else correlation
-    tile = _gaussian_tile(cells, size_um, rng, rms_height_um, correlation, angle)
-    return _periodic_nodes(tile), GaussianEnsemble(rms_height_um, pair, angle), {}
+    tile = _gaussian_tile(cells, size_um, rng, options.rms_height_um, correlation, angle)
+    return _periodic_nodes(tile), GaussianEnsemble(options.rms_height_um, pair, angle), {}
 
 
 BRUSHED_ASPECT = 10.0  # default along/across ratio of the brushed generator
 BRUSHED_ALONG_FRACTION = 0.25  # default along-groove correlation length, as a fraction of the patch
 
 
-def _brushed(cells: int, size_um: float, rng, *, rms_height_um: float, correlation_um=None,
-             angle_deg: float = 0.0):
+@dataclass(frozen=True)
+class BrushedOptions(GeneratorOptions):
+    rms_height_um: float = _rms_height()
+    correlation_um: float | tuple[float, float] | None = _length("[along, across] grooves (default [L/4, L/40])",
+                                                                 required=False)
+    angle_deg: float = option(0.0, limits=ANGLE_DEG, doc="groove direction from x")
+
+
+@generator("brushed", BrushedOptions, cell_dependent=True)
+def _brushed(cells: int, size_um: float, rng, options: BrushedOptions):
     """Brushed grooves: a Gaussian random surface elongated along the groove direction.
 
     ``correlation_um = [along, across]`` (default [L/4, L/40]: grooves a quarter of the patch long,
     ten times narrower, so the patch holds ≥ 4 correlation lengths along them);
     ``angle_deg``: groove direction from x (default 0: grooves along x).
     """
+    rms_height_um, correlation_um, angle_deg = options.rms_height_um, options.correlation_um, options.angle_deg
     if correlation_um is None:
         along = BRUSHED_ALONG_FRACTION * size_um
         pair = (along, along / BRUSHED_ASPECT)
@@ -469,12 +582,19 @@ def _brushed(cells: int, size_um: float, rng, *, rms_height_um: float, correlati
             {"correlation_um": list(pair), "angle_deg": float(angle_deg)})
 
 
-def _sinusoid(
-    cells: int, size_um: float, rng, *, amplitude_um: float, period_um: float, angle_deg: float = 0.0
-) -> np.ndarray:
+@dataclass(frozen=True)
+class SinusoidOptions(GeneratorOptions):
+    amplitude_um: float = _length("amplitude a (either sign)", limits=dataclasses.replace(LENGTH_UM, low=None))
+    period_um: float = _length("period Λ")
+    angle_deg: float = option(0.0, limits=ANGLE_DEG, doc="direction α of the wave vector from x")
+
+
+@generator("sinusoid", SinusoidOptions)
+def _sinusoid(cells: int, size_um: float, rng, options: SinusoidOptions) -> np.ndarray:
     """h = a cos(2π (x cos α + y sin α)/Λ) with x, y the node coordinates; the period along each
     grid axis, Λ/|cos α| and Λ/|sin α|, must exceed two spacings (Nyquist), else the nodes hold
     another, longer sinusoid (refused, naming the fewest cells)."""
+    amplitude_um, period_um, angle_deg = options.amplitude_um, options.period_um, options.angle_deg
     if period_um <= 0:
         raise SurfaceError(f"surface.period_um must be > 0, got {period_um}")
     a = np.deg2rad(angle_deg)
@@ -537,8 +657,21 @@ def _highest_rim(basis: np.ndarray, gradients: np.ndarray) -> float:
     return float(np.max(_cube_pit_envelope(xyz[:, :2], around, gradients)))
 
 
-def _corner_cubes(cells: int, size_um: float, rng, *, period_um: float, shape: str = "triangular",
-                  cant_deg: float = 0.0, cant_azimuth_deg: float = 0.0):
+CUBE_SHAPES = ("triangular", "full")
+
+
+@dataclass(frozen=True)
+class CornerCubeOptions(GeneratorOptions):
+    period_um: float = _length("lattice constant a (must divide size_um)")
+    shape: str = option("triangular", choices=CUBE_SHAPES, doc="triangular corners, or full (hexagonal) ones")
+    cant_deg: float = option(0.0, limits=ANGLE_DEG, record_absent=False,
+                             doc="tilt of every cube's axis (full corners; < 35.26)")
+    cant_azimuth_deg: float = option(0.0, limits=ANGLE_DEG, record_absent=False,
+                                     doc="azimuth from x toward which the axes tilt")
+
+
+@generator("corner-cubes", CornerCubeOptions)
+def _corner_cubes(cells: int, size_um: float, rng, options: CornerCubeOptions):
     """Array of cube corners (retroreflectors) whose three faces rise from the apex at slope √2
     (normals at arccos(1/√3) = 54.74° from ẑ, mutually perpendicular); a = ``period_um``.
 
@@ -565,8 +698,10 @@ def _corner_cubes(cells: int, size_um: float, rng, *, period_um: float, shape: s
     Either is periodic along x when a divides the patch (required); not along y (period √3 a).
     The depth follows from the period: the face angles are fixed by orthogonality.
     """
-    if shape not in ("triangular", "full"):
-        raise SurfaceError(f"surface.shape = {shape!r}: must be \"triangular\" or \"full\" (corner-cubes)")
+    period_um, shape, cant_deg, cant_azimuth_deg = (options.period_um, options.shape, options.cant_deg,
+                                                    options.cant_azimuth_deg)
+    if shape not in CUBE_SHAPES:
+        raise SurfaceError(f"surface.shape = {shape!r}: must be {_either(CUBE_SHAPES)} (corner-cubes)")
     cant_limit = 90.0 - MAX_CANT_DEG
     if not (np.isfinite(cant_deg) and 0.0 <= cant_deg < cant_limit):
         raise SurfaceError(f"surface.cant_deg = {cant_deg!r}: must be >= 0 and < {cant_limit:.2f} (a cube edge "
@@ -604,10 +739,19 @@ def _corner_cubes(cells: int, size_um: float, rng, *, period_um: float, shape: s
     return z, None, extra
 
 
-def _spherical_pits(cells: int, size_um: float, rng, *, radius_um: float, depth_um: float, period_um: float):
+@dataclass(frozen=True)
+class SphericalPitOptions(GeneratorOptions):
+    radius_um: float = _length("sphere radius R")
+    depth_um: float = _length("pit depth D ≤ R")
+    period_um: float = _length("square lattice period Λ (must divide size_um)")
+
+
+@generator("spherical-pits", SphericalPitOptions)
+def _spherical_pits(cells: int, size_um: float, rng, options: SphericalPitOptions):
     """Square lattice (period Λ = ``period_um``, dividing the patch) of spherical caps of radius R
     cut to depth D ≤ R into the plane z = 0: z = (R − D) − √(R² − ρ²) inside the rim radius
     a = √(2RD − D²), 0 outside; the rim must fit the cell (2a ≤ Λ). Periodic."""
+    radius_um, depth_um, period_um = options.radius_um, options.depth_um, options.period_um
     if radius_um <= 0:
         raise SurfaceError(f"surface.radius_um must be > 0, got {radius_um}")
     if not 0 < depth_um <= radius_um:
@@ -635,7 +779,20 @@ HEMISPHERE_RANDOM_MAX_FILL = 0.5  # random sequential placement jams near 0.547
 HEMISPHERE_FILL_SLACK = 0.05  # square lattice: largest relative change of fill to fit whole cells
 
 
-def _hemispheres(cells: int, size_um: float, rng, *, radius_um: float, fill: float, placement: str = "square"):
+PLACEMENTS = ("square", "random")
+
+
+@dataclass(frozen=True)
+class HemisphereOptions(GeneratorOptions):
+    radius_um: float = _length("hemisphere radius r")
+    fill: float = option(None, required=True, limits=Limits(low=0, low_open=True, high=1, span=(1e-6, 1),
+                                                            note="area fraction"),
+                         doc="area fraction the footprints cover")
+    placement: str = option("square", choices=PLACEMENTS, doc="a square lattice, or random non-overlapping")
+
+
+@generator("hemispheres", HemisphereOptions)
+def _hemispheres(cells: int, size_um: float, rng, options: HemisphereOptions):
     """Hemispheres of radius r standing on the plane z = 0, covering the area fraction ``fill``
     (Falster et al.'s HEMISPHERES-like microsurface): z = √(r² − ρ²) within each footprint.
 
@@ -644,6 +801,7 @@ def _hemispheres(cells: int, size_um: float, rng, *, radius_um: float, fill: flo
     touching limit); ``"random"``: round(fill·L²/(πr²)) non-overlapping hemispheres placed uniformly
     at random (``seed``) with periodic wrap (fill ≤ 0.5). The realized fill is recorded. Periodic.
     """
+    radius_um, fill, placement = options.radius_um, options.fill, options.placement
     if radius_um <= 0:
         raise SurfaceError(f"surface.radius_um must be > 0, got {radius_um}")
     X, Y = _tile_coordinates(cells, size_um)
@@ -678,7 +836,7 @@ def _hemispheres(cells: int, size_um: float, rng, *, radius_um: float, fill: flo
             dy = Y - cy - size_um * np.round((Y - cy) / size_um)
             rho2 = np.minimum(rho2, dx**2 + dy**2)
     else:
-        raise SurfaceError(f"surface.placement = {placement!r}: must be \"square\" or \"random\"")
+        raise SurfaceError(f"surface.placement = {placement!r}: must be {_either(PLACEMENTS)}")
     tile = np.sqrt(np.clip(radius_um**2 - rho2, 0.0, None))
     return _periodic_nodes(tile), None, {"hemispheres": int(centres),
                                          "fill_realized": float(centres * np.pi * radius_um**2 / size_um**2)}
@@ -702,22 +860,9 @@ def _random_disks(rng, count: int, radius_um: float, size_um: float, attempts: i
     return points
 
 
-GENERATORS = {
-    "flat": (_flat, ()),
-    "gaussian": (_gaussian, ("rms_height_um", "correlation_um")),
-    "brushed": (_brushed, ("rms_height_um",)),
-    "sinusoid": (_sinusoid, ("amplitude_um", "period_um")),
-    "corner-cubes": (_corner_cubes, ("period_um",)),
-    "spherical-pits": (_spherical_pits, ("radius_um", "depth_um", "period_um")),
-    "hemispheres": (_hemispheres, ("radius_um", "fill")),
-}
-OPTIONAL_PARAMETERS = {
-    "gaussian": ("angle_deg",),
-    "brushed": ("correlation_um", "angle_deg"),
-    "sinusoid": ("angle_deg",),
-    "hemispheres": ("placement",),
-    "corner-cubes": ("shape", "cant_deg", "cant_azimuth_deg"),
-}
+def _either(choices: tuple[str, ...]) -> str:
+    """'"a" or "b"' (the choices of a refusal)."""
+    return " or ".join(f'"{c}"' for c in choices)
 
 
 def generate(name: str, *, cells: int, size_um: float, seed: int = 0, **params) -> HeightField:
@@ -732,26 +877,15 @@ def generate(name: str, *, cells: int, size_um: float, seed: int = 0, **params) 
         raise SurfaceError(f"surface.cells must be an integer >= {MIN_NODES - 1}, got {cells!r}")
     if not (np.isfinite(size_um) and size_um > 0):
         raise SurfaceError(f"surface.size_um must be a positive number, got {size_um!r}")
-    func, required = GENERATORS[name]
-    missing = [p for p in required if p not in params]
-    if missing:
-        raise SurfaceError(f"surface.generator = {name!r} needs {', '.join('surface.' + m for m in missing)}")
-    allowed = set(required) | set(OPTIONAL_PARAMETERS.get(name, ()))
-    unknown = sorted(set(params) - allowed)
-    if unknown:
-        raise SurfaceError(
-            f"surface.generator = {name!r} does not take {', '.join('surface.' + u for u in unknown)}"
-        )
+    chosen = GENERATORS[name]
+    options = chosen.options(params)
     rng = np.random.default_rng(seed)
-    out = func(int(cells), float(size_um), rng, **params)
+    out = chosen.draw(int(cells), float(size_um), rng, options)
     z, ensemble, extra = out if isinstance(out, tuple) else (out, None, {})
     periodic = extra.pop("periodic", "".join(a for a, p in zip("xy", _periodic_axes(z)) if p))
     recorded = {"generator": name, "seed": int(seed), **{k: _plain(v) for k, v in params.items()}, **extra,
                 "periodic": periodic}
     return HeightField(z, float(size_um), ensemble=ensemble, parameters=recorded)
-
-
-CELL_DEPENDENT_GENERATORS = frozenset({"gaussian", "brushed"})  # their realization is drawn on the grid itself
 
 
 def refined(field: HeightField, cells: int) -> HeightField:
@@ -767,14 +901,12 @@ def refined(field: HeightField, cells: int) -> HeightField:
         raise SurfaceError(f"refined: cells must be an integer >= the field's {field.cells}, got {cells!r}")
     cells = int(cells)
     params = dict(field.parameters or {})
-    name = params.pop("generator", None)
-    if name in GENERATORS and name not in CELL_DEPENDENT_GENERATORS:
-        func, required = GENERATORS[name]
-        allowed = set(required) | set(OPTIONAL_PARAMETERS.get(name, ()))
-        kept = {k: v for k, v in params.items() if k in allowed}
-        out = generate(name, cells=cells, size_um=field.size_um, seed=params.get("seed", 0), **kept)
+    chosen = GENERATORS.get(params.pop("generator", None))
+    if chosen is not None and not chosen.cell_dependent:
+        kept = {k: v for k, v in params.items() if k in chosen.keys}
+        out = generate(chosen.name, cells=cells, size_um=field.size_um, seed=params.get("seed", 0), **kept)
         return HeightField(out.z, field.size_um, field.origin_um, out.ensemble, out.parameters)
-    if name in CELL_DEPENDENT_GENERATORS and all(field.periodic):
+    if chosen is not None and chosen.cell_dependent and all(field.periodic):
         z = _periodic_nodes(_fourier_interpolated(field.z[:-1, :-1], cells))
     else:
         from scipy.interpolate import RectBivariateSpline

@@ -1,8 +1,9 @@
 """Inputs at their extremes, inputs that would be ignored, and tracebacks turned into messages
 (issue 35, items 8–10).
 
-The property test is generated from the schemas: every numeric key of ``jobs/config.py`` SCHEMA
-(:class:`~wavebrdf.jobs.config.Number` and :class:`~wavebrdf.jobs.config.Rows` checks) and every
+The property test is generated from the schemas: every numeric key of the config's sections
+(``jobs/sections.py`` SCHEMA: numbers, pairs, lists and rows, with their
+:class:`~wavebrdf.solver.options.Limits`; [surface] with every generator's keys) and every
 numeric field of every registered model's Options dataclass gets each of :data:`EXTREMES`. Such a
 case either loads and ``wavebrdf plan`` works (exit 0), or it is refused at load with a
 ConfigError that names the key and the value — no other exception, nothing written. The ends of
@@ -24,8 +25,10 @@ import numpy as np
 import pytest
 
 from wavebrdf.jobs.cli import main
-from wavebrdf.jobs.config import SCHEMA, ConfigError, Number, Rows, load_config
+from wavebrdf.jobs.config import SCHEMA, ConfigError, load_config
 from wavebrdf.jobs.overrides import dump_toml
+from wavebrdf.jobs.sections import check_key
+from wavebrdf.solver.options import Limits, OptionField
 
 EXTREMES = (0, -1, 1e-300, 1e300, math.nan, math.inf, True, "1.5", [])
 
@@ -61,6 +64,8 @@ BASES = [
                          "depth_um": 0.1, "period_um": 1.0}},
     {**BASE, "surface": {"generator": "hemispheres", "size_um": 3.0, "cells": 12, "radius_um": 0.3, "fill": 0.2,
                          "placement": "random"}},
+    {**BASE, "surface": {"generator": "corner-cubes", "size_um": 3.0, "cells": 12, "period_um": 1.0, "shape": "full",
+                         "cant_deg": 5.0, "cant_azimuth_deg": 30.0}},
     {**BASE, "surface": {**SURFACE, "size_um": 6.0, "cells": 24}, "output": {"resolution": 64},
      "steering": {"patches": [2, 2], "patch_size_um": 4.0, "shift_um": 2.0, "hexagon_fill": 0.97}},
     FIBER,
@@ -73,30 +78,30 @@ def tree(folder: Path) -> set:
     return {str(p.relative_to(folder)) for p in folder.rglob("*")}
 
 
-def _edges(check: Number) -> list[float]:
+def _edges(check: Limits, integer: bool = False) -> list[float]:
     """The ends of ``check``'s accepted range (its closed domain bounds and its physical span)."""
     ends = [] if check.low is None or check.low_open else [check.low]
     ends += [] if check.high is None or check.high_open else [check.high]
     if check.span is not None:
         ends += [e for e in check.span if e > 0] + ([-e for e in check.span] if check.low is None else [])
-    return sorted({int(e) if check.integer else float(e) for e in ends})
+    return sorted({int(e) if integer else float(e) for e in ends})
 
 
-def _variants(check, base_value) -> list[tuple[str, object]]:
+def _variants(check: OptionField, base_value) -> list[tuple[str, object]]:
     """(label, value) of every extreme value, and of the ends of the accepted range, in every place
     ``check`` takes a number: the value itself, one element of a pair or list, one column of a row."""
     out = []
-    if isinstance(check, Rows):
+    if check.form == "rows":
         for j, (name, column) in enumerate(check.columns):
             for x, strict in [(x, True) for x in EXTREMES] + [(x, False) for x in _edges(column)]:
                 row = list(base_value[0])
                 row[j] = x
                 out.append((f"{name}={x!r}", [row] + list(base_value[1:]), strict))
         return out
-    for x, strict in [(x, True) for x in EXTREMES] + [(x, False) for x in _edges(check)]:
+    for x, strict in [(x, True) for x in EXTREMES] + [(x, False) for x in _edges(check.limits, check.integer)]:
         if check.form == "list":
             out.append((repr([x]), [x], strict))
-        elif check.form == "pair":
+        elif check.form == "fixed":
             out.append((f"[{x!r}, b]", [x, base_value[1]], strict))
         else:
             out.append((repr(x), x, strict))
@@ -111,11 +116,11 @@ def _schema_cases() -> list[tuple[str, dict, str, object, bool]]:
     cases = []
     for section, keys in SCHEMA.items():
         for key, spec in keys.items():
-            if not isinstance(spec.check, (Number, Rows)):
+            if not spec.numeric:
                 continue
             base = next((b for b in BASES if key in b.get(section, {})), None)
             assert base is not None, f"[{section}] {key} is numeric but no base config of {__name__} sets it: add it"
-            for label, value, strict in _variants(spec.check, base[section][key]):
+            for label, value, strict in _variants(spec, base[section][key]):
                 config = copy.deepcopy(base)
                 config[section][key] = value
                 cases.append((f"{section}.{key}={label}", config, key, value, strict))
@@ -246,9 +251,9 @@ def test_the_ranges_refuse_typos_and_accept_what_the_project_uses(key, used, typ
     heights 1e-5 λ, x = 1000 fibers), the shipped configs' and real media's load; a value a few
     times beyond the physical range is refused, naming it."""
     section, name = key.split(".")
-    SCHEMA[section][name].check(section, name, used)  # no ConfigError
+    check_key(section, name, used)  # no ConfigError
     with pytest.raises(ConfigError, match=rf"\[{section}\] {name} = .*(physical range|must be <=)"):
-        SCHEMA[section][name].check(section, name, typo)
+        check_key(section, name, typo)
 
 
 # --- keys that conflict or would be ignored --------------------------------------------------------

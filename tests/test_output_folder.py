@@ -1,13 +1,14 @@
 """The output-folder rule: ``wavebrdf`` creates at most the last missing folder level of an
 output path; a deeper missing chain is refused with one line naming the path, and nothing is
-created (jobs/config.py ``make_output_folder``, used by ``run`` and ``compare``)."""
+created (jobs/output_path.py ``make_output_folder``, used by ``run`` and ``compare``)."""
 
 from __future__ import annotations
 
 import pytest
 
 from test_models import refused, write_study
-from wavebrdf.jobs.config import ConfigError, make_output_folder
+from wavebrdf.jobs.config import ConfigError
+from wavebrdf.jobs.output_path import make_output_folder
 
 
 def _tree(root):

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from wavebrdf.jobs.cli import main
-from wavebrdf.jobs.config import SURFACE_GENERATORS, ConfigError, parse_config
+from wavebrdf.jobs.config import SCHEMA, ConfigError, parse_config
 from wavebrdf.solver.surface import GENERATORS, GaussianEnsemble, HeightField, SurfaceError, generate, refined
 
 logger = logging.getLogger(__name__)
@@ -324,7 +324,7 @@ def test_height_field_keeps_its_contract():
         GaussianEnsemble(0.1, (1.0, -1.0))
     with pytest.raises(SurfaceError, match="rms_height_um"):
         GaussianEnsemble(-0.1, (1.0, 1.0))
-    assert set(SURFACE_GENERATORS) == set(GENERATORS)
+    assert set(SCHEMA["surface"]["generator"].choices) == set(GENERATORS)
 
 
 BAD = [

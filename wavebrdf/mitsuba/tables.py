@@ -43,6 +43,7 @@ import numpy as np
 
 from wavebrdf.jobs.store import Dataset
 from wavebrdf.solver.spectrum import spectral_weights, xyz_to_linear_srgb
+from wavebrdf.solver.surface import GENERATORS, SurfaceError
 
 __all__ = ["CHANNELS", "SCHEMES", "Tables", "cell_edges", "channel_matrix", "isotropy_from_config", "load_tables",
            "open_for_plugin"]
@@ -97,25 +98,21 @@ class Tables:
 
 
 def isotropy_from_config(config_text: str) -> tuple[bool, str]:
-    """Whether the study's surface is declared statistically isotropic, and why.
-
-    Isotropic: ``generator = "flat"``, or ``"gaussian"`` with a scalar ``correlation_um`` (or two
-    equal lengths). Everything else (files, sinusoids, gratings, anisotropic ensembles) is not.
-    """
+    """Whether the study's surface is declared statistically isotropic, and why: its generator's
+    options say so (``isotropic`` of solver/surface.py's registry: a flat surface, a gaussian
+    ensemble with one correlation length). Surfaces from files are not."""
     try:
         surface = tomllib.loads(config_text).get("surface", {})
     except tomllib.TOMLDecodeError:
         return False, "config unreadable: not declared isotropic"
-    generator = surface.get("generator")
-    if generator == "flat":
-        return True, "config: flat surface"
-    if generator == "gaussian":
-        corr = surface.get("correlation_um")
-        if corr is None or np.ndim(corr) == 0 or (len(corr) == 2 and np.isclose(corr[0], corr[1])):
-            return True, "config: gaussian ensemble with isotropic correlation"
-        return False, "config: anisotropic gaussian correlation"
-    return False, f"config: surface {('generator ' + repr(generator)) if generator else 'from a file'} " \
-                  "not declared isotropic"
+    chosen = GENERATORS.get(surface.get("generator"))
+    if chosen is None:
+        return False, "config: surface from a file, not declared isotropic"
+    try:
+        isotropic = chosen.options({k: v for k, v in surface.items() if k in chosen.keys}).isotropic
+    except SurfaceError as exc:
+        return False, f"config: {exc}; not declared isotropic"
+    return isotropic, f"config: {chosen.name} surface {'statistically isotropic' if isotropic else 'not isotropic'}"
 
 
 PLUGINS = {"surface": "wavebrdf", "fiber": "wavebrdf_fiber"}
