@@ -17,7 +17,7 @@ compared with the reference model's on the same scene (solver/metrics.py):
 * ``peak_offset_deg``: angle between the blurred lobes' peak centroids;
 * ``retro``: share of the reflected power within :data:`RETRO_CONE_DEG` of ω_i.
 
-The reference is ``--reference`` or the most accurate registered model of :data:`LADDER` whose
+The reference is ``--reference`` or the most accurate rung (the models' ``Capabilities.rung``) whose
 estimate fits the memory budget; a lower rung as reference is said so in the table. Results: a
 CSV and a Markdown table, a log-log plot of error vs time (one marker per model, one colour per
 scene) and an HDF5 file with the same numbers and every BRDF.
@@ -45,14 +45,13 @@ from wavebrdf.solver.metrics import (
     relative_l2,
     speckle_sigma_u,
 )
+from wavebrdf.solver.models import get_model, model_class, model_names, rung_order, rungs
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["LADDER", "Comparison", "Measurement", "choose_reference", "compare_scenes", "comparison_metrics", "measure",
+__all__ = ["Comparison", "Measurement", "choose_reference", "compare_scenes", "comparison_metrics", "measure",
            "speckle_sigma_u"]
 
-# The rungs from the cheapest to the most accurate (approx.md §2); models not listed rank below.
-LADDER = ("gs", "gm", "ohs", "ghs", "kirchhoff", "stam", "ws-v", "wm", "po", "bem")
 RETRO_CONE_DEG = 5.0
 COLUMNS = ("scene", "model", "reference", "wall_s", "cpu_s", "peak_mb", "albedo", "albedo_diff", "rel_l2",
            "rel_l2_smooth", "rel_l2_s", "rel_l2_smooth_s", "rel_l2_p", "rel_l2_smooth_p", "misplaced",
@@ -80,7 +79,6 @@ def _run_one(ctx, name: str, options, scene) -> dict:
     import warnings
 
     from wavebrdf.jobs.tasks import plain
-    from wavebrdf.solver.models import get_model
     from wavebrdf.solver.resources import peak_resident_bytes, reset_peak_memory
 
     try:
@@ -202,11 +200,9 @@ def measure(name: str, options, scene, label: str) -> Measurement:
 
 
 def choose_reference(models: list[str], scene, memory_budget_bytes: float) -> tuple[str, str]:
-    """(reference model, why): the highest rung of :data:`LADDER` among ``models`` whose estimate
-    fits ``memory_budget_bytes``."""
-    from wavebrdf.solver.models import get_model
-
-    ranked = sorted(models, key=lambda n: LADDER.index(n) if n in LADDER else -1, reverse=True)
+    """(reference model, why): the highest rung (:func:`~wavebrdf.solver.models.rung_order`) among
+    ``models`` whose estimate fits ``memory_budget_bytes``."""
+    ranked = sorted(models, key=rung_order, reverse=True)
     needs = {name: get_model(name).estimate(scene).memory_bytes for name in ranked}
     for name in ranked:
         if needs[name] <= memory_budget_bytes:
@@ -434,12 +430,10 @@ def _compare_one(process, label, scene, models, options, reference, budget, kept
 def surface_models(plan) -> list[str]:
     """Registered surface models that can run the plan's scenes: height-field models, and
     statistics models when every case's surface carries its ensemble."""
-    from wavebrdf.solver.models import model_names
-
-    names = [n for n in model_names("height_field") if n != "auto"]  # auto picks a rung; it is none
+    names = list(rungs("height_field"))
     if all(plan.surface(case).ensemble is not None for case in range(len(plan.config.cases))):
-        names += list(model_names("statistics"))
-    return sorted(names, key=lambda n: LADDER.index(n) if n in LADDER else -1)
+        names += list(rungs("statistics"))
+    return sorted(names, key=rung_order)
 
 
 def compare_config(config, models: list[str] | None = None, reference: str | None = None,
@@ -451,7 +445,6 @@ def compare_config(config, models: list[str] | None = None, reference: str | Non
     anything runs (a ConfigError naming the flag); ``before_run()`` is called once they pass."""
     from wavebrdf.jobs.config import ConfigError
     from wavebrdf.jobs.plan import plan_study
-    from wavebrdf.solver.models import model_class, model_names
     from wavebrdf.solver.options import parse_options
 
     study = config.cases[0]
@@ -504,11 +497,10 @@ def _check_runnable(plan, names: list[str], given: str) -> None:
     model, or a statistics model on a surface without a Gaussian ensemble (``given`` names the
     flag or key the names came from)."""
     from wavebrdf.jobs.config import ConfigError
-    from wavebrdf.solver.models import model_class
 
     runnable = surface_models(plan)
     for name in names:
-        if name in runnable or name == "auto":
+        if name in runnable or model_class(name).capabilities.picks_rung:
             continue
         takes = model_class(name).capabilities.takes
         why = ("takes a fiber cross section, not a surface" if takes == "cross_section" else

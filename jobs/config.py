@@ -107,12 +107,6 @@ def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: di
     illumination = _illumination_spec(given["illumination"], data["illumination"], wavelengths, fiber is not None,
                                       base_dir)
     model = _model_spec(given["model"], others["model"], fiber is not None)
-    if fiber is not None and model.name == "fiber-bem" and fiber.shape != "polygon" and fiber.segments is None:
-        raise ConfigError(f"[fiber] segments: required by the fiber-bem model for shape = \"{fiber.shape}\" "
-                          "(e.g. 300 for a 1 µm radius at 0.4 µm: >= 10 elements per interior wavelength)")
-    if model.name == "mie" and fiber.shape != "circle":
-        raise fail("model", "name", "mie", f"the Mie series solves circular fibers only, not fiber.shape = "
-                   f"{fiber.shape!r}; use \"fiber-bem\"")
     out = given["output"] or OutputSection()
     if "steering" in data and fiber is not None:
         raise ConfigError("[steering] applies to height fields, not to fibers")

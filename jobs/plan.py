@@ -23,6 +23,7 @@ from functools import cached_property, lru_cache
 import numpy as np
 
 from wavebrdf.jobs.study import ModelSpec, Study, StudyConfig
+from wavebrdf.jobs.study_checks import fiber_phi_i_bins, fiber_scene
 from wavebrdf.jobs.executors import resolve_executor
 from wavebrdf.jobs.spot_checks import add_spot_checks
 from wavebrdf.jobs.steering import HexagonTiling, PatchLayout
@@ -36,8 +37,6 @@ logger = logging.getLogger(__name__)
 
 __all__ = ["Plan", "PlanError", "Task", "check_memory", "device_info", "format_bytes", "format_number",
            "node_memory_bytes", "plan_study"]
-
-DEFAULT_PHI_I_BINS = 72  # fiber tables of non-circular cross sections
 
 
 class PlanError(ValueError):
@@ -150,12 +149,8 @@ class Plan:
 
     @property
     def phi_i_bins(self) -> int:
-        """Fiber tables: number of φ_i bins (ignored when explicit φ_i samples are given); default
-        1 for circles (rotation invariant), DEFAULT_PHI_I_BINS otherwise."""
-        study = self.study
-        if study.output_options.phi_i_bins is not None:
-            return study.output_options.phi_i_bins
-        return 1 if study.fiber.shape == "circle" else DEFAULT_PHI_I_BINS
+        """Fiber tables: number of φ_i bins (jobs/study_checks.py :func:`fiber_phi_i_bins`)."""
+        return fiber_phi_i_bins(self.study)
 
     @property
     def phi_i_axis_deg(self) -> np.ndarray:
@@ -233,20 +228,9 @@ class Plan:
 
     def fiber_scene(self, task: Task) -> FiberScene:
         """The (λ, θ_i) a fiber task solves, every φ_i at once."""
-        study = self.config.cases[task.case]
-        explicit = study.illumination.phi_i_deg
         theta, _ = self.direction_rad(task)
-        return FiberScene(
-            cross_section=self.cross_section(task.case),
-            wavelength_um=study.illumination.wavelengths_um[task.wavelength],
-            index=complex(self.index(task.case)[task.wavelength]),
-            theta_i=theta,
-            phi_i=None if explicit is None else tuple(np.deg2rad(explicit)),
-            phi_i_bins=self.phi_i_bins,
-            phi_r_bins=study.output_options.phi_r_bins,
-            radius_um=study.fiber.radius_um if study.fiber.shape == "circle" else None,
-            precision=study.model.precision,
-        )
+        return fiber_scene(self.config.cases[task.case], self.cross_section(task.case), task.wavelength, theta,
+                           complex(self.index(task.case)[task.wavelength]))
 
     def model_scene(self, task: Task) -> SurfaceScene | FiberScene:
         """What the task's model simulates: a fiber scene, or the (patch) surface scene."""

@@ -20,6 +20,8 @@ from wavebrdf.solver.surface import HeightField, SurfaceError, generate, load_he
 
 __all__ = ["FiberSpec", "IlluminationSpec", "MaterialSpec", "ModelSpec", "Study", "StudyConfig", "SurfaceSpec"]
 
+OUTLINE_NODES = 360  # a circle's or an ellipse's outline without [fiber] segments (the Mie model needs no mesh)
+
 
 @dataclass(frozen=True)
 class SurfaceSpec:
@@ -99,15 +101,21 @@ class FiberSpec:
     rotation_deg: float
     longitudinal_variance: float = 0.02  # d'Eon's v (rad²), the dataset's default for M0
 
+    @property
+    def meshed(self) -> bool:
+        """Its nodes are a mesh chosen for it (``segments``, or a polygon's own points), not the
+        :data:`OUTLINE_NODES` of a smooth shape's outline, which models that need no mesh read."""
+        return self.shape == "polygon" or self.segments is not None
+
     def build(self):
         """The :class:`~wavebrdf.solver.fiber.CrossSection`."""
         from wavebrdf.solver import fiber
 
         rotation = np.deg2rad(self.rotation_deg)
-        if self.shape == "circle":  # the Mie model needs no mesh: 360 nodes describe its outline
-            return fiber.circle(self.radius_um, self.segments or 360, rotation=rotation)
+        if self.shape == "circle":
+            return fiber.circle(self.radius_um, self.segments or OUTLINE_NODES, rotation=rotation)
         if self.shape == "ellipse":
-            return fiber.ellipse(*self.semi_axes_um, self.segments, rotation=rotation)
+            return fiber.ellipse(*self.semi_axes_um, self.segments or OUTLINE_NODES, rotation=rotation)
         section = fiber.load_shape(self.points_file, segments=self.segments)
         if self.rotation_deg:
             c, s = np.cos(rotation), np.sin(rotation)

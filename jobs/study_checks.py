@@ -13,13 +13,15 @@ from wavebrdf.jobs.input_files import height_file_shape, input_file_problem
 from wavebrdf.jobs.study import Study
 from wavebrdf.solver.farfield import HemisphereGrid
 from wavebrdf.solver.materials import MaterialError
-from wavebrdf.solver.models import SurfaceScene
+from wavebrdf.solver.models import FiberScene, SurfaceScene
 from wavebrdf.solver.resources import meminfo_bytes
 from wavebrdf.solver.surface import SurfaceError
 
-__all__ = ["SURFACE_BYTES_PER_NODE", "check_study", "rectangle_outside_steering"]
+__all__ = ["DEFAULT_PHI_I_BINS", "SURFACE_BYTES_PER_NODE", "check_study", "fiber_phi_i_bins", "fiber_scene",
+           "rectangle_outside_steering"]
 
 SURFACE_BYTES_PER_NODE = 96  # peak while a height field is built and analysed (measured: gaussian 90)
+DEFAULT_PHI_I_BINS = 72  # fiber tables of non-circular cross sections
 
 
 def rectangle_outside_steering(what: str) -> ConfigError:
@@ -58,9 +60,10 @@ def check_study(study: Study) -> None:
         from wavebrdf.solver.fiber import ShapeError
 
         try:
-            study.fiber.build()
+            section = study.fiber.build()
         except (ShapeError, OSError) as exc:
             raise ConfigError(f"[fiber] {exc}") from None
+        _check_model_fiber(study, section, index)
 
 
 def _check_file_range(study: Study, valid: tuple[float, float]) -> None:
@@ -120,3 +123,47 @@ def _check_model_scene(study: Study, surface, index) -> None:
                 model.check(scene)
             except ValueError as exc:
                 raise ConfigError(str(exc)) from None
+
+
+def _check_model_fiber(study: Study, section, index) -> None:
+    """The fiber model's own checks (Model.check: the cross section it needs) at the case's
+    shortest and longest wavelength, each with the first and the most oblique θ_i."""
+    ill = study.illumination
+    lams = np.asarray(ill.wavelengths_um, dtype=float)
+    thetas = np.deg2rad(np.asarray(ill.theta_i_deg, dtype=float))
+    model = study.model.build()
+    for w in sorted({int(np.argmin(lams)), int(np.argmax(lams))}):
+        for t in sorted({0, int(np.argmax(np.abs(thetas)))}):
+            try:
+                model.check(fiber_scene(study, section, w, float(thetas[t]), complex(index[w])))
+            except ValueError as exc:
+                raise ConfigError(str(exc)) from None
+
+
+def fiber_phi_i_bins(study: Study) -> int:
+    """Fiber tables: the number of φ_i bins (ignored when explicit φ_i samples are given):
+    ``[output] phi_i_bins``, else 1 for circles (rotation invariant), :data:`DEFAULT_PHI_I_BINS`
+    otherwise."""
+    if study.output_options.phi_i_bins is not None:
+        return study.output_options.phi_i_bins
+    return 1 if study.fiber.shape == "circle" else DEFAULT_PHI_I_BINS
+
+
+def fiber_scene(study: Study, section, wavelength: int, theta_i: float, index: complex) -> FiberScene:
+    """The scene of ``study``'s fiber (cross section ``section``) at wavelength number
+    ``wavelength`` and θ_i (radians), every φ_i at once."""
+    explicit = study.illumination.phi_i_deg
+    spec = study.fiber
+    return FiberScene(
+        cross_section=section,
+        wavelength_um=study.illumination.wavelengths_um[wavelength],
+        index=index,
+        theta_i=theta_i,
+        phi_i=None if explicit is None else tuple(np.deg2rad(explicit)),
+        phi_i_bins=fiber_phi_i_bins(study),
+        phi_r_bins=study.output_options.phi_r_bins,
+        radius_um=spec.radius_um if spec.shape == "circle" else None,
+        precision=study.model.precision,
+        shape=spec.shape,
+        meshed=spec.meshed,
+    )

@@ -49,7 +49,8 @@ from pathlib import Path
 
 import numpy as np
 
-from wavebrdf.solver.models import Capabilities, Estimate, Model, SurfaceScene, get_model, model_class, model_names
+from wavebrdf.solver.models import (Capabilities, Estimate, Model, ModelsWith, SurfaceScene, get_model, model_class,
+                                    model_names, rungs)
 from wavebrdf.solver.options import option
 
 __all__ = ["AutoModel", "CheckUnit", "Choice", "Rule", "SceneFeatures", "ToleranceWarning", "choose", "measure_scene",
@@ -62,7 +63,7 @@ PILOT_SECONDS = 0.5  # the pilot and the scene statistics, measured 0.3–2 s on
 SENTINEL_RESOLUTION = 32
 REFERENCE = "bem"
 # rungs whose paths end after one reflection: they miss the energy of longer paths
-SINGLE_SCATTERING = frozenset({"gs", "ohs", "ghs", "kirchhoff", "po", "stam", "ws-v"})
+SINGLE_SCATTERING = ModelsWith("single_scattering")
 PLANE_WAVE_WAIST = 100.0  # waist/λ a plane wave (waist None) counts as in the rule
 CHECKED_RUNG_SHARE = 0.25  # a spot check measures the candidate rungs estimated at most this share of the full wave
 
@@ -226,7 +227,7 @@ class Choice:
 def candidate_models(scene: SurfaceScene) -> list[str]:
     """Registered surface rungs that can take ``scene`` (statistics rungs only with an ensemble;
     steerable rungs only where the scene must give coherent fields)."""
-    names = [n for n in model_names("height_field") if n != "auto"]
+    names = list(rungs("height_field"))
     if scene.surface.ensemble is not None:
         names += list(model_names("statistics"))
     if scene.coherent:
@@ -401,7 +402,7 @@ class AutoModel(Model):
 
     name = "auto"
     capabilities = Capabilities(takes="height_field", returns="fields", polarized=True, steerable=True,
-                                reciprocal=False, conserves_energy=False, spot_checks=True)
+                                reciprocal=False, conserves_energy=False, spot_checks=True, picks_rung=True)
     Options = AutoOptions
 
     def __init__(self, options=None):

@@ -23,10 +23,12 @@ and model configuration (jobs/tasks.py ``ModelPool``).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import importlib
 import warnings
 from abc import ABC, abstractmethod
+from collections.abc import Set
 from dataclasses import dataclass, field
 from typing import ClassVar
 
@@ -43,11 +45,14 @@ __all__ = [
     "FiberResult",
     "FiberScene",
     "Model",
+    "ModelsWith",
     "SurfaceScene",
     "get_model",
     "model_class",
     "model_names",
     "register",
+    "rung_order",
+    "rungs",
 ]
 
 @dataclass(frozen=True)
@@ -64,6 +69,13 @@ class Capabilities:
                 Kirchhoff without shadowing at grazing angles, report the excess instead)
     spot_checks measures its own choice on sampled tasks of a study: the plan adds "check" tasks
                 (``plan_spot_checks``, ``spot_check``, ``run_checked``; jobs/spot_checks.py)
+    rung        its place on the ladder of surface rungs, from the cheapest (0) to the most accurate
+                (docs/approx.md): ``wavebrdf compare`` lists models in this order and takes the
+                highest that fits as its reference; None: not ranked (below every rung)
+    single_scattering  its paths end after one reflection, so it misses the energy of longer paths
+                (``auto`` never predicts its error below the scene's multiple-bounce share)
+    picks_rung  it runs, per scene, a rung it picks among the registered models (``auto``): it is
+                not itself a rung that ``compare`` lists or ``auto`` picks
     """
 
     INPUTS: ClassVar[tuple[str, ...]] = ("height_field", "cross_section", "statistics")
@@ -76,6 +88,9 @@ class Capabilities:
     reciprocal: bool = False
     conserves_energy: bool = False
     spot_checks: bool = False
+    rung: int | None = None
+    single_scattering: bool = False
+    picks_rung: bool = False
 
     def __post_init__(self):
         if self.takes not in self.INPUTS:
@@ -123,6 +138,9 @@ class FiberScene:
     the plane normal to the axis. φ_i is either ``phi_i`` (point samples, radians) or, when it
     is None, ``phi_i_bins`` box-averaged bins over [0, 2π) (fiber.md §14.8); ``phi_r_bins`` bins
     of the outgoing azimuth. ``radius_um``: the circle's radius for models that need it (Mie).
+    ``shape``: what the cross section was made from (``[fiber] shape``: "circle", "ellipse",
+    "polygon"); ``meshed``: its nodes are a mesh chosen for it (``[fiber] segments``, or a polygon's
+    own points), not an outline of a smooth shape (360 nodes) that models needing no mesh read.
     """
 
     cross_section: object
@@ -134,6 +152,8 @@ class FiberScene:
     phi_r_bins: int
     radius_um: float | None = None
     precision: str = "double"
+    shape: str = "polygon"
+    meshed: bool = True
 
 
 @dataclass
@@ -277,6 +297,42 @@ def model_class(name: str) -> type[Model]:
         raise KeyError(f"unknown model {name!r}; available: {', '.join(_REGISTRY)}")
     module, cls = _REGISTRY[name].split(":")
     return getattr(importlib.import_module(module), cls)
+
+
+def rungs(takes: str | None = None) -> tuple[str, ...]:
+    """Registered models taking ``takes`` (all when None) that are rungs themselves, not pickers of
+    rungs (:attr:`Capabilities.picks_rung`)."""
+    return tuple(n for n in model_names(takes) if not model_class(n).capabilities.picks_rung)
+
+
+def rung_order(name: str) -> int:
+    """The place of model ``name`` on the ladder (:attr:`Capabilities.rung`), -1 when it is not
+    ranked: the key that sorts models from the cheapest rung to the most accurate."""
+    rung = model_class(name).capabilities.rung
+    return -1 if rung is None else rung
+
+
+class ModelsWith(Set):
+    """The registered models whose capability ``flag`` is true, as a set of names read from the
+    registry when asked: ``name in ModelsWith("single_scattering")`` imports only that model
+    (unregistered names are not in it), iterating imports every model."""
+
+    def __init__(self, flag: str):
+        if flag not in {f.name for f in dataclasses.fields(Capabilities)}:
+            raise ValueError(f"Capabilities has no flag {flag!r}")
+        self.flag = flag
+
+    def __contains__(self, name) -> bool:
+        return isinstance(name, str) and name in _REGISTRY and bool(getattr(model_class(name).capabilities, self.flag))
+
+    def __iter__(self):
+        return (name for name in tuple(_REGISTRY) if name in self)
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)
+
+    def __repr__(self) -> str:
+        return f"ModelsWith({self.flag!r})"
 
 
 def get_model(name: str, options=None) -> Model:

@@ -46,10 +46,13 @@ from wavebrdf.solver.models import (
     FiberResult,
     FiberScene,
     Model,
+    ModelsWith,
     SurfaceScene,
     get_model,
     model_class,
     model_names,
+    rung_order,
+    rungs,
 )
 from wavebrdf.solver.options import OptionsError, option, parse_options
 from wavebrdf.solver.surface import HeightField, generate
@@ -278,8 +281,12 @@ def test_capabilities_and_options(name):
     caps = cls.capabilities
     assert isinstance(caps, Capabilities)
     assert caps.takes in INPUTS and caps.returns in OUTPUTS
-    for flag in ("polarized", "steerable", "reciprocal", "conserves_energy"):
+    for flag in ("polarized", "steerable", "reciprocal", "conserves_energy", "spot_checks", "single_scattering",
+                 "picks_rung"):
         assert isinstance(getattr(caps, flag), bool), flag
+    assert caps.rung is None or (isinstance(caps.rung, int) and caps.rung >= 0), caps.rung
+    if caps.takes == "cross_section" or caps.picks_rung:  # the ladder is the surface rungs'
+        assert caps.rung is None and not caps.single_scattering
     if caps.takes == "cross_section":
         assert caps.returns == "fiber_table" and not caps.steerable
     else:
@@ -302,6 +309,17 @@ def test_capabilities_and_options(name):
     assert math.isfinite(est.memory_bytes) and est.memory_bytes > 0
     assert math.isfinite(est.seconds) and est.seconds > 0
     assert model.check(scene) is None
+
+
+def test_the_ladder_is_read_from_the_capabilities():
+    """compare's order and reference and auto's single-scattering floor come from the models'
+    capabilities: the rungs in order, each place once, and which rungs end after one reflection."""
+    ranked = sorted((n for n in model_names() if model_class(n).capabilities.rung is not None), key=rung_order)
+    assert ranked == ["gs", "gm", "ohs", "ghs", "kirchhoff", "stam", "ws-v", "wm", "po", "bem"]
+    assert len({model_class(n).capabilities.rung for n in ranked}) == len(ranked)
+    assert set(ModelsWith("single_scattering")) == {"gs", "ohs", "ghs", "kirchhoff", "po", "stam", "ws-v"}
+    assert "gm" not in ModelsWith("single_scattering") and "no-such-model" not in ModelsWith("single_scattering")
+    assert "auto" not in rungs() and set(rungs()) == set(model_names()) - {"auto"}
 
 
 # ============================================================================================

@@ -279,7 +279,7 @@ class WSVModel(Model):
     sampling = frozenset({"lattice", "pixels", "realization"})
     Options = WSVOptions
     capabilities = Capabilities(takes="height_field", returns="fields", polarized=True, steerable=False,
-                                reciprocal=False, conserves_energy=False)
+                                reciprocal=False, conserves_energy=False, rung=6, single_scattering=True)
 
     def run(self, ctx, scene: SurfaceScene) -> FarField:
         o = self.options
@@ -297,7 +297,7 @@ class WMModel(Model):
     sampling = frozenset({"lattice", "pixels", "realization"})
     Options = WMOptions
     capabilities = Capabilities(takes="height_field", returns="intensity", polarized=True, steerable=False,
-                                reciprocal=False, conserves_energy=False)
+                                reciprocal=False, conserves_energy=False, rung=7)
 
     def run(self, ctx, scene: SurfaceScene) -> IntensityResult:
         o = self.options

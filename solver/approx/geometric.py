@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import hashlib
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -65,7 +65,7 @@ class GSModel(Model):
     # on the conformance "rough" scene the pairs differ by 2–5% per pixel at 1–4M rays under a plane
     # wave, 15–60% with its 1.8 µm footprint (the footprint weights a path by where it enters)
     capabilities = Capabilities(takes="height_field", returns="intensity", polarized=True, steerable=False,
-                                reciprocal=False, conserves_energy=True)
+                                reciprocal=False, conserves_energy=True, rung=0, single_scattering=True)
     _lost_key = "masked_energy_fraction"  # diagnostics name of the energy still hitting after max_depth
 
     def __init__(self, options=None):
@@ -159,7 +159,7 @@ class GMModel(GSModel):
 
     name = "gm"
     Options = GMOptions
-    capabilities = GSModel.capabilities
+    capabilities = replace(GSModel.capabilities, rung=1, single_scattering=False)
     _lost_key = "truncated_energy_fraction"
 
     @property

@@ -54,7 +54,7 @@ from __future__ import annotations
 import hashlib
 import time
 from collections import OrderedDict
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.fft
@@ -416,7 +416,7 @@ class HarveyShackModel(FootprintModel):
     variant = "ohs"
     Options = HarveyShackOptions
     capabilities = Capabilities(takes="height_field", returns="fields", polarized=True, steerable=True,
-                                reciprocal=False, conserves_energy=False)
+                                reciprocal=False, conserves_energy=False, single_scattering=True)
     CACHE_ENTRIES = 2
 
     def __init__(self, options=None):
@@ -499,6 +499,7 @@ class OHSModel(HarveyShackModel):
     name = "ohs"
     sampling = frozenset({"lattice", "pixels", "realization"})
     variant = "ohs"
+    capabilities = replace(HarveyShackModel.capabilities, rung=2)
 
 
 class GHSModel(HarveyShackModel):
@@ -508,3 +509,4 @@ class GHSModel(HarveyShackModel):
     name = "ghs"
     sampling = frozenset({"lattice", "realization"})  # renormalized: the albedo does not depend on the pixels
     variant = "ghs"
+    capabilities = replace(HarveyShackModel.capabilities, rung=3)

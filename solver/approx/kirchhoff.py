@@ -492,7 +492,7 @@ class KirchhoffModel(FootprintModel):
     name = "kirchhoff"
     sampling = frozenset({"lattice", "pixels", "realization"})
     capabilities = Capabilities(takes="height_field", returns="fields", polarized=True, steerable=True,
-                                reciprocal=True, conserves_energy=False)
+                                reciprocal=True, conserves_energy=False, rung=4, single_scattering=True)
 
     def run(self, ctx, scene: SurfaceScene) -> FarField:
         ff = kirchhoff_farfield(

@@ -216,7 +216,7 @@ class StamModel(Model):
     name = "stam"
     Options = StamOptions
     capabilities = Capabilities(takes="statistics", returns="intensity", polarized=True, steerable=False,
-                                reciprocal=True, conserves_energy=False)
+                                reciprocal=True, conserves_energy=False, rung=5, single_scattering=True)
 
     def check(self, scene: SurfaceScene) -> None:
         surface = scene.surface

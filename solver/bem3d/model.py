@@ -60,7 +60,7 @@ class BEMModel(Model):
     name = "bem"
     Options = BEMOptions
     capabilities = Capabilities(takes="height_field", returns="fields", polarized=True, steerable=True,
-                                reciprocal=True, conserves_energy=True)
+                                reciprocal=True, conserves_energy=True, rung=9)
 
     def __init__(self, options=None):
         super().__init__(options)

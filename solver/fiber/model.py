@@ -80,6 +80,12 @@ class FiberBEMModel(_FiberModel):
     def release(self) -> None:
         self._kept = None
 
+    def check(self, scene: FiberScene) -> None:
+        """Boundary elements need a mesh: ``[fiber] segments`` for the smooth shapes."""
+        if not scene.meshed:
+            raise ValueError(f"[fiber] segments: required by the {self.name} model for shape = \"{scene.shape}\" "
+                             "(e.g. 300 for a 1 µm radius at 0.4 µm: >= 10 elements per interior wavelength)")
+
     def estimate(self, scene: FiberScene) -> Estimate:
         """A dense 4N×4N complex LU per (λ, θ_i)."""
         n = 4 * scene.cross_section.segments
@@ -92,6 +98,12 @@ class MieModel(_FiberModel):
     """The Mie series of a circular cylinder (solver/fiber/mie.py); needs ``scene.radius_um``."""
 
     name = "mie"
+
+    def check(self, scene: FiberScene) -> None:
+        """The series is that of a circular cylinder."""
+        if scene.radius_um is None:
+            raise ValueError(f"[model] name = \"{self.name}\": the Mie series solves circular fibers only, not fiber.shape = "
+                             f"{scene.shape!r}; use \"fiber-bem\"")
 
     def solver(self, ctx, scene: FiberScene):
         from wavebrdf.solver.fiber.mie import MieFiber
