@@ -36,6 +36,7 @@ from wavebrdf.jobs.scheduler import prepare_output, run_plan
 from wavebrdf.jobs.shards import add_merge_parser
 from wavebrdf.jobs.spot_checks import expectation_scene, spot_check_summary
 from wavebrdf.jobs.store import Dataset, StoreError
+from wavebrdf.jobs.study_kinds import study_kind
 from wavebrdf.jobs.submit import add_submit_parser
 from wavebrdf.solver.auto import plan_summary
 from wavebrdf.solver.materials import MaterialError
@@ -349,7 +350,7 @@ def _print_spectral_seams(ds, tasks: dict) -> None:
     (``auto`` with ``mix_wavelengths``): the albedo step there beside the median step between
     neighbours of one rung (the spectrum's own smoothness)."""
     kinds, models = _texts(tasks, "kind"), _texts(tasks, "model")
-    if ds.kind != "surface" or "check" not in kinds:
+    if "check" not in kinds:  # spot checks: auto's, of surface studies
         return
     number = lambda column: np.asarray(tasks.get(column, []), dtype=int)  # noqa: E731
     case, wl, inc, basic = number("case"), number("wavelength_index"), number("incidence_index"), number("basic_index")
@@ -384,21 +385,11 @@ def _print_spectral_seams(ds, tasks: dict) -> None:
 
 
 def _print_summary_table(ds, coords) -> None:
-    """Albedo (surfaces) or unpolarized C_ext / albedo C_sca/C_ext (fibers) per case."""
+    """The table of the dataset's kind per case (jobs/study_kinds.py ``summary_table``): the albedo
+    (surfaces), or unpolarized C_ext and the albedo C_sca/C_ext (fibers)."""
     keys = ds.sweep_keys
-    if ds.kind == "fiber":
-        c_ext = ds["C_ext"].mean(axis=-2).mean(axis=-1)  # over polarization, then φ_i
-        c_sca = ds["C_sca"].mean(axis=-2).mean(axis=-1)
-        rows, label = coords["theta_i"], "θi (deg)"
-        values = lambda ci, r: c_ext[ci + (slice(None), r)]  # noqa: E731
-        print("C_ext (µm, unpolarized, mean over φ_i) [albedo C_sca/C_ext]; rows θi, columns wavelengths:")
-        albedo = lambda ci, r: c_sca[ci + (slice(None), r)] / c_ext[ci + (slice(None), r)]  # noqa: E731
-    else:
-        a = ds.albedo
-        rows, label = [f"{t:6.2f} {p:7.2f}" for t, p in zip(coords["theta_i"], coords["phi_i"])], "θi/φi (deg)"
-        values = lambda ci, r: a[ci + (slice(None), r)]  # noqa: E731
-        albedo = None
-        print(f"albedo (rows: incidence {label}; columns: wavelengths):")
+    heading, rows, values, albedo = study_kind(ds.kind).summary_table(ds, coords)
+    print(heading)
     lead = ds.h5[ds.main_variable].shape[: len(keys)]
     for case_index in np.ndindex(*lead) if lead else [()]:
         if case_index:

@@ -448,7 +448,7 @@ def compare_config(config, models: list[str] | None = None, reference: str | Non
     from wavebrdf.solver.options import parse_options
 
     study = config.cases[0]
-    if study.is_fiber:
+    if not study.kind.comparable:
         raise ConfigError("wavebrdf compare: a surface study is needed (fiber models have no rungs to compare)")
     if study.steering is not None:
         raise ConfigError("[steering]: wavebrdf compare runs whole-surface scenes; remove [steering]")

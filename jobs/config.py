@@ -27,19 +27,18 @@ import itertools
 from pathlib import Path
 from typing import Any
 
-from wavebrdf.jobs.errors import ConfigError, fail, fmt
+from wavebrdf.jobs.errors import ConfigError, exactly_one, fail, fmt
 from wavebrdf.jobs.input_files import (read_config_text, read_directions_file, read_material_rows,
                                        resolve_input_path)
 from wavebrdf.jobs.output_path import check_output_path
 from wavebrdf.jobs.overrides import dict_config_text, overridden_text, parse_toml
 from wavebrdf.jobs.ranges import RANGE_KEYS, expand_range
-from wavebrdf.jobs.sections import (FIBER_SHAPE_KEYS, MODEL_SECTIONS, SCHEMA, SECTIONS, FiberSection,
-                                    IlluminationSection, MaterialSection, ModelSection, OutputSection, RunSection,
-                                    StudySection, SurfaceSection, config_errors, parse_generator, parse_section,
+from wavebrdf.jobs.sections import (MODEL_SECTIONS, SCHEMA, SECTIONS, IlluminationSection, MaterialSection,
+                                    ModelSection, OutputSection, RunSection, StudySection, config_errors, parse_section,
                                     section_record)
-from wavebrdf.jobs.study import (FiberSpec, IlluminationSpec, MaterialSpec, ModelSpec, Study, StudyConfig,
-                                 SurfaceSpec)
-from wavebrdf.jobs.study_checks import check_study, rectangle_outside_steering
+from wavebrdf.jobs.study import IlluminationSpec, MaterialSpec, ModelSpec, Study, StudyConfig
+from wavebrdf.jobs.study_checks import check_study
+from wavebrdf.jobs.study_kinds import STUDY_KINDS
 from wavebrdf.solver.models import model_class, model_names
 from wavebrdf.solver.options import parse_options
 
@@ -59,20 +58,12 @@ NOT_SWEEPABLE = {
     "study.name": "a study has one name",
     "steering.patches": "the patch layout is shared by all cases",
 }
-REQUIRED_SECTIONS = ("material", "illumination", "model")  # + exactly one of [surface] / [fiber]
-SURFACE_ONLY_KEYS = ("directions_deg", "directions_file", "angles", "waist_um", "beam")
-FIBER_ONLY_KEYS = ("theta_i_deg", "phi_i_deg")
+REQUIRED_SECTIONS = ("material", "illumination", "model")  # + the section of one study kind
 
 
 def _suggest(key: str, options) -> str:
     close = difflib.get_close_matches(key, list(options), n=1)
     return f"; did you mean {close[0]!r}?" if close else ""
-
-
-def _exactly_one(section: str, values, keys: tuple[str, ...]) -> None:
-    given = [k for k in keys if getattr(values, k) is not None]
-    if len(given) != 1:
-        raise ConfigError(f"[{section}]: give exactly one of {', '.join(keys)} (got {', '.join(given) or 'none'})")
 
 
 def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: dict,
@@ -91,36 +82,30 @@ def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: di
     study_section = given["study"] or StudySection()
     name = study_section.name or default_name
     output = check_output_path(str(output or study_section.output or f"{name}.h5"))
-    if ("surface" in data) == ("fiber" in data):
-        raise ConfigError("give exactly one of [surface] (a height field) or [fiber] (a fiber cross section)")
-    surface = None
-    if "surface" in data:
-        surface = _surface_spec(given["surface"], others["surface"], data["surface"], base_dir)
-        others["surface"] = surface.parameters  # the generator's keys, converted
-    fiber = _fiber_spec(given["fiber"], base_dir) if "fiber" in data else None
+    kinds = [kind for kind in STUDY_KINDS.values() if kind.section in data]
+    if len(kinds) != 1:
+        raise ConfigError("give exactly one of " + " or ".join(f"[{k.section}] ({k.geometry})"
+                                                              for k in STUDY_KINDS.values()))
+    kind = kinds[0]
+    spec, others[kind.section] = kind.spec(given[kind.section], others[kind.section], data[kind.section], base_dir)
     material, material_rows = _material_spec(given["material"], data["material"], base_dir)
     wavelengths = given["illumination"].wavelengths_um
     if wavelengths is None:
         if material.file is None:
             raise ConfigError("[illumination] wavelengths_um: missing required key")
         wavelengths = tuple(row[0] for row in material.table)  # the reference's default
-    illumination = _illumination_spec(given["illumination"], data["illumination"], wavelengths, fiber is not None,
-                                      base_dir)
-    model = _model_spec(given["model"], others["model"], fiber is not None)
+    illumination = _illumination_spec(given["illumination"], data["illumination"], wavelengths, kind, base_dir)
+    model = _model_spec(given["model"], others["model"], kind)
     out = given["output"] or OutputSection()
-    if "steering" in data and fiber is not None:
-        raise ConfigError("[steering] applies to height fields, not to fibers")
     if not model.capabilities.polarized and (illumination.polarization != "unpolarized" or out.per_polarization):
         raise ConfigError(f"[illumination] polarization = \"{illumination.polarization}\" / [output] per_polarization: "
                           f"model {model.name!r} does not resolve polarization (its s and p are the same); "
                           "use polarization = \"unpolarized\" and per_polarization = false")
+    kind.check_sections(spec, data)
     if "steering" in data and not model.capabilities.steerable:
         raise ConfigError(f"[steering]: model {model.name!r} cannot be steered (it returns "
                           f"{model.capabilities.returns}, not coherent fields with their incident beam); "
                           "remove [steering] or choose a steerable model")
-    if surface is not None and surface.rectangular and "steering" not in data:
-        raise rectangle_outside_steering(f"size_um = {fmt(list(surface.size_um))}, cells = "
-                                         f"{fmt(list(surface.cells))}")
     steering = given["steering"]
     if steering is not None:
         steering = dataclasses.replace(steering, shift_um=steering.shift_um or illumination.waist_um)
@@ -130,20 +115,20 @@ def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: di
         record["material"]["table"] = material_rows  # results depend on the file's rows, not its name
     record["illumination"].update(wavelengths_um=illumination.wavelengths_um,
                                   directions_deg=illumination.directions_deg or None)
-    study = Study(name, output, surface, material, illumination, model, out, steering,
-                  given["run"] or RunSection(), fiber, record, dict(sweep_values))
+    study = Study(name=name, output=output, kind=kind, material=material, illumination=illumination, model=model,
+                  output_options=out, steering=steering, run=given["run"] or RunSection(), sections=record,
+                  sweep_values=dict(sweep_values), **{kind.section: spec})
     check_study(study)
     return study
 
 
-def _model_spec(m: ModelSection, given: dict, is_fiber: bool) -> ModelSpec:
-    """[model]: a registered model that takes this study's input, with its Options parsed from
-    the other keys of [model] and [model.<name>]."""
-    takes = ("cross_section",) if is_fiber else ("height_field", "statistics")
+def _model_spec(m: ModelSection, given: dict, kind) -> ModelSpec:
+    """[model]: a registered model that takes the input of this study's ``kind``, with its Options
+    parsed from the other keys of [model] and [model.<name>]."""
+    takes = kind.model_inputs
     if m.name not in model_names() or model_class(m.name).capabilities.takes not in takes:
         allowed = [n for t in takes for n in model_names(t)]  # imports every model: the error path only
-        kind = "fiber" if is_fiber else "surface"
-        raise fail("model", "name", m.name, f"a {kind} study needs one of {', '.join(repr(n) for n in allowed)}")
+        raise fail("model", "name", m.name, f"a {kind.name} study needs one of {', '.join(repr(n) for n in allowed)}")
     given = dict(given)
     own = given.pop(m.name, None)  # [model.<name>] table
     if own is not None:
@@ -156,37 +141,6 @@ def _model_spec(m: ModelSection, given: dict, is_fiber: bool) -> ModelSpec:
     with config_errors():
         options = parse_options(model_class(m.name).Options, given, "model")
     return ModelSpec(m.name, m.precision, options)
-
-
-def _surface_spec(s: SurfaceSection, generator_keys: dict, given: dict, base_dir: Path) -> SurfaceSpec:
-    """[surface]: a file or a generator with its keys (``generator_keys``, as given)."""
-    _exactly_one("surface", s, ("file", "generator"))
-    file, parameters = None, {}
-    size, cells = s.size_um, s.cells
-    if s.file is not None:
-        file = resolve_input_path(s.file, base_dir)
-        if generator_keys:
-            raise ConfigError(f"[surface] {next(iter(generator_keys))}: only used with a generator, not with "
-                              "surface.file")
-        for key, why in (("cells", "the file's matrix of (N+1)×(N+1) heights gives N"),
-                         ("seed", "the heights are read, not drawn")):
-            if key in given:  # it would be ignored
-                raise ConfigError(f"[surface] {key} = {fmt(given[key])} and file = {fmt(s.file)}: {key} would "
-                                  f"be ignored ({why}); remove {key}")
-    else:
-        parameters = parse_generator(s.generator, generator_keys)
-        if isinstance(size, tuple) or isinstance(cells, tuple):  # a rectangle: L_x/N_x = L_y/N_y
-            sides = size if isinstance(size, tuple) else (size, size)
-            counts = cells if isinstance(cells, tuple) else (cells, cells)
-            dx, dy = sides[0] / counts[0], sides[1] / counts[1]
-            if abs(dx - dy) > 1e-9 * max(dx, dy):
-                raise ConfigError(f"[surface] size_um = {fmt(list(sides))}, cells = {fmt(list(counts))}: cells "
-                                  f"must be square (spacing {dx:.6g} µm along x, {dy:.6g} µm along y); for a "
-                                  "rectangle give both as [x, y] pairs with size_um[0]/cells[0] = size_um[1]/cells[1]")
-            size, cells = (float(sides[0]), float(sides[1])), (int(counts[0]), int(counts[1]))
-            if counts[0] == counts[1]:
-                size, cells = size[0], cells[0]
-    return SurfaceSpec(size, file, s.generator, cells, s.seed, parameters)
 
 
 def _material_spec(m: MaterialSection, given: dict, base_dir: Path) -> tuple[MaterialSpec, list | None]:
@@ -211,7 +165,7 @@ def _material_source(m: MaterialSection, given: dict) -> None:
     if "kappa" in given and m.file is not None:
         raise ConfigError(f"[material] file and kappa: give one of them (material.file = {fmt(m.file)} holds "
                           "κ per wavelength; kappa goes with a constant n)")
-    _exactly_one("material", m, ("name", "table", "file", "n"))
+    exactly_one("material", m, ("name", "table", "file", "n"))
     if "kappa" in given and m.n is None:  # it would be ignored: the source gives its own κ
         source = "name" if m.name is not None else "table"
         what = (f"material.name = {fmt(m.name)} gives its own κ per wavelength" if source == "name"
@@ -220,22 +174,14 @@ def _material_source(m: MaterialSection, given: dict) -> None:
                           "remove kappa, or give a constant index as n and kappa instead")
 
 
-def _fiber_spec(f: FiberSection, base_dir: Path) -> FiberSpec:
-    needed = FIBER_SHAPE_KEYS[f.shape]
-    for key in set(FIBER_SHAPE_KEYS.values()):
-        if key == needed and getattr(f, key) is None:
-            raise ConfigError(f"[fiber] {key}: required for shape = \"{f.shape}\"")
-        if key != needed and getattr(f, key) is not None:
-            raise ConfigError(f"[fiber] {key}: not used with shape = \"{f.shape}\" (it needs {needed})")
-    points = None if f.points_file is None else resolve_input_path(f.points_file, base_dir)
-    return FiberSpec(f.shape, f.radius_um, f.semi_axes_um, points, f.segments, f.rotation_deg, f.longitudinal_variance)
-
-
-def _illumination_spec(ill: IlluminationSection, given: dict, wavelengths: tuple[float, ...], is_fiber: bool,
+def _illumination_spec(ill: IlluminationSection, given: dict, wavelengths: tuple[float, ...], kind,
                        base_dir: Path) -> IlluminationSpec:
-    for key in FIBER_ONLY_KEYS if not is_fiber else SURFACE_ONLY_KEYS:
-        if key in given:
-            raise ConfigError(f"[illumination] {key}: not used in a {'fiber' if is_fiber else 'surface'} study")
+    """[illumination] of a study of ``kind``: none of the keys only other kinds read, the ones it
+    needs; directions from directions_deg or directions_file."""
+    for other in STUDY_KINDS.values():
+        for key in other.illumination_keys if other is not kind else ():
+            if key in given:
+                raise ConfigError(f"[illumination] {key}: not used in a {kind.name} study")
     directions = ill.directions_deg
     if ill.directions_file is not None:
         if directions is not None:
@@ -246,9 +192,9 @@ def _illumination_spec(ill: IlluminationSection, given: dict, wavelengths: tuple
     elif ill.angles is not None:
         raise ConfigError(f"[illumination] angles = {fmt(ill.angles)}: only used with directions_file (the units "
                           "of its θ, φ columns); directions_deg is in degrees")
-    needed = {"theta_i_deg": ill.theta_i_deg} if is_fiber else {"directions_deg": directions, "waist_um": ill.waist_um}
-    for key, value in needed.items():
-        if value is None:
+    ill = dataclasses.replace(ill, directions_deg=directions)
+    for key in kind.required_illumination:
+        if getattr(ill, key) is None:
             raise ConfigError(f"[illumination] {key}: missing required key")
     return IlluminationSpec(wavelengths, directions or (), ill.waist_um, ill.polarization, ill.beam,
                             ill.theta_i_deg or (), ill.phi_i_deg)

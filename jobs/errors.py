@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["ConfigError", "fail", "fmt"]
+__all__ = ["ConfigError", "exactly_one", "fail", "fmt"]
 
 
 class ConfigError(ValueError):
@@ -23,3 +23,10 @@ def fmt(value: Any) -> str:
 def fail(section: str, key: str, value: Any, problem: str) -> ConfigError:
     """The refusal of ``[section] key = value``."""
     return ConfigError(f"[{section}] {key} = {fmt(value)}: {problem}")
+
+
+def exactly_one(section: str, values, keys: tuple[str, ...]) -> None:
+    """Refuse ``[section]`` unless exactly one of ``keys`` is set (not None) on ``values``."""
+    given = [k for k in keys if getattr(values, k) is not None]
+    if len(given) != 1:
+        raise ConfigError(f"[{section}]: give exactly one of {', '.join(keys)} (got {', '.join(given) or 'none'})")

@@ -6,9 +6,11 @@ jobs/steering.py) and the plan holds one ``patch`` task per (case, wavelength, b
 sub-area) plus one ``synth`` task per (case, wavelength, requested direction) that depends on
 the patch tasks of its basic direction; patch tasks run sub-area → wavelength → basic direction
 (the scheduler keeps a sub-area on one worker, jobs/scheduler.py). Every task's result slot in the dataset is given by
-(case, wavelength, incidence) of the direct/synth tasks. Fiber studies have one ``fiber`` task
-per (case, wavelength, θ_i) that solves every φ_i and both polarizations at once. What each kind
-runs, estimates, saves and writes is the table jobs/tasks.py ``KINDS``.
+(case, wavelength, incidence) of the direct/synth tasks (:func:`surface_tasks`). Fiber studies
+have one ``fiber`` task per (case, wavelength, θ_i) that solves every φ_i and both polarizations at
+once (:func:`fiber_tasks`). The study's kind (jobs/study_kinds.py) says which layout a study takes,
+the scene and direction of each task; what each task kind runs, estimates, saves and writes is the
+table jobs/tasks.py ``KINDS``.
 """
 
 from __future__ import annotations
@@ -23,7 +25,6 @@ from functools import cached_property, lru_cache
 import numpy as np
 
 from wavebrdf.jobs.study import ModelSpec, Study, StudyConfig
-from wavebrdf.jobs.study_checks import fiber_phi_i_bins, fiber_scene
 from wavebrdf.jobs.executors import resolve_executor
 from wavebrdf.jobs.spot_checks import add_spot_checks
 from wavebrdf.jobs.steering import HexagonTiling, PatchLayout
@@ -35,8 +36,8 @@ from wavebrdf.solver.resources import meminfo_bytes
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Plan", "PlanError", "Task", "check_memory", "device_info", "format_bytes", "format_number",
-           "node_memory_bytes", "plan_study"]
+__all__ = ["Plan", "PlanError", "Task", "check_memory", "device_info", "fiber_tasks", "format_bytes",
+           "format_number", "node_memory_bytes", "plan_study", "surface_tasks"]
 
 
 class PlanError(ValueError):
@@ -125,10 +126,6 @@ class Plan:
         return _read_only(np.array(self.study.illumination.directions_deg))
 
     @property
-    def is_fiber(self) -> bool:
-        return self.study.is_fiber
-
-    @property
     def needs_fp64(self) -> bool:
         """Whether a case runs at [model] precision = "double" (the device needs cl_khr_fp64)."""
         return any(case.model.precision == "double" for case in self.config.cases)
@@ -147,26 +144,6 @@ class Plan:
             self._geometry[key] = self.config.cases[case].surface.build()
         return self._geometry[key]
 
-    @property
-    def phi_i_bins(self) -> int:
-        """Fiber tables: number of φ_i bins (jobs/study_checks.py :func:`fiber_phi_i_bins`)."""
-        return fiber_phi_i_bins(self.study)
-
-    @property
-    def phi_i_axis_deg(self) -> np.ndarray:
-        """Fiber tables: the dataset's φ_i coordinate (degrees): explicit samples or bin centres."""
-        explicit = self.study.illumination.phi_i_deg
-        if explicit is not None:
-            return np.array(explicit, dtype=float)
-        n = self.phi_i_bins
-        return np.zeros(1) if n == 1 else 360.0 * np.arange(n) / n
-
-    @property
-    def phi_r_axis_deg(self) -> np.ndarray:
-        """Fiber tables: φ_r bin centres (degrees)."""
-        bins = self.study.output_options.phi_r_bins
-        return 360.0 * np.arange(bins) / bins
-
     def index(self, case: int) -> np.ndarray:
         """Material index n − jκ of ``case`` at every wavelength, computed once per case (a task
         reads its entry in O(1), so planning stays linear in the number of tasks)."""
@@ -177,10 +154,11 @@ class Plan:
         return self._geometry[key]
 
     def direction_rad(self, task: Task) -> tuple[float, float]:
-        """(θ, φ) simulated by ``task``: the basic direction for patches, else the requested one
-        (fibers: θ_i from the plane normal to the axis, φ = 0)."""
-        if task.kind == "fiber":
-            return float(np.deg2rad(self.config.cases[task.case].illumination.theta_i_deg[task.incidence])), 0.0
+        """(θ, φ) simulated by ``task`` (its study kind's ``direction_rad``)."""
+        return self.study.kind.direction_rad(self, task)
+
+    def surface_direction_rad(self, task: Task) -> tuple[float, float]:
+        """(θ, φ) of a surface task: the basic direction for patches, else the requested one."""
         if task.on_patch:
             theta, phi = self.steering[task.case].basics_rad[task.basic]
             return float(theta), float(phi)
@@ -200,7 +178,7 @@ class Plan:
             surface = st.layout.cut(surface, patch)
             theta, phi = st.basics_rad[task.basic if basic is None else basic]
         else:
-            theta, phi = self.direction_rad(task)
+            theta, phi = self.surface_direction_rad(task)
         return SurfaceScene(
             surface=surface,
             wavelength_um=study.illumination.wavelengths_um[task.wavelength],
@@ -226,15 +204,10 @@ class Plan:
             return node / max(1, self.tasks_per_node)
         return node / max(1, resolve_executor(study.run.executor).tasks_per_node(study))
 
-    def fiber_scene(self, task: Task) -> FiberScene:
-        """The (λ, θ_i) a fiber task solves, every φ_i at once."""
-        theta, _ = self.direction_rad(task)
-        return fiber_scene(self.config.cases[task.case], self.cross_section(task.case), task.wavelength, theta,
-                           complex(self.index(task.case)[task.wavelength]))
-
     def model_scene(self, task: Task) -> SurfaceScene | FiberScene:
-        """What the task's model simulates: a fiber scene, or the (patch) surface scene."""
-        return self.fiber_scene(task) if self.is_fiber else self.scene(task)
+        """What the task's model simulates (its study kind's ``scene``): the (patch) surface scene,
+        or a fiber scene."""
+        return self.study.kind.scene(self, task)
 
     def model_spec(self, task: Task) -> ModelSpec:
         return self.config.cases[task.case].model
@@ -252,10 +225,8 @@ class Plan:
         cases = []
         for study in self.config.cases:
             sections = {s: dict(v) for s, v in study.sections.items() if s not in ("study", "run")}
-            for section, key, path in (("surface", "file", study.surface and study.surface.file),
-                                       ("fiber", "points_file", study.fiber and study.fiber.points_file)):
-                if path is not None:
-                    sections[section][key] = _file_digest(str(path))
+            for section, key, path in study.kind.input_files(study):
+                sections[section][key] = _file_digest(str(path))
             cases.append(sections)
         blob = json.dumps({"cases": cases, "sweep": {k: list(v) for k, v in self.config.sweep_axes.items()}},
                           sort_keys=True, default=repr)
@@ -301,21 +272,30 @@ def _case_steering(plan: Plan, case: int) -> CaseSteering:
 
 
 def plan_study(config: StudyConfig) -> Plan:
-    """All tasks of ``config``: patch tasks first (case, sub-area, wavelength, basic direction),
-    then the result tasks (case, wavelength, direction)."""
+    """All tasks of ``config``, as its study kind lays them out (``tasks``)."""
     plan = Plan(config)
-    shape = config.case_shape
+    plan.tasks = config.cases[0].kind.tasks(plan)
+    return plan
+
+
+def fiber_tasks(plan: Plan) -> list[Task]:
+    """A fiber study's tasks: one per (case, wavelength, θ_i), every φ_i at once."""
+    ill = plan.study.illumination
+    return [Task(i, "fiber", case, case_index, wl, th)
+            for i, (case, case_index, wl, th) in enumerate(
+                (c, ci, wl, th) for c, ci in plan.config.case_indices()
+                for wl in range(len(ill.wavelengths_um)) for th in range(len(ill.theta_i_deg)))]
+
+
+def surface_tasks(plan: Plan) -> list[Task]:
+    """A surface study's tasks: patch tasks first (case, sub-area, wavelength, basic direction),
+    then the result tasks (case, wavelength, direction), then auto's spot checks."""
+    config = plan.config
     n_wl = len(config.cases[0].illumination.wavelengths_um)
     n_inc = len(config.cases[0].illumination.directions_deg)
-    cases = list(enumerate(np.ndindex(*shape) if shape else [()]))
+    cases = config.case_indices()
     tasks: list[Task] = []
     patch_ids: dict[tuple, list[int]] = {}
-    if config.cases[0].is_fiber:
-        n_theta = len(config.cases[0].illumination.theta_i_deg)
-        plan.tasks = [Task(i, "fiber", case, tuple(map(int, case_index)), wl, th)
-                      for i, (case, case_index, wl, th) in enumerate(
-                          (c, ci, wl, th) for c, ci in cases for wl in range(n_wl) for th in range(n_theta))]
-        return plan
     for case, case_index in cases:
         if config.cases[case].steering is None:
             continue
@@ -330,21 +310,21 @@ def plan_study(config: StudyConfig) -> Plan:
             for wl in range(n_wl):
                 for b in range(len(st.basics_rad)):
                     patch_ids.setdefault((case, wl, b), []).append(len(tasks))
-                    tasks.append(Task(len(tasks), "patch", case, tuple(map(int, case_index)), wl, basic=b,
+                    tasks.append(Task(len(tasks), "patch", case, case_index, wl, basic=b,
                                       patch=patch))
     for case, case_index in cases:
         st = plan.steering.get(case)
         for wl in range(n_wl):
             for inc in range(n_inc):
                 if st is None:
-                    tasks.append(Task(len(tasks), "direct", case, tuple(map(int, case_index)), wl, inc))
+                    tasks.append(Task(len(tasks), "direct", case, case_index, wl, inc))
                 else:
                     b = int(st.basic_of[inc])
-                    tasks.append(Task(len(tasks), "synth", case, tuple(map(int, case_index)), wl, inc, basic=b,
+                    tasks.append(Task(len(tasks), "synth", case, case_index, wl, inc, basic=b,
                                       depends=tuple(patch_ids[(case, wl, b)])))
     plan.tasks = tasks
     add_spot_checks(plan)
-    return plan
+    return plan.tasks
 
 
 def node_memory_bytes() -> float:

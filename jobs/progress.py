@@ -107,11 +107,9 @@ def task_where(plan, task) -> str:
 
 
 def phi_text(plan, task) -> str:
-    """φ_i of ``task`` in degrees; fiber tasks: every φ_i of the table ("all 36", or the one value)."""
-    if task.kind == "fiber":
-        phis = plan.phi_i_axis_deg
-        return f"{phis[0]:.1f}°" if len(phis) == 1 else f"all {len(phis)}"
-    return f"{np.rad2deg(plan.direction_rad(task)[1]):.1f}°"
+    """φ_i of ``task`` in degrees, as its study kind says it (fiber tasks: every φ_i of the table,
+    "all 36", or the one value)."""
+    return plan.study.kind.phi_text(plan, task)
 
 
 def _duration(seconds: float) -> str:

@@ -19,9 +19,10 @@ from pathlib import Path
 
 from wavebrdf.jobs.errors import ConfigError
 from wavebrdf.jobs.parts import StorageError, storage_error
-from wavebrdf.jobs.pictures import DECADES, KINDS, PictureOptions, pictures
+from wavebrdf.jobs.pictures import DECADES, PictureOptions, pictures
 from wavebrdf.jobs.pictures.common import MAX_DECADES
 from wavebrdf.jobs.store import Dataset
+from wavebrdf.jobs.study_kinds import STUDY_KINDS, StudyKind, study_kind
 
 __all__ = ["MAX_IMAGES", "RenderedPictures", "add_render_flags", "render_dataset", "render_options"]
 
@@ -35,19 +36,19 @@ class RenderedPictures(list):
     total: int = 0
 
 
-def _options(kind: str, n_directions: int, plots, incidences, decades, limits, directions) -> PictureOptions:
-    """Checked :class:`PictureOptions` (a one-line ConfigError naming the option and value)."""
-    allowed = KINDS[kind]
+def _options(kind: StudyKind, n_directions: int, plots, incidences, decades, limits, directions) -> PictureOptions:
+    """Checked :class:`PictureOptions` for a dataset of ``kind`` (a one-line ConfigError naming the
+    option and value)."""
+    allowed = kind.pictures.KINDS
     chosen = tuple(allowed) if plots is None else tuple(plots)
     unknown = [p for p in chosen if p not in allowed]
     if unknown or not chosen:
-        raise ConfigError(f"--plots {','.join(chosen)}: {kind} datasets have the pictures {', '.join(allowed)}")
+        raise ConfigError(f"--plots {','.join(chosen)}: {kind.name} datasets have the pictures {', '.join(allowed)}")
     if incidences is not None:
         bad = [i for i in incidences if not 0 <= i < n_directions]
         if bad or not incidences:
-            axis = "theta_i" if kind == "fiber" else "incidence"
-            raise ConfigError(f"--incidences {','.join(map(str, incidences))}: indices along {axis} are 0 to "
-                              f"{n_directions - 1}")
+            raise ConfigError(f"--incidences {','.join(map(str, incidences))}: indices along {kind.directions_axis} "
+                              f"are 0 to {n_directions - 1}")
     if not (math.isfinite(decades) and decades > 0):
         raise ConfigError(f"--decades {decades}: must be a number > 0")
     if limits is not None and not (0 < limits[0] < limits[1] and math.isfinite(limits[1])):
@@ -78,8 +79,8 @@ def render_dataset(path: str | Path, out_dir: str | Path | None = None, *, plots
     if isinstance(max_images, bool) or not isinstance(max_images, int) or max_images < 1:
         raise ConfigError(f"--max-images {max_images}: must be an integer >= 1")
     with Dataset(path) as ds:  # opened and checked: its shapes are known
-        opts = _options(ds.kind, ds.h5[ds.main_variable].shape[len(ds.sweep_keys) + 1], plots, incidences, decades,
-                        limits, directions)
+        opts = _options(study_kind(ds.kind), ds.h5[ds.main_variable].shape[len(ds.sweep_keys) + 1], plots,
+                        incidences, decades, limits, directions)
         written = _render(ds, path, out_dir, opts, max_images)
     return written
 
@@ -107,7 +108,7 @@ def _render(ds: Dataset, path: Path, out_dir: Path, opts: PictureOptions, max_im
     _check_out_dir(out_dir)
     _remove_abandoned(out_dir)
     with ds.reading():
-        wanted = pictures(ds, opts)
+        wanted = pictures(ds, opts, study_kind(ds.kind).pictures)
         staging = out_dir.with_name(f".{out_dir.name}.{os.getpid()}.tmp")
         names = []
         try:
@@ -137,7 +138,7 @@ def _render(ds: Dataset, path: Path, out_dir: Path, opts: PictureOptions, max_im
 
 def add_render_flags(p: argparse.ArgumentParser) -> None:
     """``wavebrdf render``'s picture options (see :func:`render_dataset`)."""
-    kinds = sorted({k for ks in KINDS.values() for k in ks})
+    kinds = sorted({k for kind in STUDY_KINDS.values() for k in kind.pictures.KINDS})
 
     def listed(flag: str, convert):
         def parse(text: str):

@@ -25,7 +25,7 @@ def add_spot_checks(plan) -> None:
     tasks it decides at the checks that represent them (``Task.checks``, also in ``depends``)."""
     tasks = list(plan.tasks)
     for case, study in enumerate(plan.config.cases):
-        if study.is_fiber or not study.model.capabilities.spot_checks:
+        if not study.model.capabilities.spot_checks:
             continue
         decided = [t for t in tasks if t.case == case and t.kind in ("direct", "patch")]
         if len(decided) < 2:

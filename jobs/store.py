@@ -48,6 +48,7 @@ import os
 from contextlib import contextmanager
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import NamedTuple
 
 import h5py
 import numpy as np
@@ -63,6 +64,7 @@ __all__ = [
     "FORMAT_VERSION",
     "Dataset",
     "FiberDatasetWriter",
+    "LAYOUTS",
     "StoreError",
     "SurfaceDatasetWriter",
     "atomic_h5",
@@ -113,13 +115,28 @@ def not_a_dataset(path: Path) -> str | None:
     return None
 
 
-# kind: (main variable, its trailing dimensions, their letters, {other variable: its dimensions as
-# letters, "*" = the sweep dimensions, a digit = that size}); polarization holds strings, the rest numbers
+class Layout(NamedTuple):
+    """The variables a dataset of one kind (root attribute ``kind``) must hold: the main variable,
+    its trailing dimensions and their letters, {other variable: its dimensions as letters, "*" =
+    the sweep dimensions, a digit = that size} (polarization holds strings, the rest numbers); the
+    coordinates a reader lists after the sweep keys, and the xarray index ``to_xarray`` sets."""
+
+    main: str
+    trailing: tuple[str, ...]
+    letters: str
+    others: dict
+    coordinates: tuple[str, ...]
+    xarray_index: dict
+
+
 LAYOUTS = {
-    "surface": ("brdf", ("wavelength_um", "incidence", "u", "v"), "LIUV",
-                {"albedo": "*LI", "albedo_sp": "*LI2", "theta_i": "I", "phi_i": "I", "polarization": "2"}),
-    "fiber": ("bcsdf", ("wavelength_um", "theta_i", "phi_i", "phi_r"), "LTPR",
-              {"dCs_dphi": "*LT2PR", "C_ext": "*LT2P", "C_sca": "*LT2P", "C_abs": "*LT2P", "polarization": "2"}),
+    "surface": Layout("brdf", ("wavelength_um", "incidence", "u", "v"), "LIUV",
+                      {"albedo": "*LI", "albedo_sp": "*LI2", "theta_i": "I", "phi_i": "I", "polarization": "2"},
+                      ("wavelength_um", "incidence", "theta_i", "phi_i", "polarization", "u", "v"),
+                      {"incidence": ["theta_i", "phi_i"]}),
+    "fiber": Layout("bcsdf", ("wavelength_um", "theta_i", "phi_i", "phi_r"), "LTPR",
+                    {"dCs_dphi": "*LT2PR", "C_ext": "*LT2P", "C_sca": "*LT2P", "C_abs": "*LT2P", "polarization": "2"},
+                    ("wavelength_um", "theta_i", "phi_i", "phi_r", "polarization"), {}),
 }
 
 
@@ -585,47 +602,6 @@ class FiberDatasetWriter(_Writer):
         self.h5["phi_r_cdf"][where] = azimuthal_cdf(self.h5["bcsdf"][where]).astype(np.float32)
 
 
-def _case_indices(plan):
-    shape = plan.config.case_shape
-    return enumerate(np.ndindex(*shape) if shape else [()])
-
-
-def _surface_writer(h5, plan) -> SurfaceDatasetWriter:
-    study = plan.study
-    return SurfaceDatasetWriter(h5, plan.config.sweep_axes, plan.wavelengths_um, plan.directions_deg,
-                                plan.grid.resolution, study.illumination.polarization,
-                                study.output_options.per_polarization)
-
-
-def _fiber_writer(h5, plan) -> FiberDatasetWriter:
-    study = plan.study
-    return FiberDatasetWriter(h5, plan.config.sweep_axes, plan.wavelengths_um, np.array(study.illumination.theta_i_deg),
-                              plan.phi_i_axis_deg, plan.phi_r_axis_deg,
-                              phi_i_binned=study.illumination.phi_i_deg is None and plan.phi_i_bins > 1)
-
-
-def _write_case(writer, plan, case: int, case_index: tuple) -> None:
-    """Per-case data: the height field (or cross section), the material index, the steering layout."""
-    if plan.is_fiber:
-        section = plan.cross_section(case)
-        writer.write_case(case_index, str(case), section.nodes, section.width(np.deg2rad(plan.phi_i_axis_deg)),
-                          plan.index(case), plan.config.cases[case].fiber.longitudinal_variance)
-        return
-    surface = plan.surface(case)
-    writer.write_case(case_index, str(case), surface.z, surface.size_um, surface.statistics(), plan.index(case),
-                      surface.parameters, surface.ensemble)
-    if case in plan.steering:
-        writer.write_steering(case_index, plan.steering[case])
-
-
-def _task_row(plan, task) -> dict:
-    if plan.is_fiber:
-        return {"id": task.id, "kind": task.kind, "case": task.case, "wavelength_index": task.wavelength,
-                "theta_index": task.incidence}
-    return {"id": task.id, "kind": task.kind, "case": task.case, "wavelength_index": task.wavelength,
-            "incidence_index": task.incidence, "basic_index": task.basic, "patch": "x".join(map(str, task.patch))}
-
-
 def write_dataset(plan, parts, device: str, run_info: dict | None = None) -> Path:
     """Assemble the HDF5 dataset of ``plan`` from its finished ``parts`` (one writer, atomic rename).
 
@@ -634,19 +610,20 @@ def write_dataset(plan, parts, device: str, run_info: dict | None = None) -> Pat
     from wavebrdf.jobs.tasks import KINDS
 
     output = Path(plan.config.output)
+    kind = plan.study.kind  # the layout, the per-case data and the task rows of the study's kind
     with _guarded_h5(output) as (h5, guard):
-        writer = (_fiber_writer if plan.is_fiber else _surface_writer)(h5, plan)
+        writer = kind.writer(h5, plan)
         source = f"wavebrdf run {plan.config.path or '(config given as a dict)'}"
         writer.create(config_text=plan.config.text, study=plan.study.name, software_version=__version__,
                       device=device, source=source)
         h5.attrs["fingerprint"] = plan.fingerprint  # a re-run of the same plan is "up to date" (jobs/finished.py)
-        for case, case_index in _case_indices(plan):
-            _write_case(writer, plan, case, tuple(case_index))
+        for case, case_index in plan.config.case_indices():
+            kind.write_case(writer, plan, case, case_index)
         rows = []
         for task in plan.tasks:
             if guard.error is not None:  # the disk is full: stop; the file is removed
                 break
-            row = {**_task_row(plan, task), **(run_info or {}).get(task.id, {})}
+            row = {**kind.task_row(task), **(run_info or {}).get(task.id, {})}
             failure = parts.failure(task)
             if failure is not None or not parts.done(task):
                 rows.append({**row, "status": "failed", **(failure or {"error": "not run"})})
@@ -700,7 +677,8 @@ class Dataset:
                              f"{', '.join(map(str, READ_VERSIONS))}")
         if self.kind not in LAYOUTS:
             raise self._fail(f"has an unknown kind {self.kind!r} (known: {', '.join(LAYOUTS)})")
-        main, trailing, letters, others = LAYOUTS[self.kind]
+        layout = LAYOUTS[self.kind]
+        main, trailing, letters, others = layout.main, layout.trailing, layout.letters, layout.others
         for name in (main, *others, *trailing):
             if not isinstance(self._h5.get(name), h5py.Dataset):
                 raise self._fail(f"is not a complete wavebrdf dataset: variable {name!r} is missing")
@@ -764,7 +742,7 @@ class Dataset:
 
     @property
     def main_variable(self) -> str:
-        return "bcsdf" if self.kind == "fiber" else "brdf"
+        return LAYOUTS[self.kind].main
 
     @property
     def sweep_keys(self) -> list[str]:
@@ -780,12 +758,8 @@ class Dataset:
 
     @property
     def coords(self) -> dict[str, np.ndarray]:
-        if self.kind == "fiber":
-            names = self.sweep_keys + ["wavelength_um", "theta_i", "phi_i", "phi_r", "polarization"]
-        else:
-            names = self.sweep_keys + ["wavelength_um", "incidence", "theta_i", "phi_i", "polarization", "u", "v"]
         out = {}
-        for name in names:
+        for name in self.sweep_keys + list(LAYOUTS[self.kind].coordinates):
             data = self._h5[name][()]
             if data.dtype.kind == "O":
                 data = np.array([x.decode() if isinstance(x, bytes) else x for x in data])
@@ -831,7 +805,8 @@ class Dataset:
         import xarray as xr
 
         ds = xr.open_dataset(self.path, engine="h5netcdf")
-        return ds.set_index(incidence=["theta_i", "phi_i"]) if self.kind == "surface" else ds
+        index = LAYOUTS[self.kind].xarray_index
+        return ds.set_index(**index) if index else ds
 
     def __repr__(self) -> str:
         name = self.main_variable

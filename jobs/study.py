@@ -1,7 +1,8 @@
 """A validated study: the typed objects jobs/config.py makes of a config, which plan, tasks and
 store read. Paths are resolved, tables read and defaults that depend on other sections filled
 in; ``[steering]``, ``[run]`` and ``[output]`` are their sections' dataclasses
-(jobs/sections.py) as parsed. Each spec builds its solver object (``build()``).
+(jobs/sections.py) as parsed. The specs of ``[surface]`` and ``[fiber]`` are made from their
+sections (``from_section``) and build their solver objects (``build()``).
 """
 
 from __future__ import annotations
@@ -12,7 +13,10 @@ from typing import Any
 
 import numpy as np
 
-from wavebrdf.jobs.sections import OutputSection, RunSection, SteeringSection
+from wavebrdf.jobs.errors import ConfigError, exactly_one, fmt
+from wavebrdf.jobs.input_files import resolve_input_path
+from wavebrdf.jobs.sections import (FIBER_SHAPE_KEYS, FiberSection, OutputSection, RunSection, SteeringSection,
+                                    SurfaceSection, parse_generator)
 from wavebrdf.jobs.steering import GlobalSurface
 from wavebrdf.solver.materials import Material
 from wavebrdf.solver.models import get_model, model_class
@@ -31,6 +35,39 @@ class SurfaceSpec:
     cells: int | tuple[int, int]  # N, or (N_x, N_y)
     seed: int
     parameters: dict  # the generator's keys as given (converted)
+
+    @classmethod
+    def from_section(cls, s: SurfaceSection, generator_keys: dict, given: dict, base_dir: Path) -> "SurfaceSpec":
+        """[surface]: a file or a generator with its keys (``generator_keys``, as given; ``given``:
+        the section as the config gives it; relative paths against ``base_dir``)."""
+        exactly_one("surface", s, ("file", "generator"))
+        file, parameters = None, {}
+        size, cells = s.size_um, s.cells
+        if s.file is not None:
+            file = resolve_input_path(s.file, base_dir)
+            if generator_keys:
+                raise ConfigError(f"[surface] {next(iter(generator_keys))}: only used with a generator, not with "
+                                  "surface.file")
+            for key, why in (("cells", "the file's matrix of (N+1)×(N+1) heights gives N"),
+                             ("seed", "the heights are read, not drawn")):
+                if key in given:  # it would be ignored
+                    raise ConfigError(f"[surface] {key} = {fmt(given[key])} and file = {fmt(s.file)}: {key} would "
+                                      f"be ignored ({why}); remove {key}")
+        else:
+            parameters = parse_generator(s.generator, generator_keys)
+            if isinstance(size, tuple) or isinstance(cells, tuple):  # a rectangle: L_x/N_x = L_y/N_y
+                sides = size if isinstance(size, tuple) else (size, size)
+                counts = cells if isinstance(cells, tuple) else (cells, cells)
+                dx, dy = sides[0] / counts[0], sides[1] / counts[1]
+                if abs(dx - dy) > 1e-9 * max(dx, dy):
+                    raise ConfigError(f"[surface] size_um = {fmt(list(sides))}, cells = {fmt(list(counts))}: cells "
+                                      f"must be square (spacing {dx:.6g} µm along x, {dy:.6g} µm along y); for a "
+                                      "rectangle give both as [x, y] pairs with "
+                                      "size_um[0]/cells[0] = size_um[1]/cells[1]")
+                size, cells = (float(sides[0]), float(sides[1])), (int(counts[0]), int(counts[1]))
+                if counts[0] == counts[1]:
+                    size, cells = size[0], cells[0]
+        return cls(size, file, s.generator, cells, s.seed, parameters)
 
     @property
     def rectangular(self) -> bool:
@@ -101,6 +138,18 @@ class FiberSpec:
     rotation_deg: float
     longitudinal_variance: float = 0.02  # d'Eon's v (rad²), the dataset's default for M0
 
+    @classmethod
+    def from_section(cls, f: FiberSection, base_dir: Path) -> "FiberSpec":
+        """[fiber]: the keys its shape needs, and no other shape's (``points_file`` against ``base_dir``)."""
+        needed = FIBER_SHAPE_KEYS[f.shape]
+        for key in set(FIBER_SHAPE_KEYS.values()):
+            if key == needed and getattr(f, key) is None:
+                raise ConfigError(f"[fiber] {key}: required for shape = \"{f.shape}\"")
+            if key != needed and getattr(f, key) is not None:
+                raise ConfigError(f"[fiber] {key}: not used with shape = \"{f.shape}\" (it needs {needed})")
+        points = None if f.points_file is None else resolve_input_path(f.points_file, base_dir)
+        return cls(f.shape, f.radius_um, f.semi_axes_um, points, f.segments, f.rotation_deg, f.longitudinal_variance)
+
     @property
     def meshed(self) -> bool:
         """Its nodes are a mesh chosen for it (``segments``, or a polygon's own points), not the
@@ -142,24 +191,24 @@ class ModelSpec:
 
 @dataclass(frozen=True)
 class Study:
-    """One fully validated case of a study (one combination of the sweep values)."""
+    """One fully validated case of a study (one combination of the sweep values). ``kind``: its
+    :class:`~wavebrdf.jobs.study_kinds.StudyKind`, which everything that differs between surface
+    and fiber studies asks; ``surface`` or ``fiber``: the spec of the section that made it that kind
+    (the other is None)."""
 
     name: str
     output: Path
-    surface: SurfaceSpec | None
+    kind: Any  # a jobs/study_kinds.py StudyKind (that module imports this one)
     material: MaterialSpec
     illumination: IlluminationSpec
     model: ModelSpec
     output_options: OutputSection
     steering: SteeringSection | None
     run: RunSection
-    fiber: FiberSpec | None
     sections: dict = field(repr=False)  # every section's validated values (jobs/sections.py section_record)
     sweep_values: dict = field(default_factory=dict)  # {"surface.rms_height_um": 0.1, ...}
-
-    @property
-    def is_fiber(self) -> bool:
-        return self.fiber is not None
+    surface: SurfaceSpec | None = None
+    fiber: FiberSpec | None = None
 
 
 @dataclass(frozen=True)
@@ -182,3 +231,8 @@ class StudyConfig:
     @property
     def case_shape(self) -> tuple[int, ...]:
         return tuple(len(v) for v in self.sweep_axes.values())
+
+    def case_indices(self) -> list[tuple[int, tuple[int, ...]]]:
+        """(case, its index along the sweep axes) of every case, C order."""
+        shape = self.case_shape
+        return [(case, tuple(map(int, index))) for case, index in enumerate(np.ndindex(*shape) if shape else [()])]

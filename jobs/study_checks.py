@@ -1,7 +1,8 @@
 """The checks of a validated study that need its built objects, run at load so that a study that
 cannot run is refused before a task starts: the material's index at every wavelength (within a
-material file's rows), the height field's memory and contents, the model's own refusals at the
-hardest scenes, the fiber's cross section. Each refusal is a one-line ConfigError.
+material file's rows), then those of the study's kind (jobs/study_kinds.py): a surface's memory
+and contents (:func:`check_surface`), a fiber's cross section, and the model's own refusals at the
+hardest scenes (:func:`check_model`). Each refusal is a one-line ConfigError.
 """
 
 from __future__ import annotations
@@ -13,15 +14,13 @@ from wavebrdf.jobs.input_files import height_file_shape, input_file_problem
 from wavebrdf.jobs.study import Study
 from wavebrdf.solver.farfield import HemisphereGrid
 from wavebrdf.solver.materials import MaterialError
-from wavebrdf.solver.models import FiberScene, SurfaceScene
+from wavebrdf.solver.models import SurfaceScene
 from wavebrdf.solver.resources import meminfo_bytes
 from wavebrdf.solver.surface import SurfaceError
 
-__all__ = ["DEFAULT_PHI_I_BINS", "SURFACE_BYTES_PER_NODE", "check_study", "fiber_phi_i_bins", "fiber_scene",
-           "rectangle_outside_steering"]
+__all__ = ["SURFACE_BYTES_PER_NODE", "check_model", "check_study", "check_surface", "rectangle_outside_steering"]
 
 SURFACE_BYTES_PER_NODE = 96  # peak while a height field is built and analysed (measured: gaussian 90)
-DEFAULT_PHI_I_BINS = 72  # fiber tables of non-circular cross sections
 
 
 def rectangle_outside_steering(what: str) -> ConfigError:
@@ -32,8 +31,8 @@ def rectangle_outside_steering(what: str) -> ConfigError:
 
 
 def check_study(study: Study) -> None:
-    """Checks that need the built objects: material range, height matrix contents, the model's
-    own checks, the fiber's shape."""
+    """Checks that need the built objects: the material's range, then those of the study's kind
+    (``study.kind.check``: the height field or the cross section, and the model's own checks)."""
     try:
         material = study.material.build()
         if study.material.file is not None:
@@ -43,27 +42,44 @@ def check_study(study: Study) -> None:
         raise ConfigError(f"[material] {exc}") from None
     if np.any(np.imag(index) > 0):  # pragma: no cover - Material guarantees κ >= 0
         raise ConfigError("[material]: negative kappa (gain medium)")
-    if study.surface is not None:
-        _check_surface_size(study)
-        try:
-            surface = study.surface.build()
-        except SurfaceError as exc:
-            file = study.surface.file
-            where = f" (file = {fmt(str(file))})" if file is not None and str(file) not in str(exc) else ""
-            raise ConfigError(f"[surface] {exc}{where}") from None
-        if study.steering is None and study.surface.file is not None and surface.z.shape[0] != surface.z.shape[1]:
-            raise rectangle_outside_steering(f"file = {fmt(str(study.surface.file))} holds "
-                                             f"{surface.z.shape[0]}x{surface.z.shape[1]} heights")
-        if study.steering is None:
-            _check_model_scene(study, surface, index)
-    if study.fiber is not None:
-        from wavebrdf.solver.fiber import ShapeError
+    study.kind.check(study, index)
 
-        try:
-            section = study.fiber.build()
-        except (ShapeError, OSError) as exc:
-            raise ConfigError(f"[fiber] {exc}") from None
-        _check_model_fiber(study, section, index)
+
+def check_surface(study: Study, index) -> None:
+    """A surface study: the height field's memory and contents, a rectangle only under steering,
+    the model's own checks on whole-surface scenes (``index``: n − jκ at every wavelength)."""
+    _check_surface_size(study)
+    try:
+        surface = study.surface.build()
+    except SurfaceError as exc:
+        file = study.surface.file
+        where = f" (file = {fmt(str(file))})" if file is not None and str(file) not in str(exc) else ""
+        raise ConfigError(f"[surface] {exc}{where}") from None
+    if study.steering is None and study.surface.file is not None and surface.z.shape[0] != surface.z.shape[1]:
+        raise rectangle_outside_steering(f"file = {fmt(str(study.surface.file))} holds "
+                                         f"{surface.z.shape[0]}x{surface.z.shape[1]} heights")
+    if study.steering is None:
+        directions = np.deg2rad(np.asarray(study.illumination.directions_deg, dtype=float))
+        ill, grid = study.illumination, HemisphereGrid(study.output_options.resolution)
+        check_model(study, lambda w, d: SurfaceScene(
+            surface, float(ill.wavelengths_um[w]), complex(index[w]), float(directions[d, 0]),
+            float(directions[d, 1]), ill.waist_um, grid, study.material.exterior_index, ill.beam,
+            study.model.precision), directions[:, 0])
+
+
+def check_model(study: Study, scene, theta_i) -> None:
+    """The model's own checks (Model.check: its options and the sampling refusals) on ``scene(w,
+    d)`` at the case's shortest and longest wavelength ``w``, each with the first incident
+    direction ``d`` and the most oblique (largest |``theta_i``[d]|): the lattice and lobe limits are
+    hardest at short λ and large θ_i."""
+    lams = np.asarray(study.illumination.wavelengths_um, dtype=float)
+    model = study.model.build()
+    for w in sorted({int(np.argmin(lams)), int(np.argmax(lams))}):
+        for d in sorted({0, int(np.argmax(np.abs(theta_i)))}):
+            try:
+                model.check(scene(w, d))
+            except ValueError as exc:
+                raise ConfigError(str(exc)) from None
 
 
 def _check_file_range(study: Study, valid: tuple[float, float]) -> None:
@@ -103,67 +119,3 @@ def _check_surface_size(study: Study) -> None:
         raise fail("surface", key, value, f"{what} about {need / 2**30:.3g} GiB to build and analyse "
                    f"({SURFACE_BYTES_PER_NODE} bytes per node), more than the node's {budget / 2**30:.1f} GiB "
                    "([run] memory_gb)")
-
-
-def _check_model_scene(study: Study, surface, index) -> None:
-    """The model's own checks (Model.check: its options and the sampling refusals) at the case's
-    shortest and longest wavelength, each with the most oblique direction and the first one
-    (the lattice and lobe limits are hardest at short λ and large θ_i; ``index``: n − jκ at every
-    wavelength)."""
-    ill = study.illumination
-    lams = np.asarray(ill.wavelengths_um, dtype=float)
-    directions = np.deg2rad(np.asarray(ill.directions_deg, dtype=float))
-    model, grid = study.model.build(), HemisphereGrid(study.output_options.resolution)
-    for w in sorted({int(np.argmin(lams)), int(np.argmax(lams))}):
-        for d in sorted({0, int(np.argmax(directions[:, 0]))}):
-            theta, phi = directions[d]
-            scene = SurfaceScene(surface, float(lams[w]), complex(index[w]), float(theta), float(phi), ill.waist_um,
-                                 grid, study.material.exterior_index, ill.beam, study.model.precision)
-            try:
-                model.check(scene)
-            except ValueError as exc:
-                raise ConfigError(str(exc)) from None
-
-
-def _check_model_fiber(study: Study, section, index) -> None:
-    """The fiber model's own checks (Model.check: the cross section it needs) at the case's
-    shortest and longest wavelength, each with the first and the most oblique θ_i."""
-    ill = study.illumination
-    lams = np.asarray(ill.wavelengths_um, dtype=float)
-    thetas = np.deg2rad(np.asarray(ill.theta_i_deg, dtype=float))
-    model = study.model.build()
-    for w in sorted({int(np.argmin(lams)), int(np.argmax(lams))}):
-        for t in sorted({0, int(np.argmax(np.abs(thetas)))}):
-            try:
-                model.check(fiber_scene(study, section, w, float(thetas[t]), complex(index[w])))
-            except ValueError as exc:
-                raise ConfigError(str(exc)) from None
-
-
-def fiber_phi_i_bins(study: Study) -> int:
-    """Fiber tables: the number of φ_i bins (ignored when explicit φ_i samples are given):
-    ``[output] phi_i_bins``, else 1 for circles (rotation invariant), :data:`DEFAULT_PHI_I_BINS`
-    otherwise."""
-    if study.output_options.phi_i_bins is not None:
-        return study.output_options.phi_i_bins
-    return 1 if study.fiber.shape == "circle" else DEFAULT_PHI_I_BINS
-
-
-def fiber_scene(study: Study, section, wavelength: int, theta_i: float, index: complex) -> FiberScene:
-    """The scene of ``study``'s fiber (cross section ``section``) at wavelength number
-    ``wavelength`` and θ_i (radians), every φ_i at once."""
-    explicit = study.illumination.phi_i_deg
-    spec = study.fiber
-    return FiberScene(
-        cross_section=section,
-        wavelength_um=study.illumination.wavelengths_um[wavelength],
-        index=index,
-        theta_i=theta_i,
-        phi_i=None if explicit is None else tuple(np.deg2rad(explicit)),
-        phi_i_bins=fiber_phi_i_bins(study),
-        phi_r_bins=study.output_options.phi_r_bins,
-        radius_um=spec.radius_um if spec.shape == "circle" else None,
-        precision=study.model.precision,
-        shape=spec.shape,
-        meshed=spec.meshed,
-    )

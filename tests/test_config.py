@@ -241,3 +241,33 @@ def test_model_options_in_their_own_table(tmp_path):
         parse_config(twice)
     with pytest.raises(ConfigError, match=r'\[model\] method = "fast": must be one of "dense", "aim"'):
         parse_config(text.replace('method = "aim"', 'method = "fast"'))
+
+
+def test_every_study_kind_is_complete():
+    """A study kind names its config section, its dataset layout, its pictures and its plugin; the
+    [illumination] keys that only one kind reads belong to no other; a config's kind is the one
+    whose section it gives, and its study, plan and dataset carry it."""
+    from wavebrdf.jobs.overrides import dict_config_text
+    from wavebrdf.jobs.plan import plan_study
+    from wavebrdf.jobs.sections import SECTIONS
+    from wavebrdf.jobs.store import LAYOUTS
+    from wavebrdf.jobs.study_kinds import STUDY_KINDS, study_kind
+    from wavebrdf.solver.models import Capabilities
+
+    owners = {}
+    for name, kind in STUDY_KINDS.items():
+        assert kind.name == name and study_kind(name) is kind
+        assert kind.section in SECTIONS and name in LAYOUTS and kind.plugin.startswith("wavebrdf")
+        assert set(kind.model_inputs) <= set(Capabilities.INPUTS) and kind.scenes
+        assert set(kind.pictures.KINDS) >= {k for k, _, _ in (*kind.pictures.PER_CASE, *kind.pictures.PER_DIRECTION)}
+        assert set(kind.required_illumination) <= set(kind.illumination_keys) | {"wavelengths_um"}
+        for key in kind.illumination_keys:
+            assert owners.setdefault(key, name) == name, f"{key} read by {owners[key]} and {name}"
+    with pytest.raises(KeyError, match="unknown study kind 'sphere'"):
+        study_kind("sphere")
+    fiber = {"fiber": {"shape": "circle", "radius_um": 1.0}, "material": {"n": 1.5},
+             "illumination": {"wavelengths_um": [0.5], "theta_i_deg": [0]}, "model": {"name": "mie"}}
+    config = parse_config(dict_config_text(fiber))
+    plan = plan_study(config)
+    assert config.cases[0].kind is STUDY_KINDS["fiber"] and [t.kind for t in plan.tasks] == ["fiber"]
+    assert config.cases[0].surface is None and config.cases[0].fiber.shape == "circle"

@@ -12,6 +12,7 @@ import pytest
 import wavebrdf
 from wavebrdf.jobs.cli import main
 from wavebrdf.jobs.pictures import PictureOptions, pictures
+from wavebrdf.jobs.pictures import surface as surface_pictures
 from wavebrdf.jobs.pictures.surface import direction_values, in_plane, specular_uv
 from wavebrdf.jobs.render import render_dataset
 
@@ -77,7 +78,7 @@ def test_every_kind_is_written_with_its_name(datasets, tmp_path):
 
 def test_hemisphere_is_round_with_a_log_scale_in_units(datasets):
     with wavebrdf.open(datasets["surface"]) as ds:
-        picture = [p for p in pictures(ds, PictureOptions(("maps",))) if p.suffix == "_inc1"][0]
+        picture = [p for p in pictures(ds, PictureOptions(("maps",)), surface_pictures) if p.suffix == "_inc1"][0]
         fig = picture.draw()
     image, bar = fig.axes
     assert image.get_aspect() == 1.0 and image.get_xlim() == image.get_ylim()  # the horizon is a circle

@@ -1,5 +1,6 @@
 """Pictures of datasets (``wavebrdf render``): what each kind shows is in jobs/pictures/surface.py
-and jobs/pictures/fiber.py; jobs/render.py writes them."""
+and jobs/pictures/fiber.py (a study kind's ``pictures``, jobs/study_kinds.py); jobs/render.py
+writes them."""
 
 from __future__ import annotations
 
@@ -7,12 +8,9 @@ from functools import partial
 
 import numpy as np
 
-from wavebrdf.jobs.pictures import fiber, surface
 from wavebrdf.jobs.pictures.common import DECADES, Picture, PictureOptions
 
-__all__ = ["DECADES", "KINDS", "Picture", "PictureOptions", "pictures"]
-
-KINDS = {"surface": surface.KINDS, "fiber": fiber.KINDS}
+__all__ = ["DECADES", "Picture", "PictureOptions", "pictures"]
 
 
 def _cases(ds):
@@ -23,11 +21,11 @@ def _cases(ds):
         yield index, flat, ", ".join(f"{k}={coords[k][i]}" for k, i in zip(keys, index))
 
 
-def pictures(ds, opts: PictureOptions) -> list[Picture]:
-    """Every picture ``opts`` asks for of open dataset ``ds`` (drawn later, one at a time): the
-    per-case kinds of every case first, then the per-direction kinds of every (case, direction) —
-    the order a cap on their number keeps."""
-    module = fiber if ds.kind == "fiber" else surface
+def pictures(ds, opts: PictureOptions, module) -> list[Picture]:
+    """Every picture ``opts`` asks for of open dataset ``ds`` (drawn later, one at a time), as the
+    pictures ``module`` of its kind draws them (jobs/pictures/surface.py, fiber.py): the per-case
+    kinds of every case first, then the per-direction kinds of every (case, direction) — the order
+    a cap on their number keeps."""
     n_directions = ds.h5[ds.main_variable].shape[len(ds.sweep_keys) + 1]
     directions = range(n_directions) if opts.incidences is None else opts.incidences
     cases = [module.Case(ds, *case) for case in _cases(ds)]

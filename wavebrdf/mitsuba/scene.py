@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from wavebrdf.jobs.store import Dataset
+from wavebrdf.jobs.study_kinds import STUDY_KINDS, study_kind
 from wavebrdf.mitsuba.bsdfs import fiber_radius, fiber_tables_for, register, tables_for
 from wavebrdf.mitsuba.fiber_scene import GEOMETRIC_RADIUS, write_fiber_wisp
 
@@ -148,16 +149,28 @@ def render_scene(dataset, scene: str = "sphere", out: str | Path | None = None, 
     register()
     channels = "spectral" if "spectral" in variant else "mono" if "mono" in variant else "rgb"
     start = time.perf_counter()
-    if scene == "fibers" or _is_fiber(dataset):
-        return _render_fibers(dataset, scene, out, spp=spp, resolution=resolution, channels=channels, case=case,
-                              env=env, seed=seed, exposure=exposure, tonemap=tonemap, start=start, variant=variant)
+    with Dataset(dataset) as ds:
+        kind = study_kind(ds.kind)
+    shows = next((k for k in STUDY_KINDS.values() if scene in k.scenes), kind)  # another: scene_dict names them
+    if shows is not kind:
+        raise ValueError(f"{dataset}: scene = {scene!r} needs a {shows.name} dataset (fiber datasets render with "
+                         "--scene fibers)")
+    return _RENDER[kind.plugin](dataset, scene, out, spp=spp, resolution=resolution, channels=channels, case=case,
+                                env=env, seed=seed, exposure=exposure, tonemap=tonemap, start=start, variant=variant,
+                                smooth_sigma=smooth_sigma)
+
+
+def _render_surface(dataset, scene, out, *, spp, resolution, channels, case, env, seed, exposure, tonemap, start,
+                    variant, smooth_sigma) -> dict:
+    """A "sphere" or "plate" scene with the ``"wavebrdf"`` BSDF."""
+    import mitsuba as mi
+
     tables = tables_for(dataset, channels=channels, case=case, smooth_sigma=smooth_sigma)
     bsdf = {"type": "wavebrdf", "filename": str(dataset), "case": int(case)}
     if smooth_sigma is not None:
         bsdf["smooth_sigma"] = float(smooth_sigma)
     scn = mi.load_dict(scene_dict(bsdf, scene=scene, resolution=resolution, spp=spp, env=env, seed=seed))
     load_s = time.perf_counter() - start
-    start = time.perf_counter()
     return _finish(scn, dataset, scene, out, exposure, tonemap, variant, load_s, tables.diagnostics)
 
 
@@ -176,13 +189,8 @@ def _finish(scn, dataset, scene, out, exposure, tonemap, variant, load_s, diagno
             "diagnostics": diagnostics}
 
 
-def _is_fiber(dataset) -> bool:
-    with Dataset(dataset) as ds:
-        return ds.kind == "fiber"
-
-
 def _render_fibers(dataset, scene, out, *, spp, resolution, channels, case, env, seed, exposure, tonemap, start,
-                   variant) -> dict:
+                   variant, smooth_sigma=None) -> dict:
     """The "fibers" scene: a wisp of B-spline fibers with the ``"wavebrdf_fiber"`` BSDF (the
     curves' radius is the dataset's bounding width, :func:`wavebrdf.mitsuba.fiber_radius`), lit
     by the environment, which camera rays do not show (black background)."""
@@ -190,9 +198,6 @@ def _render_fibers(dataset, scene, out, *, spp, resolution, channels, case, env,
 
     import mitsuba as mi
 
-    if scene != "fibers" or not _is_fiber(dataset):
-        raise ValueError(f"{dataset}: scene = {scene!r} needs a {'fiber' if scene == 'fibers' else 'surface'} "
-                         "dataset (fiber datasets render with --scene fibers)")
     tables = fiber_tables_for(dataset, channels=channels, case=case)
     bsdf = {"type": "wavebrdf_fiber", "filename": str(dataset), "case": int(case)}
     with tempfile.TemporaryDirectory() as tmp:
@@ -201,3 +206,6 @@ def _render_fibers(dataset, scene, out, *, spp, resolution, channels, case, env,
                                       curves=curves, hide_emitters=True))  # thin fibers read best on black
     load_s = time.perf_counter() - start
     return _finish(scn, dataset, scene, out, exposure, tonemap, variant, load_s, tables.diagnostics)
+
+
+_RENDER = {"wavebrdf": _render_surface, "wavebrdf_fiber": _render_fibers}  # the renderer of each kind's plugin

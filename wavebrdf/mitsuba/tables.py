@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from wavebrdf.jobs.store import Dataset
+from wavebrdf.jobs.study_kinds import STUDY_KINDS, study_kind
 from wavebrdf.solver.spectrum import spectral_weights, xyz_to_linear_srgb
 from wavebrdf.solver.surface import GENERATORS, SurfaceError
 
@@ -115,21 +116,19 @@ def isotropy_from_config(config_text: str) -> tuple[bool, str]:
     return isotropic, f"config: {chosen.name} surface {'statistically isotropic' if isotropic else 'not isotropic'}"
 
 
-PLUGINS = {"surface": "wavebrdf", "fiber": "wavebrdf_fiber"}
-
-
 def open_for_plugin(path, kind: str, channels: str) -> Dataset:
-    """Open ``path`` for the plugin of datasets of ``kind`` ("surface" or "fiber"), checking the
-    channel kind and the dataset kind (messages name the plugin and the property)."""
-    plugin = PLUGINS[kind]
+    """Open ``path`` for the plugin of datasets of ``kind`` ("surface" or "fiber"; the study kind's
+    ``plugin``), checking the channel kind and the dataset kind (messages name the plugin and the
+    property)."""
+    plugin = study_kind(kind).plugin
     if channels not in CHANNELS:
         raise ValueError(f"[{plugin} plugin] channels = {channels!r}: expected one of {', '.join(CHANNELS)}")
     ds = Dataset(path)
     if ds.kind != kind:
         ds.close()
-        other = "fiber" if kind == "surface" else "surface"
+        others = "; ".join(f'{k.name}s: "{k.plugin}"' for k in STUDY_KINDS.values() if k.name != kind)
         raise ValueError(f"[{plugin} plugin] filename = {str(path)!r}: a {ds.kind} dataset; the \"{plugin}\" "
-                         f"plugin reads {kind} datasets ({other}s: \"{PLUGINS[other]}\")")
+                         f"plugin reads {kind} datasets ({others})")
     return ds
 
 
