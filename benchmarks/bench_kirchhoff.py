@@ -21,6 +21,7 @@ from timing import best_of
 from wavebrdf.solver.approx.kirchhoff import kirchhoff_farfield, kirchhoff_farfield_numpy
 from wavebrdf.solver.farfield import HemisphereGrid
 from wavebrdf.solver.opencl import create_context
+from wavebrdf.solver.precision import Precision
 from wavebrdf.solver.surface import generate
 
 
@@ -39,7 +40,7 @@ def main() -> None:
     kirchhoff_farfield(ctx, *run_args, waist_um=2.5)  # warm-up: kernel build
     t_cl, ff_cl = best_of(args.repeat, lambda: kirchhoff_farfield(ctx, *run_args, waist_um=2.5))
     t_np, ff_np = best_of(max(1, args.repeat - 1), lambda: kirchhoff_farfield_numpy(*run_args, waist_um=2.5))
-    t_sp, ff_sp = best_of(args.repeat, lambda: kirchhoff_farfield(ctx, *run_args, waist_um=2.5, precision="single"))
+    t_sp, ff_sp = best_of(args.repeat, lambda: kirchhoff_farfield(ctx, *run_args, waist_um=2.5, precision=Precision.SINGLE))
     err = np.abs(ff_cl.E - ff_np.E).max() / np.abs(ff_np.E).max()
     b_d, b_s = ff_cl.brdf(), ff_sp.brdf()
     err_single = np.sqrt(np.nansum((b_s - b_d) ** 2) / np.nansum(b_d**2))

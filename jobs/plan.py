@@ -128,7 +128,7 @@ class Plan:
     @property
     def needs_fp64(self) -> bool:
         """Whether a case runs at [model] precision = "double" (the device needs cl_khr_fp64)."""
-        return any(case.model.precision == "double" for case in self.config.cases)
+        return any(case.model.precision.fp64 for case in self.config.cases)
 
     def cross_section(self, case: int):
         """The fiber cross section of ``case``, built once."""

@@ -4,7 +4,7 @@ Every section is parsed by the options mechanism of solver/options.py (types, ph
 their units, choices, rows, the nearest valid key), so each refusal is one line
 ``[section] key = value: problem`` (a :class:`~wavebrdf.jobs.errors.ConfigError`). The choices
 are read from where each concept lives: generators (solver/surface.py), beams (solver/beams.py),
-polarizations (solver/farfield.py), precisions (solver/opencl.py), executors
+polarizations (solver/farfield.py), precisions (solver/precision.py), executors
 (jobs/executors.py). Keys of ``[surface]`` beyond its own belong to its generator, checked by
 the generator's options dataclass (:func:`parse_generator`); those of ``[model]`` and
 ``[compare]`` to models (jobs/config.py). Checks across sections (a fiber study takes no
@@ -27,9 +27,9 @@ from wavebrdf.solver.beams import BEAMS
 from wavebrdf.solver.farfield import POLARIZATION_MODES
 from wavebrdf.solver.materials import INDEX_COLUMNS, INDEX_KAPPA, INDEX_N
 from wavebrdf.solver.models import model_names
-from wavebrdf.solver.opencl import PRECISIONS
 from wavebrdf.solver.options import (ANGLE_DEG, LENGTH_UM, WAVELENGTH_UM, Limits, OptionField, OptionsError, option,
                                      option_fields, parse_open_options, parse_options)
+from wavebrdf.solver.precision import PRECISIONS, Precision
 from wavebrdf.solver.surface import GENERATORS, SurfaceError
 
 __all__ = [
@@ -135,7 +135,8 @@ class ModelSection:
     """The model; its own options are the other keys (and [model.<name>])."""
 
     name: str = option(None, required=True, doc="a registered model (wavebrdf models)")
-    precision: str = option("double", choices=PRECISIONS)
+    precision: Precision = option(Precision.DOUBLE, choices=PRECISIONS, parse=Precision.of,
+                                  doc="kernels and FFTs (the task's one precision, solver/precision.py)")
 
 
 @dataclass(frozen=True)

@@ -20,6 +20,7 @@ from wavebrdf.jobs.sections import (FIBER_SHAPE_KEYS, FiberSection, OutputSectio
 from wavebrdf.jobs.steering import GlobalSurface
 from wavebrdf.solver.materials import Material
 from wavebrdf.solver.models import get_model, model_class
+from wavebrdf.solver.precision import Precision
 from wavebrdf.solver.surface import HeightField, SurfaceError, generate, load_heights
 
 __all__ = ["FiberSpec", "IlluminationSpec", "MaterialSpec", "ModelSpec", "Study", "StudyConfig", "SurfaceSpec"]
@@ -174,10 +175,11 @@ class FiberSpec:
 
 @dataclass(frozen=True)
 class ModelSpec:
-    """The model of a study: its registry name, precision and parsed Options dataclass."""
+    """The model of a study: its registry name, the precision of its tasks (resolved once, from
+    ``[model] precision``) and its parsed Options dataclass."""
 
     name: str
-    precision: str
+    precision: Precision
     options: Any = None
 
     def build(self):

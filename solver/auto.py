@@ -52,6 +52,7 @@ import numpy as np
 from wavebrdf.solver.models import (Capabilities, Estimate, Model, ModelsWith, SurfaceScene, get_model, model_class,
                                     model_names, rungs)
 from wavebrdf.solver.options import option
+from wavebrdf.solver.precision import Precision
 
 __all__ = ["AutoModel", "CheckUnit", "Choice", "Rule", "SceneFeatures", "ToleranceWarning", "choose", "measure_scene",
            "select_spot_checks", "TRADE_TABLE"]
@@ -117,7 +118,7 @@ def measure_scene(scene: SurfaceScene) -> SceneFeatures:
     stats = scene.surface.statistics()
     lam = scene.wavelength_um / scene.exterior_index
     correlation = np.nanmin([stats["correlation_length_x_um"], stats["correlation_length_y_um"], np.inf])
-    double = scene if scene.precision == "double" else dataclasses.replace(scene, precision="double")
+    double = scene if scene.precision.fp64 else dataclasses.replace(scene, precision=Precision.DOUBLE)
     trace = trace_paths(None, double, rays=PILOT_RAYS, max_depth=16, keep=False)  # the NumPy twin is double
     escaped = trace.escaped_by_depth.mean(axis=0)
     multi = float(escaped[2:].sum() / escaped.sum()) if escaped.sum() > 0 else 0.0

@@ -36,6 +36,7 @@ import numpy as np
 
 from wavebrdf.solver.farfield import HemisphereGrid
 from wavebrdf.solver.options import NoOptions, parse_options
+from wavebrdf.solver.precision import Precision
 from wavebrdf.solver.surface import HeightField
 from wavebrdf.solver.validity import ValidityWarning, check_sampling
 
@@ -108,7 +109,8 @@ class SurfaceScene:
     Angles in radians; θ_i, φ_i give the direction toward the light. ``index`` is n − jκ of the
     material below the surface at this wavelength. ``z_reference`` is the phase-reference height
     (None: the surface mean; sub-area patches pass the global mean). ``footprint_centre_um`` is
-    the beam centre in patch coordinates. ``precision``: "double" | "single" (kernels and FFTs).
+    the beam centre in patch coordinates. ``precision``: the task's :class:`~wavebrdf.solver.precision.Precision`
+    (kernels and FFTs; given as its word it is typed here, once).
     ``memory_budget_bytes``: the memory one task may use ([run] memory_gb or the node's, over the
     tasks at once; None: not limited), which models that can trade time for memory fit.
     ``coherent``: the result must be a coherent FarField (a steered sub-area, summed with others).
@@ -123,11 +125,14 @@ class SurfaceScene:
     grid: HemisphereGrid
     exterior_index: float = 1.0
     beam: str = "exact"
-    precision: str = "double"
+    precision: Precision = Precision.DOUBLE
     z_reference: float | None = None
     footprint_centre_um: tuple[float, float] = (0.0, 0.0)
     memory_budget_bytes: float | None = None
     coherent: bool = False
+
+    def __post_init__(self):
+        object.__setattr__(self, "precision", Precision(self.precision))
 
 
 @dataclass(frozen=True)
@@ -141,6 +146,7 @@ class FiberScene:
     ``shape``: what the cross section was made from (``[fiber] shape``: "circle", "ellipse",
     "polygon"); ``meshed``: its nodes are a mesh chosen for it (``[fiber] segments``, or a polygon's
     own points), not an outline of a smooth shape (360 nodes) that models needing no mesh read.
+    ``precision`` as for surface scenes.
     """
 
     cross_section: object
@@ -151,9 +157,12 @@ class FiberScene:
     phi_i_bins: int
     phi_r_bins: int
     radius_um: float | None = None
-    precision: str = "double"
+    precision: Precision = Precision.DOUBLE
     shape: str = "polygon"
     meshed: bool = True
+
+    def __post_init__(self):
+        object.__setattr__(self, "precision", Precision(self.precision))
 
 
 @dataclass

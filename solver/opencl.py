@@ -29,6 +29,7 @@ import numpy as np
 
 from wavebrdf.kernels import load_source, source_hash
 from wavebrdf.solver.kernel_cache import LockedKernel, build_lock
+from wavebrdf.solver.precision import Precision
 from wavebrdf.solver.progress import silent
 
 logger = logging.getLogger(__name__)
@@ -42,7 +43,6 @@ __all__ = [
     "list_devices",
 ]
 
-PRECISIONS = ("double", "single")
 FFT_WORKERS_ENV = "WAVEBRDF_FFT_WORKERS"  # the batch layer sets it per worker (jobs/scheduler.py)
 
 
@@ -244,17 +244,17 @@ class ComputeContext:
         """Threads for this process's host FFTs (:func:`fft_workers`)."""
         return fft_workers()
 
-    def vector_lanes(self, precision: str = "double") -> int:
+    def vector_lanes(self, precision: Precision = Precision.DOUBLE) -> int:
         """Items per work-item (``WB_VW``): 256-bit SIMD vectors on CPUs (4 doubles, 8 floats), 1 on
         GPUs, where work-items are the lanes."""
         if self.is_gpu:
             return 1
-        return 4 if self.real_dtype(precision) == np.float64 else 8
+        return 4 if precision.fp64 else 8
 
-    def defines(self, precision: str = "double", *, lanes: int | None = None, **extra) -> dict:
+    def defines(self, precision: Precision = Precision.DOUBLE, *, lanes: int | None = None, **extra) -> dict:
         """Kernel build defines for ``precision`` (``WB_FP64``) and, when ``lanes`` is given,
         ``WB_VW``; ``extra`` are added as they are."""
-        out = {"WB_FP64": int(self.real_dtype(precision) == np.float64)}
+        out = {"WB_FP64": int(precision.fp64)}
         if lanes is not None:
             out["WB_VW"] = int(lanes)
         out.update(extra)
@@ -314,21 +314,9 @@ class ComputeContext:
             return
         cl.enqueue_copy(self.queue, array, buffer)
 
-    def real_dtype(self, precision: str = "double") -> np.dtype:
-        """float64 or float32 for ``precision`` ("double" | "single"), checking fp64 support."""
-        if precision not in PRECISIONS:
-            raise ValueError(f"precision must be 'double' or 'single', got {precision!r}")
-        if precision == "double" and not self.fp64:
-            raise OpenCLUnavailable(
-                f"device {self.describe()} has no double precision (cl_khr_fp64), which these kernels "
-                "need (every model at [model] precision = \"double\"; the full-wave BEM's assembly at "
-                "any precision): choose another device with WAVEBRDF_DEVICE ('wavebrdf devices' lists "
-                "fp64), or precision = \"single\" for the approximate models"
-            )
-        return np.dtype(np.float64 if precision == "double" else np.float32)
-
     def program(self, source: str, defines: Mapping[str, Any] | None = None):
-        """Build (once) and return the program of ``kernels/<source>`` with ``defines``."""
+        """Build (once) and return the program of ``kernels/<source>`` with ``defines``; a
+        double-precision build (``WB_FP64`` = 1) on a device without cl_khr_fp64 is refused."""
         cl = _import_cl()
         text = load_source(source)
         digest = source_hash(text)
@@ -336,6 +324,13 @@ class ComputeContext:
         key = (source, digest, items)
         prog = self._programs.get(key)
         if prog is None:
+            if ("WB_FP64", "1") in items and not self.fp64:
+                raise OpenCLUnavailable(
+                    f"device {self.describe()} has no double precision (cl_khr_fp64), which these kernels "
+                    "need (every model at [model] precision = \"double\"; the full-wave BEM's assembly at "
+                    "any precision): choose another device with WAVEBRDF_DEVICE ('wavebrdf devices' lists "
+                    "fp64), or precision = \"single\" for the approximate models"
+                )
             options = [f"-DWB_SOURCE_HASH={digest}"] + [f"-D{k}={v}" for k, v in items]
             t0 = time.perf_counter()
             with warnings.catch_warnings(), build_lock(digest, " ".join(options), self.describe()):

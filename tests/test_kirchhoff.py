@@ -19,6 +19,7 @@ from wavebrdf.solver.farfield import HemisphereGrid, albedo
 from wavebrdf.solver.fresnel import fresnel_reflectance, fresnel_rs_rp
 from references import ALUMINIUM_400NM
 from references import fresnel_reflectance as reference_fresnel
+from wavebrdf.solver.precision import Precision
 from wavebrdf.solver.surface import HeightField, generate
 
 logger = logging.getLogger(__name__)
@@ -159,7 +160,7 @@ def test_single_precision_close_to_double(cl_ctx):
     grid = HemisphereGrid(64)
     args = (cl_ctx, surface, 0.5, 1.5, 0.3, 0.2, grid)
     dbl = kirchhoff_farfield(*args, waist_um=1.4).brdf()
-    sgl = kirchhoff_farfield(*args, waist_um=1.4, precision="single").brdf()
+    sgl = kirchhoff_farfield(*args, waist_um=1.4, precision=Precision.SINGLE).brdf()
     rel_l2 = np.sqrt(np.nansum((sgl - dbl) ** 2) / np.nansum(dbl**2))
     logger.info("single vs double relative L2: %.3g", rel_l2)
     assert 0 < rel_l2 < 1e-4

@@ -88,9 +88,10 @@ def _fiber(ctx):
 
 def _hankel(ctx, precision="double"):
     from wavebrdf.solver.fiber.hankel import hankel2_01_cl
+    from wavebrdf.solver.precision import Precision
 
     z = np.concatenate([np.linspace(0.01, 30.0, 40), np.linspace(0.5, 20.0, 24) * (1 - 0.3j)])
-    h0, h1 = hankel2_01_cl(ctx, z, precision)
+    h0, h1 = hankel2_01_cl(ctx, z, Precision(precision))
     return {"h0": h0, "h1": h1}
 
 

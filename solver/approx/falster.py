@@ -56,6 +56,7 @@ from wavebrdf.solver.footprint import incident_basis
 from wavebrdf.solver.fresnel import fresnel_rs_rp
 from wavebrdf.solver.models import Capabilities, Estimate, Model, SurfaceScene
 from wavebrdf.solver.options import option
+from wavebrdf.solver.precision import Precision
 from wavebrdf.solver.validity import check_waist
 
 __all__ = ["WMModel", "WMOptions", "WSVModel", "WSVOptions", "masking_blocks", "wsv_farfield"]
@@ -127,7 +128,7 @@ def _apertures(setup: KirchhoffSetup, slopes: np.ndarray, lit: np.ndarray, omega
     return out.reshape(2 * APERTURES, *hx.shape)
 
 
-def _transform(ctx, setup: KirchhoffSetup, windows: np.ndarray, precision: str) -> np.ndarray:
+def _transform(ctx, setup: KirchhoffSetup, windows: np.ndarray, precision: Precision) -> np.ndarray:
     """The transforms of ``windows`` on the pixels, chirp-z post factors and the reference-height
     phase applied, shape (channels, res, res)."""
     grid = setup.grid
@@ -138,7 +139,7 @@ def _transform(ctx, setup: KirchhoffSetup, windows: np.ndarray, precision: str) 
 
         buffers, _ = chebyshev_transform(ctx, setup, windows, precision)
         res = grid.resolution
-        cplx = np.complex128 if ctx.real_dtype(precision) == np.float64 else np.complex64
+        cplx = precision.complex
         out = np.empty((len(buffers), res, res), dtype=cplx)
         for c, buf in enumerate(buffers):
             cl.enqueue_copy(ctx.queue, out[c].reshape(-1), buf)
@@ -148,7 +149,7 @@ def _transform(ctx, setup: KirchhoffSetup, windows: np.ndarray, precision: str) 
 
 
 def _masked_sums(ctx, setup: KirchhoffSetup, apertures: np.ndarray, block: np.ndarray, masked: list,
-                 surface, omega_i: np.ndarray, precision: str) -> np.ndarray:
+                 surface, omega_i: np.ndarray, precision: Precision) -> np.ndarray:
     """Σ over the nodes masked for each pixel's class of aperture × e^{+jk[s·x + (μ_i+μ_o) z]}
     (z about the mid-height), shape (8, res, res) (kernels/falster.cl; ``ctx`` None: NumPy)."""
     grid = setup.grid
@@ -172,7 +173,7 @@ def _masked_sums(ctx, setup: KirchhoffSetup, apertures: np.ndarray, block: np.nd
         return out
     import pyopencl as cl
 
-    real = ctx.real_dtype(precision)
+    real = precision.real
     cplx = np.dtype(np.complex128 if real == np.float64 else np.complex64)
     starts = np.concatenate([[0], np.cumsum([m.size for m in masked])]).astype(np.int32)
     nodes = np.concatenate(masked).astype(np.int32)
@@ -195,7 +196,7 @@ def wsv_farfield(ctx, scene: SurfaceScene, masking: str = "rays", masking_classe
     t0 = time.perf_counter()
     check_incidence(scene.theta_i, scene.index)
     precision = scene.precision
-    if ctx is None and precision != "double":
+    if ctx is None and not precision.fp64:
         raise ValueError(f"the NumPy reference runs in double precision only, got precision = {precision!r}")
     setup = KirchhoffSetup.from_scene(scene)
     surface, grid = scene.surface, scene.grid
@@ -265,7 +266,7 @@ def _wsv_estimate(scene: SurfaceScene, options) -> Estimate:
     terms = share * nodes**2 * res * res
     seconds += 5e-7 * rays + 2e-8 * terms
     held, largest = chebyshev_device_bytes(nodes, res, orders, channels=2 * APERTURES, precision=scene.precision)
-    item = 16.0 if scene.precision == "double" else 8.0
+    item = float(scene.precision.complex.itemsize)
     masked = item * 2 * APERTURES * max(nodes**2, res * res)  # the apertures, the masked sums: one buffer each
     return Estimate(memory, seconds, f"{orders} Chebyshev orders × 8 apertures, {rays:.3g} visibility rays, "
                                      f"~{terms:.3g} masked-node terms", device_bytes=held + 2 * masked,

@@ -136,7 +136,7 @@ class GSModel(Model):
         # measured on PoCL (2 cores, shared): ~0.3 µs per ray (origin, reflection, records, weights,
         # binning) + ~50 ns per cell crossed, plus set-up (surface, pixel table, shadowing rays)
         seconds = 0.3 + 5e-8 * steps + 3e-7 * rays + 1e-7 * n * n
-        real = np.dtype(np.float64 if scene.precision == "double" else np.float32)
+        real = scene.precision.real
         kept = rays * RAY_BYTES + rays * bounces * RECORD_BYTES[real]
         if kept > self.options.keep_mb * 2**20:
             kept = 0.0

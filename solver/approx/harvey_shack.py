@@ -81,6 +81,7 @@ from wavebrdf.solver.farfield import FarField, HemisphereGrid
 from wavebrdf.solver.fresnel import fresnel_rs_rp
 from wavebrdf.solver.models import Capabilities, Estimate, SurfaceScene
 from wavebrdf.solver.options import option
+from wavebrdf.solver.precision import Precision
 from wavebrdf.solver.validity import check_evanescent_loss, check_waist
 
 __all__ = [
@@ -141,7 +142,7 @@ class SGrid:
     exterior_index: float
     dz_ref: float
     weight_sum: float
-    precision: str
+    precision: Precision
     build_time_s: float = 0.0
     _device: dict = field(default_factory=dict, repr=False)
 
@@ -168,7 +169,7 @@ class SGrid:
         _check_variant(variant)
         t0 = time.perf_counter()
         precision = scene.precision
-        if ctx is None and precision != "double":
+        if ctx is None and not precision.fp64:
             raise ValueError(f"the NumPy reference runs in double precision only, got precision = {precision!r}")
         ap = Aperture.from_scene(scene)
         surface = scene.surface
@@ -188,7 +189,7 @@ class SGrid:
             fields = _tau_fields_opencl(ctx, z, aperture, ap.k, n_max, deapod, precision)
         index = (np.arange(n_nodes) - c) % M
         workers = ctx.fft_workers if ctx is not None else None
-        Q = np.empty((n_max + 1, M, M), dtype=np.complex64 if precision == "single" else complex)
+        Q = np.empty((n_max + 1, M, M), dtype=precision.complex)
         for n in range(n_max + 1):  # one order at a time: the grid is the memory that stays
             G = np.zeros((M, M), dtype=complex)
             G[index[:, None], index[None, :]] = fields[n]
@@ -213,7 +214,7 @@ class SGrid:
         c0, ncols = (0, self.M) if hi - lo + 1 >= self.M else (lo % self.M, hi - lo + 1)
         return (nodes % self.M).astype(np.int32), weights, c0, ncols
 
-    def transform(self, ctx, theta_i: float, phi_i: float, grid: HemisphereGrid, precision: str):
+    def transform(self, ctx, theta_i: float, phi_i: float, grid: HemisphereGrid, precision: Precision):
         """acc = Σ_n T_n(μ_i + μ_o − 1)·Wx Q_n Wyᵀ on the pixels and the per-axis post factors
         e^{jk s_x x_c}, e^{jk s_y y_c}: the input of the pixel assembly (``ctx`` None: NumPy arrays)."""
         u_i = np.sin(theta_i) * np.array([np.cos(phi_i), np.sin(phi_i)])
@@ -227,7 +228,7 @@ class SGrid:
             return self._transform_numpy(ix, wx, iy, wy, mu_i, grid), post_x, post_y
         import pyopencl as cl
 
-        real = ctx.real_dtype(precision)
+        real = precision.real
         cplx = np.dtype(np.complex128 if real == np.float64 else np.complex64)
         key = (id(ctx.context), precision)
         if key not in self._device:
@@ -272,12 +273,12 @@ def _tau_fields_numpy(z, aperture, k, n_max, deapod) -> np.ndarray:
     return eps_jn[:, None, None] * scipy.special.jv(n[:, None, None], k * z[None]) * base[None]
 
 
-def _tau_fields_opencl(ctx, z, aperture, k, n_max, deapod, precision) -> np.ndarray:
+def _tau_fields_opencl(ctx, z, aperture, k, n_max, deapod, precision: Precision) -> np.ndarray:
     """The Kirchhoff fields kernel with wavenumber 2k and μ_i = 0 (e^{jkz} J_n(kz)), pre-factors =
     the deapodization."""
     import pyopencl as cl
 
-    real = ctx.real_dtype(precision)
+    real = precision.real
     cplx = np.dtype(np.complex128 if real == np.float64 else np.complex64)
     na, nb = z.shape
     orders = n_max + 1
@@ -292,7 +293,7 @@ def _tau_fields_opencl(ctx, z, aperture, k, n_max, deapod, precision) -> np.ndar
 
 
 def _assemble(ctx, acc, post_x, post_y, grid: HemisphereGrid, variant: str, k: float, mu_i: float, dz_ref: float,
-              lambda1: float, r_s: complex, r_p: complex, precision: str) -> np.ndarray:
+              lambda1: float, r_s: complex, r_p: complex, precision: Precision) -> np.ndarray:
     """E (2, 3, res, res) before renormalization: I = acc·post_x·post_y·e^{jk c_z dz_ref},
     amplitude I μ_o/λ₁ (Ω = μ_o/μ_i), s ↔ φ̂_o r_s, p ↔ θ̂_o r_p (kernel hs_farfield; ``ctx`` None:
     its twin, ``acc`` an array)."""
@@ -304,7 +305,7 @@ def _assemble(ctx, acc, post_x, post_y, grid: HemisphereGrid, variant: str, k: f
         return scalar_farfield_numpy(grid, np.where(grid.inside, I * mu_o / lambda1, 0.0), r_s, r_p)
     import pyopencl as cl
 
-    real = ctx.real_dtype(precision)
+    real = precision.real
     cplx = np.dtype(np.complex128 if real == np.float64 else np.complex64)
     res = grid.resolution
     knl = ctx.kernel("harvey_shack.cl", "hs_farfield", ctx.defines(precision))
@@ -318,7 +319,7 @@ def _assemble(ctx, acc, post_x, post_y, grid: HemisphereGrid, variant: str, k: f
     return E.astype(np.complex128, copy=False)
 
 
-def _per_incidence_transform(ctx, setup: KirchhoffSetup, variant: str, precision: str):
+def _per_incidence_transform(ctx, setup: KirchhoffSetup, variant: str, precision: Precision):
     """(acc, post_x, post_y) of the exact chirp-z transform of one incidence."""
     if variant == "ohs":  # the flat transform of W e^{2jk z'}; the assembly adds e^{2jk dz_ref}
         setup = setup.flattened(setup.window * np.exp(2j * setup.k * setup.z_mid))
@@ -353,7 +354,7 @@ def harvey_shack_farfield(ctx, scene: SurfaceScene, variant: str, sgrid: SGrid |
     _check_variant(variant)
     t0 = time.perf_counter()
     precision = scene.precision
-    if ctx is None and precision != "double":
+    if ctx is None and not precision.fp64:
         raise ValueError(f"the NumPy reference runs in double precision only, got precision = {precision!r}")
     check_incidence(scene.theta_i, scene.index)
     r_s, r_p = _fresnel_at_incidence(scene.index, scene.exterior_index, scene.theta_i)
@@ -428,7 +429,7 @@ class HarveyShackModel(FootprintModel):
 
     def _grid_bytes(self, scene: SurfaceScene) -> float:
         orders, M = self._grid_shape(scene)
-        return float(orders * M * M * (16 if scene.precision == "double" else 8))
+        return float(orders * M * M * scene.precision.complex.itemsize)
 
     def _all_incidence(self, scene: SurfaceScene) -> bool:
         if self.options.transform == "per_incidence":
@@ -482,7 +483,7 @@ class HarveyShackModel(FootprintModel):
         memory = 2.0 * self._grid_bytes(scene) + 16.0 * (orders * nodes**2 + 2 * M * M + 8 * res * res) + 150e6
         # device: the grid's orders (one M² buffer each, kept), the build's order fields, the
         # gridded rows (res × M at most), the accumulator and the field planes
-        item = 16.0 if scene.precision == "double" else 8.0
+        item = float(scene.precision.complex.itemsize)
         fields, rows, planes = item * orders * nodes**2, item * res * M, item * 6 * res * res
         return Estimate(memory, build + per_incidence,
                         f"all incidences: {orders} order(s) on a {M}² s grid (built once, {build:.2g} s), {res}² pixels",

@@ -44,6 +44,7 @@ from wavebrdf.solver.footprint import (
 )
 from wavebrdf.solver.fresnel import fresnel_rs_rp
 from wavebrdf.solver.models import Capabilities, Estimate, Model, SurfaceScene
+from wavebrdf.solver.precision import Precision
 from wavebrdf.solver.surface import HeightField
 from wavebrdf.solver.validity import check_waist
 
@@ -272,12 +273,12 @@ def chebyshev_cost(nodes: int, res: int, orders: int, channels: int = 1) -> tupl
 
 
 def chebyshev_device_bytes(nodes: int, res: int, orders: int, channels: int = 1,
-                           precision: str = "double") -> tuple[float, float]:
+                           precision: Precision = Precision.DOUBLE) -> tuple[float, float]:
     """(held, largest) device bytes of :func:`chebyshev_transform` plus the pixel assembly: the
     orders' fields (orders × nodes²), one transformed block of orders (chunk × res × (nodes + res)),
     the ``channels`` accumulators and the field planes (6 × res²); ``largest`` is the biggest single
     buffer, which must fit the device's max allocation."""
-    item = 16.0 if precision == "double" else 8.0
+    item = float(precision.complex.itemsize)
     length = nodes + res
     fields = item * orders * nodes**2
     block = item * _chunk_orders(orders, res, length) * res * length
@@ -299,7 +300,7 @@ def kirchhoff_farfield(
     window: np.ndarray | None = None,
     exterior_index: float = 1.0,
     z_reference: float | None = None,
-    precision: str = "double",
+    precision: Precision = Precision.DOUBLE,
 ) -> FarField:
     """Kirchhoff far field of ``surface`` on ``grid`` computed with OpenCL kernels (``ctx`` None:
     the NumPy/SciPy reference, double precision only).
@@ -315,7 +316,7 @@ def kirchhoff_farfield(
         surface, wavelength_um, index, theta_i, phi_i, grid, window, exterior_index, z_reference, waist_um
     )
     if ctx is None:
-        if precision != "double":
+        if not precision.fp64:
             raise ValueError(f"the NumPy reference runs in double precision only, got precision = {precision!r}")
         return _farfield_numpy(setup, theta_i, phi_i, t0)
     return _farfield_opencl(ctx, setup, theta_i, phi_i, precision, t0)
@@ -327,7 +328,7 @@ def kirchhoff_farfield_numpy(*args, **kwargs) -> FarField:
     return kirchhoff_farfield(None, *args, **kwargs)
 
 
-def chebyshev_transform(ctx, setup: KirchhoffSetup, windows: np.ndarray, precision: str,
+def chebyshev_transform(ctx, setup: KirchhoffSetup, windows: np.ndarray, precision: Precision,
                         budget_bytes: float = 256e6) -> tuple[list, dict]:
     """Σ_n T_n(2μ_o − 1)·CZT_x CZT_y[g_n] of each aperture ("channel") of ``windows`` (nchan, na, nb)
     on the pixels of ``setup.grid``, without the chirp-z post factors (OpenCL kernels, host FFTs).
@@ -340,7 +341,7 @@ def chebyshev_transform(ctx, setup: KirchhoffSetup, windows: np.ndarray, precisi
     import pyopencl as cl
 
     t0 = time.perf_counter()
-    real = ctx.real_dtype(precision)
+    real = precision.real
     cplx = np.dtype(np.complex128 if real == np.float64 else np.complex64)
     defines = ctx.defines(precision, NMAX_BUF=max(16, setup.n_max + 1))
     queue = ctx.queue
@@ -411,13 +412,13 @@ def chebyshev_transform_numpy(setup: KirchhoffSetup, windows: np.ndarray) -> lis
     return out
 
 
-def _farfield_opencl(ctx, setup: KirchhoffSetup, theta_i: float, phi_i: float, precision: str,
+def _farfield_opencl(ctx, setup: KirchhoffSetup, theta_i: float, phi_i: float, precision: Precision,
                      t0: float) -> FarField:
     """OpenCL kernels for the fields and the per-pixel assembly, host FFTs."""
     import pyopencl as cl
 
     grid = setup.grid
-    real = ctx.real_dtype(precision)
+    real = precision.real
     cplx = np.dtype(np.complex128 if real == np.float64 else np.complex64)
     defines = ctx.defines(precision, NMAX_BUF=max(16, setup.n_max + 1))
     queue = ctx.queue
@@ -472,7 +473,7 @@ def _farfield_numpy(s: KirchhoffSetup, theta_i: float, phi_i: float, t0: float) 
     r_s, r_p = fresnel_rs_rp(s.eta, np.sqrt(np.clip(0.5 * (1 + cos_io), 0, None)))
     amp = np.where(inside, I * np.sqrt(s.mu_i * mu_safe * omega_k) / s.lambda1, 0.0)
     E = scalar_farfield_numpy(grid, amp, r_s, r_p)
-    return s.farfield(E, theta_i, phi_i, device="numpy", precision="double",
+    return s.farfield(E, theta_i, phi_i, device="numpy", precision=Precision.DOUBLE,
                       wall_time_s=time.perf_counter() - t0)
 
 

@@ -64,6 +64,7 @@ from wavebrdf.solver.footprint import incident_basis
 from wavebrdf.solver.fresnel import fresnel_rs_rp
 from wavebrdf.solver.models import Capabilities, Estimate, SurfaceScene
 from wavebrdf.solver.options import option
+from wavebrdf.solver.precision import Precision
 from wavebrdf.solver.validity import check_waist
 
 __all__ = [
@@ -109,10 +110,10 @@ def po_currents_numpy(window: np.ndarray, slopes: np.ndarray, lit: np.ndarray, o
     return out
 
 
-def _currents_opencl(ctx, window, slopes, lit, omega_i, polarizations, eta, precision):
+def _currents_opencl(ctx, window, slopes, lit, omega_i, polarizations, eta, precision: Precision):
     import pyopencl as cl
 
-    real = ctx.real_dtype(precision)
+    real = precision.real
     cplx = np.dtype(np.complex128 if real == np.float64 else np.complex64)
     nodes = window.size
     knl = ctx.kernel("physical_optics.cl", "po_currents", ctx.defines(precision))
@@ -139,10 +140,10 @@ def _radiate_numpy(setup: KirchhoffSetup, currents: np.ndarray) -> np.ndarray:
     return np.where(grid.inside, E, 0.0)
 
 
-def _radiate_opencl(ctx, setup: KirchhoffSetup, currents: np.ndarray, precision: str) -> np.ndarray:
+def _radiate_opencl(ctx, setup: KirchhoffSetup, currents: np.ndarray, precision: Precision) -> np.ndarray:
     import pyopencl as cl
 
-    real = ctx.real_dtype(precision)
+    real = precision.real
     cplx = np.dtype(np.complex128 if real == np.float64 else np.complex64)
     res = setup.grid.resolution
     acc, _ = chebyshev_transform(ctx, setup, currents, precision)
@@ -166,7 +167,7 @@ def po_farfield(ctx, scene: SurfaceScene, shadowing: str = "rays", border: str =
     ``shadowing`` "rays" | "none" and ``border`` "periodic" | "clamp" choose V_i (module docstring)."""
     t0 = time.perf_counter()
     precision = scene.precision
-    if ctx is None and precision != "double":
+    if ctx is None and not precision.fp64:
         raise ValueError(f"the NumPy reference runs in double precision only, got precision = {precision!r}")
     setup = KirchhoffSetup.from_scene(scene)
     if not setup.z_mid.any():  # a plane: e^{jkμ_o z} = 1, no expansion
@@ -225,7 +226,7 @@ class POModel(FootprintModel):
         memory += 16.0 * (CHANNELS + 4) * nodes**2
         seconds += 2e-7 * nodes**2 if self.options.shadowing == "rays" else 0.0
         held, largest = chebyshev_device_bytes(nodes, res, orders, channels=CHANNELS, precision=scene.precision)
-        item = 16.0 if scene.precision == "double" else 8.0
+        item = float(scene.precision.complex.itemsize)
         currents, planes = item * CHANNELS * nodes**2, item * CHANNELS * res * res  # one buffer each
         return Estimate(memory, seconds, f"{orders} Chebyshev orders × {CHANNELS} currents, {nodes}² nodes, "
                                          f"{res}² pixels", device_bytes=held + currents + planes,

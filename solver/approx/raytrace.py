@@ -50,6 +50,7 @@ import scipy.special
 
 from wavebrdf.solver.farfield import ETA0, HemisphereGrid, IntensityResult
 from wavebrdf.solver.fresnel import fresnel_rs_rp
+from wavebrdf.solver.precision import Precision
 from wavebrdf.solver.surface import HeightField
 
 __all__ = [
@@ -500,7 +501,7 @@ def _weights_numpy(head: np.ndarray, rec: np.ndarray, nxt: np.ndarray, eta: comp
 # OpenCL
 
 
-def _kernel(ctx, name: str, precision: str):
+def _kernel(ctx, name: str, precision: Precision):
     return ctx.kernel("raytrace.cl", name, ctx.defines(precision))
 
 
@@ -524,13 +525,13 @@ class _DeviceBatch:
         return {"head": head, "rec": rec[: 3 * self.records].astype(np.float64), "next": nxt[: self.records]}
 
 
-def _trace_batch_cl(ctx, setup: TraceSetup, first: int, count: int, capacity: int, precision: str):
+def _trace_batch_cl(ctx, setup: TraceSetup, first: int, count: int, capacity: int, precision: Precision):
     """trace_paths over rays first … first+count−1; reruns once with the exact record count if
     the records overflowed ``capacity``. Returns (code, depth, _DeviceBatch)."""
     import pyopencl as cl
 
     gs = setup.surface
-    real = ctx.real_dtype(precision)
+    real = precision.real
     knl = _kernel(ctx, "trace_paths", precision)
     mf = cl.mem_flags
     surface_args = gs.kernel_args(ctx, real)
@@ -563,10 +564,10 @@ def _trace_batch_cl(ctx, setup: TraceSetup, first: int, count: int, capacity: in
     return code, depth, _DeviceBatch(ctx.queue, head_dev, rec_dev, next_dev, count, int(counter[0]), real)
 
 
-def _weights_cl(ctx, batch: _DeviceBatch, eta: complex, precision: str) -> np.ndarray:
+def _weights_cl(ctx, batch: _DeviceBatch, eta: complex, precision: Precision) -> np.ndarray:
     import pyopencl as cl
 
-    real = ctx.real_dtype(precision)
+    real = precision.real
     knl = _kernel(ctx, "path_weights", precision)
     out_dev = cl.Buffer(ctx.context, cl.mem_flags.WRITE_ONLY, 2 * batch.count * real.itemsize)
     knl(ctx.queue, (batch.count,), None, batch.head, batch.rec, batch.next, real.type(eta.real),
@@ -603,7 +604,7 @@ class PathGeometry:
 
     setup: TraceSetup
     rays: int
-    precision: str
+    precision: Precision
     device: str
     batches: list = field(default_factory=list)
     shadowed_fraction: float = 0.0
@@ -614,7 +615,7 @@ class PathGeometry:
 
     @property
     def nbytes(self) -> int:
-        real = np.dtype(np.float64 if self.precision == "double" else np.float32)
+        real = self.precision.real
         return int(sum(b.nbytes(real) for b in self.batches))
 
     @property
@@ -704,7 +705,7 @@ class RayTrace:
                                self.incident_power.copy(), dict(self.diagnostics))
 
 
-def _shadowed_fraction(ctx, setup: TraceSetup, rays: int, precision: str) -> float:
+def _shadowed_fraction(ctx, setup: TraceSetup, rays: int, precision: Precision) -> float:
     """Fraction of footprint-weighted surface points (the first rays' origins) hidden from ω_i."""
     gs = setup.surface
     count = min(rays, SHADOW_SAMPLES)
@@ -713,7 +714,7 @@ def _shadowed_fraction(ctx, setup: TraceSetup, rays: int, precision: str) -> flo
     return float(1.0 - visible.mean())
 
 
-def _check_geometry(geometry: PathGeometry, setup: TraceSetup, rays: int, precision: str) -> None:
+def _check_geometry(geometry: PathGeometry, setup: TraceSetup, rays: int, precision: Precision) -> None:
     g = geometry.setup
     same = (g.resolution == setup.resolution and g.max_depth == setup.max_depth and g.seed == setup.seed
             and np.array_equal(g.omega_i, setup.omega_i) and g.centre == setup.centre and g.sigma == setup.sigma
@@ -743,8 +744,8 @@ def trace_paths(ctx, scene, *, rays: int, max_depth: int, border: str = "periodi
         raise ValueError(f"rays = {rays!r}: must be >= 1")
     if np.imag(scene.index) > 0:
         raise ValueError(f"material index must be n - j*kappa with kappa >= 0, got {scene.index!r}")
-    precision = scene.precision if ctx is not None else "double"
-    if ctx is None and scene.precision != "double":
+    precision = scene.precision if ctx is not None else Precision.DOUBLE
+    if ctx is None and not scene.precision.fp64:
         raise ValueError(f"the NumPy twin runs in double precision only, got precision = {scene.precision!r}")
     setup = TraceSetup.build(scene, max_depth=max_depth, border=border, seed=seed)
     res = setup.resolution
@@ -788,7 +789,7 @@ def trace_paths(ctx, scene, *, rays: int, max_depth: int, border: str = "periodi
     return _finish(scene, setup, geometry, acc, rays, reused, time.perf_counter() - t0)
 
 
-def _weigh(ctx, batch: _Batch, eta: complex, precision: str, acc: _Accumulator) -> np.ndarray:
+def _weigh(ctx, batch: _Batch, eta: complex, precision: Precision, acc: _Accumulator) -> np.ndarray:
     """The final (s, p) weights of the batch's rays for ``eta`` (timed into ``acc``)."""
     t0 = time.perf_counter()
     if isinstance(batch.records, _DeviceBatch):
@@ -864,11 +865,11 @@ def _directions(directions) -> np.ndarray:
     return d
 
 
-def _visibility(ctx, gs: GridSurface, points: np.ndarray, directions: np.ndarray, precision: str) -> np.ndarray:
+def _visibility(ctx, gs: GridSurface, points: np.ndarray, directions: np.ndarray, precision: Precision) -> np.ndarray:
     """(M, P) bool: the ray from the surface above each grid point toward each direction escapes."""
     m, npts = directions.shape[0], points.shape[0]
     if ctx is None:
-        if precision != "double":
+        if not precision.fp64:
             raise ValueError(f"the NumPy twin runs in double precision only, got precision = {precision!r}")
         a, b, s, t, zr = _surface_point(gs, points[:, 0], points[:, 1])
         out = np.empty((m, npts), dtype=bool)
@@ -878,7 +879,7 @@ def _visibility(ctx, gs: GridSurface, points: np.ndarray, directions: np.ndarray
         return out
     import pyopencl as cl
 
-    real = ctx.real_dtype(precision)
+    real = precision.real
     knl = _kernel(ctx, "visibility", precision)
     surface_args = gs.kernel_args(ctx, real)
     pts_dev = ctx.to_device(points, real)
@@ -894,7 +895,7 @@ def _visibility(ctx, gs: GridSurface, points: np.ndarray, directions: np.ndarray
 
 
 def surface_visibility(ctx, surface: HeightField, points_um, directions, border: str = "periodic",
-                       precision: str = "double") -> np.ndarray:
+                       precision: Precision = Precision.DOUBLE) -> np.ndarray:
     """(M, P) bool: True where the ray from the surface point above ``points_um`` (P, 2) (patch
     coordinates, µm) toward the unit direction ``directions[m]`` ((M, 3), upper hemisphere)
     escapes the height field. A point whose local tangent plane faces away from the direction
@@ -906,7 +907,7 @@ def surface_visibility(ctx, surface: HeightField, points_um, directions, border:
 
 
 def node_visibility(ctx, surface: HeightField, directions, border: str = "periodic",
-                    precision: str = "double") -> np.ndarray:
+                    precision: Precision = Precision.DOUBLE) -> np.ndarray:
     """(M, N+1, N+1) bool: True where the ray from node (x_i, y_j, z_ij) toward the unit direction
     ``directions[m]`` ((M, 3), upper hemisphere) escapes the height field — V_i for ω_i, V_o for ω_o
     in the wave rungs with visibility (approx.md §3.4). Where the gradient of the bilinear surface
@@ -928,7 +929,8 @@ def node_slopes(surface: HeightField) -> np.ndarray:
 
 
 def lit_nodes(ctx, surface: HeightField, omega_i: np.ndarray, slopes: np.ndarray, shadowing: str,
-              border: str = "periodic", precision: str = "double") -> tuple[np.ndarray, np.ndarray, str]:
+              border: str = "periodic",
+              precision: Precision = Precision.DOUBLE) -> tuple[np.ndarray, np.ndarray, str]:
     """(front, lit, how) node masks of the wave rungs' V_i (po, ws-v): front = ω_i·m̃ > 0; lit =
     front and, for ``shadowing = "rays"``, the ray from the node toward ω_i escapes
     (:func:`node_visibility`); ``how`` names the test."""
@@ -942,7 +944,7 @@ def lit_nodes(ctx, surface: HeightField, omega_i: np.ndarray, slopes: np.ndarray
 
 
 def cell_visibility(ctx, surface: HeightField, directions, border: str = "periodic",
-                    precision: str = "double") -> np.ndarray:
+                    precision: Precision = Precision.DOUBLE) -> np.ndarray:
     """(M, N, N) bool: :func:`node_visibility` at the cell centres (x_i + d/2, y_j + d/2) on the
     bilinear surface (height = mean of the four corners)."""
     gs = GridSurface.build(surface, border)

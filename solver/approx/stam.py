@@ -231,9 +231,7 @@ class StamModel(Model):
     def run(self, ctx, scene: SurfaceScene) -> IntensityResult:
         t0 = time.perf_counter()
         self.check(scene)
-        dtype = np.float32 if scene.precision == "single" else np.float64
-        if ctx is not None:
-            dtype = ctx.real_dtype(scene.precision)
+        dtype = scene.precision.real
         brdf, _, diagnostics = stam_brdf(
             scene.surface.ensemble, scene.wavelength_um, scene.index, scene.theta_i, scene.phi_i, scene.grid,
             scene.waist_um, scene.exterior_index, go_threshold=self.options.go_threshold,

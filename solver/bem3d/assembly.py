@@ -28,6 +28,7 @@ import numpy as np
 from wavebrdf.solver.bem3d.elements import TABLE, ElementIntegrals
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import SLOT_SIGN, BEMMesh
+from wavebrdf.solver.precision import Precision
 
 logger = logging.getLogger(__name__)
 
@@ -99,12 +100,12 @@ def basis_entries_opencl(ctx, tables, pair_map, row_elem, row_slot, col_elem, co
     coef_buf = buf(coef, np.complex128)
     if rows is None:
         shape = (len(row_elem), len(col_elem))
-        knl = ctx.kernel("bem_assembly.cl", "bem_basis_block", ctx.defines("double", BEM_SEGMENT=SEGMENT))
+        knl = ctx.kernel("bem_assembly.cl", "bem_basis_block", ctx.defines(Precision.DOUBLE, BEM_SEGMENT=SEGMENT))
         args += [np.int32(shape[0]), np.int32(shape[1])]
         items = shape[0] * ((shape[1] + SEGMENT - 1) // SEGMENT)
     else:
         shape = (len(rows),)
-        knl = ctx.kernel("bem_assembly.cl", "bem_basis_list", ctx.defines("double"))
+        knl = ctx.kernel("bem_assembly.cl", "bem_basis_list", ctx.defines(Precision.DOUBLE))
         args += [buf(rows, np.int32), buf(cols, np.int32), np.int32(shape[0])]
         items = shape[0]
     n = int(np.prod(shape))

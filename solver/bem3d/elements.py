@@ -42,6 +42,7 @@ from wavebrdf.solver.bem3d.quadrature import (
     singular_rule,
     tensor_rule,
 )
+from wavebrdf.solver.precision import Precision
 
 logger = logging.getLogger(__name__)
 
@@ -180,10 +181,10 @@ WORK_GROUP = 8  # explicit small work-groups: PoCL keeps the large private table
 
 
 def launch_size(ctx, n: int) -> tuple[tuple[int], tuple[int]]:
-    """(global, local) sizes for n items, WB_VW = ``ctx.vector_lanes("double")`` items per work-item
-    (SIMD lanes on CPUs, 1 on GPUs, where work-items are the lanes), padded to WORK_GROUP (or the
-    device's largest work-group where smaller)."""
-    lanes = ctx.vector_lanes("double")
+    """(global, local) sizes for n items, WB_VW = ``ctx.vector_lanes(Precision.DOUBLE)`` items per
+    work-item (SIMD lanes on CPUs, 1 on GPUs, where work-items are the lanes), padded to WORK_GROUP
+    (or the device's largest work-group where smaller)."""
+    lanes = ctx.vector_lanes(Precision.DOUBLE)
     group = ctx.work_group(WORK_GROUP)
     items = (n + lanes - 1) // lanes
     items = (items + group - 1) // group * group
@@ -210,7 +211,8 @@ def _launch_chunks(n_pairs: int, bytes_per_pair: int):
 def regular_pairs_opencl(ctx, geometry, h, test, source, order, wavenumbers, out=None):
     """OpenCL twin of :func:`regular_pairs_numpy` (kernel ``bem_regular_pairs``); written into
     ``out`` (C-contiguous (P, 2, 33) complex128) when given."""
-    knl = ctx.kernel("bem_elements.cl", "bem_regular_pairs", ctx.defines("double", lanes=ctx.vector_lanes("double")))
+    knl = ctx.kernel("bem_elements.cl", "bem_regular_pairs",
+                     ctx.defines(Precision.DOUBLE, lanes=ctx.vector_lanes(Precision.DOUBLE)))
     geom = ctx.to_device(geometry, np.float64)
     x, w = np.polynomial.legendre.leggauss(int(order))
     nodes, weights = ctx.to_device(x), ctx.to_device(w)
@@ -233,7 +235,7 @@ def singular_pairs_opencl(ctx, geometry, h, test, source, code_test, code_source
     """OpenCL twin of :func:`singular_pairs_numpy` (kernel ``bem_singular_pairs``); written into
     ``out`` when given."""
     knl = ctx.kernel("bem_elements.cl", "bem_singular_pairs",
-                     ctx.defines("double", lanes=ctx.vector_lanes("double"), BEM_KIND=int(kind)))
+                     ctx.defines(Precision.DOUBLE, lanes=ctx.vector_lanes(Precision.DOUBLE), BEM_KIND=int(kind)))
     geom = ctx.to_device(geometry, np.float64)
     rule_buf = ctx.to_device(rule, np.float64)
     arrays = [np.ascontiguousarray(a, np.int32) for a in (test, source, code_test, code_source)]

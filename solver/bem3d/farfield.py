@@ -21,6 +21,7 @@ from wavebrdf.solver.bem3d.excitation import SurfaceRule, surface_currents
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.farfield import ETA0, FarField, HemisphereGrid
+from wavebrdf.solver.precision import Precision
 
 __all__ = [
     "farfield_on_grid",
@@ -54,7 +55,7 @@ def radiation_integrals_opencl(ctx, directions, points, weights, k):
     weights = np.ascontiguousarray(weights, dtype=np.complex128)
     Q, S, _ = weights.shape
     knl = ctx.kernel("bem_farfield.cl", "bem_radiation_integrals",
-                     ctx.defines("double", lanes=ctx.vector_lanes("double"), BEM_NSETS=S))
+                     ctx.defines(Precision.DOUBLE, lanes=ctx.vector_lanes(Precision.DOUBLE), BEM_NSETS=S))
     pts = ctx.to_device(points, np.float64)
     wbuf = ctx.to_device(weights)
     directions = np.ascontiguousarray(directions, dtype=np.float64)

@@ -27,6 +27,7 @@ from wavebrdf.solver.bem3d.warm_start import WarmStarts
 from wavebrdf.solver.farfield import FarField
 from wavebrdf.solver.models import Capabilities, Estimate, Model, SurfaceScene
 from wavebrdf.solver.options import OptionsError, option
+from wavebrdf.solver.precision import Precision
 from wavebrdf.solver.progress import silent
 
 __all__ = ["BEMModel", "BEMOptions"]
@@ -69,8 +70,9 @@ class BEMModel(Model):
         self.warm_starts = WarmStarts()  # the last solutions of one surface, the next wavelength's guesses
 
     def aim_options(self, scene: SurfaceScene) -> AIMOptions:
-        """[model.aim] with [model] precision = "single" applied, fitted to the scene's memory
-        budget (aim/budget.py: the planner's choice, which the run then uses)."""
+        """[model.aim] with the scene's precision applied when it is single, fitted to the scene's
+        memory budget (aim/budget.py: the planner's choice, which the run then uses): the AIM's
+        one precision for this scene, resolved here."""
         return self.budget_fit(scene).options
 
     def budget_fit(self, scene: SurfaceScene):
@@ -79,8 +81,8 @@ class BEMModel(Model):
         from wavebrdf.solver.bem3d.aim.budget import fit_to_budget
 
         aim = self.options.aim
-        if scene.precision == "single":
-            aim = replace(aim, precision="single")
+        if scene.precision is Precision.SINGLE:
+            aim = replace(aim, precision=Precision.SINGLE)
         # patches of one size whose height ranges agree within a cell and rms slopes within 0.01
         # share a fit (the estimate sees the heights only through the grid's extent and, for the
         # product count, the rms slope), so a steered study plans quickly

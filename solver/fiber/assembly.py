@@ -27,6 +27,7 @@ import numpy as np
 from wavebrdf.solver.fiber.hankel import EULER_GAMMA, hankel2_01_scipy
 from wavebrdf.solver.fiber.incidence import FiberMedia, gauss_legendre_unit
 from wavebrdf.solver.fiber.shapes import CrossSection
+from wavebrdf.solver.precision import Precision
 
 logger = logging.getLogger(__name__)
 
@@ -239,18 +240,17 @@ class FiberAssembler:
 
     The node coordinates and quadrature rules are uploaded once; :meth:`matrix` runs the two
     kernels for one (λ, θ_i, index) and returns the matrix on the host (complex128 or
-    complex64 for ``precision="single"``).
+    complex64 for ``precision`` single).
     """
 
     def __init__(self, ctx, shape: CrossSection, quadrature: BEMQuadrature = BEMQuadrature(),
-                 precision: str = "double"):
+                 precision: Precision = Precision.DOUBLE):
         import pyopencl as cl
 
         self.ctx = ctx
         self.shape = shape
         self.quadrature = quadrature
-        self.real = ctx.real_dtype(precision)
-        self.cplx = np.dtype(np.complex128 if self.real == np.float64 else np.complex64)
+        self.real, self.cplx = precision.real, precision.complex
         self.defines = ctx.defines(precision, Q_FAR=quadrature.far_points, Q_NEAR=quadrature.near_points)
         mf = cl.mem_flags
         n = shape.segments

@@ -31,6 +31,8 @@ from math import gamma, pi
 import numpy as np
 import scipy.special as sp
 
+from wavebrdf.solver.precision import Precision
+
 logger = logging.getLogger(__name__)
 
 __all__ = [
@@ -176,12 +178,11 @@ def hankel2_01_scipy(z):
     return sp.hankel2e(0, z) * phase, sp.hankel2e(1, z) * phase
 
 
-def hankel2_01_cl(ctx, z, precision: str = "double"):
+def hankel2_01_cl(ctx, z, precision: Precision = Precision.DOUBLE):
     """H0^(2)(z), H1^(2)(z) on the OpenCL device (kernel ``hankel2_eval`` of kernels/hankel.cl)."""
     import pyopencl as cl
 
-    real = ctx.real_dtype(precision)
-    cplx = np.dtype(np.complex128 if real == np.float64 else np.complex64)
+    cplx = precision.complex
     z_host = np.ascontiguousarray(np.asarray(z, dtype=complex).ravel(), dtype=cplx)
     n = z_host.size
     if n == 0:

@@ -16,6 +16,7 @@ from references import fresnel_coefficients
 from wavebrdf.solver.approx import raytrace as rt
 from wavebrdf.solver.farfield import HemisphereGrid, albedo
 from wavebrdf.solver.models import SurfaceScene
+from wavebrdf.solver.precision import Precision
 from wavebrdf.solver.surface import HeightField, generate
 
 logger = logging.getLogger(__name__)
@@ -258,7 +259,7 @@ def test_numpy_twin_matches_kernels_on_the_same_rays(cl_ctx):
         sc = scene(surface, ALUMINIUM, 50.0, 30.0, waist=1.2, res=64)
         setup = rt.TraceSetup.build(sc, max_depth=12, border=border, seed=5)
         ref = rt._trace_batch_numpy(setup, 1000, 1200)
-        code, depth, batch = rt._trace_batch_cl(cl_ctx, setup, 1000, 1200, 4000, "double")
+        code, depth, batch = rt._trace_batch_cl(cl_ctx, setup, 1000, 1200, 4000, Precision.DOUBLE)
         assert np.array_equal(code, ref["code"]) and np.array_equal(depth, ref["depth"])
         assert depth.max() >= 3 and not np.any(code == rt.LOST_CODE)
         dev = batch.host()
@@ -275,7 +276,7 @@ def test_numpy_twin_matches_kernels_on_the_same_rays(cl_ctx):
 
         assert np.allclose(chains(dev), chains(ref), rtol=0, atol=1e-10)
         w_np = rt._weights_numpy(ref["head"], ref["rec"], ref["next"], ALUMINIUM)
-        w_cl = rt._weights_cl(cl_ctx, batch, ALUMINIUM, "double")
+        w_cl = rt._weights_cl(cl_ctx, batch, ALUMINIUM, Precision.DOUBLE)
         assert np.allclose(w_cl, w_np, rtol=0, atol=1e-10)
     # the whole estimator
     sc = scene(surface, GLASS, 20.0, 0.0, waist=1.2, res=32)

@@ -15,6 +15,7 @@ from wavebrdf.solver.bem3d.aim.projection import basis_quadrature, fibonacci_dir
 from wavebrdf.solver.bem3d.assembly import basis_pair_entries
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh, near_first
+from wavebrdf.solver.precision import Precision
 from wavebrdf.solver.surface import HeightField, generate
 
 LAMBDA = 0.5
@@ -151,7 +152,7 @@ def test_base_operator_kernels_match_numpy(cl_ctx, rough_mesh, rng, projection, 
     else:
         groups = [GridGroup.build(project(rough_mesh, grid, "farfield", k=media.wavenumbers[i].real), spectra,
                                   media, (i,), dtype) for i in (0, 1)]
-    op = BaseOperator(cl_ctx, rough_mesh, groups, precision=precision)
+    op = BaseOperator(cl_ctx, rough_mesh, groups, precision=Precision(precision))
     x = rng.standard_normal((batch, rough_mesh.n_unknowns)) + 1j * rng.standard_normal((batch, rough_mesh.n_unknowns))
     y = op.apply(x)
     ref = op.apply_numpy(x)
@@ -171,7 +172,7 @@ def test_fourier_lanes_and_their_remainder(cl_ctx, rng, precision, lanes):
     spectra = kernel_spectra(grid, media, (0, 1))
     dtype = np.complex128 if precision == "double" else np.complex64
     groups = [GridGroup.build(project(mesh, grid, "moments"), spectra, media, (0, 1), dtype)]
-    op = BaseOperator(cl_ctx, mesh, groups, precision=precision)
+    op = BaseOperator(cl_ctx, mesh, groups, precision=Precision(precision))
     op.fourier_lanes = lanes
     assert lanes == 1 or grid.padded_points % lanes
     x = rng.standard_normal((2, mesh.n_unknowns)) + 1j * rng.standard_normal((2, mesh.n_unknowns))
@@ -204,7 +205,7 @@ def test_host_fft_slabs_and_kept_arrays_give_the_numpy_product(cl_ctx, rough_mes
     grid = build_grid(rough_mesh)
     spectra = kernel_spectra(grid, media, (0, 1))
     groups = [GridGroup.build(project(rough_mesh, grid, "moments"), spectra, media, (0, 1), np.complex128)]
-    op = BaseOperator(cl_ctx, rough_mesh, groups, precision="double", fft="host")
+    op = BaseOperator(cl_ctx, rough_mesh, groups, precision=Precision.DOUBLE, fft="host")
     plane_bytes = 8 * 2 * grid.padded[1] * grid.padded[2] * 16
     planes = next(p for p in (4, 5, 7) if grid.padded[0] % p)  # a shorter last slab
     monkeypatch.setattr(convolution, "SLAB_BYTES", planes * plane_bytes)
@@ -300,7 +301,7 @@ def test_near_spmv_kernels_match_scipy(cl_ctx, rough_mesh, near_setup, rng, batc
     mf = cl.mem_flags
     xb = cl.Buffer(ctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
     yb = cl.Buffer(ctx.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=y)
-    near.apply(ctx, xb, yb, batch, precision, lanes=lanes)
+    near.apply(ctx, xb, yb, batch, Precision(precision), lanes=lanes)
     if split:
         assert all(len(parts) > 1 for parts in near._device.values())
     cl.enqueue_copy(ctx.queue, y, yb)
@@ -361,7 +362,7 @@ def test_near_spmv_random_entries_match_scipy(cl_ctx, rng, cells, batch, precisi
     for _ in range(2):  # the second product checks that the lattice output was zeroed
         y[:] = 0
         cl.enqueue_copy(cl_ctx.queue, yb, y)
-        near.apply(cl_ctx, xb, yb, batch, precision, lanes=lanes)
+        near.apply(cl_ctx, xb, yb, batch, Precision(precision), lanes=lanes)
         cl.enqueue_copy(cl_ctx.queue, y, yb)
         ref = near.apply_numpy(x)
         assert np.linalg.norm(y - ref) / np.linalg.norm(ref) < (1e-13 if precision == "double" else 1e-6)

@@ -14,6 +14,7 @@ from wavebrdf.solver.fiber.assembly import (
     log_moments_reference,
     static_moments_reference,
 )
+from wavebrdf.solver.precision import Precision
 
 DEG = np.pi / 180
 
@@ -47,7 +48,7 @@ def test_single_precision_build(cl_ctx):
     shape, lam, m, theta = CASES["ellipse-lossy-oblique"]
     media = fiber_media(lam, m, theta * DEG)
     z64 = FiberAssembler(cl_ctx, shape).matrix(media)
-    z32 = FiberAssembler(cl_ctx, shape, precision="single").matrix(media)
+    z32 = FiberAssembler(cl_ctx, shape, precision=Precision.SINGLE).matrix(media)
     assert z32.dtype == np.complex64
     assert _rel(z32, z64) < 1e-4
 

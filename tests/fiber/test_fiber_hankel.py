@@ -21,6 +21,7 @@ from wavebrdf.solver.fiber.hankel import (
     hankel2_01_scipy,
     laguerre_header_text,
 )
+from wavebrdf.solver.precision import Precision
 
 logger = logging.getLogger(__name__)
 
@@ -106,7 +107,7 @@ def test_series_parts_match_scipy_bessel():
 def test_single_precision_build_agrees_to_float_accuracy(cl_ctx, rng):
     z = np.exp(rng.uniform(np.log(1e-3), np.log(300.0), 20_000)) * np.exp(-1j * np.radians(rng.uniform(0, 30, 20_000)))
     z = z[np.abs(z.imag) < 30]
-    h0, h1 = hankel2_01_cl(cl_ctx, z, precision="single")
+    h0, h1 = hankel2_01_cl(cl_ctx, z, precision=Precision.SINGLE)
     ref0, ref1 = hankel2_01_scipy(z)
     assert h0.dtype == np.complex64
     assert _max_rel(h0, ref0) < 1e-3 and _max_rel(h1, ref1) < 1e-3

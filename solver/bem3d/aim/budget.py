@@ -25,6 +25,7 @@ from wavebrdf.solver.bem3d.aim.estimate import estimate_aim
 from wavebrdf.solver.bem3d.aim.green import grid_media
 from wavebrdf.solver.bem3d.aim.options import AIMOptions
 from wavebrdf.solver.bem3d.media import Media
+from wavebrdf.solver.precision import Precision
 from wavebrdf.solver.surface import HeightField
 
 __all__ = ["BudgetFit", "FITTED_KEYS", "candidate_options", "fit_to_budget", "interior_leaves_grid_cells"]
@@ -98,7 +99,7 @@ def candidate_options(options: AIMOptions, cells: int, media: Media | None = Non
     """The settings the planner may choose from, ``options`` first (see the module docstring);
     ``media`` and ``spacing_um`` (µm) allow the near radius that takes the interior off the grid."""
     out = [options]
-    precisions = [options.precision] + (["single"] if options.precision == "double" else [])
+    precisions = [options.precision] + ([Precision.SINGLE] if options.precision.fp64 else [])
     radii = [options.near_cells]
     if media is not None and spacing_um is not None:
         off = interior_leaves_grid_cells(options, media, spacing_um)

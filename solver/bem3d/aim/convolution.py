@@ -38,6 +38,7 @@ from wavebrdf.solver.bem3d.aim.projection import Projection
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.farfield import ETA0
 from wavebrdf.solver.opencl import fft_workers
+from wavebrdf.solver.precision import Precision
 
 logger = logging.getLogger(__name__)
 
@@ -183,7 +184,8 @@ def gather_numpy(mats, F: np.ndarray) -> np.ndarray:
 class BaseOperator:
     """y = B x on the device (see the module docstring); ``apply_numpy`` is the reference."""
 
-    def __init__(self, ctx, mesh, groups: list[GridGroup], *, precision: str = "double", fft: str = "auto"):
+    def __init__(self, ctx, mesh, groups: list[GridGroup], *, precision: Precision = Precision.DOUBLE,
+                 fft: str = "auto"):
         if fft not in FFT_BACKENDS:
             raise ValueError(f"aim fft must be one of {FFT_BACKENDS}, got {fft!r}")
         self.ctx = ctx
@@ -194,11 +196,7 @@ class BaseOperator:
         self.workers = fft_workers()
         self.n_b = mesh.n_bases
         self.n_h = mesh.n_horizontal
-        self.real = np.dtype(np.float64 if precision == "double" else np.float32)
-        self.complex = np.result_type(self.real, np.complex64)
-        if ctx is not None:
-            self.real = ctx.real_dtype(precision)
-            self.complex = np.result_type(self.real, np.complex64)
+        self.real, self.complex = precision.real, precision.complex
         self.fft = self._choose_fft(fft)
         # samples per work-item of aim_fourier (measured: docs/aim.md)
         self.fourier_lanes = 1 if ctx is None else ctx.vector_lanes(precision)

@@ -141,7 +141,7 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     flat = bool(np.ptp(mesh.heights) == 0)
     farfield_matching = options.projection == "farfield"
     groups = len(gm) if farfield_matching else 1
-    real = 8 if options.precision == "double" else 4
+    real = options.precision.real.itemsize
     cplx = 2 * real
     weight = cplx if farfield_matching else real
     near_entry = 24 if options.near_storage == "single" else 48
@@ -194,7 +194,7 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     # lockstep, like GMRES and BiCGStab always were: 1 143 s for 421 / 408 products, 2.51 s per
     # product of both polarizations before the 1.1 below); every solver method takes it
     product_s = 0.895 * (8.3e-10 * fft_points * math.log2(max(padded, 2)) + 4e-9 * stored_pairs * 2)
-    if options.precision == "single":
+    if not options.precision.fp64:
         product_s *= 0.7  # single / double matvec 0.56–0.83 measured (docs/aim.md, Precision)
     if options.preconditioner == "near":
         product_s += 2.0 * held["preconditioner"] / SUPERLU_BYTES * 2e-9  # triangular solves, both polarizations

@@ -27,6 +27,7 @@ from wavebrdf.solver.bem3d.elements import ElementIntegrals
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh, near_first, near_row
 from wavebrdf.solver.farfield import ETA0
+from wavebrdf.solver.precision import Precision
 
 logger = logging.getLogger(__name__)
 
@@ -202,7 +203,7 @@ class _NearBaseOpenCL:
             raise ValueError(f"blocks {blocks} do not share the row orientation")
         wbase, wdim = window
         lo, dims, green, gradient = _kernel_table(k, grid, wbase, wdim)
-        defines = ctx.defines("double", AIM_COMPLEX_W=int(np.iscomplexobj(projection.weights)))
+        defines = ctx.defines(Precision.DOUBLE, AIM_COMPLEX_W=int(np.iscomplexobj(projection.weights)))
         pot_knl = ctx.kernel("aim_near.cl", "aim_near_potentials", defines)
         cor_knl = ctx.kernel("aim_near.cl", "aim_near_correct", defines)
         tables = [ctx.to_device(a, np.complex128) for a in (green, gradient)]

@@ -37,6 +37,7 @@ import numpy as np
 import scipy.sparse
 
 from wavebrdf.solver.bem3d.mesh import near_coords, near_first, near_row, near_valid
+from wavebrdf.solver.precision import Precision
 
 __all__ = [
     "BLOCKS",
@@ -273,9 +274,9 @@ class NearMatrix:
             self._lattice_vectors = {key: tuple(ctx.to_device(zeros, writable=True) for _ in range(2))}
         return self._lattice_vectors[key]
 
-    def apply(self, ctx, x_buf, y_buf, batch: int, precision: str, lanes: int | None = None):
+    def apply(self, ctx, x_buf, y_buf, batch: int, precision: Precision, lanes: int | None = None):
         """y += C x on the device for ``batch`` right-hand sides (buffers of 2N_b complex each) in
-        ``precision`` ("double" | "single").
+        ``precision``.
 
         ``lanes``: sites per SIMD vector (WB_VW); default 256-bit vectors on CPUs, where a
         work-item takes whole rows of a tile, and 1 on GPUs, one site per work-item.
@@ -289,7 +290,7 @@ class NearMatrix:
         pattern = self.pattern
         N, P, L = np.int32(pattern.cells), np.int32(pattern.pitch), np.int32(pattern.lattice_length)
         first_row = np.int32(pattern.guard_rows)
-        X, Y = self._vectors(ctx, batch, ctx.real_dtype(precision))
+        X, Y = self._vectors(ctx, batch, precision.real)
         queue = ctx.queue
         move = ctx.kernel("sparse.cl", "near_move", defines)
         move(queue, (self.n_bases,), None, np.int32(1), N, P, first_row, L, X, x_buf)

@@ -65,8 +65,7 @@ class GridPart:
         with clock("projection"):
             on_grid = grid_media(media, options.near_cells * mesh.spacing_um, options.interior_decay_tolerance)
             grid = build_grid(mesh, options.grid_options(media, mesh.spacing_um, on_grid))
-            real = np.float64 if options.precision == "double" else np.float32
-            cdtype = np.result_type(real, np.complex64)
+            real, cdtype = options.precision.real, options.precision.complex
             if options.projection == "moments":
                 groups = [(project(mesh, grid, "moments", order=PROJECTION_ORDER, dtype=real), on_grid)]
             else:
@@ -104,7 +103,7 @@ class AIMOperator:
         self.media = media
         self.options = options = options or AIMOptions()
         self.precision = options.precision
-        self.dtype = np.complex128 if options.precision == "double" else np.complex64
+        self.dtype = options.precision.complex
         self.progress = progress or silent
         self.progress("projection", None)
         self.grid_part = grid_part = GridPart.build(ctx, mesh, media, options, clock)

@@ -16,7 +16,7 @@ from wavebrdf.solver.bem3d.aim.projection import PROJECTIONS
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.quadrature import QuadratureOptions
 from wavebrdf.solver.krylov import KRYLOV_METHODS
-from wavebrdf.solver.opencl import PRECISIONS
+from wavebrdf.solver.precision import PRECISIONS, Precision
 from wavebrdf.solver.options import option, parse_options
 
 __all__ = ["AIM_QUADRATURE", "EDGES", "FARFIELD_SOURCES", "PRECONDITIONERS", "AIMOptions"]
@@ -84,7 +84,7 @@ class AIMOptions:
     directions: int = option(0, low=0)
     regularization: float = option(1e-4, low=0, low_open=True, high=1, high_open=True)
     interior_decay_tolerance: float = option(DECAY_TOLERANCE, low=0, low_open=True, high=1, high_open=True)
-    precision: str = option("double", choices=PRECISIONS)
+    precision: Precision = option(Precision.DOUBLE, choices=PRECISIONS, parse=Precision.of)
     near_storage: str = option("single", choices=("single", "double"))
     fft: str = option("auto", choices=FFT_BACKENDS)
     solver: str = option("gmres", choices=KRYLOV_METHODS)
@@ -119,6 +119,7 @@ class AIMOptions:
         object.__setattr__(self, "preconditioner_tile_cells", int(tile))
         if self.precision not in PRECISIONS:
             raise ValueError(f"aim.precision must be one of {PRECISIONS}, got {self.precision!r}")
+        object.__setattr__(self, "precision", Precision(self.precision))  # given as its word: typed once
         if not (np.isfinite(self.max_k_spacing) and self.max_k_spacing > 0):
             raise ValueError(f"aim.max_k_spacing must be > 0, got {self.max_k_spacing!r}")
         if not (0.5 <= self.z_spacing_ratio <= 4.0):

@@ -38,6 +38,7 @@ import numpy as np
 from wavebrdf.solver.bem3d.aim.grid import AIMGrid
 from wavebrdf.solver.bem3d.mesh import SLOT_SIGN, SLOT_TANGENT, BEMMesh, slot_weight
 from wavebrdf.solver.bem3d.quadrature import tensor_rule
+from wavebrdf.solver.precision import Precision
 
 logger = logging.getLogger(__name__)
 
@@ -170,7 +171,7 @@ def plane_wave_moments_opencl(ctx, r: np.ndarray, psi: np.ndarray, wavevectors: 
     n_b, n_q, _ = r.shape
     out = np.empty((3, n_b, len(wavevectors)), dtype=np.complex128)
     buffer = ctx.host_buffer(out, "write")
-    kernel = ctx.kernel("aim_projection.cl", "aim_plane_wave_moments", ctx.defines("double"))
+    kernel = ctx.kernel("aim_projection.cl", "aim_plane_wave_moments", ctx.defines(Precision.DOUBLE))
     kernel(ctx.queue, (n_b * len(wavevectors),), None, ctx.to_device(r, np.float64), ctx.to_device(psi, np.float64),
            np.int32(n_b), np.int32(n_q), ctx.to_device(wavevectors, np.float64), np.int32(len(wavevectors)), buffer)
     ctx.read_into(out, buffer)
