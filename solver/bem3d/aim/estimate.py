@@ -1,7 +1,10 @@
 """Memory and time of an AIM run before it starts (for ``wavebrdf plan``): :func:`estimate_aim`.
 
-The figures are cost models fitted to runs on the 2-core development machine (docs/aim.md);
-each helper names what it counts.
+The figures are cost models whose constants are fitted to measured runs: they are the rows of
+``solver/data/aim_cost.csv`` (:data:`COST`), each with its meaning, unit and the run it came from
+(command, commit, machine); ``tools/refit_aim_cost.py`` measures the set-up and product constants
+again and rewrites their rows (docs/aim.md, "Refitting the planner"). Each helper names what it
+counts.
 """
 
 from __future__ import annotations
@@ -19,9 +22,12 @@ from wavebrdf.solver.bem3d.aim.options import AIMOptions
 from wavebrdf.solver.bem3d.aim.preconditioner import PRECONDITIONER_OVERLAP, SUPERLU_BYTES, tiles_per_axis
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
+from wavebrdf.solver.fitted import fitted
 from wavebrdf.solver.surface import HeightField
 
-__all__ = ["estimate_aim", "memory_breakdown"]
+__all__ = ["COST", "estimate_aim", "memory_breakdown"]
+
+COST = fitted("aim_cost")  # the cost model's fitted constants (solver/data/aim_cost.csv)
 
 
 def _continuation_cost(mesh: BEMMesh, options: AIMOptions, waist_um: float | None, near_entry: int, cplx: int,
@@ -44,13 +50,10 @@ def _continuation_cost(mesh: BEMMesh, options: AIMOptions, waist_um: float | Non
     return ring_pairs * near_entry + weights, seconds, farfield
 
 
-# Set-up time (seconds on the 2-core development machine), fitted to the stage clocks of
-# benchmarks/bench_aim.py (docs/aim.md, fifth pass): the near-field assembly per stored pair —
-# 6.4e-6 s on the rough 12 µm sub-area (7.4·10⁷ pairs, 470 s), 8.6e-7 s on the flat reference
-# patch, whose element tables repeat (9.0·10⁶ pairs, 7.7 s) — and projection, kernel spectra and
-# excitation per unknown (78 s at 919 680 rough unknowns; 3.75 s at 101 760 flat ones, one plane).
-NEAR_PAIR_S = {"rough": 6.4e-6, "flat": 8.6e-7}
-GRID_SETUP_S = {"rough": 8.5e-5, "flat": 3.7e-5}
+# Set-up time: the near-field assembly per stored pair and the projection, kernel spectra and
+# excitation per unknown, on rough and on flat patches (whose element tables repeat)
+NEAR_PAIR_S = {"rough": COST["near_pair_s_rough"], "flat": COST["near_pair_s_flat"]}
+GRID_SETUP_S = {"rough": COST["grid_setup_s_rough"], "flat": COST["grid_setup_s_flat"]}
 
 
 def _near_assembly_s(stored_pairs: float, flat: bool) -> float:
@@ -85,31 +88,27 @@ def _near_nnz(cells: int, radius_cells: float) -> int:
 
 def _preconditioner_cost(cells: int, unknowns: int, options: AIMOptions, flat: bool = False) -> tuple[float, float]:
     """(peak bytes, seconds) of the near LU: SUPERLU_BYTES per factor entry of every tile, plus
-    SuperLU's working memory while one tile is factored (0.06 × its factors). Fill 2.2 ln n − 12.6
-    per LU of n unknowns fits 5.6 … 16.6 measured at 4·10³ … 6.4·10⁵ unknowns; time
-    1.1e-9 nnz^1.5 per LU fits 42 s and 346–384 s at 1.2·10⁷ and 4.7·10⁷ entries (docs/aim.md)."""
+    SuperLU's working memory while one tile is factored (``lu_working_share`` × its factors);
+    fill ``lu_fill_slope`` ln n + ``lu_fill_offset`` per LU of n unknowns (at least
+    ``lu_fill_min``), time ``lu_time_s`` nnz^1.5 per LU (:data:`COST`)."""
     # (J, M) × (J, M) blocks; on a flat patch the J–M coupling of coplanar rooftops is zero, so
     # only the two diagonal blocks hold entries (measured: 577 592 entries at 16 128 unknowns)
     near_nnz = (2 if flat else 4) * _near_nnz(cells, options.preconditioner_cells)
     per_axis = tiles_per_axis(cells, options.preconditioner_tile_cells)
     side = cells if per_axis == 1 else cells / per_axis + 2 * PRECONDITIONER_OVERLAP
     share = (side / cells) ** 2  # of the unknowns and near entries in one (extended) tile
-    fill = max(4.0, 2.2 * math.log(max(unknowns * share, 2.0)) - 12.6)
+    fill = max(COST["lu_fill_min"],
+               COST["lu_fill_slope"] * math.log(max(unknowns * share, 2.0)) + COST["lu_fill_offset"])
     one_tile = SUPERLU_BYTES * near_nnz * share * fill
-    seconds = per_axis**2 * 1.1e-9 * (near_nnz * share) ** 1.5
-    return one_tile * per_axis**2 + 0.06 * one_tile, seconds
+    seconds = per_axis**2 * COST["lu_time_s"] * (near_nnz * share) ** 1.5
+    return one_tile * per_axis**2 + COST["lu_working_share"] * one_tile, seconds
 
 
-# Constants of the cost model, fitted to the stage breakdowns of benchmarks/bench_aim.py on the
-# 2-core development machine (docs/aim.md, "Memory and time at scale").
-RUNTIME_BYTES = 460 * 2**20  # interpreter, NumPy/SciPy, OpenCL runtime and built kernels
-# near-field assembly above what it keeps: element tables, one strip of pairs (fit: 36 480 and
-# 101 760 unknowns)
-ASSEMBLY_BYTES = 0.75 * 2**30
-# the beam's fields and the surface power over blocks of elements (excitation.py ELEMENT_BLOCK):
-# measured 207 / 243 MB (excitation) and 220 / 204 MB (surface power) at 1.0·10⁵ / 4.1·10⁵ unknowns
-BLOCK_BYTES = 200 * 2**20
-EXCITATION_BYTES_PER_UNKNOWN = 100.0
+# Memory the stages need besides their arrays (what each is: solver/data/aim_cost.csv)
+RUNTIME_BYTES = COST["runtime_bytes"]  # interpreter, NumPy/SciPy, OpenCL runtime and built kernels
+ASSEMBLY_BYTES = COST["assembly_bytes"]  # near-field assembly above what it keeps
+BLOCK_BYTES = COST["block_bytes"]  # the beam's fields and surface power over element blocks (excitation.py)
+EXCITATION_BYTES_PER_UNKNOWN = COST["excitation_bytes_per_unknown"]
 FARFIELD_PIXEL_BYTES = 16 * 2 * 36  # per output pixel: F (6), E, H (3 + 3) per polarization, CZT planes
 
 
@@ -187,24 +186,22 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     before_preconditioner = sum(v for k, v in held.items() if k not in ("preconditioner", "continuation"))
     total = max(before_preconditioner + transient["set-up"],
                 sum(held.values()) + max(v for k, v in transient.items() if k != "set-up"))
-    # time model (seconds), constants from benchmarks/bench_aim.py on the 2-core machine
+    # time of one product of both polarizations: the FFTs of every grid group and the near SpMV,
+    # scaled to measured Krylov stages; single precision; the near LU's triangular solves
     fft_points = padded * 16 * groups
-    # FFT term fitted to the Krylov stages of the 12 µm and 16 µm sub-areas (docs/aim.md "The 16 µm
-    # sub-area, run"), then scaled by 0.895 to the 12 µm run after the fifth pass (MINRES in
-    # lockstep, like GMRES and BiCGStab always were: 1 143 s for 421 / 408 products, 2.51 s per
-    # product of both polarizations before the 1.1 below); every solver method takes it
-    product_s = 0.895 * (8.3e-10 * fft_points * math.log2(max(padded, 2)) + 4e-9 * stored_pairs * 2)
+    product_s = COST["product_scale"] * (COST["product_fft_s"] * fft_points * math.log2(max(padded, 2))
+                                         + COST["product_near_s"] * stored_pairs * 2)
     if not options.precision.fp64:
-        product_s *= 0.7  # single / double matvec 0.56–0.83 measured (docs/aim.md, Precision)
+        product_s *= COST["product_single_ratio"]
     if options.preconditioner == "near":
-        product_s += 2.0 * held["preconditioner"] / SUPERLU_BYTES * 2e-9  # triangular solves, both polarizations
+        product_s += 2.0 * held["preconditioner"] / SUPERLU_BYTES * COST["lu_solve_s"]
     size_waves = surface.size_um * exterior_index / wavelength_um
     if "rms_slope" not in cache:  # the surface's, for every candidate of one fit
         cache["rms_slope"] = surface.rms_slope()
     iterations = _products(options, size_waves, abs(media.index), cache["rms_slope"])
     setup_s = (_near_assembly_s(stored_pairs, flat) + _grid_setup_s(n, flat) + preconditioner_s
                + continuation_s)
-    seconds = setup_s + directions * iterations * product_s * 1.1
+    seconds = setup_s + directions * iterations * product_s * COST["product_overhead"]
     return {
         "unknowns": n,
         "near_nnz": stored_pairs,
@@ -226,17 +223,16 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
 
 
 def _products(options: AIMOptions, size_waves: float, index_modulus: float, rms_slope: float) -> float:
-    """Operator products per polarization to the tolerance (measured, docs/aim.md "Memory and
-    time at scale"): with the whole near LU 13–30 (1.6·10⁴–6.4·10⁵ unknowns), 2.6 × that on
-    tiles. Without a preconditioner (MINRES) the count follows the roughness as much as the size:
-    55 (|n|/4.74)^1.05 (L/λ)^0.49 e^{2.37 s} (s: rms slope), a fit through eight aluminium solves
-    at d = λ/16 and λ/12.8 (flat 141, rms slope 0.19–0.56 at 6–30 wavelengths: 167–487 products,
-    within −17…+37%) and one glass solve of the same geometry (89 vs 298: the |n| factor)."""
+    """Operator products per polarization to the tolerance (:data:`COST`): with the whole near LU
+    a + b √(L/λ), ``products_tiled_ratio`` × that on tiles. Without a preconditioner (MINRES) the
+    count follows the roughness as much as the size: c (|n|/n_ref)^α (L/λ)^β e^{γ s} (s: rms
+    slope; c, n_ref, α, β, γ: the ``products_minres*`` rows)."""
     if options.preconditioner == "near":
-        whole = 20 + 6 * math.sqrt(size_waves)
-        return whole * (1.0 if options.preconditioner_tile_cells == 0 else 2.6)
-    return (55.0 * (index_modulus / 4.74) ** 1.05 * max(size_waves, 1.0) ** 0.49
-            * math.exp(2.37 * rms_slope))
+        whole = COST["products_lu_base"] + COST["products_lu_per_sqrt_size"] * math.sqrt(size_waves)
+        return whole * (1.0 if options.preconditioner_tile_cells == 0 else COST["products_tiled_ratio"])
+    return (COST["products_minres"] * (index_modulus / COST["products_minres_index_ref"])
+            ** COST["products_minres_index_exp"] * max(size_waves, 1.0) ** COST["products_minres_size_exp"]
+            * math.exp(COST["products_minres_slope_exp"] * rms_slope))
 
 
 def memory_breakdown(estimate: dict) -> str:

@@ -13,6 +13,7 @@ import scipy.sparse.linalg
 
 from wavebrdf.solver.bem3d.aim.nearfield import NearPattern
 from wavebrdf.solver.bem3d.mesh import near_coords, near_first
+from wavebrdf.solver.fitted import fitted
 from wavebrdf.solver.resources import one_blas_thread, release_free_memory
 
 logger = logging.getLogger(__name__)
@@ -22,8 +23,8 @@ __all__ = ["PRECONDITIONER_OVERLAP", "SUPERLU_BYTES", "NearPreconditioner", "pre
 
 PRECONDITIONER_OVERLAP = 3  # cells added on every side of a preconditioner tile
 # resident bytes per factor entry of a complex64 SuperLU factorization: 8 + 4 of value and index,
-# and SuperLU's supernodal storage (measured: 14.7 GiB for 7.8·10⁸ entries at 6.4·10⁵ unknowns)
-SUPERLU_BYTES = 20.0
+# and SuperLU's supernodal storage (the measured figure: solver/data/aim_cost.csv)
+SUPERLU_BYTES = fitted("aim_cost")["superlu_bytes_per_entry"]
 
 
 def symmetric_scaling(n_b: int, dtype) -> np.ndarray:
