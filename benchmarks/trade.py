@@ -7,15 +7,23 @@ converged in the mesh, aggregated into ``docs/trade.md``, ``docs/images/trade_<s
     .venv/bin/python benchmarks/trade.py              # resumes: scenes already compared are reused
     .venv/bin/python benchmarks/trade.py --force      # recompute every scene
 
-Suites (one folder each; the regime in every config's second line): aluminium at waist 0.6 µm
-(≈ λ) on 4 µm patches, aluminium at waist 2.5 µm (5 λ, the reference simulator's) on 9 µm
-patches, both at d = 0.05 µm (λ/10 at 0.5 µm; |k₂|d ≤ 4 on aluminium).
+Suites (one folder each; the regime in every config's second line): aluminium and glass at waist
+0.6 µm (≈ λ) on 4 µm patches, aluminium at waist 2.5 µm (5 λ at 0.5 µm, the reference
+simulator's) on 9 µm patches, all at d = 0.05 µm (λ/10 at 0.5 µm; |k₂|d ≤ 4 on aluminium).
 
 Each scene's comparison is written to ``out/trade/<study>_compare.*`` (``wavebrdf compare``'s
-files) as soon as it finishes, and each convergence solve to ``out/trade/<study>_converged.h5``,
-so an interrupted regeneration loses at most the solve it was on. The errors of the table are
-recomputed from the stored BRDFs (unpolarized and per incident polarization, raw and
-speckle-averaged), so every column comes from one definition (``jobs.compare.comparison_metrics``).
+files) as soon as it finishes, and each convergence solve (with the coarse reference it is
+measured against) to ``out/trade/<study>_converged.h5``, so an interrupted regeneration loses at
+most the solve it was on. The errors of the table are recomputed from the stored BRDFs
+(unpolarized and per incident polarization, raw and speckle-averaged), so every column comes from
+one definition (``jobs.compare.comparison_metrics``).
+
+The committed tables are the record that outlives ``out/``: a config whose comparison is not in
+``out/trade`` keeps its rows of ``solver/data/trade.csv`` (and of ``trade_convergence.csv``) as long
+as its content is unchanged (``config_digest``: the parsed TOML, comments and the output path
+left out), and the end-to-end ``auto`` runs are kept in ``benchmarks/results/trade_auto.csv`` per
+(scene, tolerance, rung picked). So a fresh clone adds a new scene config by measuring that config
+alone; ``--force`` re-measures everything.
 """
 
 from __future__ import annotations
@@ -24,9 +32,12 @@ import argparse
 import csv
 import dataclasses
 import functools
+import hashlib
+import json
 import logging
 import sys
 import time
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -34,19 +45,28 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 SUITE = ROOT / "configs" / "compare" / "trade"
 WORK = ROOT / "out" / "trade"
+AUTO_RUNS = ROOT / "benchmarks" / "results" / "trade_auto.csv"  # auto run end to end per scene and tolerance
 REFINEMENT = 1.5  # the convergence solve's cells per side / the table's (d → d/1.5: λ/10 → λ/15)
 CONVERGENCE_SHARE = 1 / 3  # a reference serves tolerances at least this many times its convergence figure
+FINE_MEMORY_SHARE = 0.8  # of this machine's RAM the finer solve may need with the table's settings (else no LU)
+LU_FILL_GROWTH = 1.3  # the near LU's fill grows with the block (docs/aim.md: 13.1 → 16.6 over 4× the unknowns)
 SWEEP = (0.01, 0.02, 0.05, 0.1, 0.2)  # tolerances of the summary table
 SUITES = {  # folder → the regime, as the tables print it
     "al_waist0.6": "aluminium, waist 0.6 µm (≈ λ), 4 µm patch, 80² cells, λ 0.5 & 0.7 µm, θ_i 0° & 60°",
-    "al_waist2.5": "aluminium, waist 2.5 µm (5 λ), 9 µm patch, 180² cells, λ 0.5 µm, θ_i 0° & 30° (the configs in "
-                   "its folder; corner cubes, spherical pits and steep hemispheres not measured yet)",
+    "al_waist2.5": "aluminium, waist 2.5 µm (5 λ at 0.5 µm: the reference simulator's), 9 µm patch, 180² cells, "
+                   "λ 0.5 µm (the bumpy surface: 0.4 & 0.7 µm, 6.25 λ & 3.6 λ), θ_i 0° & 30° (the steep hemispheres: "
+                   "0° only, one solve being ≈ 3,000 CPU-s)",
+    "glass_waist0.6": "glass (n = 1.5), waist 0.6 µm (≈ λ), 4 µm patch, 80² cells, λ 0.5 & 0.7 µm, θ_i 0° & 60° "
+                      "(the dielectric: the seven scene kinds at waist ≈ λ only)",
 }
-COLUMNS = ("suite", "config", "scene", "model", "wall_s", "cpu_s", "peak_mb", "albedo", "albedo_diff", "rel_l2",
-           "rel_l2_smooth", "rel_l2_s", "rel_l2_smooth_s", "rel_l2_p", "rel_l2_smooth_p", "misplaced",
-           "peak_offset_deg", "retro", "failure")
-CONVERGENCE_COLUMNS = ("suite", "config", "scene", "spacing_um", "fine_spacing_um", "cells", "fine_cells", "cpu_s",
-                       "fine_cpu_s", "rel_l2", "rel_l2_smooth", "rel_l2_smooth_s", "rel_l2_smooth_p", "failure")
+COLUMNS = ("suite", "config", "config_digest", "scene", "model", "wall_s", "cpu_s", "peak_mb", "albedo",
+           "albedo_diff", "rel_l2", "rel_l2_smooth", "rel_l2_s", "rel_l2_smooth_s", "rel_l2_p", "rel_l2_smooth_p",
+           "misplaced", "peak_offset_deg", "retro", "failure")
+CONVERGENCE_COLUMNS = ("suite", "config", "config_digest", "scene", "spacing_um", "fine_spacing_um", "cells",
+                       "fine_cells", "cpu_s", "fine_cpu_s", "fine_peak_mb", "fine_settings", "rel_l2", "rel_l2_smooth",
+                       "rel_l2_smooth_s", "rel_l2_smooth_p", "failure")
+AUTO_COLUMNS = ("suite", "scene", "config_digest", "tolerance", "picked", "ran", "error", "error_s", "error_p",
+                "cpu_s")
 
 
 def suite_configs() -> list[Path]:
@@ -66,19 +86,87 @@ def _stored(path: Path) -> Path:
     return WORK / f"{_stem(path).name}.h5"
 
 
-def compare_suite(configs: list[Path], force: bool, log) -> None:
-    """Run ``wavebrdf compare`` on each config whose comparison is not stored yet (or every one)."""
+@functools.cache
+def config_digest(path: Path) -> str:
+    """What a config measures, as 12 hex digits: its parsed TOML without the output path (comments,
+    layout and the file's folder do not change a measurement)."""
+    data = tomllib.loads(Path(path).read_text())
+    data.get("study", {}).pop("output", None)
+    return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:12]
+
+
+def _read_csv(path: Path) -> list[dict]:
+    if not path.is_file():
+        return []
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+@dataclasses.dataclass
+class Record:
+    """The committed tables, by config digest: what a regeneration keeps for a config whose
+    comparison, convergence solve or auto run is not in ``out/trade``."""
+
+    rows: dict[str, list[dict]]
+    convergence: dict[str, dict]
+    auto: dict[tuple[str, float, str], dict]  # (scene, tolerance, rung picked) → the run
+
+    @classmethod
+    def read(cls) -> "Record":
+        from wavebrdf.solver.auto import TRADE_TABLE
+
+        rows: dict[str, list[dict]] = {}
+        for row in _read_csv(TRADE_TABLE):
+            rows.setdefault(row.get("config_digest", ""), []).append(row)
+        convergence = {r.get("config_digest", ""): r for r in _read_csv(TRADE_TABLE.with_name("trade_convergence.csv"))
+                       if not r["failure"]}
+        auto = {(r["scene"], float(r["tolerance"]), r["picked"]): r for r in _read_csv(AUTO_RUNS)}
+        return cls(rows, convergence, auto)
+
+    def kept_rows(self, path: Path) -> list[dict] | None:
+        """The table's rows of ``path`` when they cover its every scene with the reference, else None."""
+        from wavebrdf.solver.auto import REFERENCE
+
+        mine = self.rows.get(config_digest(path), [])
+        covered = {r["scene"] for r in mine if r["model"] == REFERENCE}
+        if not mine or any(label not in covered for label, _ in _scenes(path)):
+            return None
+        return [{**r, "suite": path.parent.name, "config": str(path.relative_to(ROOT))} for r in mine]
+
+
+def compare_suite(configs: list[Path], force: bool, log, record: Record | None = None) -> None:
+    """Run ``wavebrdf compare`` on each config whose comparison is neither stored in ``out/trade``
+    nor kept in ``record`` (or on every one)."""
     from wavebrdf.jobs.compare import compare_config
     from wavebrdf.jobs.config import load_config
 
+    from wavebrdf.solver.auto import REFERENCE
+
     WORK.mkdir(parents=True, exist_ok=True)
     for path in configs:
-        stem = _stem(path)
-        if force or not _stored(path).is_file():
-            t0 = time.perf_counter()
-            comparison = compare_config(load_config(path), progress=lambda what: log(f"  {what}"))
-            comparison.write(stem)
-            log(f"{path.relative_to(ROOT)}: {time.perf_counter() - t0:.0f} s")
+        if not force and _stored(path).is_file():
+            failed = [label for (label, model), m in stored_measurements(_stored(path)).items()
+                      if model == REFERENCE and m.failure]
+            if not failed:
+                continue
+            log(f"{path.relative_to(ROOT)}: the stored reference failed on {', '.join(failed)}; comparing it again")
+        elif not force and record is not None and record.kept_rows(path) is not None:
+            continue
+        t0 = time.perf_counter()
+        comparison = compare_config(load_config(path), progress=lambda what: log(f"  {what}"))
+        comparison.write(_stem(path))
+        log(f"{path.relative_to(ROOT)}: {time.perf_counter() - t0:.0f} s")
+
+
+def reference_measurement(path: Path, label: str, log):
+    """The stored full-wave Measurement of scene ``label`` of ``path`` (BRDF included); a config kept
+    only in the committed table is compared again first (its BRDFs are not in the table)."""
+    from wavebrdf.solver.auto import REFERENCE
+
+    if not _stored(path).is_file():
+        log(f"{path.relative_to(ROOT)}: its BRDFs are not in out/trade; comparing it again")
+        compare_suite([path], True, log)
+    return stored_measurements(_stored(path))[label, REFERENCE]
 
 
 @functools.cache
@@ -111,12 +199,14 @@ def _speckle_sigma(scene) -> float:
     return speckle_sigma_u(scene.wavelength_um, scene.waist_um, scene.grid, scene.exterior_index)
 
 
-def table_rows(path: Path) -> list[dict]:
+def table_rows(path: Path, record: Record | None = None) -> list[dict]:
     """The rows of one config: every (scene, model) with its errors against BEM recomputed from the
-    stored BRDFs."""
+    stored BRDFs, or, where they are not stored, the rows ``record`` keeps for it."""
     from wavebrdf.jobs.compare import comparison_metrics
     from wavebrdf.solver.auto import REFERENCE
 
+    if not _stored(path).is_file() and record is not None and (kept := record.kept_rows(path)) is not None:
+        return kept
     stored = stored_measurements(_stored(path))
     rows = []
     for label, scene in _scenes(path):
@@ -124,8 +214,9 @@ def table_rows(path: Path) -> list[dict]:
         for (where, model), m in stored.items():
             if where != label:
                 continue
-            row = {"suite": path.parent.name, "config": str(path.resolve().relative_to(ROOT)), "scene": label,
-                   "model": model, "wall_s": m.wall_s, "cpu_s": m.cpu_s, "peak_mb": m.peak_mb, "failure": m.failure or ""}
+            row = {"suite": path.parent.name, "config": str(path.resolve().relative_to(ROOT)),
+                   "config_digest": config_digest(path), "scene": label, "model": model, "wall_s": m.wall_s,
+                   "cpu_s": m.cpu_s, "peak_mb": m.peak_mb, "failure": m.failure or ""}
             if m.failure is None and ref.failure is None:
                 row.update(comparison_metrics(m, ref, scene.grid, _speckle_sigma(scene), scene.theta_i, scene.phi_i))
             rows.append(row)
@@ -137,11 +228,12 @@ def hardest_scene(path: Path) -> tuple[str, object]:
     return min(_scenes(path), key=lambda ls: (ls[1].wavelength_um, -ls[1].theta_i))
 
 
-def convergence(path: Path, force: bool, log, run: bool = True) -> dict:
+def convergence(path: Path, force: bool, log, run: bool = True, record: Record | None = None) -> dict:
     """The config's reference against BEM on the same surface at ``REFINEMENT`` times the cells
     (:func:`wavebrdf.solver.surface.refined`), on its hardest scene: the relative L2 of the coarse
-    reference with the fine one as truth (stored in ``out/trade/<study>_converged.h5``). With
-    ``run`` false a solve not stored yet is not run: the row says "not measured"."""
+    reference with the fine one as truth (both stored in ``out/trade/<study>_converged.h5``; the
+    coarse one from the comparison, or solved alone where the comparison is not stored). Not
+    stored: the row ``record`` keeps for the config; none, and ``run`` false: "not measured"."""
     import h5py
 
     from wavebrdf.jobs.compare import MeasuringProcess, Measurement, comparison_metrics
@@ -154,32 +246,62 @@ def convergence(path: Path, force: bool, log, run: bool = True) -> dict:
     fine_cells = int(round(REFINEMENT * cells))
     case = load_config(path).cases[0]
     store = WORK / f"{case.name}_converged.h5"
-    cells_row = {"suite": path.parent.name, "config": str(path.resolve().relative_to(ROOT)), "scene": label,
-                 "spacing_um": scene.surface.spacing_um, "fine_spacing_um": scene.surface.size_um / fine_cells,
-                 "cells": cells, "fine_cells": fine_cells}
+    cells_row = {"suite": path.parent.name, "config": str(path.resolve().relative_to(ROOT)),
+                 "config_digest": config_digest(path), "scene": label, "spacing_um": scene.surface.spacing_um,
+                 "fine_spacing_um": scene.surface.size_um / fine_cells, "cells": cells, "fine_cells": fine_cells}
+    kept = None if record is None else record.convergence.get(config_digest(path))
+    if not force and not store.is_file() and kept is not None:
+        return {**kept, **cells_row}
     if not run and not store.is_file():
         return {**cells_row, "cpu_s": np.nan, "fine_cpu_s": np.nan, "failure": "not measured"}
     if force or not store.is_file():
+        WORK.mkdir(parents=True, exist_ok=True)
         fine = dataclasses.replace(scene, surface=refined(scene.surface, fine_cells))
         options = case.model.options
-        log(f"{label}: BEM at {fine_cells}² cells (d = {fine.surface.spacing_um:.4g} µm)")
         with MeasuringProcess() as process:
-            m = process.measure(REFERENCE, options, fine, label)
+            if _stored(path).is_file():
+                coarse = stored_measurements(_stored(path))[label, REFERENCE]
+            else:
+                log(f"{label}: BEM at {cells}² cells (the comparison is not stored)")
+                coarse = process.measure(REFERENCE, options, scene, label)
+            fine_options, settings = fine_solve_options(options, coarse.peak_mb, (fine_cells / cells) ** 2)
+            log(f"{label}: BEM at {fine_cells}² cells (d = {fine.surface.spacing_um:.4g} µm), {settings}")
+            m = process.measure(REFERENCE, fine_options, fine, label)
         with h5py.File(store, "w") as h5:
             h5.attrs.update(scene=label, cells=fine_cells, cpu_s=m.cpu_s, wall_s=m.wall_s, peak_mb=m.peak_mb,
-                            failure=m.failure or "")
-            if m.brdf is not None:
-                h5["brdf"] = m.brdf
+                            failure=m.failure or coarse.failure or "", coarse_cpu_s=coarse.cpu_s, settings=settings)
+            for name, run_ in (("brdf", m), ("coarse_brdf", coarse)):
+                if run_.brdf is not None:
+                    h5[name] = run_.brdf
         log(f"{label}: converged reference {m.cpu_s:.0f} s CPU{' — ' + m.failure if m.failure else ''}")
     with h5py.File(store) as h5:
         fine_run = Measurement(REFERENCE, label, float(h5.attrs["wall_s"]), float(h5.attrs["cpu_s"]),
                                float(h5.attrs["peak_mb"]), h5["brdf"][()] if "brdf" in h5 else None, {},
                                h5.attrs["failure"] or None)
-    coarse = stored_measurements(_stored(path))[label, REFERENCE]
-    row = {**cells_row, "cpu_s": coarse.cpu_s, "fine_cpu_s": fine_run.cpu_s, "failure": fine_run.failure or ""}
+        coarse = Measurement(REFERENCE, label, cpu_s=float(h5.attrs["coarse_cpu_s"]),
+                             brdf=h5["coarse_brdf"][()] if "coarse_brdf" in h5 else None)
+        settings = h5.attrs.get("settings", "")
+    row = {**cells_row, "cpu_s": coarse.cpu_s, "fine_cpu_s": fine_run.cpu_s, "fine_peak_mb": fine_run.peak_mb,
+           "fine_settings": settings, "failure": fine_run.failure or ""}
     if fine_run.failure is None:
         row.update(comparison_metrics(coarse, fine_run, scene.grid, _speckle_sigma(scene), scene.theta_i, scene.phi_i))
     return row
+
+
+def fine_solve_options(options, coarse_peak_mb: float, unknowns_ratio: float):
+    """(options, what they are) of the finer convergence solve: the table's own where the coarse
+    solve's measured peak, scaled by the unknowns and the LU fill's growth, fits
+    :data:`FINE_MEMORY_SHARE` of this machine's RAM; else the same operator and tolerance without
+    the near LU (MINRES, "csym"): more products, no factor — the solution it converges to is the
+    same to the solver's tolerance, only the path there differs."""
+    from wavebrdf.solver.resources import meminfo_bytes
+
+    need = coarse_peak_mb * 2**20 * unknowns_ratio * LU_FILL_GROWTH
+    if not np.isfinite(need) or need <= FINE_MEMORY_SHARE * meminfo_bytes("MemTotal"):
+        return options, "the table's settings"
+    aim = dataclasses.replace(options.aim, preconditioner="none", solver="csym", fit_memory=False)
+    return dataclasses.replace(options, aim=aim), (f"no near LU, MINRES (the LU would need ≈ {need / 2**30:.0f} GiB: "
+                                                   f"{coarse_peak_mb / 1024:.1f} GiB measured at the table's spacing)")
 
 
 def scene_features(configs: list[Path], log) -> dict[str, dict]:
@@ -205,14 +327,18 @@ def _cheapest_within(rows: dict[str, dict], tolerance: float) -> str | None:
     return within[0][1] if within else None
 
 
-def evaluate_auto(configs: list[Path], table: list[dict], tolerance: float) -> list[dict]:
-    """Per scene: auto's choice (the rule fitted to ``table``), its measured error and CPU time,
-    the cheapest rung whose measured error meets ``tolerance`` (by measured CPU time), and BEM's."""
+def evaluate_auto(configs: list[Path], table: list[dict], tolerance: float, leave_out: bool = False) -> list[dict]:
+    """Per scene: auto's choice (the rule fitted to ``table``; with ``leave_out``, to the table
+    without the scene's own config: a scene the rule has not seen), its measured error and CPU
+    time, the cheapest rung whose measured error meets ``tolerance`` (by measured CPU time), and
+    BEM's."""
     from wavebrdf.solver.auto import ERROR_COLUMN, FEATURES, REFERENCE, Rule, SceneFeatures, choose, next_rung_up
 
-    rule = Rule.fit(table)
+    fitted = Rule.fit(table)
     rows = []
     for path in configs:
+        config = str(path.relative_to(ROOT))
+        rule = Rule.fit([r for r in table if r["config"] != config]) if leave_out else fitted
         for label, scene in _scenes(path):
             mine = {r["model"]: r for r in table if r["scene"] == label}
             first = next(iter(mine.values()))
@@ -232,10 +358,12 @@ def evaluate_auto(configs: list[Path], table: list[dict], tolerance: float) -> l
     return rows
 
 
-def measured_auto(configs: list[Path], table: list[dict], tolerance: float, log) -> list[dict]:
+def measured_auto(configs: list[Path], table: list[dict], tolerance: float, log, record: Record | None = None,
+                  force: bool = False) -> list[dict]:
     """``model = "auto"`` run on every scene (one task: the rule's path and its escalation check)
     in the measuring process, its rung's error against the stored BEM and its CPU time measured;
-    where it picks BEM, that is the table's own full-wave run (its CPU plus the pilot's)."""
+    where it picks BEM, that is the table's own full-wave run (its CPU plus the pilot's). A run
+    ``record`` keeps for the same scene, config, tolerance and pick is reused (not with ``force``)."""
     from wavebrdf.jobs.compare import MeasuringProcess, comparison_metrics
     from wavebrdf.solver.auto import REFERENCE, AutoModel, default_rule
 
@@ -243,28 +371,45 @@ def measured_auto(configs: list[Path], table: list[dict], tolerance: float, log)
     rows = []
     with MeasuringProcess() as process:
         for path in configs:
-            stored = stored_measurements(_stored(path))
             for label, scene in _scenes(path):
+                mine = {r["model"]: r for r in table if r["scene"] == label}
                 t0 = time.process_time()
                 picked = AutoModel({"tolerance": tolerance}).choice(scene).model
                 pilot = time.process_time() - t0
-                ref = stored[label, REFERENCE]
-                if picked == REFERENCE:
-                    metrics, cpu, ran = {"rel_l2_smooth": 0.0, "rel_l2_smooth_s": 0.0, "rel_l2_smooth_p": 0.0}, \
-                        ref.cpu_s + pilot, REFERENCE
+                bem_cpu = _num(mine[REFERENCE]["cpu_s"])
+                kept = None if record is None or force else record.auto.get((label, tolerance, picked))
+                if kept is not None and kept["config_digest"] == config_digest(path):
+                    run = {k: (kept[k] if k in ("picked", "ran") else _num(kept[k]))
+                           for k in ("picked", "ran", "error", "error_s", "error_p", "cpu_s")}
+                elif picked == REFERENCE:
+                    run = {"picked": picked, "ran": REFERENCE, "error": 0.0, "error_s": 0.0, "error_p": 0.0,
+                           "cpu_s": bem_cpu + pilot}
                 else:
-                    run = process.measure("auto", {"tolerance": tolerance}, scene, label)
-                    if run.failure is not None:
-                        raise RuntimeError(f"{label}: auto failed: {run.failure}")
-                    metrics = comparison_metrics(run, ref, scene.grid, _speckle_sigma(scene), scene.theta_i, scene.phi_i)
-                    cpu, ran = run.cpu_s, run.diagnostics.get("model", picked)
-                rows.append({"suite": path.parent.name, "scene": label, "picked": picked, "ran": ran,
-                             "error": metrics["rel_l2_smooth"], "error_s": metrics["rel_l2_smooth_s"],
-                             "error_p": metrics["rel_l2_smooth_p"], "cpu_s": cpu, "bem_cpu_s": ref.cpu_s,
-                             "cheapest_within": _cheapest_within({r["model"]: r for r in table if r["scene"] == label},
-                                                                  tolerance) or REFERENCE})
-                log(f"auto on {label}: {ran} error {metrics['rel_l2_smooth']:.3g}, {cpu:.3g} CPU-s")
+                    measured = process.measure("auto", {"tolerance": tolerance}, scene, label)
+                    if measured.failure is not None:
+                        raise RuntimeError(f"{label}: auto failed: {measured.failure}")
+                    ran = measured.diagnostics.get("model", picked)
+                    if _stored(path).is_file() or ran in _rungs_with_compare_options(path):
+                        ref = reference_measurement(path, label, log)
+                        metrics = comparison_metrics(measured, ref, scene.grid, _speckle_sigma(scene), scene.theta_i,
+                                                     scene.phi_i)
+                    else:  # the same rung with the same options on the same scene: the table's measured row
+                        metrics = {k: _num(mine[ran][k]) for k in ("rel_l2_smooth", "rel_l2_smooth_s", "rel_l2_smooth_p")}
+                    run = {"picked": picked, "ran": ran, "error": metrics["rel_l2_smooth"],
+                           "error_s": metrics["rel_l2_smooth_s"], "error_p": metrics["rel_l2_smooth_p"],
+                           "cpu_s": measured.cpu_s}
+                rows.append({"suite": path.parent.name, "scene": label, "config_digest": config_digest(path),
+                             "tolerance": tolerance, **run, "bem_cpu_s": bem_cpu,
+                             "cheapest_within": _cheapest_within(mine, tolerance) or REFERENCE})
+                log(f"auto on {label}: {run['ran']} error {run['error']:.3g}, {run['cpu_s']:.3g} CPU-s")
     return rows
+
+
+def _rungs_with_compare_options(path: Path) -> set[str]:
+    """Rungs the config's ``[compare.<rung>]`` tables run with other options than ``auto`` runs them
+    (the table's error of such a rung is not the error of auto's run)."""
+    section = tomllib.loads(Path(path).read_text()).get("compare", {})
+    return {name for name, table in section.items() if isinstance(table, dict)}
 
 
 def measured_summary(rows: list[dict], tolerance: float) -> str:
@@ -307,11 +452,12 @@ def main(argv=None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", stream=sys.stderr)
     log = logging.getLogger("trade").info
     configs = sorted(p.resolve() for p in args.configs) if args.configs else suite_configs()
-    compare_suite(configs, args.force, log)
+    record = Record.read()
+    compare_suite(configs, args.force, log, record)
     converged = [] if args.convergence == "none" else \
-        [convergence(p, args.force, log, run=args.convergence == "all") for p in configs]
+        [convergence(p, args.force, log, args.convergence == "all", record) for p in configs]
     features = scene_features(configs, log)
-    table = [{**row, **features[row["scene"]]} for path in configs for row in table_rows(path)]
+    table = [{**row, **features[row["scene"]]} for path in configs for row in table_rows(path, record)]
     from wavebrdf.solver.auto import FEATURES, TRADE_TABLE
 
     _write_csv(TRADE_TABLE, COLUMNS + FEATURES + ("pilot_s",), table)
@@ -319,11 +465,14 @@ def main(argv=None) -> int:
     log(f"wrote {TRADE_TABLE} and its convergence table")
     auto_rows = evaluate_auto(configs, table, args.tolerance)
     sweep = {tol: evaluate_auto(configs, table, tol) for tol in SWEEP}
-    ran = {tol: measured_auto(configs, table, tol, log) for tol in args.measured_tolerances}
+    unseen = {tol: evaluate_auto(configs, table, tol, leave_out=True) for tol in (0.05, 0.02, 0.01)}
+    ran = {tol: measured_auto(configs, table, tol, log, record, args.force) for tol in args.measured_tolerances}
+    AUTO_RUNS.parent.mkdir(parents=True, exist_ok=True)
+    _write_csv(AUTO_RUNS, AUTO_COLUMNS, [r for rows in ran.values() for r in rows])
     for suite in dict.fromkeys(r["suite"] for r in table):
         plot([r for r in table if r["suite"] == suite], args.tolerance, ROOT / "docs" / "images" / f"trade_{suite}.png",
              SUITES.get(suite, suite))
-    (ROOT / "docs" / "trade.md").write_text(markdown(table, converged, auto_rows, args.tolerance, sweep, ran))
+    (ROOT / "docs" / "trade.md").write_text(markdown(table, converged, auto_rows, args.tolerance, sweep, ran, unseen))
     log("wrote docs/trade.md and docs/images/trade_*.png")
     return 0
 
@@ -369,8 +518,8 @@ def _picks(rows: list[dict]) -> str:
 
 
 def markdown(table: list[dict], converged: list[dict], auto_rows: list[dict], tolerance: float, sweep: dict,
-             ran: dict) -> str:
-    from wavebrdf.solver.auto import Rule, SceneFeatures
+             ran: dict, unseen: dict) -> str:
+    from wavebrdf.solver.auto import ERROR_CEILING, MIN_ROWS_PER_REGRESSOR, Rule, SceneFeatures
 
     suites = list(dict.fromkeys(r["suite"] for r in table))
     lines = [HEADER.format(refinement=REFINEMENT, share=round(1 / CONVERGENCE_SHARE)), ""]
@@ -382,13 +531,14 @@ def markdown(table: list[dict], converged: list[dict], auto_rows: list[dict], to
               f"with the fine one as truth. A reference serves tolerances ≥ {round(1 / CONVERGENCE_SHARE)}× its "
               "figure (speckle-averaged; both polarizations shown).", "",
               "| suite | scene | d (µm) | fine d (µm) | rel L2 (speckle-avg) | s | p | raw | serves tolerance ≥ | "
-              "CPU (s) | fine CPU (s) |", "|" + "---|" * 11]
+              "CPU (s) | fine CPU (s) | fine solve |", "|" + "---|" * 12]
     for r in converged:
         serves = _num(r.get("rel_l2_smooth")) / CONVERGENCE_SHARE
         lines.append(f"| {r['suite']} | {r['scene']} | {r['spacing_um']:.4g} | {r['fine_spacing_um']:.4g} | "
                      f"{_cell(r.get('rel_l2_smooth'))} | {_cell(r.get('rel_l2_smooth_s'))} | "
                      f"{_cell(r.get('rel_l2_smooth_p'))} | {_cell(r.get('rel_l2'))} | {_cell(serves)} | "
-                     f"{_cell(r['cpu_s'])} | {_cell(r['fine_cpu_s'])} |" + (f" {r['failure']}" if r["failure"] else ""))
+                     f"{_cell(r['cpu_s'])} | {_cell(r['fine_cpu_s'])} | {r.get('fine_settings') or ''} |"
+                     + (f" {r['failure']}" if r["failure"] else ""))
     measured = [r for r in converged if not r["failure"]]
     if measured:
         worst = max(_num(r.get("rel_l2_smooth")) for r in measured)
@@ -431,6 +581,17 @@ def markdown(table: list[dict], converged: list[dict], auto_rows: list[dict], to
             w, c, e, ratio = summary(rows, tol)
             lines.append(f"| {tol:g} | {suite} | {w}/{len(rows)} | {c}/{len(rows)} | {e:.3g} | {ratio:.3g}× | "
                          f"{_picks(rows)} |")
+    lines += ["", "Scenes the rule has not seen: each config's scenes chosen by the rule fitted to the table "
+              "without that config (the check of tests/test_auto.py):", "",
+              "| tolerance | suite | within | cheapest | worst error | BEM CPU / auto CPU (estimate) | rungs chosen | "
+              "beyond the tolerance |", "|---|---|---|---|---|---|---|---|"]
+    for tol, all_rows in unseen.items():
+        for suite in suites + ["all"]:
+            rows = [r for r in all_rows if suite in ("all", r["suite"])]
+            w, c, e, ratio = summary(rows, tol)
+            beyond = "; ".join(f"{r['scene']} {r['auto']} {r['measured']:.3g}" for r in rows if r["measured"] > tol)
+            lines.append(f"| {tol:g} | {suite} | {w}/{len(rows)} | {c}/{len(rows)} | {e:.3g} | {ratio:.3g}× | "
+                         f"{_picks(rows)} | {beyond or '—'} |")
     lines.append("")
     exceptions = [r for r in auto_rows if r["auto"] != (r["cheapest_within"] or "bem")]
     if exceptions:
@@ -441,10 +602,14 @@ def markdown(table: list[dict], converged: list[dict], auto_rows: list[dict], to
     rule = Rule.fit(table)
     names = SceneFeatures.REGRESSORS
     lines += ["## The rule", "",
-              "log₁₀(error) = Σ cₖ xₖ + margin per rung, xₖ = " + ", ".join(names) + " (c₀ … c₇); margin = the fit's "
-              "largest residual; outside the fitted range of the regressors a prediction is the larger of the "
-              "extrapolated one and the one at the nearest fitted point; single-scattering rungs are never predicted "
-              "below the multi-bounce share (solver/auto.py).", "",
+              "log₁₀(error) = Σ cₖ xₖ + margin per rung, xₖ = " + ", ".join(names) + " (c₀ … c₇); margin = the "
+              "smallest that puts every row's prediction at or above its measured error, or above "
+              f"{ERROR_CEILING:g} where the error measured more (auto's tolerances are below {ERROR_CEILING:g}); rows "
+              "a single-scattering rung's multi-bounce floor covers impose nothing; outside the fitted range of the "
+              "regressors a prediction is the larger of the extrapolated one and the one at the nearest fitted point; "
+              "single-scattering rungs are never predicted below the multi-bounce share; a rung with fewer than "
+              f"{MIN_ROWS_PER_REGRESSOR} rows per regressor is not fitted (solver/auto.py). Rungs not listed: not "
+              "chosen.", "",
               "| rung | rows | " + " | ".join(f"c{k}" for k in range(len(names))) + " | margin |",
               "|" + "---|" * (len(names) + 3)]
     for name, c in rule.coefficients.items():
@@ -465,7 +630,8 @@ def markdown(table: list[dict], converged: list[dict], auto_rows: list[dict], to
 HEADER = """# The speed/accuracy trade table of record
 
 Every rung on seven scene kinds (smooth random, rough random, brushed, shallow grating, steep
-hemispheres, corner cubes, spherical pits) in the regimes listed below (one suite each:
+hemispheres, corner cubes, spherical pits; at the reference simulator's waist also a bumpy random
+surface of its steering surfaces' roughness) in the regimes listed below (one suite each:
 configs/compare/trade/<suite>/*.toml), with the same footprint, output grid and normalization,
 against the full-wave reference (AIM BEM) at d = 0.05 µm; each reference checked against BEM at
 {refinement:g}× the cells where that solve was run (below). Errors are the relative L2 over the lobe of the BRDF against BEM: raw, and
@@ -478,7 +644,10 @@ rays. Regenerate (resumes where it stopped):
     .venv/bin/python benchmarks/trade.py            # --force to recompute every scene
 
 It writes this page, docs/images/trade_<suite>.png, solver/data/trade.csv (the table
-`model = "auto"` fits its rule to; docs/auto.md) and solver/data/trade_convergence.csv.
+`model = "auto"` fits its rule to; docs/auto.md), solver/data/trade_convergence.csv and
+benchmarks/results/trade_auto.csv (auto run end to end). Those CSVs are the record: a config whose
+comparison is not in out/trade keeps its rows while its content is unchanged, so a new scene
+config is measured alone.
 """
 
 

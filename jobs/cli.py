@@ -217,7 +217,8 @@ def cmd_plan(args) -> int:
             if t.kind in ("direct", "patch") and plan.model_spec(t).capabilities.spot_checks]
     if auto:  # what auto expects per scene, the full-wave cost it avoids, and its spot checks
 
-        choices = [plan.model_spec(t).build().choice(expectation_scene(plan, t)) for t, _ in auto]
+        choices = [plan.model_spec(t).build().choice(expectation_scene(plan, t), checked=bool(t.checks))
+                   for t, _ in auto]
         print(plan_summary(choices, [e.seconds for _, e in auto]))
         checks = spot_check_summary(plan, estimates)
         if checks:
