@@ -519,7 +519,7 @@ def _picks(rows: list[dict]) -> str:
 
 def markdown(table: list[dict], converged: list[dict], auto_rows: list[dict], tolerance: float, sweep: dict,
              ran: dict, unseen: dict) -> str:
-    from wavebrdf.solver.auto import ERROR_CEILING, MIN_ROWS_PER_REGRESSOR, Rule, SceneFeatures
+    from wavebrdf.solver.auto import ERROR_CEILING, MIN_ROWS_PER_REGRESSOR, OPTIONAL_REGRESSORS, Rule, SceneFeatures
 
     suites = list(dict.fromkeys(r["suite"] for r in table))
     lines = [HEADER.format(refinement=REFINEMENT, share=round(1 / CONVERGENCE_SHARE)), ""]
@@ -602,7 +602,9 @@ def markdown(table: list[dict], converged: list[dict], auto_rows: list[dict], to
     rule = Rule.fit(table)
     names = SceneFeatures.REGRESSORS
     lines += ["## The rule", "",
-              "log₁₀(error) = Σ cₖ xₖ + margin per rung, xₖ = " + ", ".join(names) + " (c₀ … c₇); margin = the "
+              "log₁₀(error) = Σ cₖ xₖ + margin per rung, xₖ = " + ", ".join(names) + f" (c₀ … c{len(names) - 1}; "
+              + ", ".join(OPTIONAL_REGRESSORS) + " only in the rungs whose largest residual on scene configs left "
+              "out of the fit it lowers, else its c is 0); margin = the "
               "smallest that puts every row's prediction at or above its measured error, or above "
               f"{ERROR_CEILING:g} where the error measured more (auto's tolerances are below {ERROR_CEILING:g}); rows "
               "a single-scattering rung's multi-bounce floor covers impose nothing; outside the fitted range of the "
@@ -617,10 +619,10 @@ def markdown(table: list[dict], converged: list[dict], auto_rows: list[dict], to
                      f" | {rule.margin[name]:.3g} |")
     keys = ("scene", "model", "cpu_s", "peak_mb", "albedo_diff", "rel_l2", "rel_l2_smooth", "rel_l2_smooth_s",
             "rel_l2_smooth_p", "peak_offset_deg", "height_over_wavelength", "rms_slope", "shadowed", "multi_bounce",
-            "waist_over_wavelength", "index_contrast", "failure")
+            "waist_over_wavelength", "index_contrast", "grazing_share", "failure")
     lines += ["", "## Every scene × rung", "",
               "| scene | model | CPU (s) | peak MB | Δalbedo | rel L2 (raw) | rel L2 (speckle-avg) | s | p | "
-              "peak offset (°) | σ/λ | rms slope | shadowed | multi-bounce | w/λ | abs(n₂)/n₁ | failure |", "|" + "---|" * len(keys)]
+              "peak offset (°) | σ/λ | rms slope | shadowed | multi-bounce | w/λ | abs(n₂)/n₁ | grazing share | failure |", "|" + "---|" * len(keys)]
     for r in table:
         lines.append("| " + " | ".join(_cell(r.get(k)) if k not in ("scene", "model", "failure") else (r[k] or "")
                                         for k in keys) + " |")

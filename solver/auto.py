@@ -89,27 +89,30 @@ class SceneFeatures:
     shadowed: float
     multi_bounce: float
     index_contrast: float  # |n₂| / n₁ of the material below the surface
+    grazing_share: float  # of the phase-screen spectrum near grazing (:func:`grazing_share`)
 
     REGRESSORS = ("1", "log10 σ/λ", "rms slope", "sin²θ_i", "multi-bounce", "shadowed", "log10 w/λ",
-                  "log10 |n₂|/n₁")
+                  "log10 |n₂|/n₁", "log10 grazing share")
 
     def regressors(self) -> np.ndarray:
         """The rule's regressors: 1, log₁₀(σ/λ) (floored at 10⁻⁴), rms slope, sin²θ_i,
         multiple-bounce share, shadowed fraction, log₁₀(waist/λ) (a plane wave counts as
-        :data:`PLANE_WAVE_WAIST` wavelengths), log₁₀ of the index contrast."""
+        :data:`PLANE_WAVE_WAIST` wavelengths), log₁₀ of the index contrast, log₁₀ of the grazing
+        share (floored at 10⁻⁴)."""
         return np.array([1.0, np.log10(max(self.height_over_wavelength, 1e-4)), self.rms_slope,
                          np.sin(np.radians(self.theta_i_deg)) ** 2, self.multi_bounce, self.shadowed,
                          np.log10(min(self.waist_over_wavelength, PLANE_WAVE_WAIST)),
-                         np.log10(max(self.index_contrast, 1.0))])
+                         np.log10(max(self.index_contrast, 1.0)), np.log10(max(self.grazing_share, 1e-4))])
 
     def describe(self) -> str:
         return (f"σ/λ {self.height_over_wavelength:.3g}, rms slope {self.rms_slope:.3g}, max slope "
                 f"{self.max_slope:.3g}, θ_i {self.theta_i_deg:.0f}°, shadowed {self.shadowed:.3g}, "
                 f"multi-bounce {self.multi_bounce:.3g}, waist {self.waist_over_wavelength:.3g} λ, "
-                f"|n₂|/n₁ {self.index_contrast:.3g}")
+                f"|n₂|/n₁ {self.index_contrast:.3g}, grazing share {self.grazing_share:.3g}")
 
 
 FEATURES = tuple(f.name for f in dataclasses.fields(SceneFeatures))
+OPTIONAL_REGRESSORS = ("log10 grazing share",)  # a rung's fit takes them where they bound left-out scenes better
 
 
 def measure_scene(scene: SurfaceScene) -> SceneFeatures:
@@ -135,7 +138,41 @@ def measure_scene(scene: SurfaceScene) -> SceneFeatures:
         shadowed=float(trace.shadowed_fraction),
         multi_bounce=multi,
         index_contrast=float(abs(complex(scene.index)) / scene.exterior_index),
+        grazing_share=grazing_share(scene),
     )
+
+
+GRAZING_BAND = (np.sin(np.radians(70.0)), 1.06)  # |k∥|/k: within 20° of grazing, and just evanescent
+GRAZING_BINS_PER_K = 50  # spectral bins per k the phase screen is zero-padded to (the band is 6 wide)
+
+
+def grazing_share(scene: SurfaceScene) -> float:
+    """Share of the scene's tangent-plane spectrum in the grazing band: the patch's phase screen
+    exp(2jk cosθ_i h) under the beam's footprint, zero-padded to :data:`GRAZING_BINS_PER_K` bins per k (a Gaussian of the waist, elongated by 1/cosθ_i
+    along the plane of incidence; a plane wave: of a third of the patch), Fourier transformed and
+    shifted by the incident k∥; the power with |k∥| in :data:`GRAZING_BAND` (k of the exterior
+    medium) over the power with |k∥| up to its top. Light scattered there is where the
+    tangent-plane rungs miss what the full wave has: Rayleigh anomalies of periodic surfaces,
+    shadowing and multiple scattering at grazing exit, coupling to evanescent orders."""
+    surface = scene.surface
+    n = surface.z.shape[0]
+    x = (np.arange(n) - (n - 1) / 2) * surface.spacing_um
+    x, y = np.meshgrid(x, x, indexing="ij")
+    k = 2 * np.pi * scene.exterior_index / scene.wavelength_um
+    cos_i = np.cos(scene.theta_i)
+    along = x * np.cos(scene.phi_i) + y * np.sin(scene.phi_i)
+    across = -x * np.sin(scene.phi_i) + y * np.cos(scene.phi_i)
+    waist = scene.waist_um or surface.size_um / 3
+    screen = np.exp(-((along * cos_i) ** 2 + across ** 2) / waist ** 2 + 2j * k * cos_i * (surface.z - surface.z.mean()))
+    size = max(n, int(np.ceil(GRAZING_BINS_PER_K * 2 * np.pi / (k * surface.spacing_um))))  # zero-padded
+    power = np.abs(np.fft.fft2(screen, s=(size, size))) ** 2
+    frequencies = 2 * np.pi * np.fft.fftfreq(size, surface.spacing_um)
+    kx = frequencies[:, None] + k * np.sin(scene.theta_i) * np.cos(scene.phi_i)
+    ky = frequencies[None, :] + k * np.sin(scene.theta_i) * np.sin(scene.phi_i)
+    s = np.hypot(kx, ky) / k
+    low, high = GRAZING_BAND
+    total = power[s <= high].sum()
+    return float(power[(s >= low) & (s <= high)].sum() / total) if total > 0 else 0.0
 
 
 @dataclass(frozen=True)
@@ -162,8 +199,11 @@ class Rule:
         """Least squares (with a small ridge) of log₁₀(:data:`ERROR_COLUMN`) per rung over the
         table's rows (dicts with the :data:`FEATURES` and ``model``; the reference's rows
         skipped); a rung with fewer than :data:`MIN_ROWS_PER_REGRESSOR` rows per regressor is not
-        fitted (not predicted, not chosen)."""
+        fitted (not predicted, not chosen). The :data:`OPTIONAL_REGRESSORS` enter a rung's fit only
+        where they lower its margin measured on scenes left out: each scene config (the rows'
+        ``config``, else their ``scene``) fitted without and predicted, the largest residual."""
         coefficients, margin, rows, low, high = {}, {}, {}, {}, {}
+        optional = np.isin(SceneFeatures.REGRESSORS, OPTIONAL_REGRESSORS)
         for name in sorted({r["model"] for r in table} - {REFERENCE}):
             mine = [r for r in table if r["model"] == name and np.isfinite(_float(r.get(ERROR_COLUMN)))]
             if len(mine) < MIN_ROWS_PER_REGRESSOR * len(SceneFeatures.REGRESSORS):
@@ -174,7 +214,11 @@ class Rule:
             if name in SINGLE_SCATTERING:  # where the multi-bounce floor reaches it, the fit need not
                 floor = np.log10(np.maximum([_float(r["multi_bounce"]) for r in mine], 1e-12))
                 bound = np.where(floor >= bound, -np.inf, bound)
-            w = np.linalg.solve(x.T @ x + ridge * np.eye(x.shape[1]), x.T @ y)
+            groups = np.array([r.get("config") or r.get("scene") for r in mine])
+            used = min((~optional, np.ones_like(optional)),
+                       key=lambda use: _left_out_margin(x[:, use], y, bound, groups, ridge))
+            w = np.zeros(len(optional))
+            w[used] = _least_squares(x[:, used], y, ridge)
             coefficients[name], margin[name], rows[name] = w, float(max(0.0, np.max(bound - x @ w))), len(mine)
             low[name], high[name] = x.min(axis=0), x.max(axis=0)
         return cls(coefficients, margin, rows, low, high)
@@ -194,6 +238,20 @@ class Rule:
         if name in SINGLE_SCATTERING:
             error = max(error, features.multi_bounce)
         return float(min(error, 10.0))
+
+
+def _least_squares(x: np.ndarray, y: np.ndarray, ridge: float) -> np.ndarray:
+    return np.linalg.solve(x.T @ x + ridge * np.eye(x.shape[1]), x.T @ y)
+
+
+def _left_out_margin(x: np.ndarray, y: np.ndarray, bound: np.ndarray, groups: np.ndarray, ridge: float) -> float:
+    """The largest residual (``bound`` − prediction) of each group's rows under the fit without
+    that group; −∞ with fewer than two groups (nothing to leave out)."""
+    worst = -np.inf
+    for group in np.unique(groups) if len(np.unique(groups)) > 1 else ():
+        out = groups == group
+        worst = max(worst, float(np.max(bound[out] - x[out] @ _least_squares(x[~out], y[~out], ridge))))
+    return worst
 
 
 def _float(value) -> float:

@@ -81,6 +81,26 @@ def fresh_scene(generator: str, wavelength_um: float, theta_deg: float, seed: in
     return SurfaceScene(surface, wavelength_um, aluminium(wavelength_um), theta_deg * DEG, 0.0, 0.6, HemisphereGrid(48))
 
 
+def test_grazing_share_of_a_phase_grating_is_the_bessel_power_of_its_grazing_orders():
+    """A sinusoid h = a cos(2πx/P) under a wide beam is a phase grating: order m carries
+    J_m(2k cosθ_i a)² of the power (Jacobi–Anger, independent of the code), at
+    sinθ_m = sinθ_i + mλ/P. Period 1 µm at λ 0.5 µm and θ_i 30°: orders +1 and −3 leave at grazing,
+    0, −1, −2 do not, +2 is evanescent beyond the band; tilting to θ_i 10° takes every order out of
+    the band but the evanescent edge."""
+    from scipy.special import jv
+
+    lam, amplitude = 0.5, 0.03
+    surface = generate("sinusoid", cells=480, size_um=24.0, seed=0, amplitude_um=amplitude, period_um=1.0)
+    share = {}
+    for theta in (30.0, 10.0):
+        scene = SurfaceScene(surface, lam, aluminium(lam), theta * DEG, 0.0, 5.0, HemisphereGrid(16))
+        share[theta] = measure_scene(scene).grazing_share
+    beta = 2 * (2 * np.pi / lam) * np.cos(30 * DEG) * amplitude
+    power = {m: jv(m, beta) ** 2 for m in (-3, -2, -1, 0, 1)}
+    assert share[30.0] == pytest.approx((power[1] + power[-3]) / sum(power.values()), rel=2e-3)
+    assert share[10.0] < 1e-3 * share[30.0]
+
+
 def test_multiple_scattering_scenes_never_get_a_single_scattering_rung():
     rng = np.random.default_rng(2026)
     picks = []
