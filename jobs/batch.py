@@ -10,7 +10,7 @@ from wavebrdf.jobs.finished import up_to_date
 from wavebrdf.jobs.plan import plan_study
 from wavebrdf.jobs.shards import parse_shard, shard_output, shard_tasks, with_output
 
-__all__ = ["RunScope", "run_scope", "stop_on_sigterm"]
+__all__ = ["STOPPED_STATUS", "RunScope", "Stopped", "run_scope", "stop_on_sigterm"]
 
 
 class RunScope:
@@ -37,11 +37,19 @@ def run_scope(args, config) -> RunScope | None:
     return RunScope(config, shard_tasks(plan, index, shards), (index, shards))
 
 
+class Stopped(KeyboardInterrupt):
+    """SIGTERM: a batch system (or the batch script at its time limit) stopping the run."""
+
+
+STOPPED_STATUS = 128 + signal.SIGTERM  # the exit status of a run stopped by SIGTERM (143)
+
+
 def stop_on_sigterm() -> None:
-    """SIGTERM (a batch system stopping the job) ends the run like Ctrl-C: finished tasks are
-    kept, the lock is released, exit status 130, and the next run resumes."""
+    """SIGTERM (a batch system stopping the job) ends the run like Ctrl-C — finished tasks are
+    kept, the lock is released, and the next run resumes — with exit status
+    :data:`STOPPED_STATUS`; under MPI every rank stops so, without aborting the others."""
     def stop(signum, frame):
-        raise KeyboardInterrupt
+        raise Stopped
 
     try:
         signal.signal(signal.SIGTERM, stop)

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from wavebrdf._version import __version__
-from wavebrdf.jobs.batch import run_scope, stop_on_sigterm
+from wavebrdf.jobs.batch import STOPPED_STATUS, Stopped, run_scope, stop_on_sigterm
 from wavebrdf.jobs.config import ConfigError, load_config
 from wavebrdf.jobs.executors import Executor, executor_names, resolve_executor, share_from_root
 from wavebrdf.jobs.node import local_rank
@@ -31,7 +31,7 @@ from wavebrdf.jobs.parts import OutputBusy, OutputLock, ResumeError, StorageErro
 from wavebrdf.jobs.pictures.common import check_decades
 from wavebrdf.jobs.plan import PlanError, check_memory, device_info, format_bytes, format_number, plan_study
 from wavebrdf.jobs.progress import add_verbosity_flags, configure_logging, phi_text
-from wavebrdf.jobs.render import add_render_flags, render_dataset, render_options
+from wavebrdf.jobs.render import add_render_flags, pictures_folder, render_dataset, render_options
 from wavebrdf.jobs.scheduler import prepare_output, run_plan
 from wavebrdf.jobs.shards import add_merge_parser
 from wavebrdf.jobs.spot_checks import expectation_scene, spot_check_summary
@@ -88,7 +88,7 @@ def cmd_run(args) -> int:
     loaded = load_config(args.config, output=args.output, overrides=args.set)
     scope = run_scope(args, loaded)  # None: up to date
     if scope is None:
-        return 0
+        return _missing_pictures(args, loaded)
     stop_on_sigterm()
     args.scope, config = scope, scope.config
     study = config.cases[0]
@@ -119,12 +119,26 @@ def cmd_run(args) -> int:
         if code is not None:
             return code
         return _run_and_report(args, plan, executor, workers, comm)
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM reaches every rank of a launch: each stops, none aborts
+        raise
     except BaseException as exc:  # one failing rank must not leave the others waiting forever
         print(f"wavebrdf: error on rank {comm.Get_rank()}: {type(exc).__name__}: {exc}", file=sys.stderr)
         comm.Abort(2)
         raise
     finally:
         lock.release()
+
+
+def _missing_pictures(args, config) -> int:
+    """An up-to-date study whose pictures a stop left unmade (they are moved into place whole, so
+    the folder is missing) gets them now: on rank 0, not for a shard, not with ``--no-render``."""
+    launch = detect_mpi_launch()
+    if (args.no_render or getattr(args, "shard", None) or (launch is not None and launch.rank != 0)
+            or pictures_folder(config.output).exists()):
+        return 0
+    for png in render_dataset(config.output):
+        print(f"wrote {png}")
+    return 0
 
 
 def _mpi_lock(comm, lock, wait: bool, still_to_run) -> int | None:
@@ -597,6 +611,12 @@ def main(argv: list[str] | None = None) -> int:
     except USER_ERRORS as exc:
         print(f"wavebrdf: error: {one_line(str(exc))}", file=sys.stderr)
         return 2
+    except Stopped:
+        launch = detect_mpi_launch()
+        who = f" (rank {launch.rank})" if launch is not None else ""
+        print(f"wavebrdf: stopped by SIGTERM{who}; finished tasks are kept, re-run the same command to resume",
+              file=sys.stderr)
+        return STOPPED_STATUS
     except KeyboardInterrupt:
         print("wavebrdf: interrupted; finished tasks are kept, re-run the same command to resume", file=sys.stderr)
         return 130

@@ -58,6 +58,12 @@ def _options(kind: StudyKind, n_directions: int, plots, incidences, decades, lim
                           None if directions is None else tuple(map(tuple, directions)))
 
 
+def pictures_folder(path: str | Path) -> Path:
+    """Where ``run`` and ``render`` put the PNGs of dataset ``path``: ``<stem>_png`` beside it."""
+    path = Path(path)
+    return path.with_name(path.stem + "_png")
+
+
 def render_dataset(path: str | Path, out_dir: str | Path | None = None, *, plots=None, incidences=None,
                    max_images: int = MAX_IMAGES, decades: float = DECADES, limits=None,
                    directions=None) -> RenderedPictures:
@@ -75,7 +81,7 @@ def render_dataset(path: str | Path, out_dir: str | Path | None = None, *, plots
     so a failure (a damaged dataset, a full disk) leaves no partial set and an existing folder as
     it was."""
     path = Path(path)
-    out_dir = Path(out_dir) if out_dir else path.with_name(path.stem + "_png")
+    out_dir = Path(out_dir) if out_dir else pictures_folder(path)
     if isinstance(max_images, bool) or not isinstance(max_images, int) or max_images < 1:
         raise ConfigError(f"--max-images {max_images}: must be an integer >= 1")
     with Dataset(path) as ds:  # opened and checked: its shapes are known

@@ -8,13 +8,18 @@ The script is ``jobs/templates/<scheduler>.sh`` (with ``prelude.sh`` at ``@PRELU
 - **layout**: ranks per node and threads per rank from the plan's largest task, the node's
   cores and memory (``--cores-per-node``, ``--memory-gb``), or as given; one rank per GPU with
   ``--gpus-per-node`` (each rank takes the GPU of its local rank); ``--mem`` from the plan;
-- **clean stop**: ``--signal=B:USR1@<lead>`` and ``--requeue``: the script stops the run
-  before the limit and requeues the job, which resumes from the parts folder;
+- **clean stop**: ``--signal=B:USR1@<lead>`` and ``--requeue``: the script passes SIGTERM to
+  every rank through the launcher, the ranks stop (exit status 143, finished tasks kept) and the
+  job is requeued, appending to its log (``--open-mode=append``), and resumes from the parts
+  folder; with ``--no-requeue`` the job ends with the ranks' status (not 0: unfinished);
 - **launcher**: ``srun`` with the MPI plugin the cluster offers (pmi2, else pmix; detected
   when the job starts), or ``mpiexec``; a prologue (module loads, venv activation) from
   ``[run] prologue`` or ``--prologue``;
 - **array sharding** (``--array K``): K independent jobs, each ``run --shard i/K``; the last
   to finish merges the shards into the dataset (``wavebrdf merge``, jobs/shards.py).
+
+Every string option that reaches the script is checked first (:func:`check_script_options`), and
+ranks without mpi4py are refused here, not by the queued job.
 """
 
 from __future__ import annotations
@@ -31,13 +36,14 @@ from pathlib import Path
 from wavebrdf.jobs.config import ConfigError, load_config
 from wavebrdf.jobs.plan import node_memory_bytes, plan_study
 
-__all__ = ["Layout", "add_submit_parser", "choose_layout", "cmd_submit", "parse_duration", "render_script",
-           "slurm_duration"]
+__all__ = ["Layout", "add_submit_parser", "check_script_options", "choose_layout", "cmd_submit", "parse_duration",
+           "render_script", "slurm_duration"]
 
 RANK_BASE_BYTES = 0.5 * 2**30  # a rank's memory besides its task: Python, NumPy, OpenCL runtime (measured ~0.4 GiB)
 MEMORY_SLACK = 1.15  # --mem = ranks x (largest task + base) x this
 START_S = 60.0  # start-up of a job (ranks, imports, kernels from the cache) in the wall-time check
 SIGNAL_LEAD_S = 300  # USR1 this long before the time limit
+SLURM_SIGNAL_EARLY_S = 60  # sbatch(1) --signal: "may be sent up to 60 seconds earlier than specified"
 
 _DURATION = [  # SLURM's --time formats
     (re.compile(r"(\d+)"), ("m",)),
@@ -158,7 +164,7 @@ def _directives(scheduler: str, layout: Layout, args, job: str, seconds: int) ->
         return lines
     lines = [f"--job-name={job}", f"--nodes={layout.nodes}", f"--ntasks-per-node={layout.ranks_per_node}",
              f"--cpus-per-task={layout.threads_per_rank}", f"--mem={mem_mib}M", f"--time={slurm_duration(seconds)}",
-             f"--signal=B:USR1@{args.signal_lead}"]
+             f"--signal=B:USR1@{args.signal_lead}", "--open-mode=append"]  # a requeued job appends to its log
     if not args.no_requeue:
         lines.append("--requeue")
     if layout.gpus_per_node:
@@ -171,12 +177,60 @@ def _directives(scheduler: str, layout: Layout, args, job: str, seconds: int) ->
     return [f"#SBATCH {line}" for line in lines]
 
 
+_SCHEDULER_NAME = re.compile(r"[A-Za-z0-9_.+-]+(,[A-Za-z0-9_.+-]+)*")  # partitions, queues, accounts (comma lists)
+_MPI_PLUGIN = re.compile(r"[A-Za-z0-9_]+")
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+
+
+def check_script_options(args) -> None:
+    """Every string option that reaches the batch script, checked before it is written: names
+    (--partition, --account, --mpi) in the characters schedulers allow; each --prologue one line
+    of shell (it is the user's shell code, written as given); --script a path without control
+    characters in an existing folder. ConfigError naming the option and the value."""
+    for option, value, pattern, what in (("--partition", args.partition, _SCHEDULER_NAME, "partition/queue names"),
+                                         ("--account", args.account, _SCHEDULER_NAME, "an account name"),
+                                         ("--mpi", args.mpi, _MPI_PLUGIN, "an srun --mpi plugin name")):
+        if value is not None and not pattern.fullmatch(value):
+            raise ConfigError(f"{option} {value!r}: must be {what}: letters, digits and _ . + -"
+                              + (" (comma-separated)" if pattern is _SCHEDULER_NAME else ""))
+    for line in args.prologue or ():
+        if _CONTROL.search(line):
+            raise ConfigError(f"--prologue {line!r}: one line of shell each (no newlines or control characters); "
+                              "repeat --prologue for several lines")
+    if args.script is not None:
+        if _CONTROL.search(str(args.script)):
+            raise ConfigError(f"--script {str(args.script)!r}: a path without newlines or control characters")
+        folder = Path(args.script).parent
+        if not folder.is_dir():
+            raise ConfigError(f"--script {str(args.script)!r}: the folder {str(folder)!r} does not exist; create it "
+                              "or choose another path")
+
+
+def check_mpi_available(layout: Layout, launcher: str) -> None:
+    """Ranks need mpi4py in the Python the script runs (this one): refused before the script is
+    written, not found by the ranks of a queued job."""
+    import importlib.util
+
+    ranks = layout.nodes * layout.ranks_per_node
+    if (ranks > 1 or launcher == "mpiexec") and importlib.util.find_spec("mpi4py") is None:
+        raise ConfigError(f"--nodes {layout.nodes} x --ntasks-per-node {layout.ranks_per_node} = {ranks} MPI rank(s)"
+                          f"{' under mpiexec' if launcher == 'mpiexec' else ''} need mpi4py, which {sys.executable} "
+                          "lacks: pip install 'wavebrdf[mpi]', or one rank (--nodes 1 --ntasks-per-node 1, "
+                          "--launcher srun)")
+
+
+def _one_line(text) -> str:
+    """``text`` for a comment line of the script: control characters escaped."""
+    return _CONTROL.sub(lambda m: repr(m.group())[1:-1], str(text))
+
+
 def cmd_submit(args) -> int:
     """Write the batch script of ``args.config`` (see the module docstring)."""
     scheduler = args.scheduler
     seconds = parse_duration(args.time)
     if args.gpus_per_node < 0:
         raise ConfigError(f"--gpus-per-node {args.gpus_per_node}: must be an integer >= 0")
+    check_script_options(args)
     config = load_config(args.config)
     study = config.cases[0]
     plan = plan_study(config)
@@ -188,11 +242,18 @@ def cmd_submit(args) -> int:
                            shards=args.array)
     if seconds < layout.estimate_s:
         read_as = " (minutes:seconds)" if re.fullmatch(r"\d+:\d+", args.time.strip()) else ""
+        then = "resumes when submitted again" if args.no_requeue else "is requeued (it resumes)"
         print(f"wavebrdf: warning: --time {args.time} is {spoken(seconds)} to {scheduler.upper()}{read_as}, shorter than the "
               f"plan's estimate of {spoken(layout.estimate_s)} on {layout.nodes} node(s) x {layout.ranks_per_node} "
-              "rank(s); the job will be stopped and requeued at its limit (it resumes), but a longer --time "
-              "wastes less", file=sys.stderr)
+              f"rank(s); the job will be stopped at its limit and {then}, but a longer --time wastes less",
+              file=sys.stderr)
+    check_mpi_available(layout, args.launcher if scheduler == "slurm" else "mpiexec")
     args.signal_lead = min(args.signal_lead, max(1, seconds // 5))  # the stop must come well inside the limit
+    if scheduler == "slurm" and seconds < args.signal_lead + SLURM_SIGNAL_EARLY_S + START_S:
+        print(f"wavebrdf: warning: --time {args.time} is {spoken(seconds)}: SLURM signals a clean stop "
+              f"{args.signal_lead} s before the limit and up to {SLURM_SIGNAL_EARLY_S} s earlier still, so the run "
+              f"may be stopped before it gets going; it resumes when requeued, but give at least "
+              f"{spoken(args.signal_lead + SLURM_SIGNAL_EARLY_S + START_S)}", file=sys.stderr)
     job = re.sub(r"\W", "_", config.name)
     script = Path(args.script or f"{config.name}.{scheduler}.sh")
     prologue = [p for p in (study.sections.get("run", {}).get("prologue"), *(args.prologue or [])) if p]
@@ -205,18 +266,27 @@ def cmd_submit(args) -> int:
         after = (f'if [ "$status" -eq 0 ]; then  # the last shard to finish writes the dataset\n'
                  f"  {wavebrdf} merge {config_path} --shards {layout.shards} --if-complete --wait || status=$?\nfi")
     exports = "WAVEBRDF_DEVICE=gpu" if layout.gpus_per_node else ""
-    requeue = 'scontrol requeue "${SLURM_JOB_ID}"' if not args.no_requeue else ": # --no-requeue"
+    if args.no_requeue:
+        stopped = ('  echo "wavebrdf: job ${SLURM_JOB_ID} stopped before its time limit and is not requeued '
+                   '(--no-requeue): the study is unfinished; submit this script again to resume" >&2\n'
+                   '  exit "$status"')
+        stop_word = "the job ends with the ranks' status (--no-requeue: not requeued)"
+    else:
+        stopped = ('  echo "wavebrdf: requeueing job ${SLURM_JOB_ID}: it resumes from the finished tasks" >&2\n'
+                   '  scontrol requeue "${SLURM_JOB_ID}"\n  exit 0')
+        stop_word = "the job is requeued (--requeue) and resumes"
     fields = {
-        "STUDY": repr(config.name), "SCRIPT": script, "DIRECTIVES": "\n".join(_directives(scheduler, layout, args, job,
+        "STUDY": repr(config.name), "SCRIPT": _one_line(script), "DIRECTIVES": "\n".join(_directives(scheduler, layout, args, job,
                                                                                          seconds)),
         "PLAN": (f"{len(plan.tasks)} task(s), largest {max(e.memory_bytes for e in estimates) / 2**30:.2f} GiB, "
                  f"about {spoken(layout.estimate_s)} on {layout.nodes} node(s) x {layout.ranks_per_node} rank(s) "
                  f"x {layout.threads_per_rank} thread(s)" + (f", {layout.shards} shards" if layout.shards > 1 else "")),
-        "PARTS": f"{config.output}.parts" if layout.shards == 1 else f"{Path(config.output).with_suffix('')}.shard-*",
+        "PARTS": _one_line(f"{config.output}.parts" if layout.shards == 1
+                           else f"{Path(config.output).with_suffix('')}.shard-*"),
         "CWD": shlex.quote(str(Path.cwd())), "PROLOGUE": "\n".join(prologue) or ":",
         "BINDIR": shlex.quote(str(Path(sys.executable).parent)), "THREADS": layout.threads_per_rank,
         "RANKS": layout.ranks_per_node, "TOTAL_RANKS": layout.ranks_per_node * layout.nodes, "EXPORTS": exports,
-        "MPI": shlex.quote(args.mpi), "LAUNCHER": args.launcher, "LEAD": args.signal_lead, "REQUEUE": requeue,
+        "MPI": shlex.quote(args.mpi), "LAUNCHER": args.launcher, "LEAD": args.signal_lead, "STOPPED": stopped, "STOP_WORD": stop_word,
         "WAVEBRDF": wavebrdf, "CONFIG": config_path, "RUN_ARGS": run_args, "AFTER": after or ":",
     }
     script.write_text(render_script(scheduler, fields))

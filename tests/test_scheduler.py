@@ -107,6 +107,66 @@ def test_resume_after_sigkill(tmp_path, serial_reference):
     assert_same(read(tmp_path / "batch.h5"), serial_reference)
 
 
+def stop_with_sigterm(tmp_path, cmd: list[str], env=None) -> subprocess.CompletedProcess:
+    """Start ``cmd`` on the 48-task po study, SIGTERM its process group (every rank, as a batch
+    system's clean stop does) once 4 tasks are done; its outcome."""
+    parts = tmp_path / "batch.h5.parts"
+    proc = subprocess.Popen(cmd, start_new_session=True, stderr=subprocess.PIPE, text=True, env=env)
+    deadline = time.time() + 300
+    while time.time() < deadline and proc.poll() is None:
+        if parts.is_dir() and len(list(parts.glob("task-*.npz"))) >= 4:
+            break
+        time.sleep(0.02)
+    os.killpg(proc.pid, signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    return subprocess.CompletedProcess(cmd, proc.returncode, "", err)
+
+
+def po_study(tmp_path) -> Path:
+    cfg = write_study(tmp_path, "batch", model="po")
+    cfg.write_text(cfg.read_text().replace('"surface.seed" = [1, 2]', '"surface.seed" = [1, 2, 3, 4]'))
+    return cfg
+
+
+def test_sigterm_stops_with_status_143_and_the_same_command_resumes(tmp_path):
+    cfg = po_study(tmp_path)
+    cmd = [str(BIN / "wavebrdf"), "run", str(cfg), "-q", "--no-render"]
+    stopped = stop_with_sigterm(tmp_path, cmd)
+    assert stopped.returncode == 143, stopped.stderr
+    assert "wavebrdf: stopped by SIGTERM; finished tasks are kept" in stopped.stderr
+    done = len(list((tmp_path / "batch.h5.parts").glob("task-*.npz")))
+    assert 4 <= done < 48 and not (tmp_path / "batch.h5").exists()
+    assert subprocess.run(cmd, capture_output=True).returncode == 0
+    assert not (tmp_path / "batch.h5.parts").exists()
+
+
+@pytest.mark.mpi
+def test_sigterm_to_every_rank_stops_each_cleanly_without_an_abort(tmp_path):
+    cfg = po_study(tmp_path)
+    env = {**os.environ, "PATH": f"{BIN}:{os.environ['PATH']}"}
+    cmd = [str(BIN / "mpiexec"), "-n", "2", str(BIN / "wavebrdf"), "run", str(cfg), "-q", "--no-render"]
+    stopped = stop_with_sigterm(tmp_path, cmd, env)
+    for rank in (0, 1):
+        assert f"wavebrdf: stopped by SIGTERM (rank {rank})" in stopped.stderr, stopped.stderr
+    assert "error on rank" not in stopped.stderr and "MPI_Abort" not in stopped.stderr, stopped.stderr
+    assert subprocess.run(cmd, capture_output=True, env=env, timeout=600).returncode == 0
+    assert (tmp_path / "batch.h5").is_file() and not (tmp_path / "batch.h5.parts").exists()
+
+
+def test_a_finished_study_without_its_pictures_gets_them_on_the_next_run(tmp_path, capsys):
+    """A stop while the pictures were drawn leaves the dataset and no picture folder (it is moved
+    into place whole): the next run says "up to date" and draws them; one more run draws nothing."""
+    cfg = write_study(tmp_path, "batch")
+    assert main(["run", str(cfg), "-q", "--no-render"]) == 0
+    assert not (tmp_path / "batch_png").exists()
+    capsys.readouterr()
+    assert main(["run", str(cfg), "-q"]) == 0
+    out, err = capsys.readouterr()
+    assert "is up to date" in err and "wrote" in out and list((tmp_path / "batch_png").glob("*.png"))
+    assert main(["run", str(cfg), "-q"]) == 0
+    assert "wrote" not in capsys.readouterr().out
+
+
 def test_changed_config_is_refused_on_resume(tmp_path):
     cfg = write_study(tmp_path, "batch")
     parts = tmp_path / "batch.h5.parts"

@@ -141,3 +141,54 @@ def test_bad_time_is_one_line_exit_2(study, bad, capsys):
     assert main(["submit", str(study), "--time", bad]) == 2
     err = capsys.readouterr().err
     assert err.startswith("wavebrdf: error: --time") and err.count("\n") == 1
+
+
+INJECTIONS = ["x\nrm -rf ~", "a'b", 'a"b', "$(touch pwned)", "a;b", "`id`", "a b"]
+
+
+@pytest.mark.parametrize("option", ["--partition", "--account", "--mpi"])
+@pytest.mark.parametrize("value", INJECTIONS)
+def test_names_that_reach_the_script_are_refused_with_shell_syntax(study, option, value, capsys):
+    assert main(["submit", str(study), "--time", "1:00:00", option, value, "--script", "x.sh"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"wavebrdf: error: {option} ") and err.count("\n") == 1
+    assert not Path("x.sh").exists() and not Path("pwned").exists()
+
+
+def test_each_option_is_one_directive_and_a_prologue_one_line(study):
+    """Good values are written as given, one #SBATCH line each; a --prologue is the user's shell
+    (quotes, $(...) and ; kept), one line each; a newline in one is refused."""
+    assert main(["submit", str(study), "--time", "1:00:00", "--partition", "gpu,debug", "--account", "proj-1.a",
+                 "--mpi", "pmix", "--prologue", "module load x; echo \"$(hostname)\"", "--prologue", "true",
+                 "--script", "ok.sh"]) == 0
+    text = Path("ok.sh").read_text()
+    header = [line for line in text.splitlines() if line.startswith("#SBATCH")]
+    for key in ("partition", "account", "time", "requeue", "open-mode", "signal", "output", "mem"):
+        assert sum(line.split()[1].lstrip("-").split("=")[0] == key for line in header) == 1, key
+    options = sbatch_options(text)
+    assert (options["partition"], options["account"], options["open-mode"]) == ("gpu,debug", "proj-1.a", "append")
+    assert "\nmodule load x; echo \"$(hostname)\"\ntrue\n" in text and "mpi_plugin=pmix" in text
+    assert subprocess.run(["bash", "-n", "ok.sh"]).returncode == 0
+    assert main(["submit", str(study), "--time", "1:00:00", "--prologue", "a\nb", "--script", "bad.sh"]) == 2
+    assert not Path("bad.sh").exists()
+
+
+def test_script_into_a_missing_folder_and_ranks_without_mpi4py_are_refused_by_submit(study, monkeypatch, capsys):
+    assert main(["submit", str(study), "--time", "1:00:00", "--script", "nowhere/job.sh"]) == 2
+    assert "--script 'nowhere/job.sh': the folder 'nowhere' does not exist" in capsys.readouterr().err
+    import importlib.util
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "mpi4py" else real(name, *a))
+    assert main(["submit", str(study), "--time", "1:00:00", "--cores-per-node", "4", "--ntasks-per-node", "2",
+                 "--script", "mpi.sh"]) == 2
+    err = capsys.readouterr().err
+    assert "2 MPI rank(s) need mpi4py" in err and "pip install 'wavebrdf[mpi]'" in err and not Path("mpi.sh").exists()
+    assert main(["submit", str(study), "--time", "1:00:00", "--ntasks-per-node", "1", "--script", "one.sh"]) == 0
+
+
+def test_no_requeue_ends_the_job_with_the_ranks_status_and_a_short_limit_is_warned(study, capsys):
+    assert main(["submit", str(study), "--time", "1", "--no-requeue", "--script", "nr.sh"]) == 0
+    text = Path("nr.sh").read_text()
+    assert "requeue" not in sbatch_options(text) and "scontrol requeue" not in text
+    assert 'exit "$status"' in text.rsplit("is not requeued", 1)[1].split("\nfi\n")[0]
+    assert "up to 60 s earlier still" in capsys.readouterr().err
