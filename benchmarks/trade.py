@@ -602,7 +602,7 @@ def markdown(table: list[dict], converged: list[dict], auto_rows: list[dict], to
     rule = Rule.fit(table)
     names = SceneFeatures.REGRESSORS
     lines += ["## The rule", "",
-              "log₁₀(error) = Σ cₖ xₖ + margin per rung, xₖ = " + ", ".join(names) + f" (c₀ … c{len(names) - 1}; "
+              "log₁₀(error) = Σ cₖ xₖ + margin per rung, xₖ = " + ", ".join(names) + f" (c₀ … c{str(len(names) - 1).translate(str.maketrans('0123456789', '₀₁₂₃₄₅₆₇₈₉'))}; "
               + ", ".join(OPTIONAL_REGRESSORS) + " only in the rungs whose largest residual on scene configs left "
               "out of the fit it lowers, else its c is 0); margin = the "
               "smallest that puts every row's prediction at or above its measured error, or above "

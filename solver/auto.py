@@ -66,6 +66,7 @@ REFERENCE = "bem"
 # rungs whose paths end after one reflection: they miss the energy of longer paths
 SINGLE_SCATTERING = ModelsWith("single_scattering")
 PLANE_WAVE_WAIST = 100.0  # waist/λ a plane wave (waist None) counts as in the rule
+GRAZING_FLOOR = 1e-3  # grazing shares below it count as it: nothing grazes, the other regressors decide
 ERROR_CEILING = 0.3  # the rule bounds errors up to this (a rung measured worse need only be predicted ≥ it)
 MIN_ROWS_PER_REGRESSOR = 3  # table rows a rung needs per regressor to be fitted (with 2.75, stam's fit left out
 # of one config under-predicted it 2-3.5x: tests/test_auto.py's leave-one-config-out check)
@@ -98,11 +99,11 @@ class SceneFeatures:
         """The rule's regressors: 1, log₁₀(σ/λ) (floored at 10⁻⁴), rms slope, sin²θ_i,
         multiple-bounce share, shadowed fraction, log₁₀(waist/λ) (a plane wave counts as
         :data:`PLANE_WAVE_WAIST` wavelengths), log₁₀ of the index contrast, log₁₀ of the grazing
-        share (floored at 10⁻⁴)."""
+        share (floored at :data:`GRAZING_FLOOR`)."""
         return np.array([1.0, np.log10(max(self.height_over_wavelength, 1e-4)), self.rms_slope,
                          np.sin(np.radians(self.theta_i_deg)) ** 2, self.multi_bounce, self.shadowed,
                          np.log10(min(self.waist_over_wavelength, PLANE_WAVE_WAIST)),
-                         np.log10(max(self.index_contrast, 1.0)), np.log10(max(self.grazing_share, 1e-4))])
+                         np.log10(max(self.index_contrast, 1.0)), np.log10(max(self.grazing_share, GRAZING_FLOOR))])
 
     def describe(self) -> str:
         return (f"σ/λ {self.height_over_wavelength:.3g}, rms slope {self.rms_slope:.3g}, max slope "

@@ -164,17 +164,19 @@ def test_auto_measures_on_spot_checks_and_stays_within_tolerance_of_the_full_wav
 
 
 def test_the_full_wave_fallback_is_fitted_to_the_task_budget():
-    """The issue's scene (rough aluminium 12.5 µm at λ 0.4 µm, waist 2.5 µm, tolerance 0.01): the
-    default AIM settings need more than 80 % of a 24 GiB node, the memory-fitted ones ~5.5 GiB, so the
-    full wave is chosen; under a 4 GiB task budget nothing can meet 0.01, and the choice says so."""
+    """The issue's scene (rough aluminium 12.5 µm at λ 0.4 µm, waist 2.5 µm), at a tolerance no
+    cheap rung is predicted to meet (0.003: the rule's bound for po there is 0.0049, for kirchhoff
+    0.015 — kirchhoff was measured at 0.0038): the default AIM settings need more than 80 % of a
+    24 GiB node, the memory-fitted ones ~5.5 GiB, so the full wave is chosen; under a 4 GiB task
+    budget nothing can meet the tolerance, and the choice says so."""
     surface = generate("gaussian", cells=500, size_um=12.5, seed=7, rms_height_um=0.09, correlation_um=1.8)
     index = complex(Material.from_name("aluminium").index(0.4))
     scene = SurfaceScene(surface, 0.4, index, 0.0, 0.0, 2.5, HemisphereGrid(128), memory_budget_bytes=12 * 2**30)
     default = model_class("bem")({"method": "aim", "aim": {"fit_memory": False}}).estimate(scene)
     assert default.memory_bytes > 12 * 2**30  # the default settings alone would not fit this task
-    chosen = choose(scene, 0.01)
+    chosen = choose(scene, 0.003)
     assert chosen.model == REFERENCE and chosen.within, chosen.reason
-    starved = choose(dataclasses.replace(scene, memory_budget_bytes=4 * 2**30), 0.01)
+    starved = choose(dataclasses.replace(scene, memory_budget_bytes=4 * 2**30), 0.003)
     assert starved.model != REFERENCE and not starved.within and "4.0 GiB" in starved.reason
 
 
