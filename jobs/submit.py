@@ -187,12 +187,13 @@ def check_script_options(args) -> None:
     (--partition, --account, --mpi) in the characters schedulers allow; each --prologue one line
     of shell (it is the user's shell code, written as given); --script a path without control
     characters in an existing folder. ConfigError naming the option and the value."""
-    for option, value, pattern, what in (("--partition", args.partition, _SCHEDULER_NAME, "partition/queue names"),
-                                         ("--account", args.account, _SCHEDULER_NAME, "an account name"),
-                                         ("--mpi", args.mpi, _MPI_PLUGIN, "an srun --mpi plugin name")):
+    names = "letters, digits and _ . + - (comma-separated)"
+    for option, value, pattern, what in (
+            ("--partition", args.partition, _SCHEDULER_NAME, f"partition/queue names: {names}"),
+            ("--account", args.account, _SCHEDULER_NAME, f"account names: {names}"),
+            ("--mpi", args.mpi, _MPI_PLUGIN, "an srun --mpi plugin name: letters, digits and _")):
         if value is not None and not pattern.fullmatch(value):
-            raise ConfigError(f"{option} {value!r}: must be {what}: letters, digits and _ . + -"
-                              + (" (comma-separated)" if pattern is _SCHEDULER_NAME else ""))
+            raise ConfigError(f"{option} {value!r}: must be {what}")
     for line in args.prologue or ():
         if _CONTROL.search(line):
             raise ConfigError(f"--prologue {line!r}: one line of shell each (no newlines or control characters); "
@@ -276,8 +277,8 @@ def cmd_submit(args) -> int:
                    '  scontrol requeue "${SLURM_JOB_ID}"\n  exit 0')
         stop_word = "the job is requeued (--requeue) and resumes"
     fields = {
-        "STUDY": repr(config.name), "SCRIPT": _one_line(script), "DIRECTIVES": "\n".join(_directives(scheduler, layout, args, job,
-                                                                                         seconds)),
+        "STUDY": repr(config.name), "SCRIPT": _one_line(script),
+        "DIRECTIVES": "\n".join(_directives(scheduler, layout, args, job, seconds)),
         "PLAN": (f"{len(plan.tasks)} task(s), largest {max(e.memory_bytes for e in estimates) / 2**30:.2f} GiB, "
                  f"about {spoken(layout.estimate_s)} on {layout.nodes} node(s) x {layout.ranks_per_node} rank(s) "
                  f"x {layout.threads_per_rank} thread(s)" + (f", {layout.shards} shards" if layout.shards > 1 else "")),
@@ -286,7 +287,8 @@ def cmd_submit(args) -> int:
         "CWD": shlex.quote(str(Path.cwd())), "PROLOGUE": "\n".join(prologue) or ":",
         "BINDIR": shlex.quote(str(Path(sys.executable).parent)), "THREADS": layout.threads_per_rank,
         "RANKS": layout.ranks_per_node, "TOTAL_RANKS": layout.ranks_per_node * layout.nodes, "EXPORTS": exports,
-        "MPI": shlex.quote(args.mpi), "LAUNCHER": args.launcher, "LEAD": args.signal_lead, "STOPPED": stopped, "STOP_WORD": stop_word,
+        "MPI": shlex.quote(args.mpi), "LAUNCHER": args.launcher, "LEAD": args.signal_lead,
+        "STOPPED": stopped, "STOP_WORD": stop_word,
         "WAVEBRDF": wavebrdf, "CONFIG": config_path, "RUN_ARGS": run_args, "AFTER": after or ":",
     }
     script.write_text(render_script(scheduler, fields))

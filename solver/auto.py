@@ -149,10 +149,11 @@ GRAZING_BINS_PER_K = 50  # spectral bins per k the phase screen is zero-padded t
 
 def grazing_share(scene: SurfaceScene) -> float:
     """Share of the scene's tangent-plane spectrum in the grazing band: the patch's phase screen
-    exp(2jk cosθ_i h) under the beam's footprint, zero-padded to :data:`GRAZING_BINS_PER_K` bins per k (a Gaussian of the waist, elongated by 1/cosθ_i
-    along the plane of incidence; a plane wave: of a third of the patch), Fourier transformed and
-    shifted by the incident k∥; the power with |k∥| in :data:`GRAZING_BAND` (k of the exterior
-    medium) over the power with |k∥| up to its top. Light scattered there is where the
+    exp(2jk cosθ_i h) under the beam's footprint (a Gaussian of the waist, elongated by 1/cosθ_i
+    along the plane of incidence; a plane wave: of a third of the patch), zero-padded to
+    :data:`GRAZING_BINS_PER_K` bins per k, Fourier transformed and shifted by the incident k∥; the
+    power with |k∥| in :data:`GRAZING_BAND` (k of the exterior medium) over the power with |k∥| up
+    to its top. Light scattered there is where the
     tangent-plane rungs miss what the full wave has: Rayleigh anomalies of periodic surfaces,
     shadowing and multiple scattering at grazing exit, coupling to evanescent orders."""
     surface = scene.surface
@@ -164,8 +165,9 @@ def grazing_share(scene: SurfaceScene) -> float:
     along = x * np.cos(scene.phi_i) + y * np.sin(scene.phi_i)
     across = -x * np.sin(scene.phi_i) + y * np.cos(scene.phi_i)
     waist = scene.waist_um or surface.size_um / 3
-    screen = np.exp(-((along * cos_i) ** 2 + across ** 2) / waist ** 2 + 2j * k * cos_i * (surface.z - surface.z.mean()))
-    size = max(n, int(np.ceil(GRAZING_BINS_PER_K * 2 * np.pi / (k * surface.spacing_um))))  # zero-padded
+    footprint = -((along * cos_i) ** 2 + across ** 2) / waist ** 2
+    screen = np.exp(footprint + 2j * k * cos_i * (surface.z - surface.z.mean()))
+    size = max(n, int(np.ceil(GRAZING_BINS_PER_K * 2 * np.pi / (k * surface.spacing_um))))
     power = np.abs(np.fft.fft2(screen, s=(size, size))) ** 2
     frequencies = 2 * np.pi * np.fft.fftfreq(size, surface.spacing_um)
     kx = frequencies[:, None] + k * np.sin(scene.theta_i) * np.cos(scene.phi_i)
@@ -216,8 +218,10 @@ class Rule:
                 floor = np.log10(np.maximum([_float(r["multi_bounce"]) for r in mine], 1e-12))
                 bound = np.where(floor >= bound, -np.inf, bound)
             groups = np.array([r.get("config") or r.get("scene") for r in mine])
-            used = min((~optional, np.ones_like(optional)),
-                       key=lambda use: _left_out_margin(x[:, use], y, bound, groups, ridge))
+            used = ~optional
+            if optional.any() and (_left_out_margin(x, y, bound, groups, ridge)
+                                   < _left_out_margin(x[:, used], y, bound, groups, ridge)):
+                used = np.ones_like(optional)
             w = np.zeros(len(optional))
             w[used] = _least_squares(x[:, used], y, ridge)
             coefficients[name], margin[name], rows[name] = w, float(max(0.0, np.max(bound - x @ w))), len(mine)
@@ -248,8 +252,8 @@ def _least_squares(x: np.ndarray, y: np.ndarray, ridge: float) -> np.ndarray:
 def _left_out_margin(x: np.ndarray, y: np.ndarray, bound: np.ndarray, groups: np.ndarray, ridge: float) -> float:
     """The largest residual (``bound`` − prediction) of each group's rows under the fit without
     that group; −∞ with fewer than two groups (nothing to leave out)."""
-    worst = -np.inf
-    for group in np.unique(groups) if len(np.unique(groups)) > 1 else ():
+    worst, names = -np.inf, np.unique(groups)
+    for group in names if len(names) > 1 else ():
         out = groups == group
         worst = max(worst, float(np.max(bound[out] - x[out] @ _least_squares(x[~out], y[~out], ridge))))
     return worst
