@@ -4,7 +4,7 @@ returns the opened dataset.
 ::
 
     import wavebrdf
-    with wavebrdf.run("configs/default.toml", **{"output.resolution": 128,
+    with wavebrdf.run("configs/default.toml", **{"output.resolution": 128, "study.output": "out/spectrum.h5",
                                                  "illumination.wavelengths_um": {"start": 0.4, "stop": 0.7,
                                                                                  "count": 7}}) as ds:
         ds.to_xarray().albedo.sel(theta_i=30)
@@ -34,13 +34,15 @@ def run(config, /, *, device: str | None = None, progress: bool = False, render:
     :func:`wavebrdf.open` (close it, or use ``with``). ``device``: OpenCL device (as
     ``WAVEBRDF_DEVICE``); ``progress``: show the progress bar; ``render``: also write the PNGs;
     ``wait``: wait for another run holding the output instead of raising; ``force``: recompute
-    an up-to-date output. Under ``mpiexec`` every rank calls it; rank 0 gets the dataset, the
-    others None. Failed tasks are NaN in the dataset and raise a warning naming how many."""
+    an up-to-date output or replace another configuration's (refused otherwise, naming
+    ``force=True``). Under ``mpiexec`` every rank calls it; rank 0 gets the dataset, the others
+    None. Failed tasks are NaN in the dataset and raise a warning naming how many."""
     study = load_config(config if isinstance(config, dict) else Path(config), overrides=overrides or None)
     flags = ["--quiet"] * (not progress) + ["--no-render"] * (not render) + ["--wait"] * wait + ["--force"] * force
     args = build_parser().parse_args(["run", str(study.path or "config.toml"), *flags]
                                      + (["--device", device] if device else []))
     args.config, args.set = study, None  # validated once, above
+    args.force_flag = "force=True"  # what refusals and "up to date" name to force a run
     code = args.func(args)
     launch = detect_mpi_launch()
     if launch is not None and launch.rank != 0:

@@ -23,11 +23,12 @@ class RunScope:
 def run_scope(args, config) -> RunScope | None:
     """The run's scope, or None (after printing "up to date") when there is nothing to do: the
     output already holds this plan's complete results (jobs/finished.py; ``--force`` recomputes).
-    A changed config is refused (ResumeError naming what changed)."""
-    force = getattr(args, "force", False)
+    A changed config is refused (ResumeError naming what changed and ``args.force_flag``, how this
+    caller forces a run: "--force" unless set)."""
+    force, flag = getattr(args, "force", False), getattr(args, "force_flag", "--force")
     plan = plan_study(config)
-    if up_to_date(plan, force):
-        print(f"{config.output} is up to date ({len(plan.tasks)} tasks done; --force recomputes it)",
+    if up_to_date(plan, force, flag):
+        print(f"{config.output} is up to date ({len(plan.tasks)} tasks done; {flag} recomputes it)",
               file=sys.stderr)
         return None
     if not getattr(args, "shard", None):

@@ -1,4 +1,4 @@
-"""Command line: ``wavebrdf run | plan | submit | inspect | render | devices | bench``.
+"""Command line: ``wavebrdf run | plan | submit | inspect | render | export | example | devices | bench``.
 
 Errors in user input (config, surface files, output paths, datasets, command-line flags), an
 output held by another run (``run`` without ``--wait``) and a failed write (disk full: the previous
@@ -24,6 +24,7 @@ from wavebrdf._version import __version__
 from wavebrdf.jobs.batch import STOPPED_STATUS, Stopped, run_scope, stop_on_sigterm
 from wavebrdf.jobs.config import ConfigError, load_config
 from wavebrdf.jobs.executors import Executor, executor_names, resolve_executor, share_from_root
+from wavebrdf.jobs.export import ExportError, add_export_parser
 from wavebrdf.jobs.node import local_rank
 from wavebrdf.jobs.output_path import make_output_folder
 from wavebrdf.jobs.overrides import parse_assignment
@@ -51,7 +52,7 @@ logger = logging.getLogger("wavebrdf")
 
 
 USER_ERRORS = (ConfigError, PlanError, ResumeError, OutputBusy, StoreError, MaterialError, OpenCLUnavailable,
-               SurfaceError, OSError)  # printed as one line, exit status 2
+               SurfaceError, ExportError, OSError)  # printed as one line, exit status 2
 
 
 @dataclass(frozen=True)
@@ -266,8 +267,8 @@ def cmd_models(args) -> int:
         cls = model_class(name)
         caps = cls.capabilities
         flags = [f for f in ("polarized", "steerable", "reciprocal", "conserves_energy") if getattr(caps, f)]
-        summary = " ".join((cls.__doc__ or "").strip().split("\n\n")[0].split())
-        print(f"{name}: {summary}\n    takes {caps.takes}, returns {caps.returns}; {', '.join(flags) or 'no flags'}")
+        print(f"{name}: {cls.summary}" if cls.summary else f"{name}:")
+        print(f"    takes {caps.takes}, returns {caps.returns}; {', '.join(flags) or 'no flags'}")
         for key, kind, default, doc in describe_options(cls.Options):
             print(f"    {key} = {default!r} ({kind}): {doc}")
     return 0
@@ -423,17 +424,39 @@ def cmd_render(args) -> int:
             from wavebrdf.mitsuba import render_scene
 
             out = Path(args.out) / f"{Path(args.file).stem}_{args.scene}.png" if args.out else None
-            result = render_scene(args.file, args.scene, out)
+            result = render_scene(args.file, args.scene, out, spp=args.spp, resolution=args.resolution,
+                                  variant=args.variant)
         except (ImportError, ValueError) as exc:
-            print(f"wavebrdf: error: {exc}", file=sys.stderr)
+            print(f"wavebrdf: error: {one_line(str(exc))}", file=sys.stderr)
             return 2
         print(f"wrote {result['path']} (Mitsuba {result['variant']}: load {result['load_s']:.1f} s, "
               f"render {result['render_s']:.1f} s)")
         return 0
 
+    mitsuba_only = [f"{flag} {value}" for flag, value in (("--spp", args.spp), ("--resolution", args.resolution),
+                                                          ("--variant", args.variant)) if value is not None]
+    if mitsuba_only:
+        raise ConfigError(f"{', '.join(mitsuba_only)}: only with --scene (a Mitsuba render)")
     check_decades(args.decades)  # before the dataset is opened
     for png in render_dataset(args.file, args.out, **render_options(args)):
         print(f"wrote {png}")
+    return 0
+
+
+def cmd_example(args) -> int:
+    from wavebrdf.jobs.examples import list_examples, write_example
+
+    if args.name is None:
+        examples = list_examples()
+        width = max(map(len, examples))
+        for name, summary in examples.items():
+            print(f"{name:{width}}  {summary}")
+        print("write one: wavebrdf example NAME [--out DIR]; then: wavebrdf run DIR/NAME.toml")
+        return 0
+    written = write_example(args.name, args.out, force=args.force)
+    for path in written:
+        print(f"wrote {path}")
+    print(f"run it: wavebrdf run {written[0]}")
     return 0
 
 
@@ -450,13 +473,29 @@ def cmd_devices(args) -> int:
     return 0
 
 
+def benchmarks_folder(package_root: Path, cwd: Path) -> Path | None:
+    """The ``benchmarks/`` folder of a source checkout: the one the package runs from
+    (``package_root``: an editable install), else one in the working directory ``cwd`` (a checkout
+    beside an installed copy); None when neither holds ``bench_*.py`` (the wheel ships none)."""
+    for root in (package_root, cwd):
+        folder = root / "benchmarks"
+        if any(folder.glob("bench_*.py")):
+            return folder
+    return None
+
+
 def cmd_bench(args) -> int:
     import runpy
 
-    script = Path(__file__).resolve().parent.parent / "benchmarks" / f"bench_{args.name}.py"
+    folder = benchmarks_folder(Path(__file__).resolve().parent.parent, Path.cwd())
+    if folder is None:
+        raise ConfigError("wavebrdf bench runs the scripts in a source checkout's benchmarks/ folder, which an "
+                          "installed wavebrdf does not include: clone the repository and run 'wavebrdf bench "
+                          f"{args.name}' (or 'python benchmarks/bench_{args.name}.py') in it")
+    script = folder / f"bench_{args.name}.py"
     if not script.is_file():
-        available = sorted(p.stem[6:] for p in script.parent.glob("bench_*.py"))
-        raise SystemExit(f"wavebrdf: error: no benchmark {args.name!r}; available: {', '.join(available)}")
+        available = sorted(p.stem[6:] for p in folder.glob("bench_*.py"))
+        raise ConfigError(f"bench {args.name}: no such benchmark in {folder}; available: {', '.join(available)}")
     sys.argv = [str(script)] + list(args.rest)
     sys.path.insert(0, str(script.parent))  # benchmarks import their sibling helpers
     runpy.run_path(str(script), run_name="__main__")
@@ -585,7 +624,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scene", choices=["sphere", "plate", "fibers"],
                    help="render the material with Mitsuba 3 (extra 'render') under a sky instead: "
                         "<file stem>_<scene>.png (sphere/plate: surface datasets; fibers: fiber datasets)")
+    p.add_argument("--spp", type=_count("--spp"), help="with --scene: samples per pixel (default 64, 16 in scalar "
+                                                        "variants)")
+    p.add_argument("--resolution", type=_count("--resolution"), help="with --scene: image side in pixels (default "
+                                                                      "256, 128 in scalar variants)")
+    p.add_argument("--variant", help="with --scene: the Mitsuba variant, e.g. scalar_rgb, llvm_ad_rgb, "
+                                     "llvm_ad_spectral (default llvm_ad_rgb where a libLLVM >= 17 is found, else "
+                                     "scalar_rgb)")
     p.set_defaults(func=cmd_render)
+
+    add_export_parser(sub)
+
+    p = sub.add_parser("example", help="list the example studies, or write one (a config and the files it reads) "
+                                       "to start from")
+    p.add_argument("name", nargs="?", help="the example, e.g. default (the quick start); none: list them")
+    p.add_argument("--out", type=Path, default=Path("."), help="folder to write into (default: here)")
+    p.add_argument("--force", action="store_true", help="overwrite files of the same names")
+    p.set_defaults(func=cmd_example)
 
     p = sub.add_parser("devices", help="list OpenCL platforms/devices and their fp64 support")
     p.set_defaults(func=cmd_devices)
@@ -608,6 +663,9 @@ def main(argv: list[str] | None = None) -> int:
     configure_logging(args.verbose)  # timestamped, printed above the progress bar
     try:
         return args.func(args)
+    except BrokenPipeError:  # output piped into a reader that closed it (`wavebrdf inspect x.h5 | head`)
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit
+        return 0
     except USER_ERRORS as exc:
         print(f"wavebrdf: error: {one_line(str(exc))}", file=sys.stderr)
         return 2

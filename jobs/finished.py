@@ -57,17 +57,18 @@ def _text(value) -> str:
     return value.decode() if isinstance(value, bytes) else str(value)
 
 
-def up_to_date(plan, force: bool = False) -> bool:
+def up_to_date(plan, force: bool = False, force_flag: str = "--force") -> bool:
     """True when ``plan``'s output already holds its complete results (nothing to run).
     ResumeError (unless ``force``) when the output is not a wavebrdf dataset or holds another
-    configuration's results."""
+    configuration's results; its message names ``force_flag``, how the caller forces a run
+    ("--force" on the command line, "force=True" in ``wavebrdf.run``)."""
     output = Path(plan.config.output)
     if force or not output.exists():
         return False
     problem = not_a_dataset(output)
     if problem is not None:
         raise ResumeError(f"{output} {problem}: it is not a wavebrdf dataset, so it is not replaced; move it "
-                          "away, set another [study] output, or add --force to overwrite it")
+                          f"away, set another [study] output, or add {force_flag} to overwrite it")
     if output.with_name(output.name + ".parts").exists():
         return False  # a run to resume
     try:
@@ -82,6 +83,6 @@ def up_to_date(plan, force: bool = False) -> bool:
     if _text(found) != plan.fingerprint:
         raise ResumeError(f"{output} holds the results of another configuration (study {_text(study)!r}, "
                           f"fingerprint {_text(found)}; changed: {changed_keys(_text(config), plan.config.text)}); "
-                          "add --force to overwrite it, or set another [study] output")
+                          f"add {force_flag} to overwrite it, or set another [study] output")
     states = {_text(s) for s in status}
     return len(status) == len(plan.tasks) and states == {"done"}

@@ -1,4 +1,4 @@
-"""CF-style metadata of wavebrdf datasets (schema v2), written by jobs/store.py.
+"""CF-style metadata of wavebrdf datasets (schema v3), written by jobs/store.py.
 
 Every variable and coordinate gets ``long_name``; numeric ones get ``units`` (UDUNITS spelling:
 "um", "degree", "s", "1" for dimensionless numbers; strings carry none). Names that end in a unit

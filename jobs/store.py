@@ -1,4 +1,4 @@
-"""HDF5 dataset schema v2: writer (atomic), reader (:func:`open_dataset`, ``wavebrdf.open``).
+"""HDF5 dataset schema v3: writer (atomic), reader (:func:`open_dataset`, ``wavebrdf.open``).
 
 Two layouts, told apart by the root attribute ``kind``: "surface" (BRDFs of height fields,
 below) and "fiber" (BCSDF tables: ``bcsdf``, ``dCs_dphi``, ``C_ext``/``C_sca``/``C_abs`` over
@@ -6,7 +6,7 @@ wavelength, θ_i, polarization, φ_i, φ_r; see docs/dataset.md). Surface layout
 is a 1-D dataset registered as an HDF5 dimension scale, so
 ``xarray.open_dataset(path, engine="h5netcdf")`` reads it with no custom code)::
 
-    /                         attrs: format="wavebrdf", format_version=2, software_version,
+    /                         attrs: format="wavebrdf", format_version=3, software_version,
                               config (TOML text), created (UTC ISO 8601), device, study, conventions,
                               Conventions="CF-1.8", history (CF-style: every variable and
                               coordinate has long_name, numeric ones units; see jobs/netcdf.py)
@@ -21,13 +21,16 @@ is a 1-D dataset registered as an HDF5 dimension scale, so
     albedo_sp  [sweep..., wavelength_um, incidence, polarization]
     brdf_sp    [sweep..., wavelength_um, incidence, polarization, u, v]  (output.per_polarization)
     ior_n, ior_kappa [sweep..., wavelength_um]          material index n − jκ
-    surface/<case>            height matrix (µm) of each sweep case [x_<case>, y_<case>] (node
+    surface/height_<case>     height matrix (µm) of each sweep case [x_<case>, y_<case>] (node
                               positions, µm, dimension scales in surface/); attrs size_um, spacing_um, stats
     tasks/                    one row per task [task]: case, wavelength/incidence index, model, status,
                               wall_time_s, peak_memory_mb, device, message (diagnostics)
 
-Version 2 (this writer) added the CF-style attributes and the dimension scales of the groups
-(no ``phony_dim_*``); readers accept versions 1 and 2 (``READ_VERSIONS``).
+Version 2 added the CF-style attributes and the dimension scales of the groups (no
+``phony_dim_*``); version 3 (this writer) names the per-case variables of the groups with a letter
+first, as CF asks (``surface/height_<case>``, ``fiber/polygon_<case>``; ``surface/<case>``,
+``fiber/<case>`` before). Readers accept versions 1 to 3 (``READ_VERSIONS``; :meth:`Dataset.case_variable`
+finds either name).
 
 Writing is atomic: the file is assembled under a temporary name in the target folder (with the
 mode any new file gets from the umask) and renamed into place only when complete, so a crash
@@ -76,8 +79,8 @@ __all__ = [
 ]
 
 FORMAT = "wavebrdf"
-FORMAT_VERSION = 2
-READ_VERSIONS = (1, 2)  # format versions this reader accepts (v2 = v1 + CF attributes, group dimensions)
+FORMAT_VERSION = 3
+READ_VERSIONS = (1, 2, 3)  # v2 = v1 + CF attributes, group dimensions; v3 = v2 with letter-first case variables
 CONVENTIONS = (
     "lengths in micrometres; vacuum wavelength; time dependence exp(+j omega t); index n - j kappa; "
     "theta_i/phi_i in degrees toward the light; u (rows) = x direction cosine, v (columns) = y; "
@@ -119,7 +122,8 @@ class Layout(NamedTuple):
     """The variables a dataset of one kind (root attribute ``kind``) must hold: the main variable,
     its trailing dimensions and their letters, {other variable: its dimensions as letters, "*" =
     the sweep dimensions, a digit = that size} (polarization holds strings, the rest numbers); the
-    coordinates a reader lists after the sweep keys, and the xarray index ``to_xarray`` sets."""
+    coordinates a reader lists after the sweep keys, the xarray index ``to_xarray`` sets, and the
+    per-case variable (group, name prefix): ``<group>/<prefix>_<flat case index>``."""
 
     main: str
     trailing: tuple[str, ...]
@@ -127,16 +131,22 @@ class Layout(NamedTuple):
     others: dict
     coordinates: tuple[str, ...]
     xarray_index: dict
+    per_case: tuple[str, str]
+
+    def case_variable(self, case) -> str:
+        """The path of case ``case``'s variable (format version 3)."""
+        group, prefix = self.per_case
+        return f"{group}/{prefix}_{case}"
 
 
 LAYOUTS = {
     "surface": Layout("brdf", ("wavelength_um", "incidence", "u", "v"), "LIUV",
                       {"albedo": "*LI", "albedo_sp": "*LI2", "theta_i": "I", "phi_i": "I", "polarization": "2"},
                       ("wavelength_um", "incidence", "theta_i", "phi_i", "polarization", "u", "v"),
-                      {"incidence": ["theta_i", "phi_i"]}),
+                      {"incidence": ["theta_i", "phi_i"]}, ("surface", "height")),
     "fiber": Layout("bcsdf", ("wavelength_um", "theta_i", "phi_i", "phi_r"), "LTPR",
                     {"dCs_dphi": "*LT2PR", "C_ext": "*LT2P", "C_sca": "*LT2P", "C_abs": "*LT2P", "polarization": "2"},
-                    ("wavelength_um", "theta_i", "phi_i", "phi_r", "polarization"), {}),
+                    ("wavelength_um", "theta_i", "phi_i", "phi_r", "polarization"), {}, ("fiber", "polygon")),
 }
 
 
@@ -464,7 +474,8 @@ class SurfaceDatasetWriter(_Writer):
         """Per-case data: surface heights with their measured statistics, the generator's
         parameters (``generator``, ``generator_<key>``) and ensemble (``ensemble_<key>``) when it
         has them, and the material index at every wavelength."""
-        ds = self.h5["surface"].create_dataset(case_id, data=heights, compression="gzip", shuffle=True)
+        ds = self.h5.create_dataset(LAYOUTS["surface"].case_variable(case_id), data=heights, compression="gzip",
+                                    shuffle=True)
         spacing = size_um / (heights.shape[0] - 1)
         ds.attrs.update({"size_um": size_um, "spacing_um": spacing, "units": "um", "long_name": "surface height",
                          "case_index": list(case_index), **stats})
@@ -573,7 +584,7 @@ class FiberDatasetWriter(_Writer):
 
     def write_case(self, case_index: tuple[int, ...], case_id: str, nodes: np.ndarray, width: np.ndarray,
                    index: np.ndarray, longitudinal_variance: float = 0.02) -> None:
-        ds = self.h5["fiber"].create_dataset(case_id, data=nodes)
+        ds = self.h5.create_dataset(LAYOUTS["fiber"].case_variable(case_id), data=nodes)
         ds.attrs.update({"units": "um", "long_name": "cross-section polygon nodes (x, y), counter-clockwise",
                          "case_index": list(case_index)})
         attach_scales(ds, [(f"node_{case_id}", np.arange(len(nodes)), {"units": "1", "long_name": "node index"}),
@@ -708,7 +719,7 @@ class Dataset:
         """Turn what a damaged file raises while it is read into a one-line :class:`StoreError`."""
         try:
             yield self
-        except StorageError:
+        except (StorageError, BrokenPipeError):  # a reader that stopped reading is not a damaged file
             raise
         except (KeyError, ValueError, IndexError, TypeError, OSError, RuntimeError) as exc:  # h5py: stale scales
             text = " ".join(str(exc).split())[:200]
@@ -795,8 +806,22 @@ class Dataset:
         grp = self._h5.get("tasks")
         return {} if grp is None else {k: grp[k][()] for k in grp}
 
+    def case_variable(self, case: int = 0) -> h5py.Dataset | None:
+        """The per-case variable of flat sweep case ``case`` (surface heights, fiber cross section),
+        by its name in format version 3 or, in older files, the bare case number; None if absent."""
+        layout = LAYOUTS[self.kind]
+        for name in (layout.case_variable(case), f"{layout.per_case[0]}/{case}"):
+            found = self._h5.get(name)
+            if isinstance(found, h5py.Dataset):
+                return found
+        return None
+
     def surface(self, case: int = 0) -> np.ndarray:
-        return self._h5["surface"][str(case)][()]
+        """The height matrix (µm) of flat sweep case ``case``."""
+        found = self.case_variable(case)
+        if found is None:
+            raise self._fail(f"has no surface heights of case {case}")
+        return found[()]
 
     def to_xarray(self):
         """The file as an ``xarray.Dataset`` (h5netcdf engine); for surfaces ``incidence`` is

@@ -484,6 +484,8 @@ class AutoModel(Model):
     there; elsewhere it returns what the chosen rung returns."""
 
     name = "auto"
+    summary = ("the cheapest rung expected (one task) or measured on spot checks (a study of many) to meet "
+               "[model] tolerance, chosen per task and run; the full wave where none is")
     capabilities = Capabilities(takes="height_field", returns="fields", polarized=True, steerable=True,
                                 reciprocal=False, conserves_energy=False, spot_checks=True, picks_rung=True)
     Options = AutoOptions

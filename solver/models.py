@@ -2,7 +2,8 @@
 
 A model owns
 
-* ``name`` — the ``[model] name`` of configs;
+* ``name`` — the ``[model] name`` of configs; ``summary`` — one line for users (``wavebrdf
+  models``): what it computes, in plain words (the docstrings are for developers);
 * ``Options`` — a frozen dataclass of its settings (solver/options.py), parsed by the config layer
   from the keys of ``[model]`` besides ``name``/``precision`` and from ``[model.<name>]``;
   unknown keys and bad values are refused at load;
@@ -210,6 +211,7 @@ class Model(ABC):
     """
 
     name: ClassVar[str]
+    summary: ClassVar[str] = ""  # what ``wavebrdf models`` says it computes
     capabilities: ClassVar[Capabilities]
     Options: ClassVar[type] = NoOptions
     sampling: ClassVar[frozenset[str]] = frozenset()

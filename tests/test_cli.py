@@ -26,6 +26,10 @@ def test_default_config_end_to_end(tmp_path, capsys):
     assert ds["brdf"].shape == (3, 3, 512, 512)
     # rough aluminium: albedo a little below the flat-surface Fresnel value (~0.92)
     assert float(ds["albedo"].min()) > 0.8 and float(ds["albedo"].max()) < 0.95
+    import wavebrdf
+
+    with wavebrdf.open(out) as d:  # the quick start is within its model's validity: no task warns
+        assert [w for w in d.tasks["warnings"] if w] == []
 
     assert main(["inspect", str(out)]) == 0
     text = capsys.readouterr().out

@@ -1,4 +1,4 @@
-"""Dataset conventions (schema v2): every example config's dataset, made through the Python API
+"""Dataset conventions (schema v3): every example config's dataset, made through the Python API
 with overrides, is read by netCDF-C (netCDF4) without unnamed dimensions and with CF-style
 attributes, and by xarray at the minimum versions pyproject allows (.venv/xarray-min, made by
 tools/setup.sh), selecting by θ_i and by a swept value."""
@@ -37,6 +37,8 @@ EXAMPLES = {
     "fiber_ellipse.toml": ({"illumination.wavelengths_um": [0.5], "illumination.theta_i_deg": [0, 40],
                             "fiber.segments": 48, "output.phi_i_bins": 2, "output.phi_r_bins": 36,
                             "sweep": {"material.kappa": [0.0, 0.02]}}, 40.0, "material.kappa"),
+    "render_ready.toml": ({"output.resolution": 32, "illumination.wavelengths_um": [0.45, 0.65],
+                           "sweep": {"surface.seed": [1, 2]}}, 30.0, "surface.seed"),
 }
 MINUTES = {"bem_aim_aluminium.toml", "bem_aim_reference.toml", "bem_rough_aluminium.toml",
            "steering_bem.toml"}  # full-wave: minutes
@@ -84,14 +86,16 @@ def test_netcdf_reads_named_dimensions_and_cf_attributes(examples):
 
     for name, (out, kind, _, key) in examples.items():
         with netCDF4.Dataset(out) as nc:
-            assert nc.Conventions == "CF-1.8" and nc.format_version == 2
+            assert nc.Conventions == "CF-1.8" and nc.format_version == 3
             assert "wavebrdf" in nc.history and name in nc.history
             seen = set()
             for where, group in _walk(nc):
                 seen.add(where)
                 for dim in group.dimensions:
                     assert not dim.startswith("phony_dim"), (name, where, dim)
+                    assert dim[0].isalpha(), (name, where, dim)  # CF 2.3: names begin with a letter
                 for var_name, var in group.variables.items():
+                    assert var_name[0].isalpha(), (name, where, var_name)
                     attrs = var.ncattrs()
                     assert "long_name" in attrs, (name, where, var_name)
                     if var.dtype is not str:
@@ -111,7 +115,7 @@ def test_api_overrides_ranges_and_selection(examples):
         assert ds.config.startswith(f"# {ROOT / 'configs' / 'default.toml'} with overrides: ")
         assert ds.surface(1).shape == (201, 201)
         x = ds.to_xarray()
-        albedo = x.albedo.sel(theta_i=60, phi_i=45).sel({"surface.seed": 2})
+        albedo = x.albedo.sel(theta_i=40, phi_i=45).sel({"surface.seed": 2})
         assert np.allclose(albedo.values, ds.albedo[1, :, 2])
     # a config given as a dict, with a section merged from an override
     data = {"study": {"output": str(out.with_name("dict.h5"))},
@@ -139,7 +143,7 @@ def test_datasets_are_created_with_the_umask(tmp_path, umask):
 
 def test_previous_format_version_is_read_and_a_newer_one_refused(examples, tmp_path):
     source = examples["stam_brushed.toml"][0]
-    for version, readable in ((1, True), (3, False)):
+    for version, readable in ((1, True), (2, True), (4, False)):
         copy = tmp_path / f"v{version}.h5"
         shutil.copyfile(source, copy)
         with h5py.File(copy, "r+") as h5:
@@ -148,5 +152,5 @@ def test_previous_format_version_is_read_and_a_newer_one_refused(examples, tmp_p
             with wavebrdf.open(copy) as ds:
                 assert ds.brdf.shape[0] == 2
         else:
-            with pytest.raises(StoreError, match="format version 3 .*reads format versions 1, 2"):
+            with pytest.raises(StoreError, match="format version 4 .*reads format versions 1, 2, 3"):
                 wavebrdf.open(copy)

@@ -70,7 +70,7 @@ def test_circle_study_matches_mie_and_is_xarray_readable(tmp_path):
     assert np.all(ds["power_balance_error"].values < 1e-3)
     assert len(list((tmp_path / "circle_png").glob("circle_theta?.png"))) == 2  # + slices, albedo, cross sections
     with wavebrdf.open(out) as d:
-        assert d.kind == "fiber" and d.coords["phi_r"].size == 72 and d["fiber/0"].shape == (64, 2)
+        assert d.kind == "fiber" and d.coords["phi_r"].size == 72 and d["fiber/polygon_0"].shape == (64, 2)
 
 
 def test_ellipse_with_phi_i_bins_and_explicit_samples(tmp_path):

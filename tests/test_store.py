@@ -83,7 +83,7 @@ def test_xarray_reads_every_swept_coordinate(sweep_dataset):
 
 def test_reader_and_provenance(sweep_dataset):
     with wavebrdf.open(sweep_dataset) as ds:
-        assert ds.attrs["format"] == "wavebrdf" and ds.attrs["format_version"] == 2
+        assert ds.attrs["format"] == "wavebrdf" and ds.attrs["format_version"] == 3
         assert ds.attrs["software_version"] == wavebrdf.__version__
         assert "[sweep]" in ds.config
         assert ds.sweep_keys == ["surface.rms_height_um", "surface.correlation_um"]

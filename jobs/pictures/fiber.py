@@ -106,7 +106,7 @@ def _cross_sections(c: Case, opts):
                    colours=palette, min_span=span)
         if n:
             ax.get_legend().remove()
-    outline = c.ds.h5.get(f"fiber/{c.flat}")
+    outline = c.ds.case_variable(c.flat)
     ax = fig.add_subplot(1, 4, 4)
     if outline is not None:
         nodes = np.asarray(outline[()], dtype=float)

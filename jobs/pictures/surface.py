@@ -63,7 +63,7 @@ class Case:
 def available(c: Case, kind: str) -> bool:
     """Whether picture ``kind`` exists for case ``c`` (spectra need several wavelengths)."""
     if kind == "heights":
-        return f"surface/{c.flat}" in c.ds.h5
+        return c.ds.case_variable(c.flat) is not None
     return kind != "spectra" or len(c.coords["wavelength_um"]) > 1
 
 
@@ -183,7 +183,7 @@ def _stat(attrs, key: str, unit: str = "") -> str:
 
 
 def _heights(c: Case, opts):
-    dataset = c.ds.h5[f"surface/{c.flat}"]
+    dataset = c.ds.case_variable(c.flat)
     z = np.asarray(dataset[()], dtype=float)
     attrs = dict(dataset.attrs)
     size = float(attrs.get("size_um", z.shape[0] - 1))

@@ -277,6 +277,7 @@ class WSVModel(Model):
     """``[model] name = "ws-v"``: Falster's single-scattering term (Kirchhoff + ray-traced V_i V_o)."""
 
     name = "ws-v"
+    summary = "Falster et al. 2020: Kirchhoff with ray-traced shadowing and masking (single scattering)"
     sampling = frozenset({"lattice", "pixels", "realization"})
     Options = WSVOptions
     capabilities = Capabilities(takes="height_field", returns="fields", polarized=True, steerable=False,
@@ -295,6 +296,7 @@ class WMModel(Model):
     incoherent sum: intensity only."""
 
     name = "wm"
+    summary = "Falster et al. 2020: ws-v plus path-traced secondary bounces (intensity only)"
     sampling = frozenset({"lattice", "pixels", "realization"})
     Options = WMOptions
     capabilities = Capabilities(takes="height_field", returns="intensity", polarized=True, steerable=False,

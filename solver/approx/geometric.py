@@ -58,6 +58,7 @@ class GSModel(Model):
     """``[model] name = "gs"``: geometric optics, single scattering with exact shadowing/masking."""
 
     name = "gs"
+    summary = "geometric optics by ray tracing the height field: single scattering with exact shadowing and masking"
     Options = GSOptions
     sampling = frozenset({"realization"})  # rays: the spacing need not resolve λ, the slopes must be the ensemble's
     # Reciprocal only in expectation, not claimed: per realization the estimate averages f over the
@@ -158,6 +159,7 @@ class GMModel(GSModel):
     """``[model] name = "gm"``: geometric optics, multiple scattering (paths up to ``max_depth``)."""
 
     name = "gm"
+    summary = "geometric optics by ray tracing the height field: multiple scattering (paths up to max_depth bounces)"
     Options = GMOptions
     capabilities = replace(GSModel.capabilities, rung=1, single_scattering=False)
     _lost_key = "truncated_energy_fraction"

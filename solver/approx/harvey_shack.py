@@ -498,6 +498,7 @@ class OHSModel(HarveyShackModel):
     """``[model] name = "ohs"``: original Harvey–Shack (c_z = 2k, Ω = μ_o/μ_i, Fresnel at θ_i)."""
 
     name = "ohs"
+    summary = "original Harvey-Shack scalar diffraction; one transform per wavelength serves every incident direction"
     sampling = frozenset({"lattice", "pixels", "realization"})
     variant = "ohs"
     capabilities = replace(HarveyShackModel.capabilities, rung=2)
@@ -508,6 +509,8 @@ class GHSModel(HarveyShackModel):
     θ_i, propagating part renormalized by Krywonos' K)."""
 
     name = "ghs"
+    summary = ("generalized Harvey-Shack scalar diffraction (Krywonos' renormalization); one transform per "
+               "wavelength serves every incident direction")
     sampling = frozenset({"lattice", "realization"})  # renormalized: the albedo does not depend on the pixels
     variant = "ghs"
     capabilities = replace(HarveyShackModel.capabilities, rung=3)

@@ -491,6 +491,8 @@ class KirchhoffModel(FootprintModel):
     """Registry adapter: ``[model] name = "kirchhoff"`` (no options of its own)."""
 
     name = "kirchhoff"
+    summary = ("scalar Kirchhoff (tangent-plane) approximation of a rough surface: single scattering, Fresnel at "
+               "the half vector; fast")
     sampling = frozenset({"lattice", "pixels", "realization"})
     capabilities = Capabilities(takes="height_field", returns="fields", polarized=True, steerable=True,
                                 reciprocal=True, conserves_energy=False, rung=4, single_scattering=True)

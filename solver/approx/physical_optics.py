@@ -210,6 +210,8 @@ class POModel(FootprintModel):
     """``[model] name = "po"``: vector physical optics, first order (approx.md §3.6)."""
 
     name = "po"
+    summary = ("vector physical optics: tangent-plane currents on the lit surface, polarization-resolved with "
+               "cross-polarization")
     sampling = frozenset({"lattice", "pixels", "realization"})
     Options = POOptions
     capabilities = Capabilities(takes="height_field", returns="fields", polarized=True, steerable=True,

@@ -214,6 +214,7 @@ class StamModel(Model):
     """Registry adapter: ``[model] name = "stam"``; takes the surface's Gaussian ensemble."""
 
     name = "stam"
+    summary = "Stam 1999: the expected Kirchhoff BRDF of a Gaussian random surface from its statistics, no realization"
     Options = StamOptions
     capabilities = Capabilities(takes="statistics", returns="intensity", polarized=True, steerable=False,
                                 reciprocal=True, conserves_energy=False, rung=5, single_scattering=True)

@@ -59,6 +59,8 @@ class BEMModel(Model):
     """PMCHWT boundary elements on the height field (solver/bem3d)."""
 
     name = "bem"
+    summary = ("full-wave boundary elements (PMCHWT) on the height field, the reference: dense LU for small "
+               "patches, the Adaptive Integral Method for 10^5-10^6 unknowns")
     Options = BEMOptions
     capabilities = Capabilities(takes="height_field", returns="fields", polarized=True, steerable=True,
                                 reciprocal=True, conserves_energy=True, rung=9)

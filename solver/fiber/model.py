@@ -63,6 +63,7 @@ class FiberBEMModel(_FiberModel):
     kept for the next scene on the same context."""
 
     name = "fiber-bem"
+    summary = "full-wave 2.5D boundary elements for a fiber of any cross section at oblique incidence (BCSDF tables)"
 
     def __init__(self, options=None):
         super().__init__(options)
@@ -98,6 +99,7 @@ class MieModel(_FiberModel):
     """The Mie series of a circular cylinder (solver/fiber/mie.py); needs ``scene.radius_um``."""
 
     name = "mie"
+    summary = "Mie series of a circular fiber (Bohren-Huffman): exact for circles, fast"
 
     def check(self, scene: FiberScene) -> None:
         """The series is that of a circular cylinder."""

@@ -362,7 +362,7 @@ def test_stam_study_runs_end_to_end(tmp_path, capsys):
         assert set(h5["tasks/status"][()].astype(str)) == {"done"}
         forms = set(h5["tasks/form"][()].astype(str))
         stored = h5["brdf_sp"][()][0]  # (incidence, pol, u, v)
-        attrs = dict(h5["surface/0"].attrs)
+        attrs = dict(h5["surface/height_0"].attrs)
     assert forms == {"series"}
     assert attrs["ensemble_correlation_um"].tolist() == [1.2, 0.6] and attrs["ensemble_angle_deg"] == 35.0
     for i, (theta, phi) in enumerate(((0.0, 0.0), (40.0, 30.0))):

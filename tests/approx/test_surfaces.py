@@ -401,15 +401,15 @@ STAT_KEYS = ("rms_height_um", "peak_to_valley_um", "rms_slope", "max_slope", "co
 
 @pytest.mark.parametrize("generator", list(DATASET_CASES))
 def test_dataset_records_statistics_and_parameters(tmp_path, capsys, generator):
-    """wavebrdf run → surface/0 attributes: the measured statistics (those of the HeightField the
+    """wavebrdf run → surface/height_0 attributes: the measured statistics (those of the HeightField the
     study used), the generator's name and parameters, and the ensemble of random generators."""
     cfg = tmp_path / f"{generator}.toml"
     cfg.write_text(_config(f'generator = "{generator}"\nseed = 3\n' + DATASET_CASES[generator], tmp_path))
     assert main(["run", str(cfg), "-q", "--no-render"]) == 0, capsys.readouterr().err
     capsys.readouterr()
     with h5py.File(tmp_path / "out.h5", "r") as h5:
-        attrs = dict(h5["surface/0"].attrs)
-        heights = h5["surface/0"][()]
+        attrs = dict(h5["surface/height_0"].attrs)
+        heights = h5["surface/height_0"][()]
     params = dict(line.split(" = ") for line in DATASET_CASES[generator].splitlines())
     surface = generate(generator, cells=40, size_um=10.0, seed=3,
                        **{k: eval(v) if not v.startswith('"') else v.strip('"') for k, v in params.items()})

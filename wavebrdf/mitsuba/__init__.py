@@ -5,7 +5,8 @@
 >>> wavebrdf.mitsuba.register()             # BSDF "wavebrdf" for the current variant
 >>> mi.load_dict({"type": "sphere", "bsdf": {"type": "wavebrdf", "filename": "out/default.h5"}})
 
-Plugin properties: ``filename`` (a surface dataset), ``case`` (flat sweep-case index, default 0),
+Plugin properties: ``filename`` (a surface dataset; a relative path is resolved by Mitsuba's file
+resolver, against an XML scene's folder first), ``case`` (flat sweep-case index, default 0),
 ``smooth_sigma`` (speckle blur, u units; default λ/(2π·waist) from the dataset's config, 0 = none),
 ``isotropic`` (use rotation invariance in φ; default: as the config declares it),
 ``interpolation`` ("shift": Harvey–Shack alignment of the lobes over incidence, default; "blend").

@@ -12,18 +12,32 @@ from wavebrdf.mitsuba.fiber_tables import load_fiber_tables
 from wavebrdf.mitsuba.plugin import make_plugin_class
 from wavebrdf.mitsuba.tables import Tables, load_tables
 
-__all__ = ["clear_cache", "fiber_radius", "fiber_tables_for", "register", "tables_for"]
+__all__ = ["MITSUBA_REQUIREMENT", "clear_cache", "fiber_radius", "fiber_tables_for", "register", "require_mitsuba",
+           "tables_for"]
+
+MITSUBA_REQUIREMENT = "mitsuba>=3.6"  # the `render` extra's requirement (pyproject.toml)
 
 _CACHE: dict = {}
 
 
-def _mitsuba():
+def require_mitsuba():
+    """The ``mitsuba`` module; ImportError saying how to install it when it is missing."""
     try:
         import mitsuba as mi
-    except ImportError as exc:  # pragma: no cover - depends on the installation
-        raise ImportError("wavebrdf.mitsuba needs Mitsuba 3: pip install 'wavebrdf[render]' "
-                          f"(or pip install 'mitsuba>=3.5'): {exc}") from None
+    except ImportError as exc:
+        raise ImportError(f"wavebrdf.mitsuba needs Mitsuba 3 ({MITSUBA_REQUIREMENT}): pip install 'wavebrdf[render]' "
+                          f"(or pip install '{MITSUBA_REQUIREMENT}'); {exc}") from None
     return mi
+
+
+def _dataset_path(props, plugin: str, what: str) -> str:
+    """The plugin's ``filename`` resolved as Mitsuba resolves its own plugins' files: against the
+    folders of its file resolver, the scene file's folder first when the scene is an XML file."""
+    if "filename" not in props:
+        raise ValueError(f"[{plugin} plugin] filename: missing (a wavebrdf {what} dataset, .h5)")
+    mi = require_mitsuba()
+    resolver = mi.file_resolver() if hasattr(mi, "file_resolver") else mi.Thread.thread().file_resolver()
+    return str(resolver.resolve(str(props["filename"])))
 
 
 def tables_for(filename, *, channels: str, case: int = 0, smooth_sigma: float | None = None,
@@ -53,11 +67,10 @@ def clear_cache() -> None:
 
 
 def _load_from_props(props, channels: str) -> Tables:
-    if "filename" not in props:
-        raise ValueError("[wavebrdf plugin] filename: missing (a wavebrdf surface dataset, .h5)")
+    path = _dataset_path(props, "wavebrdf", "surface")
     sigma = props.get("smooth_sigma", None)
     iso = props.get("isotropic", None)
-    return tables_for(str(props["filename"]), channels=channels, case=int(props.get("case", 0)),
+    return tables_for(path, channels=channels, case=int(props.get("case", 0)),
                       smooth_sigma=None if sigma is None else float(sigma),
                       isotropic=None if iso is None else bool(iso))
 
@@ -69,10 +82,9 @@ def fiber_tables_for(filename, *, channels: str, case: int = 0):
 
 
 def _load_fiber_from_props(props, channels: str):
-    if "filename" not in props:
-        raise ValueError("[wavebrdf_fiber plugin] filename: missing (a wavebrdf fiber dataset, .h5)")
+    path = _dataset_path(props, "wavebrdf_fiber", "fiber")
     variance = props.get("variance", None)
-    tables = fiber_tables_for(str(props["filename"]), channels=channels, case=int(props.get("case", 0)))
+    tables = fiber_tables_for(path, channels=channels, case=int(props.get("case", 0)))
     return tables, None if variance is None else float(variance)
 
 
@@ -86,7 +98,7 @@ def fiber_radius(filename, geometric_radius: float, case: int = 0) -> float:
 def register() -> None:
     """Register BSDFs ``"wavebrdf"`` (surfaces) and ``"wavebrdf_fiber"`` (fibers) for the current
     Mitsuba variant (call after ``mi.set_variant``; again after switching variants)."""
-    mi = _mitsuba()
+    mi = require_mitsuba()
     cls = make_plugin_class(mi, _load_from_props)
     mi.register_bsdf("wavebrdf", lambda props: cls(props))
     fiber_cls = make_fiber_plugin_class(mi, _load_fiber_from_props)

@@ -15,7 +15,7 @@ import numpy as np
 
 from wavebrdf.jobs.store import Dataset
 from wavebrdf.jobs.study_kinds import STUDY_KINDS, study_kind
-from wavebrdf.mitsuba.bsdfs import fiber_radius, fiber_tables_for, register, tables_for
+from wavebrdf.mitsuba.bsdfs import fiber_radius, fiber_tables_for, register, require_mitsuba, tables_for
 from wavebrdf.mitsuba.fiber_scene import GEOMETRIC_RADIUS, write_fiber_wisp
 
 __all__ = ["DEFAULT_SUN", "default_variant", "environment", "llvm_usable", "render_scene", "scene_dict", "tone_map"]
@@ -76,8 +76,7 @@ def scene_dict(bsdf: dict, *, scene: str = "sphere", resolution: int = 256, spp:
     whose shadow rays pass through the fibers' Null component, eval_null_transmission, instead
     of stopping at the bounding cylinders), RGBA film (alpha = coverage), box pixel filter;
     ``sampler``: a Mitsuba sampler ("multijitter" stratifies: give a square spp)."""
-    import mitsuba as mi
-
+    mi = require_mitsuba()
     if scene not in ("sphere", "plate", "fibers"):
         raise ValueError(f"scene = {scene!r}: expected 'sphere', 'plate' or 'fibers'")
     T = mi.ScalarTransform4f
@@ -139,8 +138,7 @@ def render_scene(dataset, scene: str = "sphere", out: str | Path | None = None, 
     clipped, then sRGB-encoded. Returns {"image": linear RGBA array (res, res, 4), "path",
     "variant", "load_s", "render_s", "diagnostics"}.
     """
-    import mitsuba as mi
-
+    mi = require_mitsuba()
     variant = variant or default_variant()
     scalar = variant.startswith("scalar")
     spp = spp or (16 if scalar else 64)
@@ -153,8 +151,8 @@ def render_scene(dataset, scene: str = "sphere", out: str | Path | None = None, 
         kind = study_kind(ds.kind)
     shows = next((k for k in STUDY_KINDS.values() if scene in k.scenes), kind)  # another: scene_dict names them
     if shows is not kind:
-        raise ValueError(f"{dataset}: scene = {scene!r} needs a {shows.name} dataset (fiber datasets render with "
-                         "--scene fibers)")
+        raise ValueError(f"{dataset}: scene = {scene!r} needs a {shows.name} dataset ({kind.name} datasets render "
+                         f"with --scene {' or '.join(kind.scenes)})")
     return _RENDER[kind.plugin](dataset, scene, out, spp=spp, resolution=resolution, channels=channels, case=case,
                                 env=env, seed=seed, exposure=exposure, tonemap=tonemap, start=start, variant=variant,
                                 smooth_sigma=smooth_sigma)
@@ -163,10 +161,9 @@ def render_scene(dataset, scene: str = "sphere", out: str | Path | None = None, 
 def _render_surface(dataset, scene, out, *, spp, resolution, channels, case, env, seed, exposure, tonemap, start,
                     variant, smooth_sigma) -> dict:
     """A "sphere" or "plate" scene with the ``"wavebrdf"`` BSDF."""
-    import mitsuba as mi
-
+    mi = require_mitsuba()
     tables = tables_for(dataset, channels=channels, case=case, smooth_sigma=smooth_sigma)
-    bsdf = {"type": "wavebrdf", "filename": str(dataset), "case": int(case)}
+    bsdf = {"type": "wavebrdf", "filename": str(Path(dataset).resolve()), "case": int(case)}
     if smooth_sigma is not None:
         bsdf["smooth_sigma"] = float(smooth_sigma)
     scn = mi.load_dict(scene_dict(bsdf, scene=scene, resolution=resolution, spp=spp, env=env, seed=seed))
@@ -176,8 +173,7 @@ def _render_surface(dataset, scene, out, *, spp, resolution, channels, case, env
 
 def _finish(scn, dataset, scene, out, exposure, tonemap, variant, load_s, diagnostics) -> dict:
     """Render ``scn``, write the PNG, return render_scene's dict."""
-    import mitsuba as mi
-
+    mi = require_mitsuba()
     start = time.perf_counter()
     image = np.array(mi.render(scn))
     render_s = time.perf_counter() - start
@@ -196,10 +192,9 @@ def _render_fibers(dataset, scene, out, *, spp, resolution, channels, case, env,
     by the environment, which camera rays do not show (black background)."""
     import tempfile
 
-    import mitsuba as mi
-
+    mi = require_mitsuba()
     tables = fiber_tables_for(dataset, channels=channels, case=case)
-    bsdf = {"type": "wavebrdf_fiber", "filename": str(dataset), "case": int(case)}
+    bsdf = {"type": "wavebrdf_fiber", "filename": str(Path(dataset).resolve()), "case": int(case)}
     with tempfile.TemporaryDirectory() as tmp:
         curves = write_fiber_wisp(Path(tmp) / "wisp.txt", fiber_radius(dataset, GEOMETRIC_RADIUS, case))
         scn = mi.load_dict(scene_dict(bsdf, scene=scene, resolution=resolution, spp=spp, env=env, seed=seed,
