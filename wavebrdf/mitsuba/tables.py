@@ -25,7 +25,8 @@ Nothing here imports Mitsuba: :func:`load_tables` reads one sweep case of a surf
   interpolated BRDF's albedo is the interpolation of the tabulated albedos.
 
 Speckle: a computed BRDF of one surface realization under a finite footprint is speckled; the
-tables are blurred by a Gaussian of standard deviation ``smooth_sigma`` (u units, per wavelength).
+tables are blurred by a Gaussian of standard deviation ``smooth_sigma`` (u units, per wavelength)
+within the unit disk, keeping each table's albedo (:func:`_smooth`).
 Default: λ/(2π w) with w the config's ``illumination.waist_um``, the angular spread of the
 footprint's own far-field intensity (exp(−r²/w²) amplitude → exp(−k²w²Δu²/2) intensity); 0 when
 the config names no waist.
@@ -197,15 +198,25 @@ def _radial_average(image: np.ndarray) -> np.ndarray:
 
 
 def _smooth(cube: np.ndarray, sigma_u: np.ndarray) -> np.ndarray:
-    """Gaussian blur of each wavelength's images (cube: n_tab, L, res, res) by σ (u units)."""
+    """Gaussian blur of each wavelength's images (cube: n_tab, L, res, res) by σ (u units) within
+    the unit disk: the blur of f·D over the blur of D (D the pixels whose centres are inside), so
+    the values filled in outside never enter, then scaled to the image's own sum over D, so each
+    table keeps its albedo (Σ f Δu Δv) where the blur reaches the rim."""
     from scipy.ndimage import gaussian_filter
 
     res = cube.shape[-1]
+    centres = _pixel_centres(res)
+    inside = (centres[:, None] ** 2 + centres[None, :] ** 2 < 1.0).astype(float)
     out = cube.copy()
     for wl, sigma in enumerate(sigma_u):
         if sigma > 0:
+            width = sigma * res / 2.0
+            weight = gaussian_filter(inside, width, mode="constant")
             for k in range(cube.shape[0]):
-                out[k, wl] = gaussian_filter(cube[k, wl], sigma * res / 2.0, mode="nearest")
+                image = np.where(inside > 0, cube[k, wl], 0.0)
+                blurred = gaussian_filter(image, width, mode="constant") / np.maximum(weight, 1e-300)
+                total, kept = image.sum(), (blurred * inside).sum()
+                out[k, wl] = np.where(inside > 0, blurred * (total / kept if kept > 0 else 1.0), cube[k, wl])
     return out
 
 
