@@ -448,7 +448,7 @@ def cmd_example(args) -> int:
 
     if args.name is None:
         examples = list_examples()
-        width = max(map(len, examples))
+        width = max(map(len, examples), default=0)
         for name, summary in examples.items():
             print(f"{name:{width}}  {summary}")
         print("write one: wavebrdf example NAME [--out DIR]; then: wavebrdf run DIR/NAME.toml")
@@ -654,6 +654,9 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+PIPE_CLOSED_STATUS = 141  # 128 + SIGPIPE: what a shell reports for a writer whose reader left
+
+
 def main(argv: list[str] | None = None) -> int:
     try:
         args = build_parser().parse_args(argv)
@@ -665,7 +668,7 @@ def main(argv: list[str] | None = None) -> int:
         return args.func(args)
     except BrokenPipeError:  # output piped into a reader that closed it (`wavebrdf inspect x.h5 | head`)
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit
-        return 0
+        return PIPE_CLOSED_STATUS
     except USER_ERRORS as exc:
         print(f"wavebrdf: error: {one_line(str(exc))}", file=sys.stderr)
         return 2

@@ -28,7 +28,7 @@ import numpy as np
 from wavebrdf._version import __version__
 from wavebrdf.jobs.output_path import make_output_folder
 from wavebrdf.jobs.parts import atomic_write
-from wavebrdf.jobs.store import Dataset
+from wavebrdf.jobs.store import Dataset, not_a_dataset
 
 __all__ = ["FORMATS", "ExportError", "ExportFormat", "add_export_parser", "export_dataset", "select_case"]
 
@@ -164,10 +164,14 @@ def export_dataset(dataset: str | Path, out: str | Path | None = None, *, fmt: s
         several = bool(ds.sweep_keys)
         description = options.pop("description", None) or _description(ds, case, chosen)
     if out is None:
-        out = dataset.with_name(f"{dataset.stem}{f'_case{case}' if several else ''}{chosen.suffix}")
+        rgb = "_rgb" if options.get("channels") == "rgb" else ""
+        out = dataset.with_name(f"{dataset.stem}{f'_case{case}' if several else ''}{rgb}{chosen.suffix}")
     out = Path(out)
     if out.is_dir():
         raise ExportError(f"-o {out}: is a folder (give a file name, e.g. {out / (dataset.stem + chosen.suffix)})")
+    if out.resolve() == dataset.resolve() or (out.is_file() and not_a_dataset(out) is None):
+        raise ExportError(f"-o {out}: is a wavebrdf dataset; an export never replaces one (give another file name, "
+                          f"e.g. {dataset.with_suffix(chosen.suffix)})")
     write, summary = chosen.build(dataset, case, ExportOptions(description=description, **options))
     make_output_folder(out)
     atomic_write(out, write)

@@ -257,6 +257,24 @@ def test_sparse_incidences_are_refused_naming_the_config(tmp_path, capsys):
     assert not out.exists() and not list(tmp_path.glob(".sparse.bsdf*"))
 
 
+def test_an_export_never_replaces_a_dataset(iso, tmp_path, capsys):
+    """-o naming the dataset itself, or another wavebrdf dataset, is refused and both stay as they
+    were; RGB and spectral exports get different default names."""
+    path, _ = iso
+    other = write_beckmann_dataset(tmp_path / "other.h5", 0.3, resolution=16, wavelengths_um=[0.55],
+                                   directions=[[0.0, 0.0]])
+    before = {p: p.read_bytes() for p in (path, other)}
+    for target in (path, other):
+        assert export(path, "-o", target, "--isotropic") == 2
+        assert "is a wavebrdf dataset; an export never replaces one" in capsys.readouterr().err
+    assert all(p.read_bytes() == data for p, data in before.items())
+    copy = tmp_path / "beckmann.h5"
+    copy.write_bytes(before[path])
+    for channels in ("spectral", "rgb"):
+        assert export(copy, "--channels", channels, "--isotropic", "--resolution", 8) == 0
+    assert (tmp_path / "beckmann.bsdf").is_file() and (tmp_path / "beckmann_rgb.bsdf").is_file()
+
+
 def test_case_is_chosen_by_index_or_swept_value(tmp_path, capsys):
     path = write_beckmann_dataset(tmp_path / "sweep.h5", [0.2, 0.5], resolution=32, wavelengths_um=[0.55],
                                   directions=[[float(t), 0.0] for t in range(0, 90, 10)])

@@ -473,5 +473,25 @@ def test_speckle_blur_keeps_each_tables_albedo_at_the_rim():
     out = _smooth(filled, np.array([sigma_u]))
     for k in range(2):
         assert np.isclose(out[k, 0][inside].sum(), cube[k, 0][inside].sum(), rtol=1e-12), k
+    bright = _smooth(np.where(inside, cube, 1e3), np.array([sigma_u]))  # another fill outside
+    np.testing.assert_array_equal(bright[..., inside], out[..., inside])
     plain = gaussian_filter(centre, sigma_u * res / 2.0)
     np.testing.assert_allclose(out[1, 0][inside], plain[inside], rtol=0, atol=1e-6 * centre.max())
+
+
+def test_each_sweep_case_is_blurred_as_its_own_waist_says(tmp_path):
+    """A swept waist sets each case's speckle blur λ/(2π w), not the base config's."""
+    import wavebrdf
+    from wavebrdf.mitsuba.tables import load_tables
+
+    study = {"study": {"output": str(tmp_path / "sweep.h5")},
+             "surface": {"generator": "gaussian", "size_um": 8.0, "cells": 64, "rms_height_um": 0.02,
+                         "correlation_um": 1.0, "seed": 3},
+             "material": {"name": "aluminium"}, "model": {"name": "kirchhoff"}, "output": {"resolution": 16},
+             "illumination": {"wavelengths_um": [0.5], "directions_deg": [[0, 0], [20, 0]], "waist_um": 1.0},
+             "sweep": {"illumination.waist_um": [1.0, 1.5]}}
+    with wavebrdf.run(study) as ds:
+        path = ds.path
+    for case, waist in enumerate((1.0, 1.5)):
+        tables = load_tables(path, case=case, channels="mono")
+        assert np.isclose(tables.diagnostics["smooth_sigma_u"][0], 0.5 / (2 * np.pi * waist), rtol=1e-12), case

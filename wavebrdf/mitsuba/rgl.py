@@ -271,7 +271,8 @@ def _sparse(path, what: str, problem: str, tables: Tables) -> RGLError:
         f"[rgl export] {path}: {what}: too sparse for the RGL format, which interpolates linearly between its "
         f"incidence nodes: it needs θ_i from <= {MAX_THETA_STEP_DEG:g}° to >= {90 - MAX_THETA_STEP_DEG:g}° in steps "
         f"<= {MAX_THETA_STEP_DEG:g}°{around} ({problem}{hint}). Compute them: wavebrdf run {RENDER_READY} (θ_i "
-        f"every 5° to 85°), or this study with [illumination] directions_deg = {grid}")
+        f"every 5° to 85°; without a checkout: wavebrdf example render_ready, then wavebrdf run render_ready.toml), "
+        f"or this study with [illumination] directions_deg = {grid}")
 
 
 def _check_theta(path, thetas: np.ndarray, what: str, tables: Tables) -> None:

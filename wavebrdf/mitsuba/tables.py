@@ -47,8 +47,8 @@ from wavebrdf.jobs.study_kinds import STUDY_KINDS, study_kind
 from wavebrdf.solver.spectrum import spectral_weights, xyz_to_linear_srgb
 from wavebrdf.solver.surface import GENERATORS, SurfaceError
 
-__all__ = ["CHANNELS", "SCHEMES", "Tables", "cell_edges", "channel_matrix", "isotropy_from_config", "load_tables",
-           "open_for_plugin"]
+__all__ = ["CHANNELS", "SCHEMES", "Tables", "case_config", "cell_edges", "channel_matrix", "isotropy_from_config",
+           "load_tables", "open_for_plugin"]
 
 logger = logging.getLogger("wavebrdf")
 
@@ -99,14 +99,30 @@ class Tables:
         return np.sin(self.theta)[:, None] * np.stack([np.cos(self.phi), np.sin(self.phi)], axis=-1)
 
 
-def isotropy_from_config(config_text: str) -> tuple[bool, str]:
+def case_config(config_text: str, swept: dict | None = None) -> dict:
+    """The study's config (TOML text) as one sweep case saw it: ``swept`` {dotted key: value}
+    replaces the base values (a waist or a correlation length may be swept); {} if unreadable."""
+    try:
+        config = tomllib.loads(config_text)
+    except tomllib.TOMLDecodeError:
+        return {}
+    for key, value in (swept or {}).items():
+        *sections, last = key.split(".")
+        table = config
+        for section in sections:
+            table = table.setdefault(section, {})
+        table[last] = value.tolist() if isinstance(value, (np.ndarray, np.generic)) else value
+    return config
+
+
+def isotropy_from_config(config: dict) -> tuple[bool, str]:
     """Whether the study's surface is declared statistically isotropic, and why: its generator's
     options say so (``isotropic`` of solver/surface.py's registry: a flat surface, a gaussian
-    ensemble with one correlation length). Surfaces from files are not."""
-    try:
-        surface = tomllib.loads(config_text).get("surface", {})
-    except tomllib.TOMLDecodeError:
+    ensemble with one correlation length). Surfaces from files are not. ``config``: the case's
+    (:func:`case_config`)."""
+    if not config:
         return False, "config unreadable: not declared isotropic"
+    surface = config.get("surface", {})
     chosen = GENERATORS.get(surface.get("generator"))
     if chosen is None:
         return False, "config: surface from a file, not declared isotropic"
@@ -133,11 +149,8 @@ def open_for_plugin(path, kind: str, channels: str) -> Dataset:
     return ds
 
 
-def _waist_um(config_text: str) -> float | None:
-    try:
-        waist = tomllib.loads(config_text).get("illumination", {}).get("waist_um")
-    except tomllib.TOMLDecodeError:
-        return None
+def _waist_um(config: dict) -> float | None:
+    waist = config.get("illumination", {}).get("waist_um")
     return float(waist) if waist else None
 
 
@@ -335,7 +348,7 @@ def load_tables(path: str | Path, *, case: int = 0, channels: str = "rgb", smoot
                              f"(flat index over {ds.sweep_keys or 'no sweep'})")
         case_index = np.unravel_index(case, lead) if lead else ()
         brdf = np.asarray(ds.h5["brdf"][tuple(int(i) for i in case_index)], dtype=np.float64)  # (L, n_inc, res, res)
-        config = ds.config
+        config = case_config(ds.config, {key: coords[key][i] for key, i in zip(ds.sweep_keys, case_index)})
         polarization = ds.h5["brdf"].attrs.get("polarization", "")
         albedo = np.asarray(ds.h5["albedo"][tuple(int(i) for i in case_index)], dtype=float)
     wavelengths = np.asarray(coords["wavelength_um"], dtype=float)
