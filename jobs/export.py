@@ -29,8 +29,10 @@ from wavebrdf._version import __version__
 from wavebrdf.jobs.output_path import make_output_folder
 from wavebrdf.jobs.parts import atomic_write
 from wavebrdf.jobs.store import Dataset, not_a_dataset
+from wavebrdf.solver.models import model_class, model_names
 
-__all__ = ["FORMATS", "ExportError", "ExportFormat", "add_export_parser", "export_dataset", "select_case"]
+__all__ = ["FORMATS", "ExportError", "ExportFormat", "add_export_parser", "export_dataset", "non_reciprocal_models",
+           "select_case"]
 
 
 class ExportError(ValueError):
@@ -163,6 +165,7 @@ def export_dataset(dataset: str | Path, out: str | Path | None = None, *, fmt: s
         case = select_case(ds, case, sweep)
         several = bool(ds.sweep_keys)
         description = options.pop("description", None) or _description(ds, case, chosen)
+        swapped = non_reciprocal_models(ds)
     if out is None:
         rgb = "_rgb" if options.get("channels") == "rgb" else ""
         out = dataset.with_name(f"{dataset.stem}{f'_case{case}' if several else ''}{rgb}{chosen.suffix}")
@@ -175,7 +178,23 @@ def export_dataset(dataset: str | Path, out: str | Path | None = None, *, fmt: s
     write, summary = chosen.build(dataset, case, ExportOptions(description=description, **options))
     make_output_folder(out)
     atomic_write(out, write)
+    if swapped:
+        summary += (f"; note: {', '.join(swapped)} {'is' if len(swapped) == 1 else 'are'} not reciprocal, and a "
+                    "renderer looks the file up with its camera-side direction as the incidence (f(ω_o → ω_i) "
+                    "where the dataset holds f(ω_i → ω_o))")
     return {"path": out, "case": case, "summary": summary, "seconds": time.perf_counter() - start}
+
+
+def non_reciprocal_models(ds: Dataset) -> list[str]:
+    """The models that computed the dataset's tasks (its config's where the task table is empty)
+    whose capabilities say they are not reciprocal: their tables read backwards in a renderer."""
+    names = {m.decode() if isinstance(m, bytes) else str(m) for m in ds.tasks.get("model", [])}
+    if not names:
+        try:
+            names = {tomllib.loads(ds.config).get("model", {}).get("name", "")}
+        except tomllib.TOMLDecodeError:
+            return []
+    return sorted(n for n in names if n in model_names() and not model_class(n).capabilities.reciprocal)
 
 
 def _sweep_pair(text: str) -> tuple[str, str]:

@@ -413,3 +413,25 @@ def test_sphere_matches_the_plugin_at_low_noise(llvm, iso, variant):
     error, noise = compare_renders(*iso, variant, 64, 2048)
     assert noise < 0.008
     assert error < 1.25 * noise
+
+
+def test_a_non_reciprocal_models_export_says_it_reads_backwards(tmp_path, capsys):
+    """A dataset of a model whose capabilities say it is not reciprocal (po) is exported with a note
+    that a renderer looks it up with the camera-side direction as the incidence; a reciprocal
+    model's (kirchhoff) without."""
+    import wavebrdf
+
+    notes = {}
+    for model in ("po", "kirchhoff"):
+        study = {"study": {"output": str(tmp_path / f"{model}.h5")},
+                 "surface": {"generator": "gaussian", "size_um": 8.0, "cells": 64, "rms_height_um": 0.05,
+                             "correlation_um": 0.8, "seed": 2},
+                 "material": {"name": "aluminium"}, "model": {"name": model}, "output": {"resolution": 24},
+                 "illumination": {"wavelengths_um": [0.5], "waist_um": 1.5,
+                                  "directions_deg": {"theta": {"start": 0, "stop": 85, "count": 18}, "phi": 0}}}
+        with wavebrdf.run(study):
+            pass
+        assert export(tmp_path / f"{model}.h5", "-o", tmp_path / f"{model}.bsdf", "--resolution", 8) == 0
+        notes[model] = capsys.readouterr().out
+    assert "note: po is not reciprocal" in notes["po"] and "camera-side" in notes["po"]
+    assert "note:" not in notes["kirchhoff"]
