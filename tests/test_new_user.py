@@ -260,6 +260,15 @@ def test_dataset_names_begin_with_a_letter_and_old_names_are_read(tmp_path):
         assert np.array_equal(ds.surface(0), heights) and ds.case_variable(0).name == "/surface/0"
     with wavebrdf.open(fiber) as ds:
         assert ds.case_variable(0).shape[1] == 2
+    old_fiber = tmp_path / "fiber_v2.h5"
+    shutil.copyfile(fiber, old_fiber)
+    with h5py.File(old_fiber, "r+") as h5:
+        h5.move("fiber/polygon_0", "fiber/0")
+        h5.attrs["format_version"] = 2
+    for path, picture in ((old, "heights"), (old_fiber, "cross_sections")):  # the pictures of v2 files
+        out = tmp_path / f"{path.stem}_png"
+        assert main(["render", str(path), "--out", str(out)]) == 0
+        assert list(out.glob(f"*{picture}*.png")), sorted(p.name for p in out.iterdir())
 
 
 # -- packaging ---------------------------------------------------------------------------------------
