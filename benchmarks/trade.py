@@ -250,6 +250,13 @@ def convergence(path: Path, force: bool, log, run: bool = True, record: Record |
                  "config_digest": config_digest(path), "scene": label, "spacing_um": scene.surface.spacing_um,
                  "fine_spacing_um": scene.surface.size_um / fine_cells, "cells": cells, "fine_cells": fine_cells}
     kept = None if record is None else record.convergence.get(config_digest(path))
+    if store.is_file():
+        with h5py.File(store) as h5:
+            stored_cells = int(h5.attrs.get("cells", -1))
+        if stored_cells != fine_cells:  # solved for another version of the config: not this one's
+            stale = store.with_name(f"{store.stem}_{stored_cells}cells.h5")
+            log(f"{label}: {store.name} holds a {stored_cells}² solve, not {fine_cells}²: moved to {stale.name}")
+            store.rename(stale)
     if not force and not store.is_file() and kept is not None:
         return {**kept, **cells_row}
     if not run and not store.is_file():
