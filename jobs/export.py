@@ -227,7 +227,7 @@ def _sigma(text: str) -> float:
 def cmd_export(args) -> int:
     result = export_dataset(args.file, args.output, fmt=args.format, case=args.case, sweep=args.sweep,
                             channels=args.channels, resolution=args.resolution, smooth_sigma=args.smooth_sigma,
-                            isotropic=True if args.isotropic else None)
+                            isotropic=args.isotropic)
     print(f"wrote {result['path']} (case {result['case']}; {result['summary']}) in {result['seconds']:.1f} s")
     return 0
 
@@ -252,6 +252,7 @@ def add_export_parser(sub) -> None:
     p.add_argument("--smooth-sigma", type=_sigma,
                    help="speckle blur in u units (default: λ/(2π·waist) from the dataset's config, as the "
                         "wavebrdf plugin; 0: none)")
-    p.add_argument("--isotropic", action="store_true",
-                   help="treat the surface as statistically isotropic (default: as its config declares)")
+    p.add_argument("--isotropic", action=argparse.BooleanOptionalAction, default=None,
+                   help="treat the surface as statistically isotropic, or (--no-isotropic) not (default: as its "
+                        "config declares)")
     p.set_defaults(func=cmd_export)
