@@ -406,8 +406,7 @@ def _print_summary_table(ds, coords) -> None:
     keys = ds.sweep_keys
     heading, rows, values, albedo = study_kind(ds.kind).summary_table(ds, coords)
     print(heading)
-    lead = ds.h5[ds.main_variable].shape[: len(keys)]
-    for case_index in np.ndindex(*lead) if lead else [()]:
+    for case_index in np.ndindex(*ds.sweep_shape):
         if case_index:
             print("  case " + ", ".join(f"{k}={coords[k][i]}" for k, i in zip(keys, case_index)))
         for r, row in enumerate(rows):

@@ -95,8 +95,8 @@ def select_case(ds: Dataset, case: int | None = None, sweep: list[tuple[str, str
     text) pairs naming every swept key) selects; a dataset without a sweep has case 0 only."""
     keys = ds.sweep_keys
     coords = ds.coords
-    lead = tuple(len(coords[k]) for k in keys)
-    n_cases = int(np.prod(lead)) if lead else 1
+    lead = ds.sweep_shape
+    n_cases = int(np.prod(lead))
     listing = "; ".join(f"{k} = {', '.join(map(str, coords[k]))}" for k in keys)
     if case is not None and sweep:
         raise ExportError("--case and --sweep: give one of them")
@@ -138,8 +138,7 @@ def _description(ds: Dataset, case: int, fmt: ExportFormat) -> str:
     """What the file holds: the software, the dataset and study, the case and its swept values, the model."""
     keys = ds.sweep_keys
     coords = ds.coords
-    lead = tuple(len(coords[k]) for k in keys)
-    values = ", ".join(f"{k} = {coords[k][i]}" for k, i in zip(keys, np.unravel_index(case, lead))) if keys else ""
+    values = ", ".join(f"{k} = {coords[k][i]}" for k, i in zip(keys, np.unravel_index(case, ds.sweep_shape)))
     try:
         model = tomllib.loads(ds.config).get("model", {}).get("name", "?")
     except tomllib.TOMLDecodeError:
@@ -209,8 +208,11 @@ def _resolution(text: str) -> int:
         value = int(text)
     except ValueError:
         value = 0
-    if not 4 <= value <= 1024:
-        raise argparse.ArgumentTypeError(f"--resolution {text}: must be an integer from 4 to 1024")
+    from wavebrdf.mitsuba.rgl import RESOLUTION_RANGE
+
+    low, high = RESOLUTION_RANGE
+    if not low <= value <= high:
+        raise argparse.ArgumentTypeError(f"--resolution {text}: must be an integer from {low} to {high}")
     return value
 
 

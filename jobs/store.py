@@ -756,6 +756,11 @@ class Dataset:
         return LAYOUTS[self.kind].main
 
     @property
+    def sweep_shape(self) -> tuple[int, ...]:
+        """The lengths of the sweep axes (() without a sweep); flat case indices are C order over them."""
+        return tuple(self._h5[self.main_variable].shape[: len(self.sweep_keys)])
+
+    @property
     def sweep_keys(self) -> list[str]:
         dims = self._dims(self.main_variable)
         return dims[: dims.index("wavelength_um")]

@@ -64,6 +64,7 @@ CHANNELS = ("spectral", "rgb")
 MAX_THETA_STEP_DEG = 10.0  # largest θ_i gap (also from 0° to the first and from the last to 90°)
 MAX_PHI_STEP_DEG = 30.0  # largest φ_i gap of anisotropic data (around the circle)
 RESOLUTION = {True: 128, False: 64}  # default sample-space nodes per axis: isotropic, anisotropic data
+RESOLUTION_RANGE = (4, 1024)  # the sample-space nodes per axis a file may have
 NDF_RESOLUTION = 128  # u_m grid nodes per axis (ndf, vndf)
 SIGMA_RESOLUTION = 64  # σ grid nodes per axis (2 along φ for isotropic data)
 RENDER_READY = "configs/render_ready.toml"
@@ -426,9 +427,9 @@ def rgl_fields(path: str | Path, *, case: int = 0, channels: str = "spectral", r
     if channels not in CHANNELS:
         raise RGLError(f"[rgl export] channels = {channels!r}: expected one of {', '.join(CHANNELS)}")
     if resolution is not None and (isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer))
-                                   or not 4 <= resolution <= 1024):
-        raise RGLError(f"[rgl export] resolution = {resolution!r}: must be an integer from 4 to 1024 (sample-space "
-                       "nodes per axis)")
+                                   or not RESOLUTION_RANGE[0] <= resolution <= RESOLUTION_RANGE[1]):
+        raise RGLError(f"[rgl export] resolution = {resolution!r}: must be an integer from {RESOLUTION_RANGE[0]} to "
+                       f"{RESOLUTION_RANGE[1]} (sample-space nodes per axis)")
     tables = load_tables(path, case=case, channels=channels, smooth_sigma=smooth_sigma, isotropic=isotropic)
     iso = tables.scheme == "isotropic"
     resolution = RESOLUTION[iso] if resolution is None else int(resolution)

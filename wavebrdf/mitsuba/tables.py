@@ -341,8 +341,8 @@ def load_tables(path: str | Path, *, case: int = 0, channels: str = "rgb", smoot
     where = f"[wavebrdf plugin] filename = {str(path)!r}"
     with open_for_plugin(path, "surface", channels) as ds:
         coords = ds.coords
-        lead = ds.h5["brdf"].shape[: len(ds.sweep_keys)]
-        n_cases = int(np.prod(lead)) if lead else 1
+        lead = ds.sweep_shape
+        n_cases = int(np.prod(lead))
         if not 0 <= case < n_cases:
             raise ValueError(f"[wavebrdf plugin] case = {case}: the dataset has {n_cases} sweep case(s) "
                              f"(flat index over {ds.sweep_keys or 'no sweep'})")
