@@ -280,7 +280,7 @@ def cmd_inspect(args) -> int:
         print(f"{ds.path}: {ds.kind} study {attrs.get('study')!r}, wavebrdf {attrs.get('software_version')}, "
               f"format v{attrs.get('format_version')}, created {attrs.get('created')}")
         print(f"device: {attrs.get('device')}")
-        for name in ("brdf", "albedo", "albedo_sp", "brdf_sp", "bcsdf", "dCs_dphi", "C_ext"):
+        for name in ("brdf", "albedo", "albedo_sp", "brdf_sp", "jones", "mueller", "bcsdf", "dCs_dphi", "C_ext"):
             if name in ds.h5:
                 dims = [d.label or (d[0].name.lstrip('/') if len(d) else '?') for d in ds.h5[name].dims]
                 print(f"  {name:10s} {dict(zip(dims, ds.h5[name].shape))}")

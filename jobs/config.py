@@ -39,7 +39,7 @@ from wavebrdf.jobs.sections import (MODEL_SECTIONS, SCHEMA, SECTIONS, Illuminati
 from wavebrdf.jobs.study import IlluminationSpec, MaterialSpec, ModelSpec, Study, StudyConfig
 from wavebrdf.jobs.study_checks import check_study
 from wavebrdf.jobs.study_kinds import STUDY_KINDS
-from wavebrdf.solver.models import model_class, model_names
+from wavebrdf.solver.models import model_class, model_names, rungs
 from wavebrdf.solver.options import parse_options
 
 __all__ = ["SCHEMA", "ConfigError", "Study", "StudyConfig", "load_config", "parse_config"]
@@ -101,6 +101,10 @@ def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: di
         raise ConfigError(f"[illumination] polarization = \"{illumination.polarization}\" / [output] per_polarization: "
                           f"model {model.name!r} does not resolve polarization (its s and p are the same); "
                           "use polarization = \"unpolarized\" and per_polarization = false")
+    if out.polarization != "intensity" and model.capabilities.returns != "fields":
+        raise ConfigError(f"[output] polarization = \"{out.polarization}\": model {model.name!r} returns "
+                          f"{model.capabilities.returns.replace('_', ' ')}, not coherent fields; Jones and Mueller "
+                          f"matrices come from {', '.join(n for n in rungs() if model_class(n).capabilities.returns == 'fields')}")
     kind.check_sections(spec, data)
     if "steering" in data and not model.capabilities.steerable:
         raise ConfigError(f"[steering]: model {model.name!r} cannot be steered (it returns "

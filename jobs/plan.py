@@ -192,7 +192,7 @@ class Plan:
             precision=study.model.precision,
             z_reference=z_reference,
             memory_budget_bytes=self.task_memory_budget(task.case),
-            coherent=task.on_patch,
+            coherent=task.on_patch or study.output_options.polarization != "intensity",
         )
 
     def task_memory_budget(self, case: int) -> float:

@@ -29,6 +29,7 @@ from wavebrdf.solver.materials import INDEX_COLUMNS, INDEX_KAPPA, INDEX_N
 from wavebrdf.solver.models import model_names
 from wavebrdf.solver.options import (ANGLE_DEG, LENGTH_UM, WAVELENGTH_UM, Limits, OptionField, OptionsError, option,
                                      option_fields, parse_open_options, parse_options)
+from wavebrdf.solver.polarimetry import POLARIMETRY
 from wavebrdf.solver.precision import PRECISIONS, Precision
 from wavebrdf.solver.surface import GENERATORS, SurfaceError
 
@@ -187,6 +188,9 @@ class OutputSection:
     phi_i_bins: int | None = option(None, low=1, high=100_000, doc="fibers (default: 1 for circles, 72 otherwise)")
     resolution: int = option(512, low=16, high=8192, doc="projected-hemisphere image side")
     per_polarization: bool = option(False)
+    polarization: str = option("intensity", choices=POLARIMETRY,
+                               doc="surfaces: also store per pixel the Jones matrix (2×2 complex, s/p in and out) or "
+                                   "the Mueller matrix (4×4) of models returning coherent fields (docs/dataset.md)")
 
 
 SECTIONS: dict[str, type] = {

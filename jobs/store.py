@@ -20,6 +20,10 @@ is a 1-D dataset registered as an HDF5 dimension scale, so
     albedo     [sweep..., wavelength_um, incidence]        Σ brdf Δu Δv
     albedo_sp  [sweep..., wavelength_um, incidence, polarization]
     brdf_sp    [sweep..., wavelength_um, incidence, polarization, u, v]  (output.per_polarization)
+    jones      [sweep..., wavelength_um, incidence, polarization_out, polarization, u, v, complex]
+                              float32, 1/sr^0.5 ([output] polarization = "jones"; solver/polarimetry.py)
+    mueller    [sweep..., wavelength_um, incidence, stokes_out, stokes_in, u, v]  float32, 1/sr
+                              ([output] polarization = "mueller")
     ior_n, ior_kappa [sweep..., wavelength_um]          material index n − jκ
     surface/height_<case>     height matrix (µm) of each sweep case [x_<case>, y_<case>] (node
                               positions, µm, dimension scales in surface/); attrs size_um, spacing_um, stats
@@ -61,6 +65,7 @@ from wavebrdf.jobs.input_files import input_file_problem
 from wavebrdf.jobs.netcdf import (CF_CONVENTIONS, attach_scales, coordinate, describe_task_table, history_line,
                                   sweep_coordinate_attrs, units_from_name)
 from wavebrdf.jobs.parts import StorageError, fsync_folder, storage_error, temporary_path
+from wavebrdf.solver import polarimetry as polarimetry_module
 
 __all__ = [
     "FORMAT",
@@ -421,12 +426,15 @@ class SurfaceDatasetWriter(_Writer):
     kind = "surface"
 
     def __init__(self, h5, sweep_axes, wavelengths_um, directions_deg, resolution: int, polarization: str,
-                 per_polarization: bool):
+                 per_polarization: bool, polarimetry: str = "intensity"):
         super().__init__(h5, sweep_axes, wavelengths_um)
         self.directions_deg = np.asarray(directions_deg, dtype=float)  # (n, 2): theta, phi
         self.resolution = resolution
         self.polarization = polarization
         self.per_polarization = per_polarization
+        if polarimetry not in polarimetry_module.POLARIMETRY:
+            raise ValueError(f"polarimetry must be one of {polarimetry_module.POLARIMETRY}, got {polarimetry!r}")
+        self.polarimetry = polarimetry  # [output] polarization: what is stored beyond intensities
 
     def create_layout(self) -> None:
         h5 = self.h5
@@ -467,7 +475,37 @@ class SurfaceDatasetWriter(_Writer):
                                                                 "long_name": "BRDF of each polarization"},
                 chunks=tuple([1] * (len(lead) + 3) + [res, res]),
             )
+        if self.polarimetry != "intensity":
+            self._polarimetry_layout(coords)
         h5.create_group("surface")
+
+    def _polarimetry_layout(self, coords: str) -> None:
+        """``jones`` or ``mueller`` per pixel, in the s/p frames of solver/polarimetry.py."""
+        h5, sweep, lead, res = self.h5, self.sweep, self.lead, self.resolution
+        n_wl, n_inc = len(self.wavelengths_um), len(self.directions_deg)
+        frames = ("s/p frames of solver/polarimetry.py and docs/dataset.md: s = (-sin phi, cos phi, 0) of each "
+                  "direction, p = k x s (k the propagation direction)")
+        if self.polarimetry == "jones":
+            _coordinate(h5, "polarization_out", np.array(["s", "p"], dtype=object),
+                        {"long_name": "polarization of the scattered field (s: E perpendicular to the plane of exitance)"})
+            _coordinate(h5, "complex", np.array(["real", "imaginary"], dtype=object),
+                        {"long_name": "part of the complex amplitude"})
+            self._variable(
+                "jones", sweep + ["wavelength_um", "incidence", "polarization_out", "polarization", "u", "v", "complex"],
+                lead + [n_wl, n_inc, 2, 2, res, res, 2], np.float32,
+                {"units": "sr-0.5", "coordinates": coords, "frames": frames,
+                 "long_name": "Jones matrix J[out, in]: sum over out of |J|^2 is the BRDF of polarization in"},
+                chunks=tuple([1] * (len(lead) + 2) + [2, 2, res, res, 2]))
+            return
+        _coordinate(h5, "stokes_out", np.array(polarimetry_module.STOKES, dtype=object), {"long_name": "Stokes component of the scattered light"})
+        _coordinate(h5, "stokes_in", np.array(polarimetry_module.STOKES, dtype=object), {"long_name": "Stokes component of the incident light"})
+        self._variable(
+            "mueller", sweep + ["wavelength_um", "incidence", "stokes_out", "stokes_in", "u", "v"],
+            lead + [n_wl, n_inc, 4, 4, res, res], np.float32,
+            {"units": "1/sr", "coordinates": coords, "frames": frames,
+             "stokes": "S = (|E_s|^2 + |E_p|^2, |E_s|^2 - |E_p|^2, 2 Re(E_s E_p*), -2 Im(E_s E_p*)), e^{+j omega t}",
+             "long_name": "Mueller matrix M[out, in]; M[0, 0] is the unpolarized BRDF"},
+            chunks=tuple([1] * (len(lead) + 2) + [4, 4, res, res]))
 
     def write_case(self, case_index: tuple[int, ...], case_id: str, heights: np.ndarray, size_um: float,
                    stats: dict, index: np.ndarray, parameters: dict | None = None, ensemble=None) -> None:
@@ -507,14 +545,28 @@ class SurfaceDatasetWriter(_Writer):
         self.h5["phi_basic"][tuple(case_index)] = basics[:, 1]
 
     def write_result(self, case_index: tuple[int, ...], wl: int, inc: int, brdf_sp: np.ndarray,
-                     brdf: np.ndarray, albedo_sp: np.ndarray, albedo: float) -> None:
-        """One task's slices."""
+                     brdf: np.ndarray, albedo_sp: np.ndarray, albedo: float, jones: np.ndarray | None = None) -> None:
+        """One task's slices; ``jones`` (2, 2, res, res) complex where the study stores polarimetry."""
         where = tuple(case_index) + (wl, inc)
         self.h5["brdf"][where] = brdf.astype(np.float32)
         self.h5["albedo"][where] = albedo
         self.h5["albedo_sp"][where] = albedo_sp
         if self.per_polarization:
             self.h5["brdf_sp"][where] = brdf_sp.astype(np.float32)
+        if self.polarimetry == "intensity":
+            return
+        if jones is None:
+            raise ValueError(f"[output] polarization = \"{self.polarimetry}\": the task at {where} carries no Jones "
+                             "matrix (its model returned intensities only)")
+        outside = ~np.isfinite(brdf)
+        if self.polarimetry == "jones":
+            pair = np.stack([jones.real, jones.imag], axis=-1).astype(np.float32)
+            pair[:, :, outside] = np.nan
+            self.h5["jones"][where] = pair
+        else:
+            matrix = polarimetry_module.mueller(jones).astype(np.float32)
+            matrix[:, :, outside] = np.nan
+            self.h5["mueller"][where] = matrix
 
 
 
@@ -801,6 +853,30 @@ class Dataset:
     @property
     def brdf(self) -> np.ndarray:
         return self["brdf"]
+
+    @property
+    def polarimetry(self) -> str:
+        """What the surface dataset stores beyond intensities: "jones", "mueller" or "intensity"."""
+        return next((name for name in ("jones", "mueller") if name in self._h5), "intensity")
+
+    def jones(self) -> np.ndarray:
+        """Complex Jones matrices [sweep..., wavelength_um, incidence, out, in, u, v] (1/√sr; NaN
+        outside the disk), frames of solver/polarimetry.py; a dataset stored with
+        ``[output] polarization = "jones"``."""
+        if "jones" not in self._h5:
+            raise self._fail(f"stores no Jones matrices (polarimetry: {self.polarimetry}); run the study with "
+                             "[output] polarization = \"jones\"")
+        pair = self["jones"]
+        return pair[..., 0] + 1j * pair[..., 1].astype(np.complex64)
+
+    def mueller(self) -> np.ndarray:
+        """Mueller matrices [sweep..., wavelength_um, incidence, 4, 4, u, v] (1/sr; NaN outside the
+        disk), stored (``polarization = "mueller"``) or derived from the Jones matrices; averages of
+        them (over pixels, realizations, wavelengths) are incoherent averages."""
+        if "mueller" in self._h5:
+            return self["mueller"]
+        J = np.moveaxis(self.jones(), (-4, -3), (0, 1))  # out, in first
+        return np.moveaxis(polarimetry_module.mueller(J).astype(np.float32), (0, 1), (-4, -3))
 
     @property
     def albedo(self) -> np.ndarray:

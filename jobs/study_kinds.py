@@ -162,7 +162,7 @@ class SurfaceKind(StudyKind):
         study = plan.study
         return SurfaceDatasetWriter(h5, plan.config.sweep_axes, plan.wavelengths_um, plan.directions_deg,
                                     plan.grid.resolution, study.illumination.polarization,
-                                    study.output_options.per_polarization)
+                                    study.output_options.per_polarization, study.output_options.polarization)
 
     def write_case(self, writer, plan, case, case_index):
         """The height field with its statistics, the material index, the steering layout."""

@@ -28,8 +28,9 @@ import numpy as np
 
 from wavebrdf.jobs.spot_checks import expectation_scene, twin_of
 from wavebrdf.jobs.steering import estimate_synthesis, synthesize_task
-from wavebrdf.solver.farfield import BRDFResult, albedo, combine_polarizations
+from wavebrdf.solver.farfield import BRDFResult, FarField, albedo, combine_polarizations
 from wavebrdf.solver.models import Estimate, Model
+from wavebrdf.solver.polarimetry import jones
 from wavebrdf.solver.resources import peak_memory_mb
 
 __all__ = ["KINDS", "ModelPool", "TaskKind", "execute_task", "plain"]
@@ -157,8 +158,21 @@ def _save_brdf(plan, task, parts, result: BRDFResult, extra: dict) -> dict:
     diagnostics = {**plain(result.diagnostics), **extra}
     albedo_sp = albedo(brdf_sp, plan.grid)
     _energy_check(plan, task, albedo_sp, diagnostics)
-    parts.save_arrays(task, diagnostics, brdf_sp=brdf_sp.astype(np.float32), albedo_sp=albedo_sp)
+    parts.save_arrays(task, diagnostics, brdf_sp=brdf_sp.astype(np.float32), albedo_sp=albedo_sp,
+                      **_polarimetry(plan, task, result, diagnostics))
     return diagnostics
+
+
+def _polarimetry(plan, task, result: BRDFResult, diagnostics: dict) -> dict:
+    """{"jones": (2, 2, res, res) complex64} where the study stores Jones or Mueller matrices."""
+    stored = plan.config.cases[task.case].output_options.polarization
+    if stored == "intensity":
+        return {}
+    if not isinstance(result, FarField):
+        model = diagnostics.get("model", plan.model_spec(task).name)
+        raise ValueError(f"[output] polarization = \"{stored}\": {model} returned intensities only at "
+                         f"{task.label}; Jones and Mueller matrices need a model that returns coherent fields")
+    return {"jones": jones(result).astype(np.complex64)}
 
 
 def _save_farfield(plan, task, parts, ff, extra: dict) -> dict:
@@ -182,7 +196,7 @@ def _write_brdf(writer, plan, task, parts) -> dict:
     brdf_sp = arrays["brdf_sp"]
     brdf = combine_polarizations(brdf_sp, plan.config.cases[task.case].illumination.polarization)
     writer.write_result(task.case_index, task.wavelength, task.incidence, brdf_sp, brdf, arrays["albedo_sp"],
-                        float(albedo(brdf, plan.grid)))
+                        float(albedo(brdf, plan.grid)), jones=arrays.get("jones"))
     return diagnostics
 
 

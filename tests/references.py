@@ -23,6 +23,7 @@ __all__ = [
     "cylinder_rayleigh_widths",
     "cylinder_widths_treams",
     "fresnel_coefficients",
+    "fresnel_mueller",
     "fresnel_reflectance",
     "fresnel_transmittance",
     "normal_reflectance",
@@ -68,6 +69,22 @@ def fresnel_coefficients(n1: float, n2: complex, theta_i) -> tuple[np.ndarray, n
     r_s = (n1 * c - q) / (n1 * c + q)
     r_p = (n2 * n2 * c - n1 * q) / (n2 * n2 * c + n1 * q)
     return r_s, r_p
+
+
+def fresnel_mueller(r_s, r_p) -> np.ndarray:
+    """Mueller matrix (4, 4, ...) of specular reflection with amplitude coefficients r_s, r_p
+    (Collett, *Polarized Light*, §8.2, with the Stokes parameters I = |E_s|² + |E_p|²,
+    Q = |E_s|² − |E_p|², U = 2 Re(E_s E_p*), V = −2 Im(E_s E_p*) of an e^{+jωt} field, in frames
+    whose first axis is ŝ and second k̂ × ŝ for both waves):
+
+        ½ [[R_s + R_p, R_s − R_p, 0, 0], [R_s − R_p, R_s + R_p, 0, 0],
+           [0, 0, 2 Re(r_s r_p*), 2 Im(r_s r_p*)], [0, 0, −2 Im(r_s r_p*), 2 Re(r_s r_p*)]]
+    """
+    r_s, r_p = np.asarray(r_s, dtype=complex), np.asarray(r_p, dtype=complex)
+    R_s, R_p, c = np.abs(r_s) ** 2, np.abs(r_p) ** 2, r_s * np.conj(r_p)
+    zero = np.zeros_like(R_s)
+    return 0.5 * np.array([[R_s + R_p, R_s - R_p, zero, zero], [R_s - R_p, R_s + R_p, zero, zero],
+                           [zero, zero, 2 * c.real, 2 * c.imag], [zero, zero, -2 * c.imag, 2 * c.real]])
 
 
 def fresnel_reflectance(n1: float, n2: complex, theta_i) -> tuple[np.ndarray, np.ndarray]:

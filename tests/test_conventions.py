@@ -39,6 +39,8 @@ EXAMPLES = {
                             "sweep": {"material.kappa": [0.0, 0.02]}}, 40.0, "material.kappa"),
     "render_ready.toml": ({"output.resolution": 32, "illumination.wavelengths_um": [0.45, 0.65],
                            "sweep": {"surface.seed": [1, 2]}}, 30.0, "surface.seed"),
+    "polarization.toml": ({"output.resolution": 32, "surface.cells": 200, "illumination.wavelengths_um": [0.5],
+                           "sweep": {"surface.seed": [1, 2]}}, 60.0, "surface.seed"),
 }
 MINUTES = {"bem_aim_aluminium.toml", "bem_aim_reference.toml", "bem_rough_aluminium.toml",
            "steering_bem.toml"}  # full-wave: minutes

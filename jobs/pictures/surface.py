@@ -13,6 +13,12 @@
   none); default directions: specular and 5° and 15° from it toward the normal, in plane.
 - ``albedo``: albedo vs θ_i (one line per wavelength) and vs λ (one line per incidence), per case.
 - ``heights``: the height map (µm) with its measured statistics (dataset attributes), per case.
+- ``polarization`` (datasets with Jones or Mueller matrices, ``[output] polarization``): the
+  degree of polarization of the light scattered from unpolarized incidence, |M[1:, 0]|/M₀₀, per
+  (case, incidence): its map over the projected hemisphere after the speckle average (Mueller
+  matrices blurred by λ/(π w), the footprint's spread: an incoherent average) for the middle
+  wavelength, and its in-plane curve per wavelength, raw (one coherent realization: thin) and
+  averaged (thick).
 """
 
 from __future__ import annotations
@@ -24,7 +30,7 @@ from wavebrdf.jobs.pictures.common import (colours, draw_spectral_image, figure,
 
 __all__ = ["KINDS", "PER_CASE", "PER_DIRECTION", "available", "direction_values", "in_plane", "specular_uv"]
 
-KINDS = ("maps", "slices", "spectra", "albedo", "heights")
+KINDS = ("maps", "slices", "spectra", "albedo", "heights", "polarization")
 CONE_DEG = 1.0  # spectra: half-angle of the cone averaged around each direction
 
 
@@ -54,6 +60,20 @@ class Case:
         """BRDF (n_λ, res, res) of incidence ``inc``."""
         return np.asarray(self.brdf[self.index + (slice(None), inc)], dtype=float)
 
+    def waist_um(self) -> float | None:
+        """The footprint waist of this case's config (µm; None without one)."""
+        import tomllib
+
+        try:
+            config = tomllib.loads(self.ds.config)
+        except tomllib.TOMLDecodeError:
+            return None
+        swept = dict(zip(self.ds.sweep_keys, self.index))
+        if "illumination.waist_um" in swept:
+            return float(self.coords["illumination.waist_um"][swept["illumination.waist_um"]])
+        waist = config.get("illumination", {}).get("waist_um")
+        return float(waist) if waist else None
+
     def title(self, inc: int) -> str:
         c = self.coords
         text = f"θi={c['theta_i'][inc]:g}°, φi={c['phi_i'][inc]:g}°, {self.polarization}"
@@ -64,6 +84,8 @@ def available(c: Case, kind: str) -> bool:
     """Whether picture ``kind`` exists for case ``c`` (spectra need several wavelengths)."""
     if kind == "heights":
         return c.ds.case_variable(c.flat) is not None
+    if kind == "polarization":
+        return c.ds.polarimetry != "intensity"
     return kind != "spectra" or len(c.coords["wavelength_um"]) > 1
 
 
@@ -208,6 +230,51 @@ def _heights(c: Case, opts):
     return fig
 
 
+def _polarization(c: Case, inc: int, opts):
+    from wavebrdf.solver.farfield import HemisphereGrid
+    from wavebrdf.solver.metrics import blur, speckle_sigma_u
+    from wavebrdf.solver.polarimetry import degree_of_polarization
+
+    wl = c.coords["wavelength_um"]
+    M = np.asarray(c.ds.mueller()[c.index + (slice(None), inc)], dtype=float)  # (n_λ, 4, 4, res, res)
+    grid = HemisphereGrid(M.shape[-1])
+    waist = c.waist_um()
+    raw = np.stack([degree_of_polarization(np.nan_to_num(m)) for m in M])
+    sigmas = [speckle_sigma_u(w, waist, grid) for w in wl]
+    averaged = np.stack([degree_of_polarization(np.nan_to_num(blur(m, grid, sigma))) for m, sigma in zip(M, sigmas)])
+    raw[:, ~grid.inside] = np.nan
+    averaged[:, ~grid.inside] = np.nan
+    fig = figure((10.0, 4.2))
+    ax_map, bar, ax = fig.add_axes((0.05, 0.13, 0.33, 0.74)), fig.add_axes((0.39, 0.13, 0.012, 0.74)), \
+        fig.add_axes((0.52, 0.13, 0.45, 0.74))
+    middle = int(np.argsort(wl)[len(wl) // 2])
+    im = ax_map.imshow(averaged[middle], origin="lower", extent=(-1, 1, -1, 1), vmin=0, vmax=1, cmap="magma",
+                       interpolation="nearest")
+    fig.colorbar(im, cax=bar, label="degree of polarization")
+    u, v = specular_uv(c.coords["theta_i"][inc], c.coords["phi_i"][inc])
+    ax_map.plot([v], [u], marker="+", ms=10, mew=1.2, color="cyan", ls="none")
+    ax_map.set_xlabel("v (y direction cosine)")
+    ax_map.set_ylabel("u (x direction cosine)")
+    ax_map.set_aspect("equal")
+    ax_map.set_title(f"speckle-averaged (σ = {sigmas[middle]:.3g} in u), λ = {wl[middle]:g} µm", fontsize=8)
+    chosen = some(len(wl))
+    palette = colours(len(chosen))
+    phi_i = c.coords["phi_i"][inc]
+    for n, k in enumerate(chosen):
+        theta_o, line_raw = in_plane(raw[k][None], phi_i)
+        _, line_avg = in_plane(averaged[k][None], phi_i)
+        ax.plot(theta_o, line_raw[0], color=palette[n], lw=0.5, alpha=0.6)
+        ax.plot(theta_o, line_avg[0], color=palette[n], lw=1.8, label=f"λ = {wl[k]:g} µm")
+    ax.axvline(c.coords["theta_i"][inc], color="grey", lw=0.6, ls=":")
+    ax.set_xlim(-90, 90)
+    ax.set_ylim(0, 1.02)
+    ax.set_xlabel("θo in the plane of incidence (degrees; specular side > 0)")
+    ax.set_ylabel("degree of polarization (unpolarized incidence)")
+    ax.legend(fontsize=7, frameon=False)
+    ax.set_title(f"thin: one coherent realization; thick: speckle average\n{c.title(inc)}", fontsize=8)
+    return fig
+
+
 PER_CASE = (("heights", "_heights", _heights), ("albedo", "_albedo", _albedo))  # kind, file suffix, draw
 PER_DIRECTION = (("maps", "_inc{k}", _map), ("slices", "_slice_inc{k}", _slice),
-                 ("spectra", "_spectra_inc{k}", _spectra))
+                 ("spectra", "_spectra_inc{k}", _spectra), ("polarization", "_polarization_inc{k}", _polarization))

@@ -41,11 +41,12 @@ def _dataset_path(props, plugin: str, what: str) -> str:
 
 
 def tables_for(filename, *, channels: str, case: int = 0, smooth_sigma: float | None = None,
-               isotropic: bool | None = None) -> Tables:
-    """The (cached) tables of a dataset for one channel kind ("rgb", "spectral", "mono")."""
-    return _cached(filename, ("surface", channels, int(case), smooth_sigma, isotropic),
+               isotropic: bool | None = None, polarized: bool = False) -> Tables:
+    """The (cached) tables of a dataset for one channel kind ("rgb", "spectral", "mono"), with the
+    Mueller ratio tables for polarized variants."""
+    return _cached(filename, ("surface", channels, int(case), smooth_sigma, isotropic, polarized),
                    lambda path: load_tables(path, case=int(case), channels=channels, smooth_sigma=smooth_sigma,
-                                            isotropic=isotropic))
+                                            isotropic=isotropic, polarized=polarized))
 
 
 def _cached(filename, options: tuple, load):
@@ -66,13 +67,13 @@ def clear_cache() -> None:
     _CACHE.clear()
 
 
-def _load_from_props(props, channels: str) -> Tables:
+def _load_from_props(props, channels: str, polarized: bool = False) -> Tables:
     path = _dataset_path(props, "wavebrdf", "surface")
     sigma = props.get("smooth_sigma", None)
     iso = props.get("isotropic", None)
     return tables_for(path, channels=channels, case=int(props.get("case", 0)),
                       smooth_sigma=None if sigma is None else float(sigma),
-                      isotropic=None if iso is None else bool(iso))
+                      isotropic=None if iso is None else bool(iso), polarized=polarized)
 
 
 def fiber_tables_for(filename, *, channels: str, case: int = 0):

@@ -258,8 +258,7 @@ def make_fiber_plugin_class(mi, load):
     import drjit as dr
 
     variant = mi.variant()
-    if "polarized" in variant:
-        raise ValueError(f"the wavebrdf_fiber plugin supports unpolarized variants; {variant!r} is polarized")
+    polarized = "polarized" in variant
     channels = "spectral" if "spectral" in variant else "mono" if "mono" in variant else "rgb"
     ops_type = _ScalarMath if variant.startswith("scalar") else _JitMath
     jit = ops_type.jit
@@ -269,6 +268,9 @@ def make_fiber_plugin_class(mi, load):
 
         def __init__(self, props):
             mi.BSDF.__init__(self, props)
+            if polarized:
+                raise ValueError(f"the wavebrdf_fiber plugin supports unpolarized variants; {variant!r} is polarized "
+                                 "(fiber datasets hold cross sections per polarization, no Mueller matrices)")
             tables, variance = load(props, channels)
             self.tables = tables
             self.ev = FiberEvaluator(tables, ops_type(mi), variance)

@@ -1,6 +1,6 @@
 """The ``"wavebrdf"`` Mitsuba 3 BSDF: evaluation, importance sampling and pdf of tabulated BRDFs.
 
-One implementation serves every unpolarized variant: the arithmetic is written once against a
+One implementation serves every variant: the arithmetic is written once against a
 small backend (:class:`_ScalarOps`: Python floats and ``math``; :class:`_JitOps`: Dr.Jit arrays,
 ``dr.gather``, ``dr.binary_search``), chosen by the variant when the plugin is instantiated.
 
@@ -32,6 +32,14 @@ Directions are in the shading frame (x, y, z) = (s, t, n); u = x, v = y as in th
   and a uniform point in it (``sample2``); mapped back through the component's rotation and
   shift (Jacobian 1 in (u, v)); density in solid angle = Σ_k w_k pmf_k / cell area · cos θ_o,
   which ``pdf`` returns. Points that land outside the unit disk are invalid samples (weight 0).
+* **Polarized variants** (``*_spectral_polarized``, ``*_mono_polarized``; a dataset with Jones or
+  Mueller matrices): the table's M = f·[1, ratios] (Tables.mueller_ratio, looked up like f,
+  without the shift gain) is the Mueller matrix of incidence wi → ω_o = wo in the s/p frames of
+  ``solver/polarimetry.py``. In radiance transport light travels wo → wi, so the reciprocal
+  path's matrix R Mᵀ R (``polarimetry.reversed_path``) is taken; it is then rotated from the s/p
+  frames (ŝ = ẑ × d/|ẑ × d| of each direction d) to Mitsuba's Stokes bases with
+  ``mueller.rotate_mueller_basis``, as Mitsuba's own conductors do. Near the pole the s/p frames
+  turn quickly with φ_o, so the bilinear lookup of the ratios is least accurate there.
 * **Below the horizon and back faces**: zero (a one-sided reflector, like Mitsuba's conductors);
   wrap it in Mitsuba's ``twosided`` BSDF to use the same tables on both sides.
 """
@@ -181,6 +189,7 @@ class Evaluator:
         self.a_u, self.a_v = ops.floats(a[:, 0]), ops.floats(a[:, 1])
         self.a_np = np.column_stack([a, np.cos(tables.theta)])
         self.wavelengths_nm = ops.floats(tables.wavelengths_um * 1000.0)
+        self.ratio = None if tables.mueller_ratio is None else ops.floats(tables.mueller_ratio)
         self.gain = ops.floats(tables.shift_gain)
         self.gain_n = tables.shift_gain.shape[-1]
         self.gain_step = tables.shift_step
@@ -258,11 +267,13 @@ class Evaluator:
         j0 = ops.clip(ops.floor_int(gy), 0, res - 2)
         return i0, j0, ops.clip(gx - i0, 0.0, 1.0), ops.clip(gy - j0, 0.0, 1.0)
 
-    def lookup(self, terms: list[_Component], ox, oy, channel_terms) -> list:
+    def lookup(self, terms: list[_Component], ox, oy, channel_terms, ratios: bool = False) -> list:
         """Σ_k w_k f_k at query ω_o = (ox, oy) for each output channel; ``channel_terms`` lists,
-        per output channel, [(table channel index, weight)] (λ interpolation or identity)."""
+        per output channel, [(table channel index, weight)] (λ interpolation or identity).
+        ``ratios``: the Mueller ratio tables instead (channel index e·C + c; no shift gain)."""
         ops, res, plane = self.ops, self.res, self.res * self.res
-        f = self.f
+        f = self.ratio if ratios else self.f
+        n_chan = self.n_chan * 15 if ratios else self.n_chan
         out = [0.0] * len(channel_terms)
         for term in terms:
             x, y = term.to_table(ox, oy)
@@ -270,11 +281,11 @@ class Evaluator:
             if not ops.jit and not inside:
                 continue
             i0, j0, tx, ty = self._bilinear(x, y)
-            w = term.w * self._gain(term) if self.shift else term.w
+            w = term.w * self._gain(term) if self.shift and not ratios else term.w
             if ops.jit:
                 w = ops.select(inside, w, 0.0)
             w00, w10, w01, w11 = w * (1 - tx) * (1 - ty), w * tx * (1 - ty), w * (1 - tx) * ty, w * tx * ty
-            base = term.k * (self.n_chan * plane) + i0 * res + j0
+            base = term.k * (n_chan * plane) + i0 * res + j0
             for n, chans in enumerate(channel_terms):
                 for c, wc in chans:
                     b = base + c * plane
@@ -362,21 +373,27 @@ def pick_interval(ops, cdf, base, count, xi):
 
 
 def make_plugin_class(mi, load):
-    """The BSDF class for the current Mitsuba variant; ``load(props, channels)`` returns Tables."""
+    """The BSDF class for the current Mitsuba variant; ``load(props, channels, polarized)`` returns Tables."""
     import drjit as dr
 
     variant = mi.variant()
-    if "polarized" in variant:
-        raise ValueError(f"the wavebrdf plugin supports unpolarized variants; {variant!r} is polarized")
+    polarized = "polarized" in variant
     channels = "spectral" if "spectral" in variant else "mono" if "mono" in variant else "rgb"
     ops_type = _ScalarOps if variant.startswith("scalar") else _JitOps
+
+    def _s_axis(d):
+        """ŝ = ẑ × d/|ẑ × d| of direction d (local frame); ŷ at the pole (solver/polarimetry.py)."""
+        rho = dr.sqrt(d.x * d.x + d.y * d.y)
+        at_pole = rho < 1e-12
+        safe = dr.select(at_pole, 1.0, rho)
+        return mi.Vector3f(dr.select(at_pole, 0.0, -d.y / safe), dr.select(at_pole, 1.0, d.x / safe), 0.0)
 
     class WaveBRDF(mi.BSDF):
         """Tabulated wave-optics BRDF from a wavebrdf surface dataset (see wavebrdf.mitsuba)."""
 
         def __init__(self, props):
             mi.BSDF.__init__(self, props)
-            self.tables = load(props, channels)
+            self.tables = load(props, channels, polarized)
             interpolation = props.get("interpolation", "shift")
             if interpolation not in ("shift", "blend"):
                 raise ValueError(f"[wavebrdf plugin] interpolation = {interpolation!r}: expected 'shift' or 'blend'")
@@ -393,10 +410,25 @@ def make_plugin_class(mi, load):
         def _terms(self, si):
             return self.ev.components(si.wi.x, si.wi.y, si.wi.z)
 
-        def _value(self, terms, si, wo):
-            """f(incidence wi, ω_o = wo) · cos θ_wo as a Spectrum (not masked)."""
-            values = self.ev.lookup(terms, wo.x, wo.y, self._channel_terms(si))
-            return mi.Spectrum(*[v * wo.z for v in values])
+        def _value(self, terms, si, wo, ctx=None):
+            """f(incidence wi, ω_o = wo) · cos θ_wo as a Spectrum (not masked); in polarized variants
+            the Mueller matrix in Mitsuba's Stokes bases (module docstring)."""
+            chans = self._channel_terms(si)
+            values = [v * wo.z for v in self.ev.lookup(terms, wo.x, wo.y, chans)]
+            if not polarized:
+                return mi.Spectrum(*values)
+            n = len(chans)
+            ratio_terms = [[(e * self.ev.n_chan + c, w) for c, w in terms_c] for e in range(15) for terms_c in chans]
+            ratios = self.ev.lookup(terms, wo.x, wo.y, ratio_terms, ratios=True)
+            elements = [values] + [[values[c] * ratios[e * n + c] for c in range(n)] for e in range(15)]
+            radiance = ctx is None or ctx.mode == mi.TransportMode.Radiance
+            if radiance:  # light wo → wi: the reciprocal path, R Mᵀ R with R = diag(1, 1, −1, 1)
+                sign = (1.0, 1.0, -1.0, 1.0)
+                elements = [[sign[r] * sign[c] * x for x in elements[4 * c + r]] for r in range(4) for c in range(4)]
+            matrix = mi.Spectrum(*[mi.UnpolarizedSpectrum(*e) for e in elements])
+            light_in, light_out = (wo, si.wi) if radiance else (si.wi, wo)
+            return mi.mueller.rotate_mueller_basis(matrix, -light_in, _s_axis(light_in), mi.mueller.stokes_basis(-light_in),
+                                                   light_out, _s_axis(light_out), mi.mueller.stokes_basis(light_out))
 
         def _density(self, terms, wo):
             return self.ev.pdf_uv(terms, wo.x, wo.y) * wo.z
@@ -404,8 +436,8 @@ def make_plugin_class(mi, load):
         def eval(self, ctx, si, wo, active=True):
             active = active & (si.wi.z > 0) & (wo.z > 0)
             if not ops_type.jit:
-                return self._value(self._terms(si), si, wo) if active else mi.Spectrum(0.0)
-            return dr.select(active, self._value(self._terms(si), si, wo), 0.0)
+                return self._value(self._terms(si), si, wo, ctx) if active else mi.Spectrum(0.0)
+            return dr.select(active, self._value(self._terms(si), si, wo, ctx), 0.0)
 
         def pdf(self, ctx, si, wo, active=True):
             active = active & (si.wi.z > 0) & (wo.z > 0)
@@ -419,9 +451,9 @@ def make_plugin_class(mi, load):
                 if not active:
                     return mi.Spectrum(0.0), 0.0
                 terms = self._terms(si)
-                return self._value(terms, si, wo), self._density(terms, wo)
+                return self._value(terms, si, wo, ctx), self._density(terms, wo)
             terms = self._terms(si)
-            return (dr.select(active, self._value(terms, si, wo), 0.0),
+            return (dr.select(active, self._value(terms, si, wo, ctx), 0.0),
                     dr.select(active, self._density(terms, wo), 0.0))
 
         def sample(self, ctx, si, sample1, sample2, active=True):
@@ -438,7 +470,7 @@ def make_plugin_class(mi, load):
             wo = mi.Vector3f(x, y, self.ev.ops.sqrt(1.0 - r2))
             valid = valid & (wo.z > 0)
             pdf = self._density(terms, wo)
-            value = self._value(terms, si, wo)
+            value = self._value(terms, si, wo, ctx)
             bs.wo = wo
             bs.eta = 1.0
             bs.sampled_type = mi.UInt32(+mi.BSDFFlags.GlossyReflection)

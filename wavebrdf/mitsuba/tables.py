@@ -24,6 +24,12 @@ Nothing here imports Mitsuba: :func:`load_tables` reads one sweep case of a surf
   capped at MAX_GAIN. Multiplying a translated table by it restores its albedo, so the
   interpolated BRDF's albedo is the interpolation of the tabulated albedos.
 
+Polarized variants (``polarized=True``): f is the unpolarized BRDF M₀₀ of the dataset's Mueller
+matrices (stored, or derived from its Jones matrices; frames of ``solver/polarimetry.py``) and
+``mueller_ratio`` holds the 15 other elements over M₀₀, each blurred like f and combined over
+wavelengths into channels before the division (|ratio| ≤ 1). The isotropic mirror v → −v negates
+the elements that couple (I, Q) with (U, V) (a mirror flips U and V).
+
 Speckle: a computed BRDF of one surface realization under a finite footprint is speckled; the
 tables are blurred by a Gaussian of standard deviation ``smooth_sigma`` (u units, per wavelength)
 within the unit disk, keeping each table's albedo (:func:`_smooth`).
@@ -78,6 +84,7 @@ class Tables:
     col_cdf: np.ndarray  # (n_tab, res + 1, res + 2)
     shift_gain: np.ndarray  # (n_tab, 2 SHIFT_BINS − 1, 2 SHIFT_BINS − 1)
     diagnostics: dict = field(default_factory=dict)
+    mueller_ratio: np.ndarray | None = None  # (n_tab, 15 C, res, res): M[e]/M[0, 0], e = 1…15 row-major, channel-minor
 
     @property
     def shift_step(self) -> float:
@@ -330,12 +337,13 @@ def _shift_gain(f: np.ndarray) -> np.ndarray:
 
 
 def load_tables(path: str | Path, *, case: int = 0, channels: str = "rgb", smooth_sigma: float | None = None,
-                isotropic: bool | None = None) -> Tables:
+                isotropic: bool | None = None, polarized: bool = False) -> Tables:
     """Read sweep case ``case`` (flat C-order index over the sweep axes) of surface dataset
     ``path`` into :class:`Tables` (see the module docstring).
 
     ``smooth_sigma``: speckle blur in u units (None: λ/(2π w) from the config, 0: none).
     ``isotropic``: use rotation invariance in φ (None: as the config declares it).
+    ``polarized``: also the Mueller ratio tables (a dataset with Jones or Mueller matrices).
     """
     start = time.perf_counter()
     where = f"[wavebrdf plugin] filename = {str(path)!r}"
@@ -348,12 +356,22 @@ def load_tables(path: str | Path, *, case: int = 0, channels: str = "rgb", smoot
                              f"(flat index over {ds.sweep_keys or 'no sweep'})")
         case_index = np.unravel_index(case, lead) if lead else ()
         brdf = np.asarray(ds.h5["brdf"][tuple(int(i) for i in case_index)], dtype=np.float64)  # (L, n_inc, res, res)
+        mueller = None
+        if polarized:
+            if ds.polarimetry == "intensity":
+                raise ValueError(f"{where}: a polarized variant needs the dataset's Jones or Mueller matrices; run "
+                                 "its study with [output] polarization = \"jones\" (or \"mueller\")")
+            mueller = np.asarray(ds.mueller()[tuple(int(i) for i in case_index)], dtype=np.float64)
+            brdf = mueller[:, :, 0, 0]  # (L, n_inc, res, res): the unpolarized BRDF
+            mueller = mueller.reshape(mueller.shape[:2] + (16,) + mueller.shape[-2:])
         config = case_config(ds.config, {key: coords[key][i] for key, i in zip(ds.sweep_keys, case_index)})
         polarization = ds.h5["brdf"].attrs.get("polarization", "")
         albedo = np.asarray(ds.h5["albedo"][tuple(int(i) for i in case_index)], dtype=float)
     wavelengths = np.asarray(coords["wavelength_um"], dtype=float)
     order = np.argsort(wavelengths)
     wavelengths, brdf, albedo = wavelengths[order], brdf[order], albedo[order]
+    if mueller is not None:
+        mueller = mueller[order]
     theta_deg = np.asarray(coords["theta_i"], dtype=float)
     phi_deg = np.asarray(coords["phi_i"], dtype=float)
 
@@ -364,7 +382,12 @@ def load_tables(path: str | Path, *, case: int = 0, channels: str = "rgb", smoot
         isotropic, why = isotropy_from_config(config)
     else:
         why = "plugin property"
+    if mueller is not None:  # (n_inc, L·16, res, res), element-minor
+        elements, _ = _fill_outside(np.moveaxis(mueller, 1, 0), where)
+        elements = elements.reshape(elements.shape[0], -1, *elements.shape[-2:])
     if isotropic:
+        if mueller is not None:
+            elements, _ = _canonical_isotropic(elements, theta_deg, phi_deg, np.tile(MIRROR_SIGN, len(wavelengths)))
         cube, theta = _canonical_isotropic(cube, theta_deg, phi_deg)
         phi = np.zeros_like(theta)
         scheme, grid_theta, grid_phi, grid_index = "isotropic", theta, np.zeros(1), np.arange(len(theta))[:, None]
@@ -388,6 +411,7 @@ def load_tables(path: str | Path, *, case: int = 0, channels: str = "rgb", smoot
     f, clipped = _to_channels(cube, wavelengths, channels)
     centres = _pixel_centres(f.shape[-1])
     f[..., centres[:, None] ** 2 + centres[None, :] ** 2 >= 1.0] = 0.0
+    ratio = None if mueller is None else _mueller_ratio(elements, sigma, wavelengths, channels)
     pmf, row_cdf, col_cdf = _sampling(f)
     diagnostics = {
         "scheme": scheme,
@@ -409,18 +433,55 @@ def load_tables(path: str | Path, *, case: int = 0, channels: str = "rgb", smoot
                        where, diagnostics["albedo_above_one"], diagnostics["albedo_max"])
     return Tables(f=f.astype(np.float32), channels=channels, wavelengths_um=wavelengths, theta=theta, phi=phi,
                   scheme=scheme, grid_theta=grid_theta, grid_phi=grid_phi, grid_index=grid_index, pmf=pmf,
-                  row_cdf=row_cdf, col_cdf=col_cdf, shift_gain=_shift_gain(f), diagnostics=diagnostics)
+                  row_cdf=row_cdf, col_cdf=col_cdf, shift_gain=_shift_gain(f), diagnostics=diagnostics,
+                  mueller_ratio=ratio)
 
 
-def _canonical_isotropic(cube: np.ndarray, theta_deg: np.ndarray, phi_deg: np.ndarray):
-    """Tables of an isotropic surface rotated to φ_i = 0, averaged per θ, symmetrised (v → −v;
-    rotation average at θ = 0); returns (tables sorted by θ, θ in radians)."""
+MIRROR_SIGN = np.outer([1, 1, -1, -1], [1, 1, -1, -1]).ravel()  # Mueller elements under the mirror v → −v
+
+
+def _mueller_ratio(elements: np.ndarray, sigma_u: np.ndarray, wavelengths_um: np.ndarray, channels: str) -> np.ndarray:
+    """(n_tab, L·16, res, res) Mueller elements → (n_tab, 15·C, res, res) ratios M[e]/M[0, 0] per channel:
+    each element blurred within the disk (no albedo rescaling: it cancels in the ratio), combined
+    over wavelengths into channels, divided, clipped to [−1, 1]; 0 outside the disk."""
+    from scipy.ndimage import gaussian_filter
+
+    n_tab, res = elements.shape[0], elements.shape[-1]
+    L = len(wavelengths_um)
+    cube = elements.reshape(n_tab, L, 16, res, res).copy()
+    centres = _pixel_centres(res)
+    inside = centres[:, None] ** 2 + centres[None, :] ** 2 < 1.0
+    for wl, sigma in enumerate(sigma_u):
+        if sigma > 0:
+            width = sigma * res / 2.0
+            weight = np.maximum(gaussian_filter(inside.astype(float), width, mode="constant"), 1e-300)
+            for k in range(n_tab):
+                for e in range(16):
+                    cube[k, wl, e] = gaussian_filter(np.where(inside, cube[k, wl, e], 0.0), width, mode="constant") / weight
+    if channels == "spectral":
+        combined = cube  # (n_tab, C = L, 16, res, res)
+    else:
+        combined = np.einsum("cl,kleij->kceij", channel_matrix(wavelengths_um, channels), cube)
+    m00 = combined[:, :, :1]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.where(m00 > 0, combined[:, :, 1:] / np.where(m00 > 0, m00, 1.0), 0.0)
+    ratio = np.clip(ratio, -1.0, 1.0) * inside
+    return np.ascontiguousarray(np.moveaxis(ratio, 2, 1).reshape(n_tab, -1, res, res)).astype(np.float32)
+
+
+def _canonical_isotropic(cube: np.ndarray, theta_deg: np.ndarray, phi_deg: np.ndarray,
+                         mirror_sign: np.ndarray | None = None):
+    """Tables of an isotropic surface rotated to φ_i = 0, averaged per θ, symmetrised (v → −v, each
+    channel times its ``mirror_sign``, default +1; rotation average at θ = 0 for intensities only:
+    Mueller elements (``mirror_sign`` given) are tied to the incident s/p frame, which rotates with
+    the table); returns (tables sorted by θ, θ in radians)."""
     keys = np.round(theta_deg, 9)
     thetas = np.unique(keys)
+    sign = np.ones(cube.shape[1]) if mirror_sign is None else np.asarray(mirror_sign, dtype=float)
     out = np.empty((len(thetas),) + cube.shape[1:])
     for t, value in enumerate(thetas):
         members = np.flatnonzero(keys == value)
         mean = np.mean([_rotate(cube[k], np.deg2rad(phi_deg[k])) for k in members], axis=0)
-        mean = 0.5 * (mean + mean[..., ::-1])
-        out[t] = _radial_average(mean) if value <= ANGLE_TOL_DEG else mean
+        mean = 0.5 * (mean + sign[:, None, None] * mean[..., ::-1])
+        out[t] = _radial_average(mean) if value <= ANGLE_TOL_DEG and mirror_sign is None else mean
     return out, np.deg2rad(thetas)

@@ -1,0 +1,114 @@
+"""Jones and Mueller matrices of a coherent far field, in stated s/p frames.
+
+Frames (docs/dataset.md, "Polarization"): every direction d pointing away from the surface (ω_i
+toward the light, ω_o toward the viewer) has ŝ(d) = φ̂(d) = (−sin φ, cos φ, 0), perpendicular to
+its plane of incidence/exitance (φ = 0 at the pole), and a wave travelling along k̂ has
+p̂ = k̂ × ŝ, so (ŝ, p̂, k̂) is right-handed: incident k̂ = −ω_i gives p̂_i = θ̂(ω_i), outgoing
+k̂ = ω_o gives p̂_o = −θ̂(ω_o). These are Mitsuba 3's Stokes frames (x axis ŝ, y = k̂ × x), up to
+the sign of ŝ, which leaves Stokes vectors unchanged.
+
+Jones matrix J[b, a] (b out, a in, each s|p): the far-field amplitude along b̂_o for a unit
+incident field along â_i, normalised so that Σ_b |J[b, a]|² is the BRDF (1/sr) of incident
+polarization a: J = (E·b̂_o)·√(n₁ / (2η₀ Φ_a μ_o)) with Φ_a the model's incident power.
+
+Stokes vectors S = (|E_s|² + |E_p|², |E_s|² − |E_p|², 2 Re(E_s E_p*), −2 Im(E_s E_p*)) (e^{+jωt},
+the convention of Mitsuba's ``mueller::specular_reflection`` with its n − iκ Fresnel amplitudes),
+so M = A (J ⊗ J*) A⁻¹ and M[0, 0] is the unpolarized BRDF. A flat interface gives
+J = −diag(r_s, r_p) with r_p in Born & Wolf's (Verdet's) sign convention (r_s = −r_p at normal
+incidence); the sign is that of ŝ_o = −ŝ_i at the mirror direction and drops out of M.
+
+Reciprocity (a reciprocal surface): the Jones matrix of the reversed path (light from ω_o,
+seen from ω_i) in these frames is D Jᵀ D, D = diag(1, −1), so M_reversed = R Mᵀ R with
+R = diag(1, 1, −1, 1) (:func:`reversed_path`; Mᵀ with V negated is the Mueller matrix
+of Jᵀ, and D negates U and V).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wavebrdf.solver.farfield import ETA0, FarField, transverse_basis
+
+__all__ = [
+    "POLARIMETRY",
+    "STOKES",
+    "degree_of_polarization",
+    "depolarization_index",
+    "incident_frame",
+    "jones",
+    "mueller",
+    "outgoing_frames",
+    "reversed_path",
+]
+
+STOKES = ("I", "Q", "U", "V")
+POLARIMETRY = ("intensity", "jones", "mueller")  # what a surface dataset stores per pixel ([output] polarization)
+
+# S = A e with the coherency vector e = (E_s E_s*, E_s E_p*, E_p E_s*, E_p E_p*)
+_A = np.array([[1, 0, 0, 1], [1, 0, 0, -1], [0, 1, 1, 0], [0, 1j, -1j, 0]], dtype=complex)
+_A_INV = np.linalg.inv(_A)
+
+
+def incident_frame(theta_i: float, phi_i: float) -> tuple[np.ndarray, np.ndarray]:
+    """(ŝ_i, p̂_i) of the incident wave (radians; θ_i, φ_i toward the light, k̂ = −ω_i).
+
+    The models' s and p excitations are E ∥ ŝ_i and E ∥ −p̂_i (solver/footprint.py
+    ``incident_basis``, the beams' x_b): :func:`jones` takes care of that sign."""
+    st, ct, sp, cp = np.sin(theta_i), np.cos(theta_i), np.sin(phi_i), np.cos(phi_i)
+    return np.array([-sp, cp, 0.0]), np.array([ct * cp, ct * sp, -st])
+
+
+def outgoing_frames(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(ŝ_o, p̂_o) of the directions with projected coordinates (u, v), shape (..., 3) each."""
+    theta_hat, phi_hat = transverse_basis(u, v)
+    return phi_hat, -theta_hat
+
+
+def jones(field: FarField) -> np.ndarray:
+    """J[b, a, i, j] (complex, √(1/sr)) of a FarField on its grid; 0 outside the unit disk."""
+    grid = field.grid
+    U, V = grid.uv
+    s_out, p_out = outgoing_frames(U, V)
+    mu = grid.mu
+    inside = grid.inside
+    scale = np.zeros((2,) + mu.shape)
+    for a in range(2):
+        scale[a][inside] = np.sqrt(field.exterior_index / (2.0 * ETA0 * field.incident_power[a] * mu[inside]))
+    excitation_sign = np.array([1.0, -1.0])  # the models' p excitation is −p̂_i
+    E = field.E * (excitation_sign * 1.0)[:, None, None, None]  # (a, xyz, i, j)
+    out = np.empty((2, 2) + mu.shape, dtype=complex)
+    for b, basis in enumerate((s_out, p_out)):
+        out[b] = np.einsum("axij,ijx->aij", E, basis) * scale
+    return out
+
+
+def mueller(J: np.ndarray) -> np.ndarray:
+    """M[m, n, ...] (real, 1/sr) of Jones matrices J[b, a, ...]; averages of M over pixels,
+    realizations or wavelengths are the incoherent averages."""
+    J = np.asarray(J)
+    kron = np.einsum("bc...,de...->bdce...", J, np.conj(J)).reshape((4, 4) + J.shape[2:])
+    M = np.einsum("mk,kl...,ln->mn...", _A, kron, _A_INV)
+    return np.real(M)
+
+
+def reversed_path(M: np.ndarray) -> np.ndarray:
+    """The Mueller matrix of the reversed path of a reciprocal surface: R Mᵀ R, R = diag(1, 1, −1, 1)
+    (module docstring)."""
+    M = np.asarray(M)
+    R = np.array([1.0, 1.0, -1.0, 1.0]).reshape((4,) + (1,) * (M.ndim - 2))
+    return R[:, None] * np.swapaxes(M, 0, 1) * R[None, :]
+
+
+def degree_of_polarization(M: np.ndarray) -> np.ndarray:
+    """Degree of polarization of the light scattered from unpolarized incidence: |M[1:, 0]| / M[0, 0]."""
+    M = np.asarray(M)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.sqrt(np.sum(M[1:, 0] ** 2, axis=0)) / M[0, 0]
+
+
+def depolarization_index(M: np.ndarray) -> np.ndarray:
+    """Gil–Bernabeu depolarization index √(Σ M² − M₀₀²)/(√3 M₀₀): 1 for a pure (non-depolarizing)
+    Mueller matrix, 0 for an ideal depolarizer."""
+    M = np.asarray(M)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.sqrt(np.clip(np.sum(M**2, axis=(0, 1)) - M[0, 0] ** 2, 0.0, None)) / (np.sqrt(3.0) * M[0, 0])
