@@ -57,6 +57,7 @@ NOT_SWEEPABLE = {
     "study.output": "a study writes one dataset",
     "study.name": "a study has one name",
     "steering.patches": "the patch layout is shared by all cases",
+    "output.polarization": "every case must store the same variables",
 }
 REQUIRED_SECTIONS = ("material", "illumination", "model")  # + the section of one study kind
 
@@ -101,10 +102,13 @@ def _build_study(data: dict, base_dir: Path, default_name: str, sweep_values: di
         raise ConfigError(f"[illumination] polarization = \"{illumination.polarization}\" / [output] per_polarization: "
                           f"model {model.name!r} does not resolve polarization (its s and p are the same); "
                           "use polarization = \"unpolarized\" and per_polarization = false")
-    if out.polarization != "intensity" and model.capabilities.returns != "fields":
-        raise ConfigError(f"[output] polarization = \"{out.polarization}\": model {model.name!r} returns "
-                          f"{model.capabilities.returns.replace('_', ' ')}, not coherent fields; Jones and Mueller "
-                          f"matrices come from {', '.join(n for n in rungs() if model_class(n).capabilities.returns == 'fields')}")
+    if out.polarization != "intensity" and not model.capabilities.vector_fields:
+        what = ("scalar fields per polarization (E_s on φ_o, E_p on θ_o: no cross-polarization, so its Jones "
+                "matrix is diagonal in every direction)" if model.capabilities.returns == "fields"
+                else model.capabilities.returns.replace("_", " "))
+        raise ConfigError(f"[output] polarization = \"{out.polarization}\": model {model.name!r} returns {what}; "
+                          "Jones and Mueller matrices come from the vector-field models "
+                          f"{', '.join(n for n in rungs() if model_class(n).capabilities.vector_fields)} (or auto)")
     kind.check_sections(spec, data)
     if "steering" in data and not model.capabilities.steerable:
         raise ConfigError(f"[steering]: model {model.name!r} cannot be steered (it returns "

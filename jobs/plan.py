@@ -192,7 +192,8 @@ class Plan:
             precision=study.model.precision,
             z_reference=z_reference,
             memory_budget_bytes=self.task_memory_budget(task.case),
-            coherent=task.on_patch or study.output_options.polarization != "intensity",
+            coherent=task.on_patch,
+            polarimetric=study.output_options.polarization != "intensity",
         )
 
     def task_memory_budget(self, case: int) -> float:

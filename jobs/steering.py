@@ -398,6 +398,7 @@ def synthesize_task(ctx, plan, task, pool, parts) -> FarField:
         basic_scene.wavelength_um, basic_scene.exterior_index, theta, phi,
     )
     ff = synthesize(fields, st.layout, theta, phi, power)
+    ff.excitation_rad = (basic_scene.theta_i, basic_scene.phi_i)  # the patch beams' polarizations
     ff.diagnostics["steering_offset"] = float(np.hypot(
         *(np.sin(theta) * np.array([np.cos(phi), np.sin(phi)])
           - np.sin(basic_scene.theta_i) * np.array([np.cos(basic_scene.phi_i), np.sin(basic_scene.phi_i)]))))

@@ -859,23 +859,25 @@ class Dataset:
         """What the surface dataset stores beyond intensities: "jones", "mueller" or "intensity"."""
         return next((name for name in ("jones", "mueller") if name in self._h5), "intensity")
 
-    def jones(self) -> np.ndarray:
+    def jones(self, where: tuple = ()) -> np.ndarray:
         """Complex Jones matrices [sweep..., wavelength_um, incidence, out, in, u, v] (1/√sr; NaN
         outside the disk), frames of solver/polarimetry.py; a dataset stored with
-        ``[output] polarization = "jones"``."""
+        ``[output] polarization = "jones"``. ``where``: an index into the leading axes (sweep…,
+        wavelength, incidence), read alone (e.g. ``(0, 2)``: sweep case 0, wavelength 2)."""
         if "jones" not in self._h5:
             raise self._fail(f"stores no Jones matrices (polarimetry: {self.polarimetry}); run the study with "
                              "[output] polarization = \"jones\"")
-        pair = self["jones"]
+        pair = self._h5["jones"][tuple(where)]
         return pair[..., 0] + 1j * pair[..., 1].astype(np.complex64)
 
-    def mueller(self) -> np.ndarray:
+    def mueller(self, where: tuple = ()) -> np.ndarray:
         """Mueller matrices [sweep..., wavelength_um, incidence, 4, 4, u, v] (1/sr; NaN outside the
-        disk), stored (``polarization = "mueller"``) or derived from the Jones matrices; averages of
-        them (over pixels, realizations, wavelengths) are incoherent averages."""
+        disk), stored (``polarization = "mueller"``) or derived from the Jones matrices; ``where``
+        as in :meth:`jones`. Averages of them (over pixels, realizations, wavelengths) are
+        incoherent averages."""
         if "mueller" in self._h5:
-            return self["mueller"]
-        J = np.moveaxis(self.jones(), (-4, -3), (0, 1))  # out, in first
+            return self._h5["mueller"][tuple(where)]
+        J = np.moveaxis(self.jones(where), (-4, -3), (0, 1))  # out, in first
         return np.moveaxis(polarimetry_module.mueller(J).astype(np.float32), (0, 1), (-4, -3))
 
     @property

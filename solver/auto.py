@@ -306,12 +306,15 @@ class Choice:
 
 def candidate_models(scene: SurfaceScene) -> list[str]:
     """Registered surface rungs that can take ``scene`` (statistics rungs only with an ensemble;
-    steerable rungs only where the scene must give coherent fields)."""
+    steerable rungs only where the scene must give coherent fields, vector-field rungs only where it
+    must give Jones matrices)."""
     names = list(rungs("height_field"))
     if scene.surface.ensemble is not None:
         names += list(model_names("statistics"))
     if scene.coherent:
         names = [n for n in names if model_class(n).capabilities.steerable]
+    if scene.polarimetric:
+        names = [n for n in names if model_class(n).capabilities.vector_fields]
     usable = []
     for name in names:
         try:
@@ -487,7 +490,8 @@ class AutoModel(Model):
     summary = ("the cheapest rung expected (one task) or measured on spot checks (a study of many) to meet "
                "[model] tolerance, chosen per task and run; the full wave where none is")
     capabilities = Capabilities(takes="height_field", returns="fields", polarized=True, steerable=True,
-                                reciprocal=False, conserves_energy=False, spot_checks=True, picks_rung=True)
+                                reciprocal=False, conserves_energy=False, spot_checks=True, picks_rung=True,
+                                vector_fields=True)
     Options = AutoOptions
 
     def __init__(self, options=None):

@@ -74,6 +74,9 @@ class Capabilities:
     rung        its place on the ladder of surface rungs, from the cheapest (0) to the most accurate
                 (docs/approx.md): ``wavebrdf compare`` lists models in this order and takes the
                 highest that fits as its reference; None: not ranked (below every rung)
+    vector_fields  its FarField is the full vector far field (cross-polarization, the turn between the
+                planes of incidence and exitance), so Jones and Mueller matrices are meaningful in every
+                direction; scalar rungs put E_s on φ̂_o and E_p on θ̂_o (diagonal Jones matrices)
     single_scattering  its paths end after one reflection, so it misses the energy of longer paths
                 (``auto`` never predicts its error below the scene's multiple-bounce share)
     picks_rung  it runs, per scene, a rung it picks among the registered models (``auto``): it is
@@ -92,6 +95,7 @@ class Capabilities:
     spot_checks: bool = False
     rung: int | None = None
     single_scattering: bool = False
+    vector_fields: bool = False
     picks_rung: bool = False
 
     def __post_init__(self):
@@ -101,6 +105,8 @@ class Capabilities:
             raise ValueError(f"Capabilities.returns must be one of {self.OUTPUTS}, got {self.returns!r}")
         if self.steerable and self.returns != "fields":
             raise ValueError("only models returning coherent fields can be steerable")
+        if self.vector_fields and self.returns != "fields":
+            raise ValueError("only models returning coherent fields can return vector fields")
 
 
 @dataclass(frozen=True)
@@ -115,6 +121,7 @@ class SurfaceScene:
     ``memory_budget_bytes``: the memory one task may use ([run] memory_gb or the node's, over the
     tasks at once; None: not limited), which models that can trade time for memory fit.
     ``coherent``: the result must be a coherent FarField (a steered sub-area, summed with others).
+    ``polarimetric``: the result must be a vector FarField (the study stores Jones or Mueller matrices).
     """
 
     surface: HeightField
@@ -131,6 +138,7 @@ class SurfaceScene:
     footprint_centre_um: tuple[float, float] = (0.0, 0.0)
     memory_budget_bytes: float | None = None
     coherent: bool = False
+    polarimetric: bool = False
 
     def __post_init__(self):
         object.__setattr__(self, "precision", Precision(self.precision))

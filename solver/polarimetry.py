@@ -38,7 +38,10 @@ __all__ = [
     "jones",
     "mueller",
     "outgoing_frames",
+    "regular_axis",
     "reversed_path",
+    "stokes_rotation",
+    "to_regular_frames",
 ]
 
 STOKES = ("I", "Q", "U", "V")
@@ -65,7 +68,12 @@ def outgoing_frames(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
 
 def jones(field: FarField) -> np.ndarray:
-    """J[b, a, i, j] (complex, √(1/sr)) of a FarField on its grid; 0 outside the unit disk."""
+    """J[b, a, i, j] (complex, √(1/sr)) of a FarField on its grid; 0 outside the unit disk.
+
+    Where the fields were excited with another direction's polarizations (``excitation_rad``: a
+    steered synthesis, whose patch beams carry the basic direction's ê_s, ê_p), the response to
+    the stated incident frame is the combination J_exc C, C[a, a'] = â_exc · â'_i (the two frames
+    differ by the steering offset, well inside the beam's spread)."""
     grid = field.grid
     U, V = grid.uv
     s_out, p_out = outgoing_frames(U, V)
@@ -79,6 +87,10 @@ def jones(field: FarField) -> np.ndarray:
     out = np.empty((2, 2) + mu.shape, dtype=complex)
     for b, basis in enumerate((s_out, p_out)):
         out[b] = np.einsum("axij,ijx->aij", E, basis) * scale
+    if field.excitation_rad is not None:
+        excited = np.array(incident_frame(*field.excitation_rad))
+        stated = np.array(incident_frame(field.theta_i, field.phi_i))
+        out = np.einsum("baij,ac->bcij", out, excited @ stated.T)
     return out
 
 
@@ -89,6 +101,36 @@ def mueller(J: np.ndarray) -> np.ndarray:
     kron = np.einsum("bc...,de...->bdce...", J, np.conj(J)).reshape((4, 4) + J.shape[2:])
     M = np.einsum("mk,kl...,ln->mn...", _A, kron, _A_INV)
     return np.real(M)
+
+
+def regular_axis(d: np.ndarray) -> np.ndarray:
+    """A first Stokes axis for direction d (..., 3) that varies smoothly over the whole upper
+    hemisphere (Ludwig's third definition: x̂ carried to d, singular only at −ẑ):
+    (1 − u²/(1 + w), −uv/(1 + w), −u), ⟂ d; x̂ at the pole. Frames built on it (second axis k̂ × x)
+    suit interpolation across the pole, where the s/p frames turn with φ."""
+    d = np.asarray(d, dtype=float)
+    u, v, w = d[..., 0], d[..., 1], d[..., 2]
+    return np.stack([1.0 - u * u / (1.0 + w), -u * v / (1.0 + w), -u], axis=-1)
+
+
+def stokes_rotation(two_chi: np.ndarray) -> np.ndarray:
+    """(4, 4, ...) Mueller matrix taking Stokes vectors to a basis turned by χ (new first axis
+    cos χ x + sin χ y): Q' = cos 2χ Q + sin 2χ U, U' = −sin 2χ Q + cos 2χ U."""
+    two_chi = np.asarray(two_chi, dtype=float)
+    c, s = np.cos(two_chi), np.sin(two_chi)
+    one, zero = np.ones_like(c), np.zeros_like(c)
+    return np.array([[one, zero, zero, zero], [zero, c, s, zero], [zero, -s, c, zero], [zero, zero, zero, one]])
+
+
+def to_regular_frames(M: np.ndarray, u: np.ndarray, v: np.ndarray, phi_i: float) -> np.ndarray:
+    """M (4, 4, ..., res, res) from the s/p frames to frames whose first axes are
+    :func:`regular_axis` of ω_i (incident, azimuth ``phi_i``) and of each ω_o = (u, v) (the pixel
+    grid, (res, res) each). In the s/p frames (x = φ̂, second axis k̂ × x) the regular axis is turned
+    by 2χ = π + 2φ_i (incident, k̂ = −ω_i) and π − 2φ_o (outgoing)."""
+    phi_o = np.where(np.hypot(u, v) > 0, np.arctan2(v, u), 0.0)
+    out = stokes_rotation(np.pi - 2.0 * phi_o)
+    back = stokes_rotation(-(np.pi + 2.0 * phi_i))
+    return np.einsum("mk...ij,kl...ij,ln->mn...ij", out, M, back)
 
 
 def reversed_path(M: np.ndarray) -> np.ndarray:

@@ -282,7 +282,7 @@ def test_capabilities_and_options(name):
     assert isinstance(caps, Capabilities)
     assert caps.takes in INPUTS and caps.returns in OUTPUTS
     for flag in ("polarized", "steerable", "reciprocal", "conserves_energy", "spot_checks", "single_scattering",
-                 "picks_rung"):
+                 "picks_rung", "vector_fields"):
         assert isinstance(getattr(caps, flag), bool), flag
     assert caps.rung is None or (isinstance(caps.rung, int) and caps.rung >= 0), caps.rung
     if caps.takes == "cross_section" or caps.picks_rung:  # the ladder is the surface rungs'

@@ -16,7 +16,8 @@
 - ``polarization`` (datasets with Jones or Mueller matrices, ``[output] polarization``): the
   degree of polarization of the light scattered from unpolarized incidence, |M[1:, 0]|/M₀₀, per
   (case, incidence): its map over the projected hemisphere after the speckle average (Mueller
-  matrices blurred by λ/(π w), the footprint's spread: an incoherent average) for the middle
+  matrices blurred by λ/(π w), the footprint's spread: an incoherent average, in the regular
+  frames of solver/polarimetry.py, smooth across the pole) for the middle
   wavelength, and its in-plane curve per wavelength, raw (one coherent realization: thin) and
   averaged (thick).
 """
@@ -233,15 +234,17 @@ def _heights(c: Case, opts):
 def _polarization(c: Case, inc: int, opts):
     from wavebrdf.solver.farfield import HemisphereGrid
     from wavebrdf.solver.metrics import blur, speckle_sigma_u
-    from wavebrdf.solver.polarimetry import degree_of_polarization
+    from wavebrdf.solver.polarimetry import degree_of_polarization, to_regular_frames
 
     wl = c.coords["wavelength_um"]
-    M = np.asarray(c.ds.mueller()[c.index + (slice(None), inc)], dtype=float)  # (n_λ, 4, 4, res, res)
+    M = np.asarray(c.ds.mueller(c.index + (slice(None), inc)), dtype=float)  # (n_λ, 4, 4, res, res)
     grid = HemisphereGrid(M.shape[-1])
     waist = c.waist_um()
     raw = np.stack([degree_of_polarization(np.nan_to_num(m)) for m in M])
     sigmas = [speckle_sigma_u(w, waist, grid) for w in wl]
-    averaged = np.stack([degree_of_polarization(np.nan_to_num(blur(m, grid, sigma))) for m, sigma in zip(M, sigmas)])
+    U, V = grid.uv  # blurred in frames smooth across the pole (the degree of polarization is frame-free)
+    regular = [to_regular_frames(np.nan_to_num(m), U, V, np.deg2rad(c.coords["phi_i"][inc])) for m in M]
+    averaged = np.stack([degree_of_polarization(np.nan_to_num(blur(m, grid, sigma))) for m, sigma in zip(regular, sigmas)])
     raw[:, ~grid.inside] = np.nan
     averaged[:, ~grid.inside] = np.nan
     fig = figure((10.0, 4.2))

@@ -215,7 +215,8 @@ class POModel(FootprintModel):
     sampling = frozenset({"lattice", "pixels", "realization"})
     Options = POOptions
     capabilities = Capabilities(takes="height_field", returns="fields", polarized=True, steerable=True,
-                                reciprocal=False, conserves_energy=False, rung=8, single_scattering=True)
+                                reciprocal=False, conserves_energy=False, rung=8, single_scattering=True,
+                                vector_fields=True)
 
     def run(self, ctx, scene: SurfaceScene) -> FarField:
         return po_farfield(ctx, scene, self.options.shadowing, self.options.border)

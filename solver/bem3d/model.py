@@ -63,7 +63,7 @@ class BEMModel(Model):
                "patches, the Adaptive Integral Method for 10^5-10^6 unknowns")
     Options = BEMOptions
     capabilities = Capabilities(takes="height_field", returns="fields", polarized=True, steerable=True,
-                                reciprocal=True, conserves_energy=True, rung=9)
+                                reciprocal=True, conserves_energy=True, rung=9, vector_fields=True)
 
     def __init__(self, options=None):
         super().__init__(options)

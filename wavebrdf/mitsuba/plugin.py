@@ -36,10 +36,11 @@ Directions are in the shading frame (x, y, z) = (s, t, n); u = x, v = y as in th
   Mueller matrices): the table's M = f·[1, ratios] (Tables.mueller_ratio, looked up like f,
   without the shift gain) is the Mueller matrix of incidence wi → ω_o = wo in the s/p frames of
   ``solver/polarimetry.py``. In radiance transport light travels wo → wi, so the reciprocal
-  path's matrix R Mᵀ R (``polarimetry.reversed_path``) is taken; it is then rotated from the s/p
-  frames (ŝ = ẑ × d/|ẑ × d| of each direction d) to Mitsuba's Stokes bases with
-  ``mueller.rotate_mueller_basis``, as Mitsuba's own conductors do. Near the pole the s/p frames
-  turn quickly with φ_o, so the bilinear lookup of the ratios is least accurate there.
+  path's matrix R Mᵀ R (``polarimetry.reversed_path``) is taken; it is then rotated from the
+  tables' frames to Mitsuba's Stokes bases with ``mueller.rotate_mueller_basis``, as Mitsuba's own
+  conductors do. The tables hold the matrices in the regular frames of ``polarimetry.regular_axis``
+  (smooth across the pole, where the dataset's s/p frames turn with φ), and the relation
+  R Mᵀ R holds in them too (each direction has one first axis, as incidence and as exitance).
 * **Below the horizon and back faces**: zero (a one-sided reflector, like Mitsuba's conductors);
   wrap it in Mitsuba's ``twosided`` BSDF to use the same tables on both sides.
 """
@@ -381,12 +382,14 @@ def make_plugin_class(mi, load):
     channels = "spectral" if "spectral" in variant else "mono" if "mono" in variant else "rgb"
     ops_type = _ScalarOps if variant.startswith("scalar") else _JitOps
 
-    def _s_axis(d):
-        """ŝ = ẑ × d/|ẑ × d| of direction d (local frame); ŷ at the pole (solver/polarimetry.py)."""
-        rho = dr.sqrt(d.x * d.x + d.y * d.y)
-        at_pole = rho < 1e-12
-        safe = dr.select(at_pole, 1.0, rho)
-        return mi.Vector3f(dr.select(at_pole, 0.0, -d.y / safe), dr.select(at_pole, 1.0, d.x / safe), 0.0)
+    def _regular_axis(d, c, s):
+        """The tables' first Stokes axis of direction d (shading frame): ``polarimetry.regular_axis``
+        in the table frame (d turned by (c, s) as ``_Component.to_table`` turns it, without the
+        shift), turned back."""
+        x, y = c * d.x + s * d.y, -s * d.x + c * d.y
+        inv = 1.0 / (1.0 + d.z)
+        ax, ay = 1.0 - x * x * inv, -x * y * inv
+        return mi.Vector3f(c * ax - s * ay, s * ax + c * ay, -x)
 
     class WaveBRDF(mi.BSDF):
         """Tabulated wave-optics BRDF from a wavebrdf surface dataset (see wavebrdf.mitsuba)."""
@@ -426,9 +429,12 @@ def make_plugin_class(mi, load):
                 sign = (1.0, 1.0, -1.0, 1.0)
                 elements = [[sign[r] * sign[c] * x for x in elements[4 * c + r]] for r in range(4) for c in range(4)]
             matrix = mi.Spectrum(*[mi.UnpolarizedSpectrum(*e) for e in elements])
-            light_in, light_out = (wo, si.wi) if radiance else (si.wi, wo)
-            return mi.mueller.rotate_mueller_basis(matrix, -light_in, _s_axis(light_in), mi.mueller.stokes_basis(-light_in),
-                                                   light_out, _s_axis(light_out), mi.mueller.stokes_basis(light_out))
+            c, s = terms[0].c, terms[0].s  # the rotation into the table frame (shared by the terms)
+            axis_wi, axis_wo = _regular_axis(si.wi, c, s), _regular_axis(wo, c, s)
+            (light_in, axis_in), (light_out, axis_out) = (((wo, axis_wo), (si.wi, axis_wi)) if radiance
+                                                          else ((si.wi, axis_wi), (wo, axis_wo)))
+            return mi.mueller.rotate_mueller_basis(matrix, -light_in, axis_in, mi.mueller.stokes_basis(-light_in),
+                                                   light_out, axis_out, mi.mueller.stokes_basis(light_out))
 
         def _density(self, terms, wo):
             return self.ev.pdf_uv(terms, wo.x, wo.y) * wo.z

@@ -26,9 +26,12 @@ Nothing here imports Mitsuba: :func:`load_tables` reads one sweep case of a surf
 
 Polarized variants (``polarized=True``): f is the unpolarized BRDF M₀₀ of the dataset's Mueller
 matrices (stored, or derived from its Jones matrices; frames of ``solver/polarimetry.py``) and
-``mueller_ratio`` holds the 15 other elements over M₀₀, each blurred like f and combined over
-wavelengths into channels before the division (|ratio| ≤ 1). The isotropic mirror v → −v negates
-the elements that couple (I, Q) with (U, V) (a mirror flips U and V).
+``mueller_ratio`` holds the 15 other elements over M₀₀, in the regular frames of
+``solver/polarimetry.py`` (first axes ``regular_axis`` of ω_i and ω_o in the table frame: smooth
+across the pole, unlike the dataset's s/p frames), each blurred like f and combined over
+wavelengths into channels before the division (|ratio| ≤ 1); read one wavelength at a time. The
+isotropic mirror v → −v negates the elements that couple (I, Q) with (U, V) (a mirror flips U and
+V); it and the rotation to φ_i = 0 are done in the s/p frames, which turn with the geometry.
 
 Speckle: a computed BRDF of one surface realization under a finite footprint is speckled; the
 tables are blurred by a Gaussian of standard deviation ``smooth_sigma`` (u units, per wavelength)
@@ -50,6 +53,7 @@ import numpy as np
 
 from wavebrdf.jobs.store import Dataset
 from wavebrdf.jobs.study_kinds import STUDY_KINDS, study_kind
+from wavebrdf.solver.polarimetry import to_regular_frames
 from wavebrdf.solver.spectrum import spectral_weights, xyz_to_linear_srgb
 from wavebrdf.solver.surface import GENERATORS, SurfaceError
 
@@ -356,22 +360,19 @@ def load_tables(path: str | Path, *, case: int = 0, channels: str = "rgb", smoot
                              f"(flat index over {ds.sweep_keys or 'no sweep'})")
         case_index = np.unravel_index(case, lead) if lead else ()
         brdf = np.asarray(ds.h5["brdf"][tuple(int(i) for i in case_index)], dtype=np.float64)  # (L, n_inc, res, res)
-        mueller = None
         if polarized:
             if ds.polarimetry == "intensity":
                 raise ValueError(f"{where}: a polarized variant needs the dataset's Jones or Mueller matrices; run "
                                  "its study with [output] polarization = \"jones\" (or \"mueller\")")
-            mueller = np.asarray(ds.mueller()[tuple(int(i) for i in case_index)], dtype=np.float64)
-            brdf = mueller[:, :, 0, 0]  # (L, n_inc, res, res): the unpolarized BRDF
-            mueller = mueller.reshape(mueller.shape[:2] + (16,) + mueller.shape[-2:])
+            lead = tuple(int(i) for i in case_index)  # the unpolarized BRDF M00, one wavelength at a time
+            brdf = np.stack([np.asarray(ds.mueller(lead + (n,))[:, 0, 0], dtype=np.float64)
+                             for n in range(brdf.shape[0])])
         config = case_config(ds.config, {key: coords[key][i] for key, i in zip(ds.sweep_keys, case_index)})
         polarization = ds.h5["brdf"].attrs.get("polarization", "")
         albedo = np.asarray(ds.h5["albedo"][tuple(int(i) for i in case_index)], dtype=float)
     wavelengths = np.asarray(coords["wavelength_um"], dtype=float)
     order = np.argsort(wavelengths)
     wavelengths, brdf, albedo = wavelengths[order], brdf[order], albedo[order]
-    if mueller is not None:
-        mueller = mueller[order]
     theta_deg = np.asarray(coords["theta_i"], dtype=float)
     phi_deg = np.asarray(coords["phi_i"], dtype=float)
 
@@ -382,12 +383,7 @@ def load_tables(path: str | Path, *, case: int = 0, channels: str = "rgb", smoot
         isotropic, why = isotropy_from_config(config)
     else:
         why = "plugin property"
-    if mueller is not None:  # (n_inc, L·16, res, res), element-minor
-        elements, _ = _fill_outside(np.moveaxis(mueller, 1, 0), where)
-        elements = elements.reshape(elements.shape[0], -1, *elements.shape[-2:])
     if isotropic:
-        if mueller is not None:
-            elements, _ = _canonical_isotropic(elements, theta_deg, phi_deg, np.tile(MIRROR_SIGN, len(wavelengths)))
         cube, theta = _canonical_isotropic(cube, theta_deg, phi_deg)
         phi = np.zeros_like(theta)
         scheme, grid_theta, grid_phi, grid_index = "isotropic", theta, np.zeros(1), np.arange(len(theta))[:, None]
@@ -411,7 +407,10 @@ def load_tables(path: str | Path, *, case: int = 0, channels: str = "rgb", smoot
     f, clipped = _to_channels(cube, wavelengths, channels)
     centres = _pixel_centres(f.shape[-1])
     f[..., centres[:, None] ** 2 + centres[None, :] ** 2 >= 1.0] = 0.0
-    ratio = None if mueller is None else _mueller_ratio(elements, sigma, wavelengths, channels)
+    ratio = None
+    if polarized:
+        ratio = _mueller_ratio(path, tuple(int(i) for i in case_index), order, theta_deg, phi_deg, bool(isotropic),
+                               sigma, wavelengths, channels, where)
     pmf, row_cdf, col_cdf = _sampling(f)
     diagnostics = {
         "scheme": scheme,
@@ -440,33 +439,54 @@ def load_tables(path: str | Path, *, case: int = 0, channels: str = "rgb", smoot
 MIRROR_SIGN = np.outer([1, 1, -1, -1], [1, 1, -1, -1]).ravel()  # Mueller elements under the mirror v → −v
 
 
-def _mueller_ratio(elements: np.ndarray, sigma_u: np.ndarray, wavelengths_um: np.ndarray, channels: str) -> np.ndarray:
-    """(n_tab, L·16, res, res) Mueller elements → (n_tab, 15·C, res, res) ratios M[e]/M[0, 0] per channel:
-    each element blurred within the disk (no albedo rescaling: it cancels in the ratio), combined
-    over wavelengths into channels, divided, clipped to [−1, 1]; 0 outside the disk."""
+def _mueller_ratio(path, case_index: tuple, order: np.ndarray, theta_deg: np.ndarray, phi_deg: np.ndarray,
+                   isotropic: bool, sigma_u: np.ndarray, wavelengths_um: np.ndarray, channels: str,
+                   where: str) -> np.ndarray:
+    """(n_tab, 15·C, res, res) ratios M[e]/M[0, 0] per channel (element-major), one wavelength at a
+    time (``order``: the dataset's wavelength indices in ascending λ): the Mueller matrices filled
+    outside the disk, made canonical like f (isotropic: rotated to φ_i = 0, averaged per θ,
+    mirror-symmetrised with MIRROR_SIGN), turned from the s/p frames to the regular frames of
+    ``solver/polarimetry.py`` (smooth across the pole, so blur and bilinear lookup are meaningful
+    there), blurred within the disk (no albedo rescaling: it cancels in the ratio), combined over
+    wavelengths into channels, divided, clipped to [−1, 1]; 0 outside the disk."""
     from scipy.ndimage import gaussian_filter
 
-    n_tab, res = elements.shape[0], elements.shape[-1]
-    L = len(wavelengths_um)
-    cube = elements.reshape(n_tab, L, 16, res, res).copy()
-    centres = _pixel_centres(res)
-    inside = centres[:, None] ** 2 + centres[None, :] ** 2 < 1.0
-    for wl, sigma in enumerate(sigma_u):
-        if sigma > 0:
-            width = sigma * res / 2.0
-            weight = np.maximum(gaussian_filter(inside.astype(float), width, mode="constant"), 1e-300)
-            for k in range(n_tab):
-                for e in range(16):
-                    cube[k, wl, e] = gaussian_filter(np.where(inside, cube[k, wl, e], 0.0), width, mode="constant") / weight
-    if channels == "spectral":
-        combined = cube  # (n_tab, C = L, 16, res, res)
-    else:
-        combined = np.einsum("cl,kleij->kceij", channel_matrix(wavelengths_um, channels), cube)
+    combined, centres = None, None
+    with Dataset(path) as ds:
+        for n, l in enumerate(order):
+            M = np.asarray(ds.mueller(case_index + (int(l),)), dtype=np.float32)  # (n_inc, 4, 4, res, res)
+            n_inc, res = M.shape[0], M.shape[-1]
+            M, _ = _fill_outside(M.reshape(n_inc, 16, res, res), where)
+            if isotropic:
+                M, _ = _canonical_isotropic(M, theta_deg, phi_deg, MIRROR_SIGN)
+                table_phi = np.zeros(len(M))
+            else:
+                table_phi = np.deg2rad(phi_deg)
+            centres = _pixel_centres(res)
+            U, V = np.meshgrid(centres, centres, indexing="ij")
+            inside = U**2 + V**2 < 1.0
+            M = np.stack([to_regular_frames(m.reshape(4, 4, res, res), U, V, phi) for m, phi in zip(M, table_phi)])
+            if sigma_u[n] > 0:
+                width = sigma_u[n] * res / 2.0
+                weight = np.maximum(gaussian_filter(inside.astype(float), width, mode="constant"), 1e-300)
+                for k in range(len(M)):
+                    for e in range(16):
+                        image = np.where(inside, M[k, e // 4, e % 4], 0.0)
+                        M[k, e // 4, e % 4] = gaussian_filter(image, width, mode="constant") / weight
+            M = M.reshape(len(M), 16, res, res).astype(np.float32)
+            if combined is None:
+                n_chan = len(wavelengths_um) if channels == "spectral" else channel_matrix(wavelengths_um, channels).shape[0]
+                combined = np.zeros((len(M), n_chan, 16, res, res), dtype=np.float32)
+            if channels == "spectral":
+                combined[:, n] = M
+            else:
+                weights = channel_matrix(wavelengths_um, channels)[:, n]
+                combined += weights[None, :, None, None, None].astype(np.float32) * M[:, None]
     m00 = combined[:, :, :1]
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio = np.where(m00 > 0, combined[:, :, 1:] / np.where(m00 > 0, m00, 1.0), 0.0)
-    ratio = np.clip(ratio, -1.0, 1.0) * inside
-    return np.ascontiguousarray(np.moveaxis(ratio, 2, 1).reshape(n_tab, -1, res, res)).astype(np.float32)
+    ratio = np.clip(ratio, -1.0, 1.0) * (centres[:, None] ** 2 + centres[None, :] ** 2 < 1.0)
+    return np.ascontiguousarray(np.moveaxis(ratio, 2, 1).reshape(len(ratio), -1, *ratio.shape[-2:])).astype(np.float32)
 
 
 def _canonical_isotropic(cube: np.ndarray, theta_deg: np.ndarray, phi_deg: np.ndarray,
