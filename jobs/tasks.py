@@ -29,7 +29,7 @@ import numpy as np
 from wavebrdf.jobs.spot_checks import expectation_scene, twin_of
 from wavebrdf.jobs.steering import estimate_synthesis, synthesize_task
 from wavebrdf.solver.farfield import BRDFResult, FarField, albedo, combine_polarizations
-from wavebrdf.solver.models import Estimate, Model
+from wavebrdf.solver.models import Estimate, Model, model_class
 from wavebrdf.solver.polarimetry import jones
 from wavebrdf.solver.resources import peak_memory_mb
 
@@ -168,11 +168,19 @@ def _polarimetry(plan, task, result: BRDFResult, diagnostics: dict) -> dict:
     stored = plan.config.cases[task.case].output_options.polarization
     if stored == "intensity":
         return {}
-    if not isinstance(result, FarField):
-        model = diagnostics.get("model", plan.model_spec(task).name)
-        raise ValueError(f"[output] polarization = \"{stored}\": {model} returned intensities only at "
-                         f"{task.label}; Jones and Mueller matrices need a model that returns coherent fields")
+    model = diagnostics.get("model", plan.model_spec(task).name)
+    if not isinstance(result, FarField) or not _vector_fields(model):
+        raise ValueError(f"[output] polarization = \"{stored}\": {model} returned no vector far field at "
+                         f"{task.label}; Jones and Mueller matrices need a vector-field model (bem, po)")
     return {"jones": jones(result).astype(np.complex64)}
+
+
+def _vector_fields(name: str) -> bool:
+    """Whether the model that ran (its registry name, e.g. the rung auto picked) returns vector fields."""
+    try:
+        return model_class(name).capabilities.vector_fields
+    except (KeyError, ValueError):
+        return False
 
 
 def _save_farfield(plan, task, parts, ff, extra: dict) -> dict:

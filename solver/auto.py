@@ -516,7 +516,8 @@ class AutoModel(Model):
         z = np.ascontiguousarray(scene.surface.z)
         key = (hashlib.sha1(z.tobytes()).hexdigest(), z.shape, scene.surface.size_um, scene.wavelength_um,
                complex(scene.index), scene.theta_i, scene.phi_i, scene.waist_um, scene.grid.resolution,
-               scene.exterior_index, scene.memory_budget_bytes, scene.coherent, scene.precision, scene.beam,
+               scene.exterior_index, scene.memory_budget_bytes, scene.coherent, scene.polarimetric, scene.precision,
+               scene.beam,
                scene.z_reference, scene.footprint_centre_um, repr(scene.surface.ensemble), self.options.tolerance,
                checked and self.options.margin)
         if key not in _CHOICES:

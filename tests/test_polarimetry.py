@@ -269,3 +269,18 @@ def test_steered_jones_matrices_are_in_the_requested_incident_frame(tmp_path):
         logger.info("steered (%g°, %g°): max |M/M00 − Fresnel| = %.3g, M11/M00 = %.4f", coords["theta_i"][k],
                     coords["phi_i"][k], error, at[1, 1] / at[0, 0])
         assert error < 0.05
+
+
+def test_auto_picks_a_vector_rung_for_polarimetry_after_a_choice_for_intensities():
+    """auto caches its choice per scene in the process; a study storing Jones matrices must not get
+    the scalar rung chosen for the same scene without them (one process, two studies)."""
+    import dataclasses
+
+    surface = generate("gaussian", cells=200, size_um=20.0, seed=3, rms_height_um=0.02, correlation_um=2.0)
+    scene = SurfaceScene(surface=surface, wavelength_um=0.5, index=1.5 + 0j, theta_i=0.3, phi_i=0.0, waist_um=5.0,
+                         grid=HemisphereGrid(64))
+    auto = get_model("auto")
+    plain = auto.choice(scene).model
+    polarimetric = auto.choice(dataclasses.replace(scene, polarimetric=True)).model
+    assert not model_class(plain).capabilities.vector_fields, "the scene no longer tells the two apart"
+    assert model_class(polarimetric).capabilities.vector_fields, polarimetric
