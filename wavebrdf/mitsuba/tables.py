@@ -169,7 +169,7 @@ def _pixel_centres(res: int) -> np.ndarray:
     return 2.0 * (np.arange(res) + 0.5) / res - 1.0
 
 
-def _fill_outside(cube: np.ndarray, where: str) -> tuple[np.ndarray, int]:
+def _fill_outside(cube: np.ndarray, where: str, axes: str = "(wavelength, incidence)") -> tuple[np.ndarray, int]:
     """Replace non-finite pixels of each (…, res, res) image by the nearest finite pixel (one
     distance transform per distinct mask: usually just the disk's)."""
     from scipy.ndimage import distance_transform_edt
@@ -183,7 +183,7 @@ def _fill_outside(cube: np.ndarray, where: str) -> tuple[np.ndarray, int]:
         if not bad.any():
             continue
         if bad.all():
-            raise ValueError(f"{where}: image {np.unravel_index(n, out.shape[:-2])} (wavelength, incidence) "
+            raise ValueError(f"{where}: image {np.unravel_index(n, out.shape[:-2])} {axes} "
                              "holds no finite value (a failed task?)")
         key = np.packbits(bad).tobytes()
         if key not in nearest:
@@ -456,7 +456,8 @@ def _mueller_ratio(path, case_index: tuple, order: np.ndarray, theta_deg: np.nda
         for n, l in enumerate(order):
             M = np.asarray(ds.mueller(case_index + (int(l),)), dtype=np.float32)  # (n_inc, 4, 4, res, res)
             n_inc, res = M.shape[0], M.shape[-1]
-            M, _ = _fill_outside(M.reshape(n_inc, 16, res, res), where)
+            M, _ = _fill_outside(M.reshape(n_inc, 16, res, res), f"{where} (wavelength index {int(l)})",
+                                 "(incidence, Mueller element)")
             if isotropic:
                 M, _ = _canonical_isotropic(M, theta_deg, phi_deg, MIRROR_SIGN)
                 table_phi = np.zeros(len(M))
