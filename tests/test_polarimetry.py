@@ -56,14 +56,12 @@ def _flat_cases():
     return cases
 
 
-def _at_mirror(M: np.ndarray, grid: HemisphereGrid, theta: float) -> np.ndarray:
-    """M bilinear at the mirror direction (−sin θ, 0) of φ_i = 0 (v = 0 lies between two pixel rows)."""
-    res = grid.resolution
-    g = (-np.sin(theta) + 1.0) * res / 2.0 - 0.5
-    i0 = int(np.floor(g))
-    t = g - i0
-    j0 = res // 2 - 1
-    return 0.5 * ((1 - t) * (M[:, :, i0, j0] + M[:, :, i0, j0 + 1]) + t * (M[:, :, i0 + 1, j0] + M[:, :, i0 + 1, j0 + 1]))
+def _at_mirror(M: np.ndarray, grid: HemisphereGrid, theta: float, phi: float = 0.0) -> np.ndarray:
+    """M (4, 4, res, res) bilinear at the mirror direction −sin θ (cos φ, sin φ) of (θ_i, φ_i)."""
+    g = (-np.sin(theta) * np.array([np.cos(phi), np.sin(phi)]) + 1.0) * grid.resolution / 2.0 - 0.5
+    (i, j), (a, b) = np.floor(g).astype(int), g - np.floor(g)
+    return ((1 - a) * (1 - b) * M[:, :, i, j] + a * (1 - b) * M[:, :, i + 1, j] + (1 - a) * b * M[:, :, i, j + 1]
+            + a * b * M[:, :, i + 1, j + 1])
 
 
 def _scene(surface, cfg, index, theta, phi, beam="exact"):
@@ -259,11 +257,7 @@ def test_steered_jones_matrices_are_in_the_requested_incident_frame(tmp_path):
         assert np.allclose(ds["theta_basic"], 0.0)
     for k in range(2):
         theta, phi = np.deg2rad(coords["theta_i"][k]), np.deg2rad(coords["phi_i"][k])
-        g = (-np.sin(theta) * np.array([np.cos(phi), np.sin(phi)]) + 1.0) * res / 2.0 - 0.5
-        (i, j), (a, b) = np.floor(g).astype(int), g - np.floor(g)
-        m = M[k].astype(float)
-        at = ((1 - a) * (1 - b) * m[:, :, i, j] + a * (1 - b) * m[:, :, i + 1, j] + (1 - a) * b * m[:, :, i, j + 1]
-              + a * b * m[:, :, i + 1, j + 1])
+        at = _at_mirror(M[k].astype(float), HemisphereGrid(res), theta, phi)
         expected = fresnel_mueller(*fresnel_coefficients(1.0, GLASS, theta))
         error = float(np.max(np.abs(at / at[0, 0] - expected / expected[0, 0])))
         logger.info("steered (%g°, %g°): max |M/M00 − Fresnel| = %.3g, M11/M00 = %.4f", coords["theta_i"][k],
