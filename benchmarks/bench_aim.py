@@ -417,6 +417,55 @@ def cmd_products(args, ctx):
               f"({guess / np.mean(measured) - 1:+.0%})", flush=True)
 
 
+PRECONDITIONER_CASES = {  # label → (wavelength µm, index, surface of N cells): rough metal and dielectric
+    "aluminium": (0.4, AL_400, subarea_surface),
+    "glass": (0.5, 1.5, lambda cells: generate("gaussian", cells=cells, size_um=cells * 0.03125, seed=1,
+                                               rms_height_um=0.125, correlation_um=1.25)),
+}
+PRECONDITIONER_VARIANTS = {  # label → AIM options over single precision
+    "none (MINRES)": {"preconditioner": "none", "solver": "csym"},
+    "local inverses, 4-cell tiles (GMRES(30))": {"preconditioner": "local", "restart": 30},
+    "near LU, whole patch (GMRES(60))": {"preconditioner": "near"},
+}
+
+
+def cmd_preconditioners(args, ctx):
+    """Each preconditioner on the same patches (``--cells``: 160 is 101 760 unknowns): the sub-area
+    family in aluminium at 0.4 µm and scaled to glass at 0.5 µm (d = λ/16), exact beam of waist
+    L/4.8, normal incidence, single precision. Per variant: products, the preconditioner's set-up
+    and bytes per unknown, solve and total time of a fresh solver, and the BRDF against the first."""
+    from wavebrdf.solver.metrics import relative_l2
+
+    print(load())
+    grid = HemisphereGrid(args.resolution)
+    for case in args.cases:
+        lam, index, make = PRECONDITIONER_CASES[case]
+        surface = make(args.cells)
+        waist = surface.size_um / 4.8
+        first = None
+        for label in args.variants:
+            aim = AIMOptions.from_mapping({"precision": "single", "warm_start": False,
+                                           **PRECONDITIONER_VARIANTS[label]})
+            t0 = time.perf_counter()
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", BEMWarning)
+                solver = BEMSolver(ctx, surface, lam, index, method="aim", aim=aim)
+                ff = solver.farfield(0.0, 0.0, grid, waist_um=waist)
+            total = time.perf_counter() - t0
+            pc = solver.operator.preconditioner
+            n = solver.mesh.n_unknowns
+            brdf = ff.brdf()
+            first = brdf if first is None else first
+            print(f"{case}, N = {args.cells} ({n} unknowns, L/λ {surface.size_um / lam:.1f}, rms slope "
+                  f"{surface.statistics()['rms_slope']:.3f}): {label}: products {ff.diagnostics['iterations']}, "
+                  f"preconditioner {0 if pc is None else pc.seconds:.1f} s and "
+                  f"{0 if pc is None else pc.bytes() / n:.0f} B per unknown (applied {0 if pc is None else pc.apply_s:.1f} s), "
+                  f"solve {ff.diagnostics['solve_s']:.1f} s, total {total:.1f} s, process peak so far {peak_memory_mb() / 1024:.2f} GiB; "
+                  f"BRDF vs the first variant {relative_l2(brdf, first, grid)}", flush=True)
+            del solver, ff
+    print(load())
+
+
 def cmd_scale(args, ctx):
     """12.5 µm aluminium patch at λ = 0.4 µm, d = λ/12.8 = 0.03125 µm (N = 400, 638 400 unknowns),
     exact beam of waist L/5, normal incidence; single precision and storage unless ``--aim`` says more."""
@@ -473,6 +522,11 @@ def main():
     p.add_argument("--compare", default=None, help="a saved BRDF (.npy) to compare with (relative L2, albedo)")
     p = sub.add_parser("products")
     p.add_argument("--cases", type=int, nargs=2, default=[0, len(PRODUCT_CASES)], help="a slice of PRODUCT_CASES")
+    p = sub.add_parser("preconditioners")
+    p.add_argument("--cells", type=int, default=160)
+    p.add_argument("--cases", nargs="+", default=list(PRECONDITIONER_CASES), choices=list(PRECONDITIONER_CASES))
+    p.add_argument("--variants", nargs="+", default=list(PRECONDITIONER_VARIANTS), choices=list(PRECONDITIONER_VARIANTS))
+    p.add_argument("--resolution", type=int, default=128)
     p = sub.add_parser("scale")
     p.add_argument("--cells", type=int, default=400)
     p.add_argument("--waist", type=float, default=None)

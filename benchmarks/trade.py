@@ -298,17 +298,18 @@ def convergence(path: Path, force: bool, log, run: bool = True, record: Record |
 def fine_solve_options(options, coarse_peak_mb: float, unknowns_ratio: float):
     """(options, what they are) of the finer convergence solve: the table's own where the coarse
     solve's measured peak, scaled by the unknowns and the LU fill's growth, fits
-    :data:`FINE_MEMORY_SHARE` of this machine's RAM; else the same operator and tolerance without
-    the near LU (MINRES, "csym"): more products, no factor — the solution it converges to is the
-    same to the solver's tolerance, only the path there differs."""
+    :data:`FINE_MEMORY_SHARE` of this machine's RAM; else the same operator and tolerance with the
+    local inverses for the near LU (GMRES(30), ~1.1 KB per unknown): more products, no factor —
+    the solution it converges to is the same to the solver's tolerance, only the path there differs."""
     from wavebrdf.solver.resources import meminfo_bytes
 
     need = coarse_peak_mb * 2**20 * unknowns_ratio * LU_FILL_GROWTH
     if not np.isfinite(need) or need <= FINE_MEMORY_SHARE * meminfo_bytes("MemTotal"):
         return options, "the table's settings"
-    aim = dataclasses.replace(options.aim, preconditioner="none", solver="csym", fit_memory=False)
-    return dataclasses.replace(options, aim=aim), (f"no near LU, MINRES (the LU would need ≈ {need / 2**30:.0f} GiB: "
-                                                   f"{coarse_peak_mb / 1024:.1f} GiB measured at the table's spacing)")
+    aim = dataclasses.replace(options.aim, preconditioner="local", solver="gmres", restart=30, fit_memory=False)
+    return dataclasses.replace(options, aim=aim), (f"local inverses for the near LU, GMRES(30) (the LU would need "
+                                                   f"≈ {need / 2**30:.0f} GiB: {coarse_peak_mb / 1024:.1f} GiB measured "
+                                                   f"at the table's spacing)")
 
 
 def scene_features(configs: list[Path], log) -> dict[str, dict]:

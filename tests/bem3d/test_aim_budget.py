@@ -99,3 +99,27 @@ def test_plan_and_run_use_the_settings_fitted_to_run_memory_gb(surface):
     tiny = plan_study(load_config({**CONFIG, "run": {"memory_gb": 0.5 * min(table) / GIB}}))
     with pytest.raises(PlanError, match="GiB"):
         check_memory(tiny, 1, 0.5 * min(table) / GIB)
+
+
+def test_the_local_inverses_are_a_candidate_between_the_lu_and_none(surface):
+    """The local inverses (GMRES(30)) need less than any near LU and more than no preconditioner,
+    and are predicted to need fewer products than MINRES without one; a budget between their need
+    and the LU's gets them when they are the fastest that fit."""
+    table = _estimates(surface, AIMOptions())
+    for o, e in table:
+        if o.preconditioner != "local":
+            continue
+        assert o.solver == "gmres" and o.restart == 30
+        same = {p: e2 for p2, e2 in table if p2.precision == o.precision and p2.near_cells == o.near_cells
+                for p in [p2.preconditioner] if p2.preconditioner_tile_cells == 0}
+        held = {p: e2["held"]["preconditioner"] for p, e2 in same.items()}
+        assert 0 == held["none"] < e["held"]["preconditioner"] < held["near"] / 5
+        assert same["none"]["bytes"] <= e["bytes"] <= same["near"]["bytes"]
+        assert e["iterations_guess"] < same["none"]["iterations_guess"] / 3
+    local = min((e["bytes"], e["seconds"]) for o, e in table if o.preconditioner == "local")
+    lu = min(e["bytes"] for o, e in table if o.preconditioner == "near")
+    fit = fit_to_budget(surface, 0.4, AL, AIMOptions(), 0.5 * (local[0] + lu))
+    fastest = min(e["seconds"] for _, e in table if e["bytes"] <= 0.5 * (local[0] + lu))
+    assert fit.fits and fit.estimate["seconds"] == pytest.approx(fastest)
+    if fastest == local[1]:
+        assert fit.options.preconditioner == "local" and "restart" in fit.summary()

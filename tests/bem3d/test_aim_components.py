@@ -390,6 +390,10 @@ def test_options_errors_name_the_parameter():
         AIMOptions.from_mapping({"near_radius": 3})
     with pytest.raises(ValueError, match="csym"):
         AIMOptions(solver="csym")  # the near preconditioner needs gmres/bicgstab
+    with pytest.raises(ValueError, match="csym.*'local'"):
+        AIMOptions(solver="csym", preconditioner="local")
+    with pytest.raises(ValueError, match=r"\[model.aim\] local_tile_cells"):
+        AIMOptions.from_mapping({"local_tile_cells": 0})
     with pytest.raises(ValueError, match="stencil"):
         GridOptions(stencil=(0, 4, 3))
     for bad in (-1, 2.5, True):

@@ -5,8 +5,9 @@ fill grows with the patch), then the near field, the FFT grids and the Krylov ba
 (estimate.py). Given the memory one task may use, the planner tries, from the settings as given,
 the settings that trade time for memory — single precision (kernels, FFTs, grid spectra and
 projections; the accuracy cost is measured in docs/aim.md), the LU on tiles of the patch
-(restricted additive Schwarz: more products, less fill), no preconditioner (the complex-symmetric
-MINRES "csym", six vectors), and for a lossy material whose
+(restricted additive Schwarz: more products, less fill), the local inverses of 4-cell tiles
+(~1.15 KB per unknown, GMRES restarted every 30 products: 32 vectors), no preconditioner (the
+complex-symmetric MINRES "csym", six vectors), and for a lossy material whose
 interior field is still on the grid, the near radius at which it decays within the near field
 (green.py ``grid_media``: the interior then leaves the grid, halving its FFTs, spectra and
 projections for a larger near field) — and keeps the one with the shortest predicted time among
@@ -30,7 +31,8 @@ from wavebrdf.solver.surface import HeightField
 
 __all__ = ["BudgetFit", "FITTED_KEYS", "candidate_options", "fit_to_budget", "interior_leaves_grid_cells"]
 
-FITTED_KEYS = ("precision", "near_cells", "preconditioner", "preconditioner_tile_cells", "solver")
+FITTED_KEYS = ("precision", "near_cells", "preconditioner", "preconditioner_tile_cells", "solver", "restart")
+LOCAL_RESTART = 30  # GMRES restart with the local inverses: products as with 60, half the vectors (docs/aim.md)
 MIN_TILE_CELLS = 24  # smaller LU tiles barely cut the products (docs/aim.md)
 
 
@@ -110,6 +112,7 @@ def candidate_options(options: AIMOptions, cells: int, media: Media | None = Non
             if base.preconditioner == "near":
                 out.append(replace(base, preconditioner_tile_cells=0))
                 out += [replace(base, preconditioner_tile_cells=t) for t in _tile_sizes(cells)]
+            out.append(replace(base, preconditioner="local", solver="gmres", restart=min(base.restart, LOCAL_RESTART)))
             # without a preconditioner: MINRES "csym" (six vectors; measured at 6.4·10⁵ unknowns),
             # not restarted GMRES, whose products at hundreds of iterations were never measured
             out.append(replace(base, preconditioner="none", solver="csym"))

@@ -19,7 +19,8 @@ from wavebrdf.solver.bem3d.aim.green import grid_media
 from wavebrdf.solver.bem3d.aim.grid import build_grid
 from wavebrdf.solver.bem3d.aim.nearfield import NearPattern
 from wavebrdf.solver.bem3d.aim.options import AIMOptions
-from wavebrdf.solver.bem3d.aim.preconditioner import PRECONDITIONER_OVERLAP, SUPERLU_BYTES, tiles_per_axis
+from wavebrdf.solver.bem3d.aim.preconditioner import (LOCAL_OVERLAP, PRECONDITIONER_OVERLAP, SUPERLU_BYTES,
+                                                       local_inverse_entries, tiles_per_axis)
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.fitted import fitted
@@ -104,6 +105,16 @@ def _preconditioner_cost(cells: int, unknowns: int, options: AIMOptions, flat: b
     return one_tile * per_axis**2 + COST["lu_working_share"] * one_tile, seconds
 
 
+def _local_inverse_cost(cells: int, unknowns: int, options: AIMOptions) -> tuple[float, float, float]:
+    """(bytes, set-up seconds, entries) of the local-inverse preconditioner: complex64 rows of
+    ``local_inverse_entries`` per unknown; one inverse of m × m per tile (m its extended
+    unknowns), ``local_inverse_s`` × m³ each (:data:`COST`)."""
+    entries = local_inverse_entries(cells, options.local_tile_cells) * unknowns
+    per_axis = tiles_per_axis(cells, options.local_tile_cells)
+    m = 4.0 * (cells / per_axis + 2 * LOCAL_OVERLAP) ** 2
+    return 8.0 * entries, per_axis**2 * COST["local_inverse_s"] * m**3, entries
+
+
 # Memory the stages need besides their arrays (what each is: solver/data/aim_cost.csv)
 RUNTIME_BYTES = COST["runtime_bytes"]  # interpreter, NumPy/SciPy, OpenCL runtime and built kernels
 ASSEMBLY_BYTES = COST["assembly_bytes"]  # near-field assembly above what it keeps
@@ -157,9 +168,11 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
         "projections": groups * 2 * 3 * S * n_b * weight + 4 * (compact + n_b * S) + 12 * n_b,
         "preconditioner": 0.0,
     }
-    preconditioner_s = 0.0
+    preconditioner_s = local_entries = 0.0
     if options.preconditioner == "near":
         held["preconditioner"], preconditioner_s = _preconditioner_cost(mesh.cells, n, options, flat=flat)
+    elif options.preconditioner == "local":
+        held["preconditioner"], preconditioner_s, local_entries = _local_inverse_cost(mesh.cells, n, options)
     # Krylov vectors are complex128 (solver/krylov.py works in the rhs dtype: complex for the driver)
     krylov = 16 * n * P * (options.restart + 4 if options.solver == "gmres" else 8)
     nx, ny, nz = grid.shape
@@ -195,6 +208,7 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
         product_s *= COST["product_single_ratio"]
     if options.preconditioner == "near":
         product_s += 2.0 * held["preconditioner"] / SUPERLU_BYTES * COST["lu_solve_s"]
+    product_s += 2.0 * local_entries * COST["local_apply_s"]
     size_waves = surface.size_um * exterior_index / wavelength_um
     if "rms_slope" not in cache:  # the surface's, for every candidate of one fit
         cache["rms_slope"] = surface.rms_slope()
@@ -226,11 +240,15 @@ def _products(options: AIMOptions, size_waves: float, index_modulus: float, rms_
     """Operator products per polarization to the tolerance (:data:`COST`): with the whole near LU
     a + b √(L/λ), ``products_tiled_ratio`` × that on tiles. Without a preconditioner (MINRES) the
     count follows the roughness as much as the size: c (|n|/n_ref)^α (L/λ)^β e^{γ s} (s: rms
-    slope; c, n_ref, α, β, γ: the ``products_minres*`` rows)."""
+    slope; c, n_ref, α, β, γ: the ``products_minres*`` rows); with the local inverses (GMRES),
+    ``products_local_ratio`` (L/10λ)^``products_local_size_exp`` × that."""
     if options.preconditioner == "near":
         whole = COST["products_lu_base"] + COST["products_lu_per_sqrt_size"] * math.sqrt(size_waves)
         return whole * (1.0 if options.preconditioner_tile_cells == 0 else COST["products_tiled_ratio"])
-    return (COST["products_minres"] * (index_modulus / COST["products_minres_index_ref"])
+    ratio = 1.0
+    if options.preconditioner == "local":  # the local inverses leave the long-range part, which grows with L/λ
+        ratio = COST["products_local_ratio"] * (max(size_waves, 1.0) / 10.0) ** COST["products_local_size_exp"]
+    return ratio * (COST["products_minres"] * (index_modulus / COST["products_minres_index_ref"])
             ** COST["products_minres_index_exp"] * max(size_waves, 1.0) ** COST["products_minres_size_exp"]
             * math.exp(COST["products_minres_slope_exp"] * rms_slope))
 

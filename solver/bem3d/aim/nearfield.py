@@ -126,11 +126,12 @@ class NearPattern:
         """Stored (offset, site) slots of all blocks (including out-of-patch zeros and the guards)."""
         return self.lattice_length * (2 * len(self.same) + len(self.cross))
 
-    def pairs(self, block: str, rows: np.ndarray):
-        """Valid pairs of ``rows`` (block-local row indices): (row geometric id, column id, offset j, row position)."""
+    def pairs(self, block: str, rows: np.ndarray, which: np.ndarray | None = None):
+        """Valid pairs of ``rows`` (block-local row indices): (row geometric id, column id, offset j, row position);
+        with ``which`` (indices into the block's offsets) only those offsets, j indexing ``which``."""
         orow, ocol, _ = BLOCKS[block]
         N = self.cells
-        offsets = self.offsets(block)
+        offsets = self.offsets(block) if which is None else self.offsets(block)[which]
         x, y = near_coords(orow, N, rows)
         cx = x[None, :] + offsets[:, 0:1]
         cy = y[None, :] + offsets[:, 1:2]
@@ -154,32 +155,37 @@ class NearPattern:
 
 
 def offset_matrix(pattern: NearPattern, entries, offset_index: dict | None = None, dtype=complex,
-                  fmt: str = "csr") -> scipy.sparse.spmatrix:
+                  fmt: str = "csr", rows: tuple[np.ndarray, np.ndarray] | None = None) -> scipy.sparse.spmatrix:
     """Sparse 2N_b × 2N_b matrix (both triangles) of near-pattern entries.
 
     ``entries(block, j, pos)``: the (P, 3) [ee, em, mm] of stored offsets j at block-local rows
     pos; ``offset_index[block]`` maps the stored offsets to pattern offsets (default all).
+    ``rows`` = (kept, reach), boolean per rooftop: only the rows of the kept rooftops (J and M, each
+    complete), read from the pairs of the rooftops in ``reach`` (which must hold every rooftop within
+    the pattern's radius of a kept one): a band of the matrix without building the rest.
     """
     nb = 2 * pattern.rows
-    rows_all = np.arange(pattern.rows)
     r_list, c_list, v_list = [], [], []
     for block in BLOCKS:
-        row_id, col_id, j, pos = pattern.pairs(block, rows_all)
-        if offset_index is not None:
-            lookup = np.full(len(pattern.offsets(block)), -1)
-            lookup[offset_index[block]] = np.arange(len(offset_index[block]))
-            keep = lookup[j] >= 0
-            row_id, col_id, j, pos = row_id[keep], col_id[keep], lookup[j[keep]], pos[keep]
-        v = entries(block, j, pos)  # (P, 3)
+        local = np.arange(pattern.rows)
+        if rows is not None:
+            local = local[rows[1][near_first(BLOCKS[block][0], pattern.cells) + local]]
+        row_id, col_id, j, pos = pattern.pairs(block, local, None if offset_index is None else offset_index[block])
+        v = entries(block, j, local[pos])  # (P, 3)
+        row_id, col_id = row_id.astype(np.int32), col_id.astype(np.int32)  # 4 bytes: 2·2N_b < 2³¹
+        direct = slice(None) if rows is None else rows[0][row_id]
         mirror = row_id != col_id
+        if rows is not None:
+            mirror &= rows[0][col_id]
         for (ro, co, comp) in ((0, 0, 0), (0, nb, 1), (nb, 0, 1), (nb, nb, 2)):
-            r_list += [row_id + ro, col_id[mirror] + ro]
-            c_list += [col_id + co, row_id[mirror] + co]
-            v_list += [v[:, comp], v[mirror, comp]]
-    rows = np.concatenate(r_list)
+            r_list += [row_id[direct] + ro, col_id[mirror] + ro]
+            c_list += [col_id[direct] + co, row_id[mirror] + co]
+            v_list += [v[direct, comp], v[mirror, comp]]
+    ids = np.concatenate(r_list)
     cols = np.concatenate(c_list)
-    vals = np.concatenate(v_list).astype(dtype)
-    return scipy.sparse.coo_matrix((vals, (rows, cols)), shape=(2 * nb, 2 * nb)).asformat(fmt)
+    vals = np.concatenate(v_list).astype(dtype, copy=False)
+    del r_list, c_list, v_list
+    return scipy.sparse.coo_matrix((vals, (ids, cols)), shape=(2 * nb, 2 * nb)).asformat(fmt)
 
 
 def _aligned(n: int) -> int:
@@ -240,11 +246,13 @@ class NearMatrix:
         """The full 2N_b × 2N_b correction matrix (both triangles) as scipy CSR (for tests)."""
         return offset_matrix(self.pattern, self.entries)
 
-    def exact_sparse(self, dtype=complex) -> scipy.sparse.csc_matrix:
-        """The exact near entries kept by the assembly (``exact_cells``), CSC."""
+    def exact_sparse(self, dtype=complex, fmt: str = "csc", rows: tuple[np.ndarray, np.ndarray] | None = None):
+        """The exact near entries kept by the assembly (``exact_cells``): all, or the band ``rows``
+        (:func:`offset_matrix`)."""
         if self.exact is None:
             raise ValueError("the near field was assembled without exact_cells: no exact entries kept")
-        return offset_matrix(self.pattern, lambda b, j, rows: self.exact[b][j, rows], self.exact_offsets, dtype, "csc")
+        return offset_matrix(self.pattern, lambda b, j, rows: self.exact[b][j, rows], self.exact_offsets, dtype, fmt,
+                             rows)
 
     def apply_numpy(self, x: np.ndarray) -> np.ndarray:
         """C x for x (P, 2N_b) (NumPy twin of the sparse.cl kernels)."""

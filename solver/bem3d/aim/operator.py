@@ -5,7 +5,8 @@
 * C (nearfield.py, assembled by near_assembly.py): exact minus grid entries of near pairs,
   diagonal (offset) storage on the rooftop lattice;
 * a Krylov solve (solver/krylov.py) for both polarizations at once, right-preconditioned by the
-  sparse LU of the exact near entries within ``preconditioner_cells`` (preconditioner.py);
+  sparse LU of the exact near entries within ``preconditioner_cells`` or by the local inverses
+  of small tiles of them (preconditioner.py);
   without a preconditioner, on the rescaled system S Z S y = S b with S = diag(I, jI)
   (complex-symmetric like Z, but with its spectrum in the right half-plane, which roughly halves
   the GMRES iterations). Both measured in docs/aim.md.
@@ -28,7 +29,8 @@ from wavebrdf.solver.bem3d.aim.grid import GridOptions, build_grid
 from wavebrdf.solver.bem3d.aim.near_assembly import assemble_near
 from wavebrdf.solver.bem3d.aim.nearfield import NearPattern
 from wavebrdf.solver.bem3d.aim.options import AIM_QUADRATURE, AIMOptions
-from wavebrdf.solver.bem3d.aim.preconditioner import NearPreconditioner, symmetric_scaling
+from wavebrdf.solver.bem3d.aim.preconditioner import (LocalInversePreconditioner, NearPreconditioner,
+                                                       symmetric_scaling)
 from wavebrdf.solver.bem3d.aim.projection import project
 from wavebrdf.solver.bem3d.elements import ElementIntegrals
 from wavebrdf.solver.bem3d.media import Media
@@ -110,13 +112,13 @@ class AIMOperator:
         self.grid_media, self.grid, self.base = grid_part.media, grid_part.grid, grid_part.base
         groups = grid_part.groups
         t1, t2 = t0 + grid_part.projection_s, time.perf_counter()
-        precondition = options.preconditioner == "near"
+        precondition = options.preconditioner != "none"
         with clock("near field"):
             self.pattern = NearPattern.build(mesh.cells, options.near_cells)
             integrals = ElementIntegrals(mesh, quadrature or AIM_QUADRATURE, ctx)  # its tables go with it
             self.near = assemble_near(ctx, mesh, media, self.pattern, groups, integrals=integrals,
                                       storage=options.near_storage, progress=progress,
-                                      exact_cells=options.preconditioner_cells if precondition else None)
+                                      exact_cells=self._exact_cells(options))
             del integrals  # its static tables go before the preconditioner and the solve
             if ctx is not None:
                 self.near.upload(ctx)
@@ -125,7 +127,11 @@ class AIMOperator:
         if precondition:
             self.progress("preconditioner", None)
             with clock("preconditioner"):
-                self.preconditioner = NearPreconditioner(self.near, options.preconditioner_tile_cells)
+                if options.preconditioner == "near":
+                    self.preconditioner = NearPreconditioner(self.near, options.preconditioner_tile_cells)
+                else:
+                    self.preconditioner = LocalInversePreconditioner(self.near, options.local_tile_cells)
+                    self.near.exact = self.near.exact_offsets = None  # in the local inverses now: memory
         self.setup = {
             "projection_s": t1 - t0, "spectra_s": t2 - t1, "near_s": t3 - t2,
             "near_detail": dict(self.near.timings), "grid": self.grid.describe(),
@@ -139,6 +145,11 @@ class AIMOperator:
         self._grid_farfields: dict = {}
         logger.info("AIM operator: %s; near %d offsets, %.1f MB; set-up %.1f s", self.grid.describe(),
                     len(self.pattern.same) * 2 + len(self.pattern.cross), self.near.bytes() / 2**20, self.setup_s)
+
+    @staticmethod
+    def _exact_cells(options: AIMOptions) -> float | None:
+        """Radius (cells) of the exact near entries the preconditioner is built from (None: none)."""
+        return {"near": options.preconditioner_cells, "local": options.local_cells}.get(options.preconditioner)
 
     def matvec(self, x: np.ndarray) -> np.ndarray:
         """Z x for x (P, 2N_b) or (2N_b,) on the device."""

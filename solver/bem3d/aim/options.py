@@ -26,7 +26,7 @@ __all__ = ["AIM_QUADRATURE", "EDGES", "FARFIELD_SOURCES", "PRECONDITIONERS", "AI
 # these settings, far below the AIM error (~5e-4), at a third of the cost.
 AIM_QUADRATURE = QuadratureOptions(tolerance=1e-4, static_order=5)
 
-PRECONDITIONERS = ("near", "none")
+PRECONDITIONERS = ("near", "local", "none")
 EDGES = ("pinned", "flat")  # AIMOptions.edge
 FARFIELD_SOURCES = ("operator", "matched")  # AIMOptions.farfield_sources
 
@@ -56,9 +56,13 @@ class AIMOptions:
                         surface and incidence in this worker, phase-moved and least-squares
                         scaled (bem3d/warm_start.py); false: from zero (bitwise the same result
                         whatever the task order)
-    preconditioner      "near" (sparse LU of the exact entries within preconditioner_cells) | "none"
+    preconditioner      "near" (sparse LU of the exact entries within preconditioner_cells) |
+                        "local" (the inverses of local_tile_cells tiles of the entries within local_cells, each
+                        extended by one cell: ~1.15 KB per unknown at 4 cells) | "none"
     preconditioner_cells   radius of the preconditioner's pairs (cells)
     preconditioner_tile_cells   side of the preconditioner's LU tiles in cells (0: one LU)
+    local_tile_cells    side of the "local" preconditioner's tiles in cells
+    local_cells         radius of the "local" preconditioner's pairs (cells)
     farfield_sources    "operator": the far field's point sources are the operator's own
                         exterior-medium projection (no second projection) | "matched": a grid
                         of their own, matched on the upper hemisphere (the options below)
@@ -95,6 +99,9 @@ class AIMOptions:
     preconditioner: str = option("near", choices=PRECONDITIONERS)
     preconditioner_cells: float = option(2.3, low=0, low_open=True)
     preconditioner_tile_cells: int = option(0, low=0)
+    local_tile_cells: int = option(4, low=1)
+    # measured at 101 760 unknowns: products 122 / 111 / 118 at radius 2.3 / 3.5 / 5 (docs/aim.md)
+    local_cells: float = option(3.5, low=0, low_open=True)
     farfield_sources: str = option("operator", choices=FARFIELD_SOURCES)
     farfield_stencil: tuple[int, int, int] = option(FARFIELD_STENCIL, length=3, low=0)
     farfield_directions: int = option(0, low=0)
@@ -111,8 +118,9 @@ class AIMOptions:
             raise ValueError(f"aim.solver must be one of {KRYLOV_METHODS}, got {self.solver!r}")
         if self.preconditioner not in PRECONDITIONERS:
             raise ValueError(f"aim.preconditioner must be one of {PRECONDITIONERS}, got {self.preconditioner!r}")
-        if self.preconditioner == "near" and self.solver == "csym":
-            raise ValueError("aim.solver 'csym' cannot use the near preconditioner; set preconditioner = 'none'")
+        if self.preconditioner != "none" and self.solver == "csym":
+            raise ValueError(f"aim.solver 'csym' cannot use the {self.preconditioner!r} preconditioner; "
+                             "set preconditioner = 'none'")
         tile = self.preconditioner_tile_cells
         if isinstance(tile, bool) or not isinstance(tile, numbers.Integral) or tile < 0:
             raise ValueError(f"aim.preconditioner_tile_cells must be an integer >= 0 (0: one LU), got {tile!r}")
