@@ -15,7 +15,9 @@
  * bem_singular_pairs  a list of 4-D points (a1, a2, b1, b2, w) on the canonical squares
  *                     (Duffy / Sauter-Schwab maps, quadrature.py) oriented per element by a
  *                     3-bit code; BEM_KIND (build define) = BEM_FULL | BEM_REMAINDER | BEM_STATIC.
- *                     BEM_STATIC writes 33 reals per pair (1/(4 pi R) parts, k-independent).
+ *                     BEM_STATIC writes 33 reals per pair (1/(4 pi R) parts, k-independent);
+ *                     BEM_MEDIUM (define, 0 or 1) integrates one medium alone at the rule's
+ *                     order, when the media need different orders.
  * NumPy twins: regular_pairs_numpy, singular_pairs_numpy in elements.py.
  */
 #include "bem_green.h"
@@ -86,14 +88,15 @@ inline void bem_slot_weights(vreal_t u, vreal_t v, vreal_t c[4])
     c[3] = R(1.0) + v;
 }
 
-/* write the tables of the lanes that hold real pairs: out[(pair * nmed + m) * 33 + i] */
-inline void bem_store(__global cplx_t *out, int first, int n, int nmed, vcplx_t lv[][16],
+/* write the tables of the lanes that hold real pairs, nmed media from medium m0 of the two each
+ * pair stores: out[(pair * 2 + m0 + m) * 33 + i] */
+inline void bem_store(__global cplx_t *out, int first, int n, int m0, int nmed, vcplx_t lv[][16],
                       vcplx_t ld[], vcplx_t kk[][16])
 {
     for (int i = 0; i < WB_VW; ++i) {
         if (first + i >= n) break;
         for (int m = 0; m < nmed; ++m) {
-            __global cplx_t *o = out + ((first + i) * nmed + m) * BEM_TABLE;
+            __global cplx_t *o = out + ((first + i) * 2 + m0 + m) * BEM_TABLE;
             for (int j = 0; j < 16; ++j) {
                 o[j] = vc_lane(lv[m][j], i);
                 o[17 + j] = vc_lane(kk[m][j], i);
@@ -185,7 +188,7 @@ __kernel void bem_regular_pairs(__global const real_t *geom, const real_t h,
             }
         }
     }
-    bem_store(out, first, npairs, 2, lv, ld, kk);
+    bem_store(out, first, npairs, 0, 2, lv, ld, kk);
 }
 
 /* per-lane affine map of canonical (p1, p2) to (u, v) = c0 + c1 p1 + c2 p2, from 3-bit codes:
@@ -210,11 +213,15 @@ inline bem_orientation bem_orientations(__global const int *code, int first, int
     return o;
 }
 
-#if BEM_KIND == BEM_STATIC
+#ifndef BEM_MEDIUM
+#define BEM_MEDIUM -1 /* both media; 0 or 1: that medium alone (its own order), the other's table untouched */
+#endif
+#if BEM_KIND == BEM_STATIC || BEM_MEDIUM >= 0
 #define BEM_NMED 1
 #else
 #define BEM_NMED 2
 #endif
+#define BEM_FIRST_MEDIUM (BEM_MEDIUM > 0 ? 1 : 0)
 
 __kernel void bem_singular_pairs(__global const real_t *geom, const real_t h,
                                  __global const int *test, __global const int *source,
@@ -228,7 +235,7 @@ __kernel void bem_singular_pairs(__global const real_t *geom, const real_t h,
     const bem_element gB = bem_load(geom, source, first, npairs);
     const bem_orientation oA = bem_orientations(code_test, first, npairs);
     const bem_orientation oB = bem_orientations(code_source, first, npairs);
-    const cplx_t ks[2] = {k1, k2};
+    const cplx_t ks[2] = {BEM_FIRST_MEDIUM ? k2 : k1, k2};
 
     vcplx_t lv[BEM_NMED][16], kk[BEM_NMED][16], ld[BEM_NMED];
     for (int m = 0; m < BEM_NMED; ++m) {
@@ -284,6 +291,6 @@ __kernel void bem_singular_pairs(__global const real_t *geom, const real_t h,
         o[16] = VLANE(ld[0].re, i);
     }
 #else
-    bem_store((__global cplx_t *)out, first, npairs, 2, lv, ld, kk);
+    bem_store((__global cplx_t *)out, first, npairs, BEM_FIRST_MEDIUM, BEM_NMED, lv, ld, kk);
 #endif
 }

@@ -16,10 +16,17 @@
 #define BEM_REMAINDER 1
 #define BEM_STATIC 2
 
-/* (1 - z) e^z - 1 = -z^2 sum_{m>=0} (m+1) z^m / (m+2)!  (Horner to m = 13 for |z| < 1/2, where
- * the tail is below 1e-16; closed form otherwise, where it has no cancellation) */
-inline vcplx_t bem_one_minus_z_expz_m1(vcplx_t z)
+/* e^z - 1 and (1 - z) e^z - 1 of z = -jkR without cancellation, from one sincos(Im z / 2) and one
+ * expm1(Re z): cos = 1 - 2 sh^2, sin = 2 sh ch, e^z - 1 = (expm1(Re z) cos - 2 sh^2) + j e^{Re z} sin.
+ * (1 - z) e^z - 1 = -z^2 sum_{m>=0} (m+1) z^m / (m+2)! by Horner to m = 13 for |z| < 1/2 (tail below
+ * 1e-16), else (1 - z)(e^z - 1) - z, which has no cancellation there. */
+inline void bem_remainders(vcplx_t z, vcplx_t *expm1_z, vcplx_t *one_minus_z_expz_m1)
 {
+    vreal_t ch, sh = sincos(R(0.5) * z.im, &ch);
+    const vreal_t a = expm1(z.re);
+    const vreal_t two_sh2 = R(2.0) * sh * sh;
+    const vcplx_t em1 = vc_new(a * (R(1.0) - two_sh2) - two_sh2, (R(1.0) + a) * (R(2.0) * sh * ch));
+    *expm1_z = em1;
     vcplx_t p = vc_new((vreal_t)(R(14.0) / R(1307674368000.0)), (vreal_t)(R(0.0))); /* 14/15! */
     real_t factorial = R(1307674368000.0); /* (m+2)! at m = 13 */
     for (int m = 12; m >= 0; --m) {
@@ -28,10 +35,8 @@ inline vcplx_t bem_one_minus_z_expz_m1(vcplx_t z)
         p.re += (real_t)(m + 1) / factorial;
     }
     const vcplx_t series = vc_scale(vc_mul(vc_mul(z, z), p), (vreal_t)(R(-1.0)));
-    const vcplx_t one_minus_z = vc_new(R(1.0) - z.re, -z.im);
-    vcplx_t direct = vc_mul(one_minus_z, vc_exp(z));
-    direct.re -= R(1.0);
-    return vc_select(direct, series, z.re * z.re + z.im * z.im < R(0.25));
+    const vcplx_t direct = vc_sub(vc_mul(vc_new(R(1.0) - z.re, -z.im), em1), z);
+    *one_minus_z_expz_m1 = vc_select(direct, series, z.re * z.re + z.im * z.im < R(0.25));
 }
 
 /* g and gk of one medium (scalar k) at distances r (inv_r = 1/r), kind BEM_FULL or BEM_REMAINDER */
@@ -41,8 +46,10 @@ inline void bem_green(int kind, cplx_t k, vreal_t r, vreal_t inv_r, vcplx_t *g, 
     const vreal_t s1 = WB_INV_4PI * inv_r;
     const vreal_t s3 = s1 * inv_r * inv_r;
     if (kind == BEM_REMAINDER) {
-        *g = vc_scale(vc_expm1(z), s1);
-        *gk = vc_scale(bem_one_minus_z_expz_m1(z), -s3);
+        vcplx_t em1, p;
+        bem_remainders(z, &em1, &p);
+        *g = vc_scale(em1, s1);
+        *gk = vc_scale(p, -s3);
     } else {
         const vcplx_t e = vc_exp(z);
         *g = vc_scale(e, s1);

@@ -38,7 +38,7 @@ from wavebrdf.solver.bem3d.quadrature import (
     orient,
     pair_case,
     regular_order,
-    singular_order,
+    singular_orders,
     singular_rule,
     tensor_rule,
 )
@@ -61,6 +61,8 @@ __all__ = [
 
 TABLE = 33  # complex numbers per medium and pair
 KIND_FULL, KIND_REMAINDER, KIND_STATIC = 0, 1, 2  # = BEM_FULL, BEM_REMAINDER, BEM_STATIC
+REMAINDER_SAMPLE = 8  # steepest (and as many random) elements whose touching pairs set the remainder orders
+REMAINDER_REFERENCE_STEP = 3  # the remainder orders are checked against tables this many orders higher
 INV_4PI = 1.0 / (4.0 * np.pi)
 OUTPUT_BUDGET = 128 * 2**20  # bytes of kernel output per launch
 
@@ -231,11 +233,15 @@ def regular_pairs_opencl(ctx, geometry, h, test, source, order, wavenumbers, out
 
 
 def singular_pairs_opencl(ctx, geometry, h, test, source, code_test, code_source, rule, wavenumbers, kind,
-                          out=None):
+                          out=None, medium: int | None = None):
     """OpenCL twin of :func:`singular_pairs_numpy` (kernel ``bem_singular_pairs``); written into
-    ``out`` when given."""
+    ``out`` when given. ``medium`` (0 or 1, not KIND_STATIC): that medium's tables alone, the
+    other's left as they are in ``out`` (which is then required)."""
+    if medium is not None and (medium not in (0, 1) or kind == KIND_STATIC or out is None):
+        raise ValueError(f"medium must be 0 or 1 with out given and a non-static kind, got medium={medium!r}")
     knl = ctx.kernel("bem_elements.cl", "bem_singular_pairs",
-                     ctx.defines(Precision.DOUBLE, lanes=ctx.vector_lanes(Precision.DOUBLE), BEM_KIND=int(kind)))
+                     ctx.defines(Precision.DOUBLE, lanes=ctx.vector_lanes(Precision.DOUBLE), BEM_KIND=int(kind),
+                                 BEM_MEDIUM=-1 if medium is None else int(medium)))
     geom = ctx.to_device(geometry, np.float64)
     rule_buf = ctx.to_device(rule, np.float64)
     arrays = [np.ascontiguousarray(a, np.int32) for a in (test, source, code_test, code_source)]
@@ -247,7 +253,7 @@ def singular_pairs_opencl(ctx, geometry, h, test, source, code_test, code_source
     for sl in _launch_chunks(len(arrays[0]), per_pair):
         n = sl.stop - sl.start
         bufs = [ctx.to_device(a[sl]) for a in arrays]
-        o_buf = ctx.host_buffer(out[sl], "write")
+        o_buf = ctx.host_buffer(out[sl], "write" if medium is None else "read_write")
         knl(ctx.queue, *launch_size(ctx, n), geom, np.float64(h), *bufs, np.int32(n), rule_buf,
             np.int32(len(rule)), _cplx(k1), _cplx(k2), o_buf)
         ctx.read_into(out[sl], o_buf)
@@ -273,6 +279,7 @@ class ElementIntegrals:
         self._static_known = None
         self._scratch = None  # reused table buffer of indexed_tables(scratch=True)
         self.timings = {"static_s": 0.0, "singular_s": 0.0, "regular_s": 0.0}
+        self._remainder_orders: dict = {}  # wavenumbers → [order per medium]
         self.counts = {"static": 0, "singular": 0, "regular": 0, "regular_points": 0}
 
     # -- backends ---------------------------------------------------------------------------
@@ -283,12 +290,15 @@ class ElementIntegrals:
         else:
             regular_pairs_opencl(self.ctx, g, h, test, source, order, wavenumbers, out=out)
 
-    def _singular(self, test, source, ct, cs, rule, wavenumbers, kind, out):
+    def _singular(self, test, source, ct, cs, rule, wavenumbers, kind, out, medium=None):
         g, h = self.mesh.geometry, self.mesh.half
-        if self.ctx is None:
+        if self.ctx is not None:
+            singular_pairs_opencl(self.ctx, g, h, test, source, ct, cs, rule, wavenumbers, kind, out=out,
+                                  medium=medium)
+        elif medium is None:
             out[...] = singular_pairs_numpy(g, h, test, source, ct, cs, rule, wavenumbers, kind)
         else:
-            singular_pairs_opencl(self.ctx, g, h, test, source, ct, cs, rule, wavenumbers, kind, out=out)
+            out[:, medium] = singular_pairs_numpy(g, h, test, source, ct, cs, rule, wavenumbers, kind)[:, medium]
 
     # -- classification ---------------------------------------------------------------------
     def classify(self, test, source):
@@ -306,6 +316,75 @@ class ElementIntegrals:
         rad = self.mesh.element_radius
         ell = np.maximum(self.mesh.half_length[test], self.mesh.half_length[source])
         return regular_order(self.options, distance, rad[test], rad[source], ell, wavenumbers)
+
+    # -- per-wavelength singular remainder --------------------------------------------------
+    def remainder_orders(self, wavenumbers) -> list[int]:
+        """Gauss order of the singular transforms for the remainder G − G₀ of each medium, measured
+        on this mesh: from the a priori :func:`singular_orders` up, the smallest order whose
+        remainder tables of a sample of touching pairs are within ``options.tolerance`` of those
+        :data:`REMAINDER_REFERENCE_STEP` orders higher (each pair and medium relative to its own
+        largest entry; the reference is raised while an order reaches it, up to ``max_order``).
+        The sample is the self, edge and vertex pairs of the :data:`REMAINDER_SAMPLE` steepest
+        elements and as many chosen at random (seed 0). Cached per wavenumbers.
+
+        The a priori model alone (oscillation of e^{−jkR} over the half-length) misses the tolerance
+        by 10–100× at |k|ℓ ≲ 1 (docs/bem3d.md, "Singular remainder orders"), where the bilinear
+        geometry and the transforms' Jacobians, not the kernel, set the error.
+        """
+        key = tuple(complex(k) for k in wavenumbers)
+        if key in self._remainder_orders:
+            return self._remainder_orders[key]
+        test, source = self._remainder_sample()
+        case, code_t, code_s = self.classify(test, source)
+        top = self.options.max_order
+
+        def tables(medium, n):
+            out = np.zeros((len(test), 2, TABLE), dtype=complex)
+            for c in np.unique(case):
+                sel = np.flatnonzero(case == c)
+                part = out[sel]
+                self._singular(test[sel], source[sel], code_t[sel], code_s[sel], singular_rule(int(c), n),
+                               wavenumbers, KIND_REMAINDER, part, medium)
+                out[sel] = part
+            return out[:, medium]
+
+        a_priori = singular_orders(self.options, self.mesh.half_length.max(), wavenumbers)
+        orders = []
+        for m, n in enumerate(a_priori):
+            reference_order = min(top, n + REMAINDER_REFERENCE_STEP)
+            reference = tables(m, reference_order)
+            while True:
+                scale = np.maximum(np.abs(reference).max(axis=-1), np.finfo(float).tiny)
+                while n < reference_order and (np.abs(tables(m, n) - reference).max(axis=-1) / scale).max() \
+                        > self.options.tolerance:
+                    n += 1
+                if n < reference_order or reference_order == top:
+                    break
+                reference_order = min(top, n + REMAINDER_REFERENCE_STEP)
+                reference = tables(m, reference_order)
+            if n >= top:
+                logger.warning("singular remainder of medium %d (k = %s µm⁻¹): quadrature.max_order %d reached; "
+                               "its tables may miss quadrature.tolerance %.1e", m, key[m], top, self.options.tolerance)
+            orders.append(n)
+        logger.debug("singular remainder orders %s (a priori %s)", orders, a_priori)
+        self._remainder_orders[key] = orders
+        return orders
+
+    def _remainder_sample(self) -> tuple[np.ndarray, np.ndarray]:
+        """(test, source) touching pairs of the sample elements (see :meth:`remainder_orders`)."""
+        n = self.mesh.cells
+        shape = np.abs(self.mesh.geometry[:, 3:6]).sum(axis=1)
+        count = min(REMAINDER_SAMPLE, len(shape))
+        steep = np.argsort(shape)[::-1][:count]
+        chosen = np.unique(np.concatenate([steep, np.random.default_rng(0).choice(len(shape), count, replace=False)]))
+        s, t = np.divmod(chosen, n)
+        tests, sources = [], []
+        for ds in (-1, 0, 1):
+            for dt in (-1, 0, 1):
+                ok = (s + ds >= 0) & (s + ds < n) & (t + dt >= 0) & (t + dt < n)
+                tests.append(chosen[ok])
+                sources.append((s[ok] + ds) * n + t[ok] + dt)
+        return np.concatenate(tests), np.concatenate(sources)
 
     # -- static singular parts --------------------------------------------------------------
     def _touching_slot(self, test, source) -> np.ndarray:
@@ -385,12 +464,16 @@ class ElementIntegrals:
             static = self.static_tables(test[sel], source[sel], case[sel], code_t[sel], code_s[sel])
             t0 = time.perf_counter()
             if remainder_order is None:
-                remainder_order = singular_order(self.options, self.mesh.half_length.max(), wavenumbers)
-            rule = singular_rule(g, remainder_order)
-            self._singular(test[sel], source[sel], code_t[sel], code_s[sel], rule, wavenumbers,
-                           KIND_REMAINDER, out[a:b])
+                remainder_order = self.remainder_orders(wavenumbers)
+            # one launch for both media at a common order; each medium at its own where they differ
+            launches = list(enumerate(remainder_order))
+            if len(set(remainder_order)) == 1:
+                launches = [(None, remainder_order[0])]
+            for medium, n in launches:
+                self._singular(test[sel], source[sel], code_t[sel], code_s[sel], singular_rule(g, n), wavenumbers,
+                               KIND_REMAINDER, out[a:b], medium)
             out[a:b] += static[:, None, :]
-            logger.debug("%d %s pairs, remainder order %d", len(sel), CASE_NAMES[g], remainder_order)
+            logger.debug("%d %s pairs, remainder orders %s", len(sel), CASE_NAMES[g], remainder_order)
             self.timings["singular_s"] += time.perf_counter() - t0
             self.counts["singular"] += len(sel)
         return out, index

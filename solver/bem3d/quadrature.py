@@ -43,6 +43,7 @@ __all__ = [
     "medium_weights",
     "regular_order",
     "singular_order",
+    "singular_orders",
     "gauss_legendre",
     "orient",
     "orientation_code",
@@ -298,28 +299,40 @@ def regular_order(options: QuadratureOptions, distance, radius_test, radius_sour
     x0 = (distance - np.maximum(ra, rb)) / ell  # symmetric in the two elements
     gap = np.maximum(distance - ra - rb, 0.0)
     weights = medium_weights(wavenumbers)
-    need = np.full(distance.shape, options.max_order, dtype=np.int32)
-    done = np.zeros(distance.shape, dtype=bool)
+    shape = np.broadcast(distance, ra, rb, ell).shape
+    x0, gap, ell = (np.broadcast_to(a, shape).ravel() for a in (x0, gap, ell))
+    decay = [w * np.exp(-abs(np.imag(k)) * gap) for k, w in zip(wavenumbers, weights)]
+    need = np.full(x0.shape, options.max_order, dtype=np.int32)
+    open_ = np.arange(x0.size)  # pairs whose order is not settled yet
     for n in range(options.min_order, options.max_order + 1):
-        ok = np.ones(distance.shape, dtype=bool)
-        prox = gauss_proximity_error(n, x0)
-        for k, w in zip(wavenumbers, weights):
-            err = w * np.exp(-abs(np.imag(k)) * gap) * (prox + gauss_oscillation_error(n, abs(k) * ell))
-            ok &= err <= options.tolerance
-        need[ok & ~done] = n
-        done |= ok
-    return need
+        if open_.size == 0:
+            break
+        prox = gauss_proximity_error(n, x0[open_])
+        ok = np.ones(open_.size, dtype=bool)
+        for k, d in zip(wavenumbers, decay):
+            ok &= d[open_] * (prox + gauss_oscillation_error(n, abs(k) * ell[open_])) <= options.tolerance
+        need[open_[ok]] = n
+        open_ = open_[~ok]
+    return need.reshape(shape)
+
+
+def singular_orders(options: QuadratureOptions, half_length, wavenumbers) -> list[int]:
+    """Gauss order of the singular transforms for the per-wavelength remainder G − G₀, per medium.
+
+    After the transform the remainder is analytic with the scale of e^{−jkR}; medium i's order is
+    the smallest n with w_i · oscillation(n, |k_i| ℓ) ≤ tolerance (n ≥ min_order, ≥ 2), w_i =
+    medium_weights (a metal's interior needs more points than the exterior).
+    """
+    ell = float(np.max(half_length))
+    orders = []
+    for k, w in zip(wavenumbers, medium_weights(wavenumbers)):
+        n = max(options.min_order, 2)
+        while n < options.max_order and w * gauss_oscillation_error(n, abs(k) * ell) > options.tolerance:
+            n += 1
+        orders.append(n)
+    return orders
 
 
 def singular_order(options: QuadratureOptions, half_length, wavenumbers) -> int:
-    """Gauss order of the singular transforms for the per-wavelength remainder G − G₀.
-
-    After the transform the remainder is analytic with the scale of e^{−jkR}; the order is the
-    smallest n with w_i · oscillation(n, |k_i| ℓ) ≤ tolerance for every medium (n ≥ min_order).
-    """
-    ell = float(np.max(half_length))
-    weights = medium_weights(wavenumbers)
-    for n in range(max(options.min_order, 2), options.max_order + 1):
-        if all(w * gauss_oscillation_error(n, abs(k) * ell) <= options.tolerance for k, w in zip(wavenumbers, weights)):
-            return n
-    return options.max_order
+    """One order for every medium: the largest of :func:`singular_orders`."""
+    return max(singular_orders(options, half_length, wavenumbers))

@@ -19,7 +19,7 @@ from wavebrdf.solver.bem3d import BEMSolver, BEMWarning, bem_farfield
 from wavebrdf.solver.bem3d.aim.nearfield import NearPattern
 from wavebrdf.solver.bem3d.aim.options import AIM_QUADRATURE
 from wavebrdf.solver.bem3d.aim.preconditioner import (LocalInversePreconditioner, NearPreconditioner,
-                                                       local_inverse_entries, preconditioner_tiles,
+                                                       inverse_rows, local_inverse_entries, preconditioner_tiles,
                                                        rooftop_centres)
 from wavebrdf.solver.farfield import HemisphereGrid, albedo
 from wavebrdf.solver.krylov import KrylovNotConverged
@@ -169,6 +169,22 @@ def test_a_band_of_the_exact_near_block_is_those_rows_of_the_whole(preconditione
     assert band[rows].nnz == whole[rows].nnz > 0
     assert abs(band[rows] - whole[rows]).max() == 0
     assert band[~rows].nnz == 0
+
+
+def test_inverse_rows_are_those_rows_of_the_inverse_also_split_over_threads():
+    """The local inverses' rows from unit-column solves equal the rows of numpy's whole inverse
+    (1e-12), one stack or split over two threads, tiles of two shapes' sizes (odd counts)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    rng = np.random.default_rng(3)
+    for g, m, k in ((5, 36, 16), (1, 20, 20)):
+        blocks = rng.standard_normal((g, m, m)) + 1j * rng.standard_normal((g, m, m)) + 4 * np.eye(m)
+        positions = np.stack([np.sort(rng.choice(m, k, replace=False)) for _ in range(g)])
+        expected = np.take_along_axis(np.linalg.inv(blocks), positions[:, :, None], axis=1)
+        assert np.abs(inverse_rows(blocks, positions) - expected).max() < 1e-12 * np.abs(expected).max()
+        with ThreadPoolExecutor(2) as pool:
+            split = inverse_rows(blocks, positions, pool, threads=2)
+        assert np.abs(split - expected).max() < 1e-12 * np.abs(expected).max()
 
 
 def test_local_inverse_preconditioner_inverts_each_tile_and_cuts_iterations(preconditioned_solver):

