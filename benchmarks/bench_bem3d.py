@@ -25,7 +25,7 @@ from wavebrdf.solver.bem3d.assembly import basis_pair_entries
 from wavebrdf.solver.bem3d.elements import ElementIntegrals
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
-from wavebrdf.solver.bem3d.quadrature import pair_case, singular_order, singular_rule
+from wavebrdf.solver.bem3d.quadrature import pair_case, singular_orders, singular_rule
 from wavebrdf.solver.farfield import HemisphereGrid, albedo
 from wavebrdf.solver.opencl import create_context
 from wavebrdf.solver.surface import HeightField, generate
@@ -132,9 +132,15 @@ def bench_quadrature(ctx):
                     errs.append(np.abs(got - ref).max() / np.abs(ref).max())
                 print("  " + f"{gname:8s} {cname:7s} {part:9s}" + "".join(f"{e:9.1e}" for e in errs))
     opts = QuadratureOptions()
-    print(f"  defaults: static_order = {opts.static_order}, tolerance = {opts.tolerance:g} -> remainder order "
-          f"{singular_order(opts, meshes['curved'].half_length.max(), ks)} for Al (curved), "
-          f"{singular_order(opts, meshes['flat'].half_length.max(), (k0, 1.5 * k0))} for n = 1.5 (flat)")
+    glass = (k0, 1.5 * k0)
+
+    def orders(mesh, wavenumbers):  # (a priori, measured) per medium (docs/bem3d.md, "Singular remainder orders")
+        return (singular_orders(opts, mesh.half_length.max(), wavenumbers),
+                el.ElementIntegrals(mesh, opts, ctx).remainder_orders(wavenumbers))
+
+    print(f"  defaults: static_order = {opts.static_order}, tolerance = {opts.tolerance:g} -> remainder orders "
+          f"(a priori, measured) per medium {orders(meshes['curved'], ks)} for Al (curved), "
+          f"{orders(meshes['flat'], glass)} for n = 1.5 (flat)")
 
 
 def _solver(ctx, surface, index, quadrature=None):
