@@ -259,6 +259,35 @@ def _single_run(ctx, surface, lam, index, waist, resolution, aim):
     return ff
 
 
+PLANNER_SURFACES = {  # surfaces outside the product-count fits (those used the sub-area family, seed 1)
+    "brushed": dict(generator="brushed", rms_height_um=0.05, correlation_um=[1.5, 0.25], angle_deg=30.0, seed=7),
+    "rough": dict(generator="gaussian", rms_height_um=0.06, correlation_um=0.4, seed=8),
+    "grating": dict(generator="sinusoid", amplitude_um=0.05, period_um=0.8),
+}
+
+
+def cmd_planner(args, ctx):
+    """The planner's product count against the measured one on surfaces outside its fit: each of
+    PLANNER_SURFACES at ``--cells`` (d = 0.025 µm) in aluminium at 0.4 µm, waist L/4.8, normal
+    incidence, with ``--aim`` (default: the planner's choice at the 12 µm sub-area)."""
+    print(load())
+    aim = json.loads(args.aim)
+    rows = []
+    for name in args.surfaces:
+        params = dict(PLANNER_SURFACES[name])
+        surface = generate(params.pop("generator"), cells=args.cells, size_um=args.cells * 0.025, **params)
+        print(f"{name}: {surface.statistics()}", flush=True)
+        waist = surface.size_um / 4.8
+        planned = estimate_aim(surface, 0.4, AL_400, aim=aim, waist_um=waist, resolution=args.resolution)
+        ff = _single_run(ctx, surface, 0.4, AL_400, waist, args.resolution, aim)
+        measured = ff.diagnostics["iterations"]
+        rows.append((name, surface.rms_slope(), planned["iterations_guess"], measured))
+    print("| surface | rms slope | planned products | measured (s / p) | planner error (s / p) |")
+    for name, slope, planned, measured in rows:
+        errors = " / ".join(f"{planned / m - 1:+.0%}" for m in measured)
+        print(f"| {name} | {slope:.2f} | {planned} | {' / '.join(str(m) for m in measured)} | {errors} |")
+
+
 def cmd_reference(args, ctx):
     """The reference simulator's CPU case: 4 µm flat dielectric, n = 1.5, λ = 0.5, d = 0.025,
     waist 1.6 µm, normal incidence, 256² output (it took 5169 CPU-s, 4.8 GB, albedo error 1.35%).
@@ -520,6 +549,12 @@ def main():
     p.add_argument("--aim", default="{}", help="AIM options as JSON")
     p.add_argument("--save", default=None, help="write the BRDF (.npy)")
     p.add_argument("--compare", default=None, help="a saved BRDF (.npy) to compare with (relative L2, albedo)")
+    p = sub.add_parser("planner")
+    p.add_argument("--cells", type=int, default=160)
+    p.add_argument("--surfaces", nargs="+", default=list(PLANNER_SURFACES), choices=list(PLANNER_SURFACES))
+    p.add_argument("--resolution", type=int, default=128)
+    p.add_argument("--aim", default='{"precision": "single", "near_cells": 7, "preconditioner": "local", "restart": 30}',
+                   help="AIM options as JSON")
     p = sub.add_parser("products")
     p.add_argument("--cases", type=int, nargs=2, default=[0, len(PRODUCT_CASES)], help="a slice of PRODUCT_CASES")
     p = sub.add_parser("preconditioners")
