@@ -77,13 +77,6 @@ inline vcplx_t vc_exp(vcplx_t a)
     const vreal_t m = exp(a.re);
     return vc_new(m * c, m * s);
 }
-/* e^a - 1 without cancellation for small |a| */
-inline vcplx_t vc_expm1(vcplx_t a)
-{
-    vreal_t c, s = sincos(a.im, &c);
-    const vreal_t sh = sin(R(0.5) * a.im);
-    return vc_new(expm1(a.re) * c - R(2.0) * sh * sh, exp(a.re) * s);
-}
 /* lane-wise choice: mask lanes true (all bits set) take b, the others a */
 inline vcplx_t vc_select(vcplx_t a, vcplx_t b, vmask_t mask)
 {
