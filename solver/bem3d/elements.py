@@ -57,6 +57,7 @@ __all__ = [
     "regular_pairs_opencl",
     "singular_pairs_numpy",
     "singular_pairs_opencl",
+    "touching_pairs",
 ]
 
 TABLE = 33  # complex numbers per medium and pair
@@ -261,6 +262,20 @@ def singular_pairs_opencl(ctx, geometry, h, test, source, code_test, code_source
     return out
 
 
+def touching_pairs(cells: int, elements) -> tuple[np.ndarray, np.ndarray]:
+    """(test, source): every element of ``elements`` (indices e = s·N + t of an N-cell mesh) with
+    each element it touches (itself, its edge and its vertex neighbours inside the mesh)."""
+    elements = np.asarray(elements, dtype=np.int64)
+    s, t = np.divmod(elements, cells)
+    tests, sources = [], []
+    for ds in (-1, 0, 1):
+        for dt in (-1, 0, 1):
+            ok = (s + ds >= 0) & (s + ds < cells) & (t + dt >= 0) & (t + dt < cells)
+            tests.append(elements[ok])
+            sources.append((s[ok] + ds) * cells + t[ok] + dt)
+    return np.concatenate(tests), np.concatenate(sources)
+
+
 # ---------------------------------------------------------------------------------------------
 # Orchestration
 
@@ -377,14 +392,7 @@ class ElementIntegrals:
         count = min(REMAINDER_SAMPLE, len(shape))
         steep = np.argsort(shape)[::-1][:count]
         chosen = np.unique(np.concatenate([steep, np.random.default_rng(0).choice(len(shape), count, replace=False)]))
-        s, t = np.divmod(chosen, n)
-        tests, sources = [], []
-        for ds in (-1, 0, 1):
-            for dt in (-1, 0, 1):
-                ok = (s + ds >= 0) & (s + ds < n) & (t + dt >= 0) & (t + dt < n)
-                tests.append(chosen[ok])
-                sources.append((s[ok] + ds) * n + t[ok] + dt)
-        return np.concatenate(tests), np.concatenate(sources)
+        return touching_pairs(n, chosen)
 
     # -- static singular parts --------------------------------------------------------------
     def _touching_slot(self, test, source) -> np.ndarray:

@@ -138,15 +138,7 @@ def test_measured_remainder_orders_meet_the_tolerance_on_every_touching_pair(cl_
     orders = integrals.remainder_orders(ks)
     a_priori = singular_orders(options, mesh.half_length.max(), ks)
     assert all(n >= a for n, a in zip(orders, a_priori))
-    n = mesh.cells
-    s, t = np.divmod(np.arange(n * n), n)
-    test, source = [], []
-    for ds in (-1, 0, 1):
-        for dt in (-1, 0, 1):
-            ok = (s + ds >= 0) & (s + ds < n) & (t + dt >= 0) & (t + dt < n)
-            test.append(np.flatnonzero(ok))
-            source.append((s[ok] + ds) * n + t[ok] + dt)
-    test, source = np.concatenate(test), np.concatenate(source)
+    test, source = el.touching_pairs(mesh.cells, np.arange(mesh.n_elements))
     case, ct, cs = pair_case(*(mesh.element_st[source] - mesh.element_st[test]).T)
 
     def tables(order_of, medium=None):
