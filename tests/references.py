@@ -8,7 +8,8 @@ Sources: Born & Wolf, *Principles of Optics* (7th ed.), §1.5.2 (Fresnel formula
 (absorbing media: Snell's law with a complex index, the transmitted wave must decay);
 Hecht, *Optics*, §4.6 (reflectances, Brewster angle, total internal reflection); Bohren &
 Huffman, *Absorption and Scattering of Light by Small Particles*, §8.4 (the infinite cylinder
-and its small-size limit); treams (an independent T-matrix code, run by the caller).
+and its small-size limit); Novotny & Hecht, *Principles of Nano-Optics*, §3.2 (the angular
+spectrum representation of a beam); treams (an independent T-matrix code, run by the caller).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ __all__ = [
     "fresnel_mueller",
     "fresnel_reflectance",
     "fresnel_transmittance",
+    "gaussian_beam_power_ratio",
     "normal_reflectance",
     "transmitted_normal_wavenumber",
 ]
@@ -150,6 +152,36 @@ def beam_fresnel_reflectance(kvec: np.ndarray, E: np.ndarray, n1: float, n2: com
     reflected = np.sum(weight * (e_s * R_s + e_p * R_p), axis=1)
     incident = np.sum(weight * np.sum(np.abs(E) ** 2, axis=2), axis=1)
     return reflected / incident
+
+
+def gaussian_beam_power_ratio(wavelength_um: float, waist_um: float, theta_i: float, n1: float = 1.0,
+                              samples: int = 1601) -> float:
+    """P_p / P_s of the angular-spectrum Gaussian beam of waist w toward θ_i (in the plane φ = 0).
+
+    The beam (Novotny & Hecht §3.2): a vector potential A = U ŷ_b (s) or U x̂_b (p), x̂_b in the
+    plane of incidence and ŷ_b normal to it, both ⟂ the central direction; U a superposition of
+    the propagating plane waves k = (κ, −k_z) with amplitudes ∝ exp(−w²|κ − κ_c|²/4), κ_c = −k sinθ_i x̂
+    (the beam travels along −ω_i).
+    A plane wave of potential Â carries E ∝ k²Â − k(k·Â), so |E|² ∝ 1 − (k̂·â)², and its flux
+    through the plane z = const ∝ |E|² |k̂_z|. Both polarizations share U and so their central
+    amplitude; their powers differ where the spectrum is wide against cos θ_i (toward grazing):
+    a BRDF normalized per polarization by the beam's power sees r_p/r_s scaled by √(P_s/P_p).
+    Midpoint sums over ±8/w about κ_c, clipped to the propagating disk.
+    """
+    k = 2 * np.pi * n1 / wavelength_um
+    x_b = np.array([-np.cos(theta_i), 0.0, np.sin(theta_i)])
+    y_b = np.array([0.0, 1.0, 0.0])
+    half = 8.0 / waist_um
+    step = 2 * half / samples
+    axis = -half + step * (np.arange(samples) + 0.5)
+    kx, ky = np.meshgrid(-k * np.sin(theta_i) + axis, axis, indexing="ij")
+    kz2 = k**2 - kx**2 - ky**2
+    inside = kz2 > 0
+    kx, ky, kz = kx[inside], ky[inside], np.sqrt(kz2[inside])
+    khat = np.stack([kx, ky, -kz], axis=-1) / k
+    weight = np.exp(-0.5 * waist_um**2 * ((kx + k * np.sin(theta_i)) ** 2 + ky**2)) * kz / k
+    power = [np.sum(weight * (1.0 - (khat @ a) ** 2)) for a in (y_b, x_b)]
+    return float(power[1] / power[0])
 
 
 def coulomb_squares(a: tuple, b: tuple) -> float:

@@ -20,6 +20,7 @@ __all__ = [
     "MaterialWarning",
     "ResolutionWarning",
     "SolverWarning",
+    "check_beam_spectrum",
     "check_footprint",
     "check_material",
     "check_resolution",
@@ -28,6 +29,7 @@ __all__ = [
 ]
 
 OUTSIDE_FRACTION = 1e-3  # incident power falling outside the patch above which we warn
+SPECTRUM_CUT = 1e-2  # share of the exact beam's Gaussian spectrum beyond the light cone above which we warn
 EXTERIOR_CELLS_PER_WAVELENGTH = 6.0  # d ≤ λ₁/6
 INTERIOR_KD = 4.0  # |k₂| d above which the interior field (wavelength, skin depth) is under-resolved
 HIGH_CONTRAST = 10.0  # |n₂/n₁| at and above which PMCHWT conditioning degrades
@@ -70,6 +72,24 @@ def check_footprint(outside_fraction: float, theta_i: float, patch_um: float, be
             f"{np.rad2deg(theta_i):.4g}° falls outside the {patch_um:g} µm patch (limit {OUTSIDE_FRACTION:g}): "
             "the currents are truncated at the patch edge, so edge diffraction and a wrong Φ_i enter "
             "the BRDF; use a larger patch or a smaller waist (grazing incidence spreads the footprint)",
+        )
+
+
+def check_beam_spectrum(evanescent_fraction: float, theta_i: float, waist_um: float, wavelength_um: float,
+                        diagnostics=None):
+    """Warn when the exact beam drops more than SPECTRUM_CUT of its Gaussian spectrum at the light
+    cone (``ExactGaussianBeam.evanescent_fraction``)."""
+    if diagnostics is not None:
+        diagnostics["beam_evanescent_fraction"] = float(evanescent_fraction)
+    if evanescent_fraction > SPECTRUM_CUT:
+        emit(
+            diagnostics,
+            FootprintWarning,
+            f"the exact beam at θ_i = {np.rad2deg(theta_i):.4g}° with waist {waist_um:g} µm (λ = {wavelength_um:g} µm) "
+            f"drops {evanescent_fraction:.2g} of its Gaussian spectrum beyond the light cone (limit {SPECTRUM_CUT:g}): "
+            "its footprint is not the Gaussian of that waist but has long tails along the plane of incidence, "
+            "and near the mirror direction the far field of a flat-continued patch moves by percents with "
+            "the extent of the continuation (docs/dataset.md, 'toward grazing'); use a larger waist",
         )
 
 

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from wavebrdf.solver.beams import BEAMS, make_beam
-from wavebrdf.solver.bem3d.checks import check_footprint
+from wavebrdf.solver.bem3d.checks import check_beam_spectrum, check_footprint
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import SLOT_TANGENT, BEMMesh, slot_weight
 from wavebrdf.solver.bem3d.quadrature import tensor_rule
@@ -149,6 +149,8 @@ def beam_excitation(mesh: BEMMesh, media: Media, theta_i: float, phi_i: float, *
                     focus_um=(focus_um[0], focus_um[1], 0.0), patch_size_um=extent_um or L)
     if beam != "plane" and diagnostics is not None and extent_um is None:
         check_footprint(inc.outside_fraction(L), theta_i, L, beam, diagnostics)
+    if beam == "exact" and diagnostics is not None:
+        check_beam_spectrum(inc.evanescent_fraction, theta_i, waist_um, media.wavelength_um, diagnostics)
     power = inc.incident_power(L)
     if not np.all(np.isfinite(power) & (power > 0)):
         raise FloatingPointError(

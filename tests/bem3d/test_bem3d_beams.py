@@ -168,3 +168,46 @@ def test_exact_beam_on_a_lattice_is_the_plane_wave_sum(index, height_spread, par
     got_E, got_H = E.reshape(2, -1, 3)[:, pick], H.reshape(2, -1, 3)[:, pick]
     assert np.max(np.abs(got_E - expected_E)) < 1e-12 * np.max(np.abs(expected_E))
     assert np.max(np.abs(got_H - expected_H)) < 1e-12 * np.max(np.abs(expected_H))
+
+
+@pytest.mark.parametrize("theta_deg,waist_um", [(50.0, 0.6), (80.0, 1.2), (80.0, 0.6)])
+def test_exact_beam_polarizations_carry_the_powers_of_its_spectrum(theta_deg, waist_um):
+    """P_p / P_s of the exact beam against the same beam's definition integrated independently
+    (tests/references.py ``gaussian_beam_power_ratio``): toward grazing the two differ by percents,
+    which a per-polarization BRDF carries into its Mueller matrix (test_polarimetry.py)."""
+    from references import gaussian_beam_power_ratio
+
+    theta = np.deg2rad(theta_deg)
+    beam = ExactGaussianBeam(LAMBDA, theta, 0.0, waist_um=waist_um, patch_size_um=4.0 * waist_um / np.cos(theta))
+    power = beam.incident_power()
+    expected = gaussian_beam_power_ratio(LAMBDA, waist_um, theta)
+    assert power[1] / power[0] == pytest.approx(expected, rel=2e-3)
+    assert abs(expected - 1.0) > 2e-3  # the effect is there to be seen
+
+
+@pytest.mark.parametrize("theta_deg,waist_um", [(70.0, 1.2), (80.0, 0.6)])
+def test_exact_beam_says_how_much_of_its_spectrum_the_light_cone_cuts(theta_deg, waist_um):
+    """The share of the Gaussian footprint's spectrum beyond |κ| = k against a polar quadrature of
+    the same Gaussian over the disk (scipy), and the excitation's warning toward grazing (none at 50°)."""
+    import warnings
+
+    from scipy.integrate import dblquad
+
+    from wavebrdf.solver.bem3d.checks import FootprintWarning, check_beam_spectrum
+
+    theta = np.deg2rad(theta_deg)
+    k = 2 * np.pi / LAMBDA
+    c = -k * np.sin(theta)
+    inside, _ = dblquad(lambda r, a: r * np.exp(-0.5 * waist_um**2 * ((r * np.cos(a) - c) ** 2 + (r * np.sin(a)) ** 2)),
+                        0.0, 2 * np.pi, 0.0, k, epsabs=0, epsrel=1e-10)
+    expected = 1.0 - inside / (2 * np.pi / waist_um**2)
+    beam = ExactGaussianBeam(LAMBDA, theta, 0.0, waist_um=waist_um, patch_size_um=5.0)
+    assert beam.evanescent_fraction == pytest.approx(expected, rel=1e-2)  # a threshold's figure: midpoint sums
+    diagnostics = {"warnings": []}
+    with pytest.warns(FootprintWarning, match="light cone"):
+        check_beam_spectrum(beam.evanescent_fraction, theta, waist_um, LAMBDA, diagnostics)
+    assert diagnostics["beam_evanescent_fraction"] > 0.1
+    moderate = ExactGaussianBeam(LAMBDA, np.deg2rad(50.0), 0.0, waist_um=1.2, patch_size_um=5.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_beam_spectrum(moderate.evanescent_fraction, np.deg2rad(50.0), 1.2, LAMBDA, {"warnings": []})
