@@ -53,8 +53,9 @@ LU_FILL_GROWTH = 1.3  # the near LU's fill grows with the block (docs/aim.md: 13
 SWEEP = (0.01, 0.02, 0.05, 0.1, 0.2)  # tolerances of the summary table
 SUITES = {  # folder → the regime, as the tables print it
     "al_waist0.6": "aluminium, waist 0.6 µm (≈ λ), 4 µm patch, 80² cells, λ 0.5 & 0.7 µm, θ_i 0° & 60°",
-    "al_waist2.5": "aluminium, waist 2.5 µm (5 λ at 0.5 µm: the reference simulator's), 9 µm patch, 180² cells, "
-                   "λ 0.5 µm (the bumpy surface: 0.4 & 0.7 µm, 6.25 λ & 3.6 λ), θ_i 0° & 30° (the steep hemispheres: "
+    "al_waist2.5": "aluminium, waist 2.5 µm (5 λ at 0.5 µm: the reference simulator's), 9 µm patch, 180² cells (the spherical "
+                   "pits 270², d = λ/15: at λ/10 their reference did not converge to ⅓ of 0.05), λ 0.5 µm "
+                   "(the bumpy surface: 0.4 & 0.7 µm, 6.25 λ & 3.6 λ), θ_i 0° & 30° (the steep hemispheres: "
                    "0° only, one solve being ≈ 3,000 CPU-s)",
     "glass_waist0.6": "glass (n = 1.5), waist 0.6 µm (≈ λ), 4 µm patch, 80² cells, λ 0.5 & 0.7 µm, θ_i 0° & 60° "
                       "(the dielectric: the seven scene kinds at waist ≈ λ only)",
@@ -295,6 +296,77 @@ def convergence(path: Path, force: bool, log, run: bool = True, record: Record |
     return row
 
 
+def finer_pair(path: Path, cells: int, log) -> Path:
+    """One refinement beyond the table's: the config's hardest scene at ``cells`` per side against
+    BEM at ``REFINEMENT`` × ``cells`` (stored in ``out/trade/<study>_pair_<cells>_<fine>.h5`` and listed
+    under the convergence table). The solve at ``cells`` is taken from the config's converged store
+    where that holds it (the table's own fine solve), else run."""
+    import h5py
+
+    from wavebrdf.jobs.compare import MeasuringProcess, Measurement
+    from wavebrdf.jobs.config import load_config
+    from wavebrdf.solver.auto import REFERENCE
+    from wavebrdf.solver.surface import refined
+
+    label, scene = hardest_scene(path)
+    case = load_config(path).cases[0]
+    fine_cells = int(round(REFINEMENT * cells))
+    out = WORK / f"{case.name}_pair_{cells}_{fine_cells}.h5"
+    store = WORK / f"{case.name}_converged.h5"
+    options = case.model.options
+    with MeasuringProcess() as process:
+        coarse = None
+        if store.is_file():
+            with h5py.File(store) as h5:
+                if int(h5.attrs["cells"]) == cells and "brdf" in h5:
+                    coarse = Measurement(REFERENCE, label, float(h5.attrs["wall_s"]), float(h5.attrs["cpu_s"]),
+                                         float(h5.attrs["peak_mb"]), h5["brdf"][()])
+        if coarse is None:
+            log(f"{label}: BEM at {cells}² cells")
+            at_cells = dataclasses.replace(scene, surface=refined(scene.surface, cells))
+            coarse = process.measure(REFERENCE, options, at_cells, label)
+        fine_options, settings = fine_solve_options(options, coarse.peak_mb, (fine_cells / cells) ** 2)
+        settings = settings.replace("at the table's spacing", f"at {cells}²")
+        log(f"{label}: BEM at {fine_cells}² cells, {settings}")
+        fine = dataclasses.replace(scene, surface=refined(scene.surface, fine_cells))
+        m = process.measure(REFERENCE, fine_options, fine, label)
+    WORK.mkdir(parents=True, exist_ok=True)
+    with h5py.File(out, "w") as h5:
+        h5.attrs.update(scene=label, suite=path.parent.name, cells=fine_cells, coarse_cells=cells,
+                        size_um=scene.surface.size_um, cpu_s=m.cpu_s, wall_s=m.wall_s, peak_mb=m.peak_mb, failure=m.failure or coarse.failure or "",
+                        coarse_cpu_s=coarse.cpu_s, settings=settings)
+        for name, run_ in (("brdf", m), ("coarse_brdf", coarse)):
+            if run_.brdf is not None:
+                h5[name] = run_.brdf
+    return out
+
+
+def finer_pairs(configs: list[Path]) -> list[dict]:
+    """The rows of every stored :func:`finer_pair` of ``configs``: the convergence table's columns."""
+    import h5py
+
+    from wavebrdf.jobs.compare import Measurement, comparison_metrics
+    from wavebrdf.jobs.config import load_config
+    from wavebrdf.solver.auto import REFERENCE
+
+    rows = []
+    for path in configs:
+        label, scene = hardest_scene(path)
+        for stored in sorted(WORK.glob(f"{load_config(path).cases[0].name}_pair_*.h5")):
+            with h5py.File(stored) as h5:
+                a = dict(h5.attrs)
+                row = {"suite": path.parent.name, "scene": label, "spacing_um": a["size_um"] / a["coarse_cells"],
+                       "fine_spacing_um": a["size_um"] / a["cells"], "cpu_s": a["coarse_cpu_s"],
+                       "fine_cpu_s": a["cpu_s"], "fine_peak_mb": a["peak_mb"], "fine_settings": a["settings"],
+                       "failure": a["failure"]}
+                if not a["failure"]:
+                    row.update(comparison_metrics(Measurement(REFERENCE, label, brdf=h5["coarse_brdf"][()]),
+                                                  Measurement(REFERENCE, label, brdf=h5["brdf"][()]), scene.grid,
+                                                  _speckle_sigma(scene), scene.theta_i, scene.phi_i))
+            rows.append(row)
+    return rows
+
+
 def fine_solve_options(options, coarse_peak_mb: float, unknowns_ratio: float):
     """(options, what they are) of the finer convergence solve: the table's own where the coarse
     solve's measured peak, scaled by the unknowns and the LU fill's growth, fits
@@ -456,9 +528,15 @@ def main(argv=None) -> int:
                              "out/trade (cached; the others are listed as not measured), or none")
     parser.add_argument("--measured-tolerances", nargs="*", type=float, default=[0.05, 0.01],
                         help="tolerances at which auto is run on every scene, end to end (0.05 0.01)")
+    parser.add_argument("--finer-pair", nargs=2, metavar=("CONFIG", "CELLS"),
+                        help="only solve one refinement beyond the table's: CONFIG's hardest scene at CELLS per side "
+                             f"and at {REFINEMENT:g}× CELLS (listed under the convergence table at the next run)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", stream=sys.stderr)
     log = logging.getLogger("trade").info
+    if args.finer_pair:
+        log(f"wrote {finer_pair(Path(args.finer_pair[0]).resolve(), int(args.finer_pair[1]), log)}")
+        return 0
     configs = sorted(p.resolve() for p in args.configs) if args.configs else suite_configs()
     record = Record.read()
     compare_suite(configs, args.force, log, record)
@@ -480,7 +558,8 @@ def main(argv=None) -> int:
     for suite in dict.fromkeys(r["suite"] for r in table):
         plot([r for r in table if r["suite"] == suite], args.tolerance, ROOT / "docs" / "images" / f"trade_{suite}.png",
              SUITES.get(suite, suite))
-    (ROOT / "docs" / "trade.md").write_text(markdown(table, converged, auto_rows, args.tolerance, sweep, ran, unseen))
+    (ROOT / "docs" / "trade.md").write_text(markdown(table, converged, auto_rows, args.tolerance, sweep, ran, unseen,
+                                                     finer_pairs(configs)))
     log("wrote docs/trade.md and docs/images/trade_*.png")
     return 0
 
@@ -525,8 +604,18 @@ def _picks(rows: list[dict]) -> str:
     return ", ".join(f"{k} ×{v}" for k, v in sorted(chosen.items(), key=lambda kv: -kv[1]))
 
 
+def _convergence_line(r: dict) -> str:
+    """One row of the convergence tables."""
+    serves = _num(r.get("rel_l2_smooth")) / CONVERGENCE_SHARE
+    return (f"| {r['suite']} | {r['scene']} | {r['spacing_um']:.4g} | {r['fine_spacing_um']:.4g} | "
+            f"{_cell(r.get('rel_l2_smooth'))} | {_cell(r.get('rel_l2_smooth_s'))} | "
+            f"{_cell(r.get('rel_l2_smooth_p'))} | {_cell(r.get('rel_l2'))} | {_cell(serves)} | "
+            f"{_cell(r['cpu_s'])} | {_cell(r['fine_cpu_s'])} | {r.get('fine_settings') or ''} |"
+            + (f" {r['failure']}" if r["failure"] else ""))
+
+
 def markdown(table: list[dict], converged: list[dict], auto_rows: list[dict], tolerance: float, sweep: dict,
-             ran: dict, unseen: dict) -> str:
+             ran: dict, unseen: dict, pairs: list[dict] = ()) -> str:
     from wavebrdf.solver.auto import ERROR_CEILING, MIN_ROWS_PER_REGRESSOR, OPTIONAL_REGRESSORS, Rule, SceneFeatures
 
     suites = list(dict.fromkeys(r["suite"] for r in table))
@@ -540,19 +629,20 @@ def markdown(table: list[dict], converged: list[dict], auto_rows: list[dict], to
               "figure (speckle-averaged; both polarizations shown).", "",
               "| suite | scene | d (µm) | fine d (µm) | rel L2 (speckle-avg) | s | p | raw | serves tolerance ≥ | "
               "CPU (s) | fine CPU (s) | fine solve |", "|" + "---|" * 12]
-    for r in converged:
-        serves = _num(r.get("rel_l2_smooth")) / CONVERGENCE_SHARE
-        lines.append(f"| {r['suite']} | {r['scene']} | {r['spacing_um']:.4g} | {r['fine_spacing_um']:.4g} | "
-                     f"{_cell(r.get('rel_l2_smooth'))} | {_cell(r.get('rel_l2_smooth_s'))} | "
-                     f"{_cell(r.get('rel_l2_smooth_p'))} | {_cell(r.get('rel_l2'))} | {_cell(serves)} | "
-                     f"{_cell(r['cpu_s'])} | {_cell(r['fine_cpu_s'])} | {r.get('fine_settings') or ''} |"
-                     + (f" {r['failure']}" if r["failure"] else ""))
+    lines += [_convergence_line(r) for r in converged]
     measured = [r for r in converged if not r["failure"]]
     if measured:
         worst = max(_num(r.get("rel_l2_smooth")) for r in measured)
         lines += ["", f"Worst convergence figure {worst:.3g} over the {len(measured)} configs measured "
                   f"({len(converged) - len(measured)} not measured): those serve tolerances ≥ "
                   f"{worst / CONVERGENCE_SHARE:.3g} (each row: its own)."]
+    if pairs:
+        lines += ["", "Beyond the table's spacing (`benchmarks/trade.py --finer-pair CONFIG CELLS`): the same scene one "
+                  f"refinement further, at {REFINEMENT:g}× CELLS against CELLS, where the table's reference misses ⅓ of "
+                  "0.05: how fast it converges, and what a finer table would serve.", "",
+                  "| suite | scene | d (µm) | fine d (µm) | rel L2 (speckle-avg) | s | p | raw | serves tolerance ≥ | "
+                  "CPU (s) | fine CPU (s) | fine solve |", "|" + "---|" * 12]
+        lines += [_convergence_line(r) for r in pairs]
     for tol, rows in ran.items():
         lines += ["", f"## auto run on every scene, tolerance {tol:g} (measured)", "",
                   "`model = \"auto\"` run as a one-task study on each scene (the rule fitted to this table, its "
@@ -643,7 +733,7 @@ Every rung on seven scene kinds (smooth random, rough random, brushed, shallow g
 hemispheres, corner cubes, spherical pits; at the reference simulator's waist also a bumpy random
 surface of its steering surfaces' roughness) in the regimes listed below (one suite each:
 configs/compare/trade/<suite>/*.toml), with the same footprint, output grid and normalization,
-against the full-wave reference (AIM BEM) at d = 0.05 µm; each reference checked against BEM at
+against the full-wave reference (AIM BEM) at d = 0.05 µm (the waist-2.5 spherical pits: 0.0333 µm); each reference checked against BEM at
 {refinement:g}× the cells where that solve was run (below). Errors are the relative L2 over the lobe of the BRDF against BEM: raw, and
 speckle-averaged (both blurred by the footprint's own angular spread λ/(πw): the figure `auto`'s
 tolerance applies to), unpolarized and per incident polarization (s, p). Times are CPU seconds
