@@ -275,12 +275,7 @@ def convergence(path: Path, force: bool, log, run: bool = True, record: Record |
             fine_options, settings = fine_solve_options(options, coarse.peak_mb, (fine_cells / cells) ** 2)
             log(f"{label}: BEM at {fine_cells}² cells (d = {fine.surface.spacing_um:.4g} µm), {settings}")
             m = process.measure(REFERENCE, fine_options, fine, label)
-        with h5py.File(store, "w") as h5:
-            h5.attrs.update(scene=label, cells=fine_cells, cpu_s=m.cpu_s, wall_s=m.wall_s, peak_mb=m.peak_mb,
-                            failure=m.failure or coarse.failure or "", coarse_cpu_s=coarse.cpu_s, settings=settings)
-            for name, run_ in (("brdf", m), ("coarse_brdf", coarse)):
-                if run_.brdf is not None:
-                    h5[name] = run_.brdf
+        _write_refinement(store, label, fine_cells, m, coarse, settings)
         log(f"{label}: converged reference {m.cpu_s:.0f} s CPU{' — ' + m.failure if m.failure else ''}")
     with h5py.File(store) as h5:
         fine_run = Measurement(REFERENCE, label, float(h5.attrs["wall_s"]), float(h5.attrs["cpu_s"]),
@@ -325,20 +320,27 @@ def finer_pair(path: Path, cells: int, log) -> Path:
             log(f"{label}: BEM at {cells}² cells")
             at_cells = dataclasses.replace(scene, surface=refined(scene.surface, cells))
             coarse = process.measure(REFERENCE, options, at_cells, label)
-        fine_options, settings = fine_solve_options(options, coarse.peak_mb, (fine_cells / cells) ** 2)
-        settings = settings.replace("at the table's spacing", f"at {cells}²")
+        fine_options, settings = fine_solve_options(options, coarse.peak_mb, (fine_cells / cells) ** 2, f"{cells}²")
         log(f"{label}: BEM at {fine_cells}² cells, {settings}")
         fine = dataclasses.replace(scene, surface=refined(scene.surface, fine_cells))
         m = process.measure(REFERENCE, fine_options, fine, label)
     WORK.mkdir(parents=True, exist_ok=True)
-    with h5py.File(out, "w") as h5:
-        h5.attrs.update(scene=label, suite=path.parent.name, cells=fine_cells, coarse_cells=cells,
-                        size_um=scene.surface.size_um, cpu_s=m.cpu_s, wall_s=m.wall_s, peak_mb=m.peak_mb, failure=m.failure or coarse.failure or "",
-                        coarse_cpu_s=coarse.cpu_s, settings=settings)
-        for name, run_ in (("brdf", m), ("coarse_brdf", coarse)):
+    _write_refinement(out, label, fine_cells, m, coarse, settings, suite=path.parent.name, coarse_cells=cells,
+                      size_um=scene.surface.size_um)
+    return out
+
+
+def _write_refinement(store: Path, label: str, fine_cells: int, fine, coarse, settings: str, **extra) -> None:
+    """A refinement's .h5: the fine and coarse BEM Measurements' BRDFs and figures (and ``extra`` attrs)."""
+    import h5py
+
+    with h5py.File(store, "w") as h5:
+        h5.attrs.update(scene=label, cells=fine_cells, cpu_s=fine.cpu_s, wall_s=fine.wall_s, peak_mb=fine.peak_mb,
+                        failure=fine.failure or coarse.failure or "", coarse_cpu_s=coarse.cpu_s, settings=settings,
+                        **extra)
+        for name, run_ in (("brdf", fine), ("coarse_brdf", coarse)):
             if run_.brdf is not None:
                 h5[name] = run_.brdf
-    return out
 
 
 def finer_pairs(configs: list[Path]) -> list[dict]:
@@ -367,7 +369,8 @@ def finer_pairs(configs: list[Path]) -> list[dict]:
     return rows
 
 
-def fine_solve_options(options, coarse_peak_mb: float, unknowns_ratio: float):
+def fine_solve_options(options, coarse_peak_mb: float, unknowns_ratio: float,
+                       measured_at: str = "the table's spacing"):
     """(options, what they are) of the finer convergence solve: the table's own where the coarse
     solve's measured peak, scaled by the unknowns and the LU fill's growth, fits
     :data:`FINE_MEMORY_SHARE` of this machine's RAM; else the same operator and tolerance with the
@@ -381,7 +384,7 @@ def fine_solve_options(options, coarse_peak_mb: float, unknowns_ratio: float):
     aim = dataclasses.replace(options.aim, preconditioner="local", solver="gmres", restart=30, fit_memory=False)
     return dataclasses.replace(options, aim=aim), (f"local inverses for the near LU, GMRES(30) (the LU would need "
                                                    f"≈ {need / 2**30:.0f} GiB: {coarse_peak_mb / 1024:.1f} GiB measured "
-                                                   f"at the table's spacing)")
+                                                   f"at {measured_at})")
 
 
 def scene_features(configs: list[Path], log) -> dict[str, dict]:
