@@ -228,12 +228,15 @@ def cmd_accuracy(args, ctx):
     print(load())
 
 
-def _single_run(ctx, surface, lam, index, waist, resolution, aim):
+def _single_run(ctx, surface, lam, index, waist, resolution, aim, estimate: dict | None = None):
+    """One AIM solve at normal incidence, its estimate (``estimate``, or made here), stages and
+    figures printed; returns the far field."""
     t0 = time.perf_counter()
     cpu0 = usage()["cpu_s"]
     from wavebrdf.solver.bem3d.aim.estimate import memory_breakdown
 
-    estimate = estimate_aim(surface, lam, index, aim=aim, waist_um=waist, resolution=resolution)
+    if estimate is None:
+        estimate = estimate_aim(surface, lam, index, aim=aim, waist_um=waist, resolution=resolution)
     print("estimate:", {k: v for k, v in estimate.items()}, flush=True)
     print(f"estimate: {estimate['bytes'] / 2**30:.2f} GiB ({memory_breakdown(estimate)}), {estimate['seconds']:.0f} s "
           f"(set-up {estimate['setup_s']:.0f} s, {estimate['iterations_guess']} products x {estimate['product_s']:.2f} s)",
@@ -259,33 +262,49 @@ def _single_run(ctx, surface, lam, index, waist, resolution, aim):
     return ff
 
 
-PLANNER_SURFACES = {  # surfaces outside the product-count fits (those used the sub-area family, seed 1)
-    "brushed": dict(generator="brushed", rms_height_um=0.05, correlation_um=[1.5, 0.25], angle_deg=30.0, seed=7),
-    "rough": dict(generator="gaussian", rms_height_um=0.06, correlation_um=0.4, seed=8),
-    "grating": dict(generator="sinusoid", amplitude_um=0.05, period_um=0.8),
+PLANNER_SURFACES = {  # name → (λ µm, material, generator and parameters): none is in solver/data/aim_products.csv
+    "rough-al": (0.4, "aluminium", dict(generator="gaussian", rms_height_um=0.08, correlation_um=0.7, seed=31)),
+    "brushed-glass": (0.5, "glass", dict(generator="brushed", rms_height_um=0.06, correlation_um=[1.2, 0.3],
+                                         angle_deg=45.0, seed=32)),
+    "rough-al-550": (0.55, "aluminium", dict(generator="gaussian", rms_height_um=0.12, correlation_um=1.5, seed=33)),
 }
 
 
 def cmd_planner(args, ctx):
-    """The planner's product count against the measured one on surfaces outside its fit: each of
-    PLANNER_SURFACES at ``--cells`` (d = 0.025 µm) in aluminium at 0.4 µm, waist L/4.8, normal
-    incidence, with ``--aim`` (default: the planner's choice at the 12 µm sub-area)."""
+    """The planner's product count against the measured one on surfaces outside its fit
+    (PLANNER_SURFACES) at ``--cells`` and d = λ/16, exact beam of waist L/4.8, normal incidence,
+    with ``--aim`` (default: the planner's choice at the 12 µm sub-area). Prints the table and
+    each run as a row of solver/data/aim_products.csv (to add it to the fit once it has served
+    as a check: tools/refit_product_counts.py)."""
+    from wavebrdf.solver.materials import Material
+
     print(load())
     aim = json.loads(args.aim)
-    rows = []
+    kind = {"none": "minres", "local": "local"}.get(aim.get("preconditioner"))
+    rows, records = [], []
     for name in args.surfaces:
-        params = dict(PLANNER_SURFACES[name])
-        surface = generate(params.pop("generator"), cells=args.cells, size_um=args.cells * 0.025, **params)
-        print(f"{name}: {surface.statistics()}", flush=True)
+        lam, material, params = PLANNER_SURFACES[name]
+        params = dict(params)
+        generator = params.pop("generator")
+        size = round(args.cells * lam / 16, 6)
+        surface = generate(generator, cells=args.cells, size_um=size, **params)
+        index = complex(Material.from_name(material).index(lam))
+        print(f"{name}: {material} at {lam} µm (n = {index:.4g}), L = {size:g} µm, {surface.statistics()}", flush=True)
         waist = surface.size_um / 4.8
-        planned = estimate_aim(surface, 0.4, AL_400, aim=aim, waist_um=waist, resolution=args.resolution)
-        ff = _single_run(ctx, surface, 0.4, AL_400, waist, args.resolution, aim)
+        planned = estimate_aim(surface, lam, index, aim=aim, waist_um=waist, resolution=args.resolution)
+        ff = _single_run(ctx, surface, lam, index, waist, args.resolution, aim, planned)
         measured = ff.diagnostics["iterations"]
-        rows.append((name, surface.rms_slope(), planned["iterations_guess"], measured))
-    print("| surface | rms slope | planned products | measured (s / p) | planner error (s / p) |")
-    for name, slope, planned, measured in rows:
+        rows.append((name, material, lam, surface.rms_slope_below(lam), planned["iterations_guess"], measured))
+        spec = json.dumps({"generator": generator, "cells": args.cells, "size_um": size, **params}).replace('"', '""')
+        records.append(f'"{name}: {material}, {generator}",{kind},{lam},{index.real:.6g}{index.imag:+.6g}j,"{spec}",'
+                       f"{measured[0]},{measured[1]},.venv/bin/python benchmarks/bench_aim.py planner,<commit>")
+    print("| surface | material, λ | rms slope finer than λ | planned products | measured (s / p) | planner error (s / p) |")
+    for name, material, lam, slope, planned, measured in rows:
         errors = " / ".join(f"{planned / m - 1:+.0%}" for m in measured)
-        print(f"| {name} | {slope:.2f} | {planned} | {' / '.join(str(m) for m in measured)} | {errors} |")
+        print(f"| {name} | {material}, {lam} µm | {slope:.3f} | {planned} | {' / '.join(str(m) for m in measured)} | "
+              f"{errors} |")
+    if kind is not None:
+        print("rows of solver/data/aim_products.csv:\n" + "\n".join(records))
 
 
 def cmd_reference(args, ctx):

@@ -233,7 +233,8 @@ def convergence(path: Path, force: bool, log, run: bool = True, record: Record |
     """The config's reference against BEM on the same surface at ``REFINEMENT`` times the cells
     (:func:`wavebrdf.solver.surface.refined`), on its hardest scene: the relative L2 of the coarse
     reference with the fine one as truth (both stored in ``out/trade/<study>_converged.h5``; the
-    coarse one from the comparison, or solved alone where the comparison is not stored). Not
+    coarse one from the comparison, or solved alone where the comparison is not stored; the fine
+    one from a stored :func:`finer_pair` at the same cells where there is one, else solved). Not
     stored: the row ``record`` keeps for the config; none, and ``run`` false: "not measured"."""
     import h5py
 
@@ -258,9 +259,10 @@ def convergence(path: Path, force: bool, log, run: bool = True, record: Record |
             stale = store.with_name(f"{store.stem}_{stored_cells}cells.h5")
             log(f"{label}: {store.name} holds a {stored_cells}² solve, not {fine_cells}²: moved to {stale.name}")
             store.rename(stale)
+    pair = _stored_pair(case.name, cells, fine_cells)
     if not force and not store.is_file() and kept is not None:
         return {**kept, **cells_row}
-    if not run and not store.is_file():
+    if not run and not store.is_file() and pair is None:
         return {**cells_row, "cpu_s": np.nan, "fine_cpu_s": np.nan, "failure": "not measured"}
     if force or not store.is_file():
         WORK.mkdir(parents=True, exist_ok=True)
@@ -272,9 +274,13 @@ def convergence(path: Path, force: bool, log, run: bool = True, record: Record |
             else:
                 log(f"{label}: BEM at {cells}² cells (the comparison is not stored)")
                 coarse = process.measure(REFERENCE, options, scene, label)
-            fine_options, settings = fine_solve_options(options, coarse.peak_mb, (fine_cells / cells) ** 2)
-            log(f"{label}: BEM at {fine_cells}² cells (d = {fine.surface.spacing_um:.4g} µm), {settings}")
-            m = process.measure(REFERENCE, fine_options, fine, label)
+            if pair is not None and not force:
+                m, settings = pair
+                log(f"{label}: BEM at {fine_cells}² cells from {case.name}_pair_{cells}_{fine_cells}.h5")
+            else:
+                fine_options, settings = fine_solve_options(options, coarse.peak_mb, (fine_cells / cells) ** 2)
+                log(f"{label}: BEM at {fine_cells}² cells (d = {fine.surface.spacing_um:.4g} µm), {settings}")
+                m = process.measure(REFERENCE, fine_options, fine, label)
         _write_refinement(store, label, fine_cells, m, coarse, settings)
         log(f"{label}: converged reference {m.cpu_s:.0f} s CPU{' — ' + m.failure if m.failure else ''}")
     with h5py.File(store) as h5:
@@ -291,11 +297,12 @@ def convergence(path: Path, force: bool, log, run: bool = True, record: Record |
     return row
 
 
-def finer_pair(path: Path, cells: int, log) -> Path:
+def finer_pair(path: Path, cells: int, log, local_inverses: bool = False) -> Path:
     """One refinement beyond the table's: the config's hardest scene at ``cells`` per side against
     BEM at ``REFINEMENT`` × ``cells`` (stored in ``out/trade/<study>_pair_<cells>_<fine>.h5`` and listed
     under the convergence table). The solve at ``cells`` is taken from the config's converged store
-    where that holds it (the table's own fine solve), else run."""
+    where that holds it (the table's own fine solve), else run. ``local_inverses``: the finer solve
+    with local inverses and GMRES(30) even where the near LU would fit (it factors slowly there)."""
     import h5py
 
     from wavebrdf.jobs.compare import MeasuringProcess, Measurement
@@ -320,7 +327,8 @@ def finer_pair(path: Path, cells: int, log) -> Path:
             log(f"{label}: BEM at {cells}² cells")
             at_cells = dataclasses.replace(scene, surface=refined(scene.surface, cells))
             coarse = process.measure(REFERENCE, options, at_cells, label)
-        fine_options, settings = fine_solve_options(options, coarse.peak_mb, (fine_cells / cells) ** 2, f"{cells}²")
+        fine_options, settings = fine_solve_options(options, coarse.peak_mb, (fine_cells / cells) ** 2, f"{cells}²",
+                                                    local_inverses)
         log(f"{label}: BEM at {fine_cells}² cells, {settings}")
         fine = dataclasses.replace(scene, surface=refined(scene.surface, fine_cells))
         m = process.measure(REFERENCE, fine_options, fine, label)
@@ -328,6 +336,26 @@ def finer_pair(path: Path, cells: int, log) -> Path:
     _write_refinement(out, label, fine_cells, m, coarse, settings, suite=path.parent.name, coarse_cells=cells,
                       size_um=scene.surface.size_um)
     return out
+
+
+def _stored_pair(study: str, cells: int, fine_cells: int):
+    """(the fine Measurement, its settings) of a stored :func:`finer_pair` of ``study`` at
+    ``cells`` → ``fine_cells`` that did not fail, or None: the table moved to ``cells`` reuses it."""
+    import h5py
+
+    from wavebrdf.jobs.compare import Measurement
+    from wavebrdf.solver.auto import REFERENCE
+
+    path = WORK / f"{study}_pair_{cells}_{fine_cells}.h5"
+    if not path.is_file():
+        return None
+    with h5py.File(path) as h5:
+        a = h5.attrs
+        if a["failure"] or "brdf" not in h5:
+            return None
+        fine = Measurement(REFERENCE, str(a["scene"]), float(a["wall_s"]), float(a["cpu_s"]), float(a["peak_mb"]),
+                           h5["brdf"][()])
+        return fine, str(a["settings"])
 
 
 def _write_refinement(store: Path, label: str, fine_cells: int, fine, coarse, settings: str, **extra) -> None:
@@ -370,21 +398,23 @@ def finer_pairs(configs: list[Path]) -> list[dict]:
 
 
 def fine_solve_options(options, coarse_peak_mb: float, unknowns_ratio: float,
-                       measured_at: str = "the table's spacing"):
+                       measured_at: str = "the table's spacing", local_inverses: bool = False):
     """(options, what they are) of the finer convergence solve: the table's own where the coarse
     solve's measured peak, scaled by the unknowns and the LU fill's growth, fits
     :data:`FINE_MEMORY_SHARE` of this machine's RAM; else the same operator and tolerance with the
     local inverses for the near LU (GMRES(30), ~1.1 KB per unknown): more products, no factor —
-    the solution it converges to is the same to the solver's tolerance, only the path there differs."""
+    the solution it converges to is the same to the solver's tolerance, only the path there differs.
+    ``local_inverses``: those whether or not the LU would fit."""
     from wavebrdf.solver.resources import meminfo_bytes
 
     need = coarse_peak_mb * 2**20 * unknowns_ratio * LU_FILL_GROWTH
-    if not np.isfinite(need) or need <= FINE_MEMORY_SHARE * meminfo_bytes("MemTotal"):
+    fits = not np.isfinite(need) or need <= FINE_MEMORY_SHARE * meminfo_bytes("MemTotal")
+    if fits and not local_inverses:
         return options, "the table's settings"
     aim = dataclasses.replace(options.aim, preconditioner="local", solver="gmres", restart=30, fit_memory=False)
-    return dataclasses.replace(options, aim=aim), (f"local inverses for the near LU, GMRES(30) (the LU would need "
-                                                   f"≈ {need / 2**30:.0f} GiB: {coarse_peak_mb / 1024:.1f} GiB measured "
-                                                   f"at {measured_at})")
+    why = "asked for" if fits else f"the LU would need ≈ {need / 2**30:.0f} GiB"
+    return dataclasses.replace(options, aim=aim), (f"local inverses for the near LU, GMRES(30) ({why}: "
+                                                   f"{coarse_peak_mb / 1024:.1f} GiB measured at {measured_at})")
 
 
 def scene_features(configs: list[Path], log) -> dict[str, dict]:
@@ -534,11 +564,14 @@ def main(argv=None) -> int:
     parser.add_argument("--finer-pair", nargs=2, metavar=("CONFIG", "CELLS"),
                         help="only solve one refinement beyond the table's: CONFIG's hardest scene at CELLS per side "
                              f"and at {REFINEMENT:g}× CELLS (listed under the convergence table at the next run)")
+    parser.add_argument("--local-inverses", action="store_true",
+                        help="with --finer-pair: the finer solve with local inverses and GMRES(30) even where the "
+                             "near LU fits (the LU factors slowly at ≳ 150,000 unknowns)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", stream=sys.stderr)
     log = logging.getLogger("trade").info
     if args.finer_pair:
-        log(f"wrote {finer_pair(Path(args.finer_pair[0]).resolve(), int(args.finer_pair[1]), log)}")
+        log(f"wrote {finer_pair(Path(args.finer_pair[0]).resolve(), int(args.finer_pair[1]), log, args.local_inverses)}")
         return 0
     configs = sorted(p.resolve() for p in args.configs) if args.configs else suite_configs()
     record = Record.read()

@@ -271,6 +271,23 @@ class HeightField:
         """rms of :meth:`slopes` (dimensionless)."""
         return float(np.sqrt(np.mean(self.slopes() ** 2)))
 
+    def rms_slope_below(self, scale_um: float) -> float:
+        """rms slope of the relief finer than ``scale_um`` (µm): of z minus z smoothed by a
+        Gaussian of standard deviation ``scale_um`` (a field periodic on both axes wraps, any other
+        repeats its edge nodes). At ``scale_um`` = λ it is the slope at and below the wavelength's scale, the part
+        of the roughness that couples the fields of nearby elements (dimensionless)."""
+        from scipy.ndimage import gaussian_filter
+
+        if not scale_um > 0:
+            raise ValueError(f"rms_slope_below: scale_um must be > 0, got {scale_um!r}")
+        sigma = scale_um / self.spacing_um
+        if all(self.periodic):
+            tile = self.z[:-1, :-1]
+            fine = np.pad(tile - gaussian_filter(tile, sigma=sigma, mode="wrap"), ((0, 1), (0, 1)), mode="wrap")
+        else:
+            fine = self.z - gaussian_filter(self.z, sigma=sigma, mode="nearest")
+        return HeightField(fine, self.size_um).rms_slope()
+
     def _tile(self) -> np.ndarray:
         """The nodes that are distinct points: the N×N tile when periodic, else all (N+1)²."""
         return self.z[:-1, :-1] if all(self.periodic) else self.z

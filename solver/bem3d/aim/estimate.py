@@ -210,9 +210,11 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
         product_s += 2.0 * held["preconditioner"] / SUPERLU_BYTES * COST["lu_solve_s"]
     product_s += 2.0 * local_entries * COST["local_apply_s"]
     size_waves = surface.size_um * exterior_index / wavelength_um
-    if "rms_slope" not in cache:  # the surface's, for every candidate of one fit
-        cache["rms_slope"] = surface.rms_slope()
-    iterations = _products(options, size_waves, abs(media.index), cache["rms_slope"])
+    exterior_wavelength = wavelength_um / exterior_index
+    key = ("rms_slope_below", exterior_wavelength)  # the surface's, for every candidate of one fit
+    if key not in cache:
+        cache[key] = surface.rms_slope_below(exterior_wavelength)
+    iterations = _products(options, size_waves, abs(media.index), cache[key])
     setup_s = (_near_assembly_s(stored_pairs, flat) + _grid_setup_s(n, flat) + preconditioner_s
                + continuation_s)
     seconds = setup_s + directions * iterations * product_s * COST["product_overhead"]
@@ -236,21 +238,25 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     }
 
 
-def _products(options: AIMOptions, size_waves: float, index_modulus: float, rms_slope: float) -> float:
-    """Operator products per polarization to the tolerance (:data:`COST`): with the whole near LU
-    a + b √(L/λ), ``products_tiled_ratio`` × that on tiles. Without a preconditioner (MINRES) the
-    count follows the roughness as much as the size: c (|n|/n_ref)^α (L/λ)^β e^{γ s} (s: rms
-    slope; c, n_ref, α, β, γ: the ``products_minres*`` rows); with the local inverses (GMRES),
-    ``products_local_ratio`` (L/10λ)^``products_local_size_exp`` × that."""
+def _products(options: AIMOptions, size_waves: float, index_modulus: float, fine_slope: float,
+              cost: dict = COST) -> float:
+    """Operator products per polarization to the tolerance (``cost``: :data:`COST`): with the whole
+    near LU a + b √(L/λ), ``products_tiled_ratio`` × that on tiles. Without a preconditioner (MINRES)
+    the count follows the roughness as much as the size: c (|n|/n_ref)^α (L/λ)^β e^{γ s} (s: the rms
+    slope of the relief finer than λ, ``HeightField.rms_slope_below``; c, n_ref, α, β, γ: the
+    ``products_minres*`` rows); with the local inverses (GMRES),
+    ``products_local_ratio`` (L/10λ)^``products_local_size_exp`` × that (both fitted by
+    tools/refit_product_counts.py to solver/data/aim_products.csv)."""
+    size_waves = max(size_waves, 1.0)
     if options.preconditioner == "near":
-        whole = COST["products_lu_base"] + COST["products_lu_per_sqrt_size"] * math.sqrt(size_waves)
-        return whole * (1.0 if options.preconditioner_tile_cells == 0 else COST["products_tiled_ratio"])
+        whole = cost["products_lu_base"] + cost["products_lu_per_sqrt_size"] * math.sqrt(size_waves)
+        return whole * (1.0 if options.preconditioner_tile_cells == 0 else cost["products_tiled_ratio"])
     ratio = 1.0
     if options.preconditioner == "local":  # the local inverses leave the long-range part, which grows with L/λ
-        ratio = COST["products_local_ratio"] * (max(size_waves, 1.0) / 10.0) ** COST["products_local_size_exp"]
-    return ratio * (COST["products_minres"] * (index_modulus / COST["products_minres_index_ref"])
-            ** COST["products_minres_index_exp"] * max(size_waves, 1.0) ** COST["products_minres_size_exp"]
-            * math.exp(COST["products_minres_slope_exp"] * rms_slope))
+        ratio = cost["products_local_ratio"] * (size_waves / 10.0) ** cost["products_local_size_exp"]
+    return ratio * (cost["products_minres"] * (index_modulus / cost["products_minres_index_ref"])
+                    ** cost["products_minres_index_exp"] * size_waves ** cost["products_minres_size_exp"]
+                    * math.exp(cost["products_minres_slope_exp"] * fine_slope))
 
 
 def memory_breakdown(estimate: dict) -> str:
