@@ -83,3 +83,56 @@ def test_refit_tool_runs_on_a_small_case(tmp_path):
                        "product_scale"}
     assert all(new[n]["command"].startswith("tools/refit_aim_cost.py --cells 24") for n in changed)
     assert all(float(new[n]["value"]) > 0 for n in changed)
+
+
+def _product_tool():
+    spec = importlib.util.spec_from_file_location("refit_product_counts", ROOT / "tools" / "refit_product_counts.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+PRODUCT_ROWS = ("products_minres", "products_minres_index_exp", "products_minres_size_exp",
+                "products_minres_slope_exp", "products_local_ratio", "products_local_size_exp")
+
+
+@pytest.mark.parametrize("scale_um", [0.1, 0.2])
+def test_slope_below_a_scale_of_a_sinusoid(scale_um):
+    """The product count's roughness feature against the closed form: a Gaussian of σ keeps
+    e^{-(kσ)²/2} of a sinusoid's amplitude, so the relief finer than σ has the rms slope
+    a k (1 − e^{-(kσ)²/2}) / √2 (k = 2π/P)."""
+    a, period = 0.05, 0.8
+    surface = generate("sinusoid", cells=160, size_um=4.0, amplitude_um=a, period_um=period)
+    k = 2 * math.pi / period
+    assert surface.rms_slope() == pytest.approx(a * k / math.sqrt(2), rel=5e-3)
+    expected = a * k * (1 - math.exp(-((k * scale_um) ** 2) / 2)) / math.sqrt(2)
+    assert surface.rms_slope_below(scale_um) == pytest.approx(expected, rel=1e-2)
+    assert generate("flat", cells=16, size_um=1.0).rms_slope_below(0.4) == 0.0
+    with pytest.raises(ValueError, match="scale_um must be > 0"):
+        surface.rms_slope_below(0.0)
+
+
+def test_product_rows_are_the_fit_of_the_measured_counts():
+    """aim_cost.csv's product-count constants are tools/refit_product_counts.py's least-squares fit
+    of solver/data/aim_products.csv (to the three digits the file keeps), and the estimate reads
+    them through the same feature (the relief's rms slope finer than λ)."""
+    tool = _product_tool()
+    counts = tool.measured_counts()
+    values = tool.fit(counts, fitted("aim_cost")["products_minres_index_ref"])
+    assert set(values) == set(PRODUCT_ROWS)
+    for name in PRODUCT_ROWS:
+        assert fitted("aim_cost")[name] == pytest.approx(values[name], rel=5e-3, abs=1e-3), name
+    row = next(r for r in counts if r["local"] and r["index_modulus"] == 1.5)  # glass, 160² cells, local inverses
+    surface = generate("gaussian", cells=160, size_um=5.0, seed=1, rms_height_um=0.125, correlation_um=1.25)
+    aim = {"precision": "single", "near_cells": 7, "preconditioner": "local", "restart": 30}
+    planned = estimate.estimate_aim(surface, 0.5, 1.5, waist_um=5.0 / 4.8, aim=aim)["iterations_guess"]
+    options = estimate.AIMOptions.from_mapping(aim)
+    assert planned == int(estimate._products(options, row["size_waves"], 1.5, row["fine_slope"]))
+    assert planned == pytest.approx(row["products"], rel=0.2)
+
+
+def test_product_fit_refuses_data_that_cannot_determine_it():
+    tool = _product_tool()
+    counts = [r for r in tool.measured_counts() if not r["local"]]
+    with pytest.raises(ValueError, match="do not determine the model"):
+        tool.fit(counts, 4.74)
