@@ -263,10 +263,10 @@ def _single_run(ctx, surface, lam, index, waist, resolution, aim, estimate: dict
 
 
 PLANNER_SURFACES = {  # name → (λ µm, material, generator and parameters): none is in solver/data/aim_products.csv
-    "rough-al": (0.4, "aluminium", dict(generator="gaussian", rms_height_um=0.08, correlation_um=0.7, seed=31)),
-    "brushed-glass": (0.5, "glass", dict(generator="brushed", rms_height_um=0.06, correlation_um=[1.2, 0.3],
-                                         angle_deg=45.0, seed=32)),
-    "rough-al-550": (0.55, "aluminium", dict(generator="gaussian", rms_height_um=0.12, correlation_um=1.5, seed=33)),
+    "rough-al-650": (0.65, "aluminium", dict(generator="gaussian", rms_height_um=0.1, correlation_um=0.9, seed=41)),
+    "rough-glass-450": (0.45, "glass", dict(generator="gaussian", rms_height_um=0.08, correlation_um=0.6, seed=42)),
+    "brushed-al-450": (0.45, "aluminium", dict(generator="brushed", rms_height_um=0.07, correlation_um=[1.5, 0.4],
+                                               angle_deg=0.0, seed=43)),
 }
 
 

@@ -93,7 +93,8 @@ def _product_tool():
 
 
 PRODUCT_ROWS = ("products_minres", "products_minres_index_exp", "products_minres_size_exp",
-                "products_minres_slope_exp", "products_local_ratio", "products_local_size_exp")
+                "products_minres_slope_exp", "products_minres_slope_index_exp", "products_local_ratio",
+                "products_local_size_exp")
 
 
 @pytest.mark.parametrize("scale_um", [0.1, 0.2])
