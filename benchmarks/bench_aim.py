@@ -263,10 +263,11 @@ def _single_run(ctx, surface, lam, index, waist, resolution, aim, estimate: dict
 
 
 PLANNER_SURFACES = {  # name → (λ µm, material, generator and parameters): none is in solver/data/aim_products.csv
-    "rough-al-650": (0.65, "aluminium", dict(generator="gaussian", rms_height_um=0.1, correlation_um=0.9, seed=41)),
-    "rough-glass-450": (0.45, "glass", dict(generator="gaussian", rms_height_um=0.08, correlation_um=0.6, seed=42)),
-    "brushed-al-450": (0.45, "aluminium", dict(generator="brushed", rms_height_um=0.07, correlation_um=[1.5, 0.4],
-                                               angle_deg=0.0, seed=43)),
+    "rough-al-500": (0.5, "aluminium", dict(generator="gaussian", rms_height_um=0.09, correlation_um=1.2, seed=51)),
+    "rough-al-700": (0.7, "aluminium", dict(generator="gaussian", rms_height_um=0.12, correlation_um=0.5, seed=52)),
+    "brushed-glass-600": (0.6, "glass", dict(generator="brushed", rms_height_um=0.1, correlation_um=[2.0, 0.5],
+                                             angle_deg=20.0, seed=53)),
+    "rough-gold-600": (0.6, "gold", dict(generator="gaussian", rms_height_um=0.08, correlation_um=0.8, seed=54)),
 }
 
 

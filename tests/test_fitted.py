@@ -92,7 +92,7 @@ def _product_tool():
     return module
 
 
-PRODUCT_ROWS = ("products_minres", "products_minres_index_exp", "products_minres_size_exp",
+PRODUCT_ROWS = ("products_minres", "products_minres_index_exp", "products_minres_index_exp2", "products_minres_size_exp",
                 "products_minres_slope_exp", "products_minres_slope_index_exp", "products_local_ratio",
                 "products_local_size_exp")
 

@@ -8,13 +8,14 @@ command, commit; the other rows stay as they are).
 The model (``estimate._products``), per polarization, for the unpreconditioned MINRES solve and
 the local inverses with GMRES(30) at once:
 
-    log P = log c + α log(|n| / n_ref) + β log(L/λ) + (γ + δ log(|n| / n_ref)) s
-            [+ log r + ε log(L / 10λ) with the local inverses]
+    log P = log c + α ν + α₂ ν² + β log(L/λ) + (γ + δ ν) s  [+ log r + ε log(L / 10λ) with the local inverses]
 
 s the rms slope of the relief finer than the exterior wavelength (``HeightField.rms_slope_below``:
 roughness at and below λ couples nearby elements, and slows the solve more than long, gentle
-relief of the same total slope; more on aluminium than on glass, hence δ), L/λ the patch side in exterior
-wavelengths (at least 1), |n| the modulus of the interior index; fitted by least squares in log P
+relief of the same total slope; more on aluminium than on glass, hence δ), ν = log(|n| / n_ref)
+the index contrast (|n| the modulus of the interior index: the count is not monotonic in it,
+highest near aluminium at 0.4 µm, lower for glass and for aluminium at longer wavelengths), L/λ the patch side in exterior
+wavelengths (at least 1); fitted by least squares in log P
 to the geometric mean of each row's s and p counts. A row of the data file is one measured solve:
 its surface (``generate``'s arguments as JSON), wavelength, index, the preconditioner (``kind``:
 ``minres`` or ``local``), the products of both polarizations, and the command and commit that
@@ -36,10 +37,11 @@ DATA = ROOT / "solver" / "data" / "aim_products.csv"
 INDEX_REF = "products_minres_index_ref"
 KINDS = ("minres", "local")
 MEANINGS = {
-    "products_minres": "MINRES products per polarization without a preconditioner = c (|n|/n_ref)^α (L/λ)^β "
-                       "e^((γ + δ ln(|n|/n_ref)) s) (s: rms slope of the relief finer than λ), least squares in log products over solver/data/aim_products.csv (MINRES and "
+    "products_minres": "MINRES products per polarization without a preconditioner = c e^(α ν + α₂ ν²) (L/λ)^β "
+                       "e^((γ + δ ν) s) (ν = ln(|n|/n_ref); s: rms slope of the relief finer than λ), least squares in log products over solver/data/aim_products.csv (MINRES and "
                        "local-inverse rows at once)",
     "products_minres_index_exp": "(see products_minres): α",
+    "products_minres_index_exp2": "(see products_minres): α₂",
     "products_minres_size_exp": "(see products_minres): β",
     "products_minres_slope_exp": "(see products_minres): γ",
     "products_minres_slope_index_exp": "(see products_minres): δ",
@@ -70,21 +72,24 @@ def measured_counts(path: Path = DATA) -> list[dict]:
 
 
 def fit(rows: list[dict], index_ref: float) -> dict[str, float]:
-    """The seven constants of the model (module docstring) from :func:`measured_counts` rows."""
+    """The eight constants of the model (module docstring) from :func:`measured_counts` rows."""
     local = np.array([r["local"] for r in rows], float)
     size = np.log([r["size_waves"] for r in rows])
     contrast = np.log([r["index_modulus"] / index_ref for r in rows])
     slope = np.array([r["fine_slope"] for r in rows])
-    design = np.stack([np.ones(len(rows)), contrast, size, slope, slope * contrast, local,
+    design = np.stack([np.ones(len(rows)), contrast, contrast**2, size, slope, slope * contrast, local,
                        local * (size - np.log(10.0))], axis=1)
     if not local.any() or local.all() or np.linalg.matrix_rank(design) < design.shape[1]:
         raise ValueError("the product counts do not determine the model: it needs MINRES and local rows that differ "
                          "in index, size and slope")
     coef, *_ = np.linalg.lstsq(design, np.log([r["products"] for r in rows]), rcond=None)
-    return {"products_minres": float(np.exp(coef[0])), "products_minres_index_exp": float(coef[1]),
-            "products_minres_size_exp": float(coef[2]), "products_minres_slope_exp": float(coef[3]),
-            "products_minres_slope_index_exp": float(coef[4]), "products_local_ratio": float(np.exp(coef[5])),
-            "products_local_size_exp": float(coef[6])}
+    names = ("products_minres", "products_minres_index_exp", "products_minres_index_exp2", "products_minres_size_exp",
+             "products_minres_slope_exp", "products_minres_slope_index_exp", "products_local_ratio",
+             "products_local_size_exp")
+    values = dict(zip(names, map(float, coef)))
+    for name in ("products_minres", "products_local_ratio"):  # fitted as logarithms
+        values[name] = float(np.exp(values[name]))
+    return values
 
 
 def main(argv=None) -> int:

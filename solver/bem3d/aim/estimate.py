@@ -242,9 +242,11 @@ def _products(options: AIMOptions, size_waves: float, index_modulus: float, fine
               cost: dict = COST) -> float:
     """Operator products per polarization to the tolerance (``cost``: :data:`COST`): with the whole
     near LU a + b √(L/λ), ``products_tiled_ratio`` × that on tiles. Without a preconditioner (MINRES)
-    the count follows the roughness as much as the size: c (|n|/n_ref)^α (L/λ)^β e^{(γ + δ ln(|n|/n_ref)) s}
-    (s: the rms slope of the relief finer than λ, ``HeightField.rms_slope_below``, which slows a
-    metal's solve more than a dielectric's; c, n_ref, α, β, γ, δ: the ``products_minres*`` rows); with the local inverses (GMRES),
+    the count follows the roughness as much as the size: c e^{α ν + α₂ ν²} (L/λ)^β e^{(γ + δ ν) s}
+    (ν = ln(|n|/n_ref): the count peaks near aluminium at 0.4 µm and falls toward glass and toward
+    more metallic indices; s: the rms slope of the relief finer than λ,
+    ``HeightField.rms_slope_below``, which slows a metal's solve more than a dielectric's; c,
+    n_ref, α, α₂, β, γ, δ: the ``products_minres*`` rows); with the local inverses (GMRES),
     ``products_local_ratio`` (L/10λ)^``products_local_size_exp`` × that (both fitted by
     tools/refit_product_counts.py to solver/data/aim_products.csv)."""
     size_waves = max(size_waves, 1.0)
@@ -256,7 +258,8 @@ def _products(options: AIMOptions, size_waves: float, index_modulus: float, fine
         ratio = cost["products_local_ratio"] * (size_waves / 10.0) ** cost["products_local_size_exp"]
     contrast = math.log(index_modulus / cost["products_minres_index_ref"])
     slope_exp = cost["products_minres_slope_exp"] + cost["products_minres_slope_index_exp"] * contrast
-    return ratio * (cost["products_minres"] * math.exp(cost["products_minres_index_exp"] * contrast)
+    index_term = cost["products_minres_index_exp"] * contrast + cost["products_minres_index_exp2"] * contrast**2
+    return ratio * (cost["products_minres"] * math.exp(index_term)
                     * size_waves ** cost["products_minres_size_exp"] * math.exp(slope_exp * fine_slope))
 
 
