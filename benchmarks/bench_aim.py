@@ -297,7 +297,7 @@ def cmd_planner(args, ctx):
         measured = ff.diagnostics["iterations"]
         rows.append((name, material, lam, surface.rms_slope_below(lam), planned["iterations_guess"], measured))
         spec = json.dumps({"generator": generator, "cells": args.cells, "size_um": size, **params}).replace('"', '""')
-        records.append(f'"{name}: {material}, {generator}",{kind},{lam},{index.real:.6g}{index.imag:+.6g}j,"{spec}",'
+        records.append(f'"{name}: {material}, {generator}",{kind},check,{lam},{index.real:.6g}{index.imag:+.6g}j,"{spec}",'
                        f"{measured[0]},{measured[1]},.venv/bin/python benchmarks/bench_aim.py planner,<commit>")
     print("| surface | material, λ | rms slope finer than λ | planned products | measured (s / p) | planner error (s / p) |")
     for name, material, lam, slope, planned, measured in rows:

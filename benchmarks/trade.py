@@ -52,12 +52,14 @@ FINE_MEMORY_SHARE = 0.8  # of this machine's RAM the finer solve may need with t
 LU_FILL_GROWTH = 1.3  # the near LU's fill grows with the block (docs/aim.md: 13.1 → 16.6 over 4× the unknowns)
 SWEEP = (0.01, 0.02, 0.05, 0.1, 0.2)  # tolerances of the summary table
 SUITES = {  # folder → the regime, as the tables print it
-    "al_waist0.6": "aluminium, waist 0.6 µm (≈ λ), 4 µm patch, 80² cells, λ 0.5 & 0.7 µm, θ_i 0° & 60°",
+    "al_waist0.6": "aluminium, waist 0.6 µm (≈ λ), 4 µm patch, 80² cells (the steep hemispheres 120², d = λ/15: at "
+                   "λ/10 their reference did not converge to ⅓ of 0.05), λ 0.5 & 0.7 µm, θ_i 0° & 60°",
     "al_waist2.5": "aluminium, waist 2.5 µm (5 λ at 0.5 µm: the reference simulator's), 9 µm patch, 180² cells (the spherical "
                    "pits 270², d = λ/15: at λ/10 their reference did not converge to ⅓ of 0.05), λ 0.5 µm "
                    "(the bumpy surface: 0.4 & 0.7 µm, 6.25 λ & 3.6 λ), θ_i 0° & 30° (the steep hemispheres: "
                    "0° only, one solve being ≈ 3,000 CPU-s)",
-    "glass_waist0.6": "glass (n = 1.5), waist 0.6 µm (≈ λ), 4 µm patch, 80² cells, λ 0.5 & 0.7 µm, θ_i 0° & 60° "
+    "glass_waist0.6": "glass (n = 1.5), waist 0.6 µm (≈ λ), 4 µm patch, 80² cells (the corner cubes 120², d = λ/15: "
+                      "at λ/10 their reference did not converge to ⅓ of 0.05), λ 0.5 & 0.7 µm, θ_i 0° & 60° "
                       "(the dielectric: the seven scene kinds at waist ≈ λ only)",
 }
 COLUMNS = ("suite", "config", "config_digest", "scene", "model", "wall_s", "cpu_s", "peak_mb", "albedo",
@@ -271,11 +273,13 @@ def convergence(path: Path, force: bool, log, run: bool = True, record: Record |
         with MeasuringProcess() as process:
             if _stored(path).is_file():
                 coarse = stored_measurements(_stored(path))[label, REFERENCE]
+            elif pair is not None and not force:
+                coarse = pair[1]
             else:
                 log(f"{label}: BEM at {cells}² cells (the comparison is not stored)")
                 coarse = process.measure(REFERENCE, options, scene, label)
             if pair is not None and not force:
-                m, settings = pair
+                m, _, settings = pair
                 log(f"{label}: BEM at {fine_cells}² cells from {case.name}_pair_{cells}_{fine_cells}.h5")
             else:
                 fine_options, settings = fine_solve_options(options, coarse.peak_mb, (fine_cells / cells) ** 2)
@@ -301,8 +305,9 @@ def finer_pair(path: Path, cells: int, log, local_inverses: bool = False) -> Pat
     """One refinement beyond the table's: the config's hardest scene at ``cells`` per side against
     BEM at ``REFINEMENT`` × ``cells`` (stored in ``out/trade/<study>_pair_<cells>_<fine>.h5`` and listed
     under the convergence table). The solve at ``cells`` is taken from the config's converged store
-    where that holds it (the table's own fine solve), else run. ``local_inverses``: the finer solve
-    with local inverses and GMRES(30) even where the near LU would fit (it factors slowly there)."""
+    where that holds it (the table's own fine solve), else run. ``local_inverses``: both solves run
+    here with local inverses and GMRES(30) even where the near LU would fit (it factors slowly
+    there); they converge to the same discrete solution as the LU's, to the solver's tolerance."""
     import h5py
 
     from wavebrdf.jobs.compare import MeasuringProcess, Measurement
@@ -323,10 +328,11 @@ def finer_pair(path: Path, cells: int, log, local_inverses: bool = False) -> Pat
                 if int(h5.attrs["cells"]) == cells and "brdf" in h5:
                     coarse = Measurement(REFERENCE, label, float(h5.attrs["wall_s"]), float(h5.attrs["cpu_s"]),
                                          float(h5.attrs["peak_mb"]), h5["brdf"][()])
+        fine_options, settings = fine_solve_options(options, np.nan, 1.0, f"{cells}²", local_inverses)
         if coarse is None:
-            log(f"{label}: BEM at {cells}² cells")
+            log(f"{label}: BEM at {cells}² cells, {settings}")
             at_cells = dataclasses.replace(scene, surface=refined(scene.surface, cells))
-            coarse = process.measure(REFERENCE, options, at_cells, label)
+            coarse = process.measure(REFERENCE, fine_options, at_cells, label)
         fine_options, settings = fine_solve_options(options, coarse.peak_mb, (fine_cells / cells) ** 2, f"{cells}²",
                                                     local_inverses)
         log(f"{label}: BEM at {fine_cells}² cells, {settings}")
@@ -339,8 +345,9 @@ def finer_pair(path: Path, cells: int, log, local_inverses: bool = False) -> Pat
 
 
 def _stored_pair(study: str, cells: int, fine_cells: int):
-    """(the fine Measurement, its settings) of a stored :func:`finer_pair` of ``study`` at
-    ``cells`` → ``fine_cells`` that did not fail, or None: the table moved to ``cells`` reuses it."""
+    """(the fine Measurement, the coarse one, the fine solve's settings) of a stored
+    :func:`finer_pair` of ``study`` at ``cells`` → ``fine_cells`` that did not fail, or None: the
+    table moved to ``cells`` reuses it."""
     import h5py
 
     from wavebrdf.jobs.compare import Measurement
@@ -351,11 +358,12 @@ def _stored_pair(study: str, cells: int, fine_cells: int):
         return None
     with h5py.File(path) as h5:
         a = h5.attrs
-        if a["failure"] or "brdf" not in h5:
+        if a["failure"] or "brdf" not in h5 or "coarse_brdf" not in h5:
             return None
         fine = Measurement(REFERENCE, str(a["scene"]), float(a["wall_s"]), float(a["cpu_s"]), float(a["peak_mb"]),
                            h5["brdf"][()])
-        return fine, str(a["settings"])
+        coarse = Measurement(REFERENCE, str(a["scene"]), cpu_s=float(a["coarse_cpu_s"]), brdf=h5["coarse_brdf"][()])
+        return fine, coarse, str(a["settings"])
 
 
 def _write_refinement(store: Path, label: str, fine_cells: int, fine, coarse, settings: str, **extra) -> None:
@@ -372,7 +380,8 @@ def _write_refinement(store: Path, label: str, fine_cells: int, fine, coarse, se
 
 
 def finer_pairs(configs: list[Path]) -> list[dict]:
-    """The rows of every stored :func:`finer_pair` of ``configs``: the convergence table's columns."""
+    """The rows of every stored :func:`finer_pair` of ``configs`` beyond the table's own spacing:
+    the convergence table's columns."""
     import h5py
 
     from wavebrdf.jobs.compare import Measurement, comparison_metrics
@@ -385,6 +394,8 @@ def finer_pairs(configs: list[Path]) -> list[dict]:
         for stored in sorted(WORK.glob(f"{load_config(path).cases[0].name}_pair_*.h5")):
             with h5py.File(stored) as h5:
                 a = dict(h5.attrs)
+                if int(a["coarse_cells"]) == scene.surface.cells:  # the table's own check now: in its table
+                    continue
                 row = {"suite": path.parent.name, "scene": label, "spacing_um": a["size_um"] / a["coarse_cells"],
                        "fine_spacing_um": a["size_um"] / a["cells"], "cpu_s": a["coarse_cpu_s"],
                        "fine_cpu_s": a["cpu_s"], "fine_peak_mb": a["peak_mb"], "fine_settings": a["settings"],
@@ -413,8 +424,9 @@ def fine_solve_options(options, coarse_peak_mb: float, unknowns_ratio: float,
         return options, "the table's settings"
     aim = dataclasses.replace(options.aim, preconditioner="local", solver="gmres", restart=30, fit_memory=False)
     why = "asked for" if fits else f"the LU would need ≈ {need / 2**30:.0f} GiB"
-    return dataclasses.replace(options, aim=aim), (f"local inverses for the near LU, GMRES(30) ({why}: "
-                                                   f"{coarse_peak_mb / 1024:.1f} GiB measured at {measured_at})")
+    if np.isfinite(coarse_peak_mb):
+        why += f": {coarse_peak_mb / 1024:.1f} GiB measured at {measured_at}"
+    return dataclasses.replace(options, aim=aim), f"local inverses for the near LU, GMRES(30) ({why})"
 
 
 def scene_features(configs: list[Path], log) -> dict[str, dict]:
@@ -769,7 +781,8 @@ Every rung on seven scene kinds (smooth random, rough random, brushed, shallow g
 hemispheres, corner cubes, spherical pits; at the reference simulator's waist also a bumpy random
 surface of its steering surfaces' roughness) in the regimes listed below (one suite each:
 configs/compare/trade/<suite>/*.toml), with the same footprint, output grid and normalization,
-against the full-wave reference (AIM BEM) at d = 0.05 µm (the waist-2.5 spherical pits: 0.0333 µm); each reference checked against BEM at
+against the full-wave reference (AIM BEM) at d = 0.05 µm (where that did not converge to ⅓ of 0.05: 0.0333 µm, listed
+below); each reference checked against BEM at
 {refinement:g}× the cells where that solve was run (below). Errors are the relative L2 over the lobe of the BRDF against BEM: raw, and
 speckle-averaged (both blurred by the footprint's own angular spread λ/(πw): the figure `auto`'s
 tolerance applies to), unpolarized and per incident polarization (s, p). Times are CPU seconds

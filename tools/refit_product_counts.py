@@ -18,8 +18,9 @@ highest near aluminium at 0.4 µm, lower for glass and for aluminium at longer w
 wavelengths (at least 1); fitted by least squares in log P
 to the geometric mean of each row's s and p counts. A row of the data file is one measured solve:
 its surface (``generate``'s arguments as JSON), wavelength, index, the preconditioner (``kind``:
-``minres`` or ``local``), the products of both polarizations, and the command and commit that
-measured them. Surfaces the fit has not seen are checked by ``benchmarks/bench_aim.py planner``.
+``minres`` or ``local``), its ``role`` (``fit``: fitted; ``check``: a surface the fit has not
+seen, measured by ``benchmarks/bench_aim.py planner``, whose error is printed, not fitted), the
+products of both polarizations, and the command and commit that measured them.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "solver" / "data" / "aim_products.csv"
 INDEX_REF = "products_minres_index_ref"
 KINDS = ("minres", "local")
+ROLES = ("fit", "check")
 MEANINGS = {
     "products_minres": "MINRES products per polarization without a preconditioner = c e^(α ν + α₂ ν²) (L/λ)^β "
                        "e^((γ + δ ν) s) (ν = ln(|n|/n_ref); s: rms slope of the relief finer than λ), least squares in log products over solver/data/aim_products.csv (MINRES and "
@@ -59,8 +61,9 @@ def measured_counts(path: Path = DATA) -> list[dict]:
     rows = []
     with open(path, newline="", encoding="utf-8") as fh:
         for row in csv.DictReader(fh):
-            if row["kind"] not in KINDS:
-                raise ValueError(f"{path}: {row['case']!r}: kind must be one of {KINDS}, got {row['kind']!r}")
+            for key, allowed in (("kind", KINDS), ("role", ROLES)):
+                if row[key] not in allowed:
+                    raise ValueError(f"{path}: {row['case']!r}: {key} must be one of {allowed}, got {row[key]!r}")
             spec = json.loads(row["surface"])
             surface = generate(spec.pop("generator"), **spec)
             lam = float(row["wavelength_um"])
@@ -72,7 +75,9 @@ def measured_counts(path: Path = DATA) -> list[dict]:
 
 
 def fit(rows: list[dict], index_ref: float) -> dict[str, float]:
-    """The eight constants of the model (module docstring) from :func:`measured_counts` rows."""
+    """The eight constants of the model (module docstring) from the ``fit`` rows of
+    :func:`measured_counts`."""
+    rows = [r for r in rows if r["role"] == "fit"]
     local = np.array([r["local"] for r in rows], float)
     size = np.log([r["size_waves"] for r in rows])
     contrast = np.log([r["index_modulus"] / index_ref for r in rows])
@@ -112,11 +117,11 @@ def main(argv=None) -> int:
     for name, value in values.items():
         print(f"{name} = {value:.3g}")
     cost = {**fitted("aim_cost"), **{k: float(f"{v:.3g}") for k, v in values.items()}}
-    print("| case | kind | L/λ | rms slope finer than λ | measured (s / p) | fitted | residual |")
+    print("| case | kind | role | L/λ | rms slope finer than λ | measured (s / p) | planned | error |")
     for r in rows:
         options = AIMOptions(preconditioner="local" if r["local"] else "none", solver="gmres" if r["local"] else "csym")
         predicted = _products(options, r["size_waves"], r["index_modulus"], r["fine_slope"], cost)
-        print(f"| {r['case']} | {r['kind']} | {r['size_waves']:.1f} | {r['fine_slope']:.3f} | "
+        print(f"| {r['case']} | {r['kind']} | {r['role']} | {r['size_waves']:.1f} | {r['fine_slope']:.3f} | "
               f"{r['products_s']} / {r['products_p']} | {predicted:.0f} | {predicted / r['products'] - 1:+.0%} |")
     if args.dry_run:
         return 0
