@@ -273,7 +273,8 @@ def test_auto_picks_a_vector_rung_for_polarimetry_after_a_choice_for_intensities
     the scalar rung chosen for the same scene without them (one process, two studies)."""
     import dataclasses
 
-    surface = generate("gaussian", cells=200, size_um=20.0, seed=3, rms_height_um=0.02, correlation_um=2.0)
+    # smooth enough that the rule fitted to today's trade table picks a scalar rung (ohs) for intensities
+    surface = generate("gaussian", cells=200, size_um=20.0, seed=3, rms_height_um=0.01, correlation_um=2.0)
     scene = SurfaceScene(surface=surface, wavelength_um=0.5, index=1.5 + 0j, theta_i=0.3, phi_i=0.0, waist_um=5.0,
                          grid=HemisphereGrid(64))
     auto = get_model("auto")
