@@ -274,8 +274,9 @@ class HeightField:
     def rms_slope_below(self, scale_um: float) -> float:
         """rms slope of the relief finer than ``scale_um`` (µm): of z minus z smoothed by a
         Gaussian of standard deviation ``scale_um`` (a field periodic on both axes wraps, any other
-        repeats its edge nodes). At ``scale_um`` = λ it is the slope at and below the wavelength's scale, the part
-        of the roughness that couples the fields of nearby elements (dimensionless)."""
+        repeats its edge nodes). At ``scale_um`` = λ it is the slope at and below the wavelength's
+        scale, the part of the roughness that couples the fields of nearby elements and slows the
+        full-wave solve (the planner's product count; dimensionless)."""
         from scipy.ndimage import gaussian_filter
 
         if not scale_um > 0:

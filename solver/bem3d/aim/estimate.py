@@ -243,8 +243,9 @@ def _products(options: AIMOptions, size_waves: float, index_modulus: float, fine
     """Operator products per polarization to the tolerance (``cost``: :data:`COST`): with the whole
     near LU a + b √(L/λ), ``products_tiled_ratio`` × that on tiles. Without a preconditioner (MINRES)
     the count follows the roughness as much as the size: c e^{α ν + α₂ ν²} (L/λ)^β e^{(γ + δ ν) s}
-    (ν = ln(|n|/n_ref): the count peaks near aluminium at 0.4 µm and falls toward glass and toward
-    more metallic indices; s: the rms slope of the relief finer than λ,
+    (ν = ln(|n|/n_ref): on the fitted glass and aluminium at 0.4–0.65 µm the count peaks near
+    aluminium at 0.4 µm; gold, whose plasmon couples more strongly, takes twice the count it gives,
+    docs/aim.md; s: the rms slope of the relief finer than λ,
     ``HeightField.rms_slope_below``, which slows a metal's solve more than a dielectric's; c,
     n_ref, α, α₂, β, γ, δ: the ``products_minres*`` rows); with the local inverses (GMRES),
     ``products_local_ratio`` (L/10λ)^``products_local_size_exp`` × that (both fitted by
