@@ -26,6 +26,7 @@ import json
 import math
 import os
 import resource
+import sys
 import time
 import warnings
 
@@ -281,7 +282,10 @@ def cmd_planner(args, ctx):
 
     print(load())
     aim = json.loads(args.aim)
-    kind = {"none": "minres", "local": "local"}.get(aim.get("preconditioner"))
+    run_as = AIMOptions.from_mapping(aim)  # the data file's kinds: MINRES alone, or local inverses with GMRES(30)
+    kind = {("none", "csym"): "minres", ("local", "gmres"): "local"}.get((run_as.preconditioner, run_as.solver))
+    if kind == "local" and run_as.restart != 30:
+        kind = None
     rows, records = [], []
     for name in args.surfaces:
         lam, material, params = PLANNER_SURFACES[name]
@@ -298,13 +302,13 @@ def cmd_planner(args, ctx):
         rows.append((name, material, lam, surface.rms_slope_below(lam), planned["iterations_guess"], measured))
         spec = json.dumps({"generator": generator, "cells": args.cells, "size_um": size, **params}).replace('"', '""')
         records.append(f'"{name}: {material}, {generator}",{kind},check,{lam},{index.real:.6g}{index.imag:+.6g}j,"{spec}",'
-                       f"{measured[0]},{measured[1]},.venv/bin/python benchmarks/bench_aim.py planner,<commit>")
+                       f"{measured[0]},{measured[1]},.venv/bin/python benchmarks/bench_aim.py {' '.join(sys.argv[1:])},<commit>")
     print("| surface | material, λ | rms slope finer than λ | planned products | measured (s / p) | planner error (s / p) |")
     for name, material, lam, slope, planned, measured in rows:
         errors = " / ".join(f"{planned / m - 1:+.0%}" for m in measured)
         print(f"| {name} | {material}, {lam} µm | {slope:.3f} | {planned} | {' / '.join(str(m) for m in measured)} | "
               f"{errors} |")
-    if kind is not None:
+    if kind is not None:  # <commit>: the commit of the code that ran
         print("rows of solver/data/aim_products.csv:\n" + "\n".join(records))
 
 

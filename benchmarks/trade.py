@@ -261,10 +261,10 @@ def convergence(path: Path, force: bool, log, run: bool = True, record: Record |
             stale = store.with_name(f"{store.stem}_{stored_cells}cells.h5")
             log(f"{label}: {store.name} holds a {stored_cells}² solve, not {fine_cells}²: moved to {stale.name}")
             store.rename(stale)
-    pair = _stored_pair(case.name, cells, fine_cells)
+    pair = _stored_pair(case.name, label, scene.surface, fine_cells, log)
     if not force and not store.is_file() and kept is not None:
         return {**kept, **cells_row}
-    if not run and not store.is_file() and pair is None:
+    if not run and not store.is_file() and (pair is None or force):
         return {**cells_row, "cpu_s": np.nan, "fine_cpu_s": np.nan, "failure": "not measured"}
     if force or not store.is_file():
         WORK.mkdir(parents=True, exist_ok=True)
@@ -328,6 +328,8 @@ def finer_pair(path: Path, cells: int, log, local_inverses: bool = False) -> Pat
                 if int(h5.attrs["cells"]) == cells and "brdf" in h5:
                     coarse = Measurement(REFERENCE, label, float(h5.attrs["wall_s"]), float(h5.attrs["cpu_s"]),
                                          float(h5.attrs["peak_mb"]), h5["brdf"][()])
+                    # a peak without the LU says nothing of what the LU needs: stay without it
+                    local_inverses = local_inverses or str(h5.attrs.get("settings", "")).startswith("local")
         fine_options, settings = fine_solve_options(options, np.nan, 1.0, f"{cells}²", local_inverses)
         if coarse is None:
             log(f"{label}: BEM at {cells}² cells, {settings}")
@@ -340,29 +342,42 @@ def finer_pair(path: Path, cells: int, log, local_inverses: bool = False) -> Pat
         m = process.measure(REFERENCE, fine_options, fine, label)
     WORK.mkdir(parents=True, exist_ok=True)
     _write_refinement(out, label, fine_cells, m, coarse, settings, suite=path.parent.name, coarse_cells=cells,
-                      size_um=scene.surface.size_um)
+                      size_um=scene.surface.size_um,
+                      surface_digest=surface_digest(refined(scene.surface, cells)))
     return out
 
 
-def _stored_pair(study: str, cells: int, fine_cells: int):
+def surface_digest(surface) -> str:
+    """A short hash of a height field's nodes and size: which surface a stored solve was of."""
+    import hashlib
+
+    z = np.ascontiguousarray(surface.z, dtype=np.float64)
+    return hashlib.sha256(z.tobytes() + repr(float(surface.size_um)).encode()).hexdigest()[:16]
+
+
+def _stored_pair(study: str, label: str, surface, fine_cells: int, log=None):
     """(the fine Measurement, the coarse one, the fine solve's settings) of a stored
-    :func:`finer_pair` of ``study`` at ``cells`` → ``fine_cells`` that did not fail, or None: the
-    table moved to ``cells`` reuses it."""
+    :func:`finer_pair` of ``study`` whose coarse solve was of this ``surface`` (its cells) in the
+    scene ``label``, refined to ``fine_cells``, and did not fail; else None (a pair of another
+    surface — a random realization drawn anew at other cells — is not used, and ``log`` says so)."""
     import h5py
 
     from wavebrdf.jobs.compare import Measurement
     from wavebrdf.solver.auto import REFERENCE
 
-    path = WORK / f"{study}_pair_{cells}_{fine_cells}.h5"
+    path = WORK / f"{study}_pair_{surface.cells}_{fine_cells}.h5"
     if not path.is_file():
         return None
     with h5py.File(path) as h5:
         a = h5.attrs
         if a["failure"] or "brdf" not in h5 or "coarse_brdf" not in h5:
             return None
-        fine = Measurement(REFERENCE, str(a["scene"]), float(a["wall_s"]), float(a["cpu_s"]), float(a["peak_mb"]),
-                           h5["brdf"][()])
-        coarse = Measurement(REFERENCE, str(a["scene"]), cpu_s=float(a["coarse_cpu_s"]), brdf=h5["coarse_brdf"][()])
+        if str(a["scene"]) != label or str(a.get("surface_digest", "")) != surface_digest(surface):
+            if log is not None:
+                log(f"{label}: {path.name} is of another scene or surface: not used")
+            return None
+        fine = Measurement(REFERENCE, label, float(a["wall_s"]), float(a["cpu_s"]), float(a["peak_mb"]), h5["brdf"][()])
+        coarse = Measurement(REFERENCE, label, cpu_s=float(a["coarse_cpu_s"]), brdf=h5["coarse_brdf"][()])
         return fine, coarse, str(a["settings"])
 
 
@@ -425,7 +440,7 @@ def fine_solve_options(options, coarse_peak_mb: float, unknowns_ratio: float,
     aim = dataclasses.replace(options.aim, preconditioner="local", solver="gmres", restart=30, fit_memory=False)
     why = "asked for" if fits else f"the LU would need ≈ {need / 2**30:.0f} GiB"
     if np.isfinite(coarse_peak_mb):
-        why += f": {coarse_peak_mb / 1024:.1f} GiB measured at {measured_at}"
+        why += f"; the solve at {measured_at} peaked at {coarse_peak_mb / 1024:.1f} GiB"
     return dataclasses.replace(options, aim=aim), f"local inverses for the near LU, GMRES(30) ({why})"
 
 
@@ -577,7 +592,7 @@ def main(argv=None) -> int:
                         help="only solve one refinement beyond the table's: CONFIG's hardest scene at CELLS per side "
                              f"and at {REFINEMENT:g}× CELLS (listed under the convergence table at the next run)")
     parser.add_argument("--local-inverses", action="store_true",
-                        help="with --finer-pair: the finer solve with local inverses and GMRES(30) even where the "
+                        help="with --finer-pair: both solves with local inverses and GMRES(30) even where the "
                              "near LU fits (the LU factors slowly at ≳ 150,000 unknowns)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", stream=sys.stderr)

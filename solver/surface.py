@@ -273,20 +273,24 @@ class HeightField:
 
     def rms_slope_below(self, scale_um: float) -> float:
         """rms slope of the relief finer than ``scale_um`` (µm): of z minus z smoothed by a
-        Gaussian of standard deviation ``scale_um`` (a field periodic on both axes wraps, any other
-        repeats its edge nodes). At ``scale_um`` = λ it is the slope at and below the wavelength's
+        Gaussian of standard deviation ``scale_um`` (a field periodic on both axes wraps; any other
+        has its best-fit plane removed first and repeats its edge nodes). At ``scale_um`` = λ it is the slope at and below the wavelength's
         scale, the part of the roughness that couples the fields of nearby elements and slows the
         full-wave solve (the planner's product count; dimensionless)."""
         from scipy.ndimage import gaussian_filter
 
-        if not scale_um > 0:
-            raise ValueError(f"rms_slope_below: scale_um must be > 0, got {scale_um!r}")
+        if not (np.isfinite(scale_um) and scale_um > 0):
+            raise ValueError(f"rms_slope_below: scale_um must be a finite number > 0, got {scale_um!r}")
         sigma = scale_um / self.spacing_um
         if all(self.periodic):
             tile = self.z[:-1, :-1]
             fine = np.pad(tile - gaussian_filter(tile, sigma=sigma, mode="wrap"), ((0, 1), (0, 1)), mode="wrap")
-        else:
-            fine = self.z - gaussian_filter(self.z, sigma=sigma, mode="nearest")
+        else:  # a tilt would bend at the repeated edges: take the plane out first
+            x = np.linspace(-0.5, 0.5, self.cells + 1)
+            design = np.stack([np.ones(self.z.size), np.repeat(x, x.size), np.tile(x, x.size)], axis=1)
+            plane = design @ np.linalg.lstsq(design, self.z.ravel(), rcond=None)[0]
+            z = self.z - plane.reshape(self.z.shape)
+            fine = z - gaussian_filter(z, sigma=sigma, mode="nearest")
         return HeightField(fine, self.size_um).rms_slope()
 
     def _tile(self) -> np.ndarray:

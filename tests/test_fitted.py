@@ -9,11 +9,12 @@ import math
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from wavebrdf.solver.bem3d.aim import estimate
 from wavebrdf.solver.fitted import COLUMNS, fitted, fitted_rows, write_fitted
-from wavebrdf.solver.surface import generate
+from wavebrdf.solver.surface import HeightField, generate
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -95,6 +96,7 @@ def _product_tool():
 PRODUCT_ROWS = ("products_minres", "products_minres_index_exp", "products_minres_index_exp2", "products_minres_size_exp",
                 "products_minres_slope_exp", "products_minres_slope_index_exp", "products_local_ratio",
                 "products_local_size_exp")
+RANGE_ROWS = ("products_fine_slope_max", "products_index_contrast_min", "products_index_contrast_max")
 
 
 @pytest.mark.parametrize("scale_um", [0.1, 0.2])
@@ -109,8 +111,11 @@ def test_slope_below_a_scale_of_a_sinusoid(scale_um):
     expected = a * k * (1 - math.exp(-((k * scale_um) ** 2) / 2)) / math.sqrt(2)
     assert surface.rms_slope_below(scale_um) == pytest.approx(expected, rel=1e-2)
     assert generate("flat", cells=16, size_um=1.0).rms_slope_below(0.4) == 0.0
-    with pytest.raises(ValueError, match="scale_um must be > 0"):
+    with pytest.raises(ValueError, match="scale_um must be a finite number > 0"):
         surface.rms_slope_below(0.0)
+    tilted = HeightField(0.1 * np.add.outer(np.linspace(0, 1, 33), np.zeros(33)), 1.0)  # not periodic
+    assert tilted.rms_slope() == pytest.approx(0.1, rel=1e-9)
+    assert tilted.rms_slope_below(0.2) < 1e-12
 
 
 def test_product_rows_are_the_fit_of_the_measured_counts():
@@ -119,17 +124,36 @@ def test_product_rows_are_the_fit_of_the_measured_counts():
     them through the same feature (the relief's rms slope finer than λ)."""
     tool = _product_tool()
     counts = tool.measured_counts()
-    values = tool.fit(counts, fitted("aim_cost")["products_minres_index_ref"])
-    assert set(values) == set(PRODUCT_ROWS)
-    for name in PRODUCT_ROWS:
+    index_ref = fitted("aim_cost")["products_minres_index_ref"]
+    values = {**tool.fit(counts, index_ref), **tool.fitted_ranges(counts, index_ref)}
+    assert set(values) == set(PRODUCT_ROWS + RANGE_ROWS)
+    for name in values:
         assert fitted("aim_cost")[name] == pytest.approx(values[name], rel=5e-3, abs=1e-3), name
-    row = next(r for r in counts if r["local"] and r["index_modulus"] == 1.5)  # glass, 160² cells, local inverses
+    row = next(r for r in counts if r["local"] and r["case"] == "glass, the sub-area family scaled to λ = 0.5 µm, 5 µm")
     surface = generate("gaussian", cells=160, size_um=5.0, seed=1, rms_height_um=0.125, correlation_um=1.25)
     aim = {"precision": "single", "near_cells": 7, "preconditioner": "local", "restart": 30}
     planned = estimate.estimate_aim(surface, 0.5, 1.5, waist_um=5.0 / 4.8, aim=aim)["iterations_guess"]
     options = estimate.AIMOptions.from_mapping(aim)
     assert planned == int(estimate._products(options, row["size_waves"], 1.5, row["fine_slope"]))
     assert planned == pytest.approx(row["products"], rel=0.2)
+
+
+def test_product_fit_recovers_known_constants():
+    """Counts made from chosen constants by the estimate's own formula (``_products``) over the
+    data file's surfaces and indices: the fit returns those constants."""
+    tool = _product_tool()
+    rows = [r for r in tool.measured_counts() if r["role"] == "fit"]
+    truth = {"products_minres": 60.0, "products_minres_index_exp": 0.3, "products_minres_index_exp2": -0.4,
+             "products_minres_size_exp": 0.45, "products_minres_slope_exp": 3.0, "products_minres_slope_index_exp": 1.5,
+             "products_local_ratio": 0.3, "products_local_size_exp": 0.2}
+    cost = {**fitted("aim_cost"), **truth, "products_fine_slope_max": 10.0, "products_index_contrast_min": -10.0,
+            "products_index_contrast_max": 10.0}
+    for r in rows:
+        options = estimate.AIMOptions(preconditioner="local" if r["local"] else "none",
+                                      solver="gmres" if r["local"] else "csym")
+        r["products"] = estimate._products(options, r["size_waves"], r["index_modulus"], r["fine_slope"], cost)
+    values = tool.fit(rows, cost["products_minres_index_ref"])
+    assert values == pytest.approx(truth, rel=1e-9)
 
 
 def test_product_fit_refuses_data_that_cannot_determine_it():

@@ -10,11 +10,13 @@ the local inverses with GMRES(30) at once:
 
     log P = log c + α ν + α₂ ν² + β log(L/λ) + (γ + δ ν) s  [+ log r + ε log(L / 10λ) with the local inverses]
 
-s the rms slope of the relief finer than the exterior wavelength (``HeightField.rms_slope_below``:
+s the rms slope of the relief finer than the wavelength (``HeightField.rms_slope_below``; every
+row is in air, so its wavelength is the vacuum one:
 roughness at and below λ couples nearby elements, and slows the solve more than long, gentle
 relief of the same total slope; more on aluminium than on glass, hence δ), ν = log(|n| / n_ref)
-the index contrast (|n| the modulus of the interior index: the count is not monotonic in it,
-highest near aluminium at 0.4 µm, lower for glass and for aluminium at longer wavelengths), L/λ the patch side in exterior
+the index contrast (|n| the modulus of the interior index: the count is not monotonic in it —
+at a given fine slope aluminium at 0.55–0.65 µm takes fewer products than at 0.4 µm and glass
+fewer still, gold more: docs/aim.md), L/λ the patch side in exterior
 wavelengths (at least 1); fitted by least squares in log P
 to the geometric mean of each row's s and p counts. A row of the data file is one measured solve:
 its surface (``generate``'s arguments as JSON), wavelength, index, the preconditioner (``kind``:
@@ -50,6 +52,9 @@ MEANINGS = {
     "products_local_ratio": "GMRES(30) products with the local inverses over the MINRES count at L = 10 λ: r, fitted "
                             "with products_minres",
     "products_local_size_exp": "growth of that ratio with L/λ: (L/10λ)^ε, fitted with products_minres",
+    "products_fine_slope_max": "the largest fine slope s of the fitted rows: the count is not extrapolated beyond it",
+    "products_index_contrast_min": "the smallest ν = ln(|n|/n_ref) of the fitted rows: ν is held within the range",
+    "products_index_contrast_max": "the largest ν = ln(|n|/n_ref) of the fitted rows",
 }
 
 
@@ -97,6 +102,15 @@ def fit(rows: list[dict], index_ref: float) -> dict[str, float]:
     return values
 
 
+def fitted_ranges(rows: list[dict], index_ref: float) -> dict[str, float]:
+    """The ranges of the fine slope and of ν = ln(|n|/n_ref) over the ``fit`` rows: the estimate
+    does not extrapolate its exponential and quadratic terms beyond them."""
+    rows = [r for r in rows if r["role"] == "fit"]
+    contrast = [float(np.log(r["index_modulus"] / index_ref)) for r in rows]
+    return {"products_fine_slope_max": max(r["fine_slope"] for r in rows),
+            "products_index_contrast_min": min(contrast), "products_index_contrast_max": max(contrast)}
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -113,7 +127,8 @@ def main(argv=None) -> int:
     from refit_aim_cost import commit
 
     rows = measured_counts(Path(args.data))
-    values = fit(rows, fitted("aim_cost")[INDEX_REF])
+    index_ref = fitted("aim_cost")[INDEX_REF]
+    values = {**fit(rows, index_ref), **fitted_ranges(rows, index_ref)}
     for name, value in values.items():
         print(f"{name} = {value:.3g}")
     cost = {**fitted("aim_cost"), **{k: float(f"{v:.3g}") for k, v in values.items()}}
@@ -122,7 +137,7 @@ def main(argv=None) -> int:
         options = AIMOptions(preconditioner="local" if r["local"] else "none", solver="gmres" if r["local"] else "csym")
         predicted = _products(options, r["size_waves"], r["index_modulus"], r["fine_slope"], cost)
         print(f"| {r['case']} | {r['kind']} | {r['role']} | {r['size_waves']:.1f} | {r['fine_slope']:.3f} | "
-              f"{r['products_s']} / {r['products_p']} | {predicted:.0f} | {predicted / r['products'] - 1:+.0%} |")
+              f"{r['products_s']} / {r['products_p']} | {int(predicted)} | {predicted / r['products'] - 1:+.0%} |")
     if args.dry_run:
         return 0
     command = "tools/refit_product_counts.py " + " ".join(argv if argv is not None else sys.argv[1:])

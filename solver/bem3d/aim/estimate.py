@@ -243,21 +243,25 @@ def _products(options: AIMOptions, size_waves: float, index_modulus: float, fine
     """Operator products per polarization to the tolerance (``cost``: :data:`COST`): with the whole
     near LU a + b √(L/λ), ``products_tiled_ratio`` × that on tiles. Without a preconditioner (MINRES)
     the count follows the roughness as much as the size: c e^{α ν + α₂ ν²} (L/λ)^β e^{(γ + δ ν) s}
-    (ν = ln(|n|/n_ref): on the fitted glass and aluminium at 0.4–0.65 µm the count peaks near
-    aluminium at 0.4 µm; gold, whose plasmon couples more strongly, takes twice the count it gives,
+    (ν = ln(|n|/n_ref), fitted on glass and on aluminium at 0.4–0.65 µm, where the count is not
+    monotonic in |n|; gold, whose plasmon couples more strongly, takes twice the count it gives:
     docs/aim.md; s: the rms slope of the relief finer than λ,
     ``HeightField.rms_slope_below``, which slows a metal's solve more than a dielectric's; c,
     n_ref, α, α₂, β, γ, δ: the ``products_minres*`` rows); with the local inverses (GMRES),
     ``products_local_ratio`` (L/10λ)^``products_local_size_exp`` × that (both fitted by
-    tools/refit_product_counts.py to solver/data/aim_products.csv)."""
+    tools/refit_product_counts.py to solver/data/aim_products.csv). Beyond the fitted ranges of s
+    and ν (``products_fine_slope_max``, ``products_index_contrast_min``/``_max``) the count is the
+    one at the nearest fitted value: the exponential and the quadratic are not extrapolated."""
     size_waves = max(size_waves, 1.0)
+    fine_slope = min(fine_slope, cost["products_fine_slope_max"])
     if options.preconditioner == "near":
         whole = cost["products_lu_base"] + cost["products_lu_per_sqrt_size"] * math.sqrt(size_waves)
         return whole * (1.0 if options.preconditioner_tile_cells == 0 else cost["products_tiled_ratio"])
     ratio = 1.0
     if options.preconditioner == "local":  # the local inverses leave the long-range part, which grows with L/λ
         ratio = cost["products_local_ratio"] * (size_waves / 10.0) ** cost["products_local_size_exp"]
-    contrast = math.log(index_modulus / cost["products_minres_index_ref"])
+    contrast = min(max(math.log(index_modulus / cost["products_minres_index_ref"]),
+                       cost["products_index_contrast_min"]), cost["products_index_contrast_max"])
     slope_exp = cost["products_minres_slope_exp"] + cost["products_minres_slope_index_exp"] * contrast
     index_term = cost["products_minres_index_exp"] * contrast + cost["products_minres_index_exp2"] * contrast**2
     return ratio * (cost["products_minres"] * math.exp(index_term)
