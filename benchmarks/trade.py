@@ -409,8 +409,9 @@ def finer_pairs(configs: list[Path]) -> list[dict]:
         for stored in sorted(WORK.glob(f"{load_config(path).cases[0].name}_pair_*.h5")):
             with h5py.File(stored) as h5:
                 a = dict(h5.attrs)
-                if int(a["coarse_cells"]) == scene.surface.cells:  # the table's own check now: in its table
-                    continue
+                if (int(a["coarse_cells"]) == scene.surface.cells
+                        and str(a.get("surface_digest", "")) == surface_digest(scene.surface)):
+                    continue  # the table's own check: convergence() reads it, its table lists it
                 row = {"suite": path.parent.name, "scene": label, "spacing_um": a["size_um"] / a["coarse_cells"],
                        "fine_spacing_um": a["size_um"] / a["cells"], "cpu_s": a["coarse_cpu_s"],
                        "fine_cpu_s": a["cpu_s"], "fine_peak_mb": a["peak_mb"], "fine_settings": a["settings"],
