@@ -240,7 +240,7 @@ def convergence(path: Path, force: bool, log, run: bool = True, record: Record |
     stored: the row ``record`` keeps for the config; none, and ``run`` false: "not measured"."""
     import h5py
 
-    from wavebrdf.jobs.compare import MeasuringProcess, Measurement, comparison_metrics
+    from wavebrdf.jobs.compare import MeasuringProcess
     from wavebrdf.jobs.config import load_config
     from wavebrdf.solver.auto import REFERENCE
     from wavebrdf.solver.surface import refined
@@ -261,10 +261,10 @@ def convergence(path: Path, force: bool, log, run: bool = True, record: Record |
             stale = store.with_name(f"{store.stem}_{stored_cells}cells.h5")
             log(f"{label}: {store.name} holds a {stored_cells}² solve, not {fine_cells}²: moved to {stale.name}")
             store.rename(stale)
-    pair = _stored_pair(case.name, label, scene.surface, fine_cells, log)
+    pair = None if force else _stored_pair(case.name, label, scene.surface, fine_cells, log)
     if not force and not store.is_file() and kept is not None:
         return {**kept, **cells_row}
-    if not run and not store.is_file() and (pair is None or force):
+    if not run and not store.is_file() and pair is None:
         return {**cells_row, "cpu_s": np.nan, "fine_cpu_s": np.nan, "failure": "not measured"}
     if force or not store.is_file():
         WORK.mkdir(parents=True, exist_ok=True)
@@ -273,12 +273,12 @@ def convergence(path: Path, force: bool, log, run: bool = True, record: Record |
         with MeasuringProcess() as process:
             if _stored(path).is_file():
                 coarse = stored_measurements(_stored(path))[label, REFERENCE]
-            elif pair is not None and not force:
+            elif pair is not None:
                 coarse = pair[1]
             else:
                 log(f"{label}: BEM at {cells}² cells (the comparison is not stored)")
                 coarse = process.measure(REFERENCE, options, scene, label)
-            if pair is not None and not force:
+            if pair is not None:
                 m, _, settings = pair
                 log(f"{label}: BEM at {fine_cells}² cells from {case.name}_pair_{cells}_{fine_cells}.h5")
             else:
@@ -287,18 +287,7 @@ def convergence(path: Path, force: bool, log, run: bool = True, record: Record |
                 m = process.measure(REFERENCE, fine_options, fine, label)
         _write_refinement(store, label, fine_cells, m, coarse, settings)
         log(f"{label}: converged reference {m.cpu_s:.0f} s CPU{' — ' + m.failure if m.failure else ''}")
-    with h5py.File(store) as h5:
-        fine_run = Measurement(REFERENCE, label, float(h5.attrs["wall_s"]), float(h5.attrs["cpu_s"]),
-                               float(h5.attrs["peak_mb"]), h5["brdf"][()] if "brdf" in h5 else None, {},
-                               h5.attrs["failure"] or None)
-        coarse = Measurement(REFERENCE, label, cpu_s=float(h5.attrs["coarse_cpu_s"]),
-                             brdf=h5["coarse_brdf"][()] if "coarse_brdf" in h5 else None)
-        settings = h5.attrs.get("settings", "")
-    row = {**cells_row, "cpu_s": coarse.cpu_s, "fine_cpu_s": fine_run.cpu_s, "fine_peak_mb": fine_run.peak_mb,
-           "fine_settings": settings, "failure": fine_run.failure or ""}
-    if fine_run.failure is None:
-        row.update(comparison_metrics(coarse, fine_run, scene.grid, _speckle_sigma(scene), scene.theta_i, scene.phi_i))
-    return row
+    return {**cells_row, **_refinement_row(*_read_refinement(store, label), scene)}
 
 
 def finer_pair(path: Path, cells: int, log, local_inverses: bool = False) -> Path:
@@ -308,9 +297,7 @@ def finer_pair(path: Path, cells: int, log, local_inverses: bool = False) -> Pat
     where that holds it (the table's own fine solve), else run. ``local_inverses``: both solves run
     here with local inverses and GMRES(30) even where the near LU would fit (it factors slowly
     there); they converge to the same discrete solution as the LU's, to the solver's tolerance."""
-    import h5py
-
-    from wavebrdf.jobs.compare import MeasuringProcess, Measurement
+    from wavebrdf.jobs.compare import MeasuringProcess
     from wavebrdf.jobs.config import load_config
     from wavebrdf.solver.auto import REFERENCE
     from wavebrdf.solver.surface import refined
@@ -324,12 +311,11 @@ def finer_pair(path: Path, cells: int, log, local_inverses: bool = False) -> Pat
     with MeasuringProcess() as process:
         coarse = None
         if store.is_file():
-            with h5py.File(store) as h5:
-                if int(h5.attrs["cells"]) == cells and "brdf" in h5:
-                    coarse = Measurement(REFERENCE, label, float(h5.attrs["wall_s"]), float(h5.attrs["cpu_s"]),
-                                         float(h5.attrs["peak_mb"]), h5["brdf"][()])
-                    # a peak without the LU says nothing of what the LU needs: stay without it
-                    local_inverses = local_inverses or str(h5.attrs.get("settings", "")).startswith("local")
+            stored, _, attrs = _read_refinement(store, label)
+            if int(attrs["cells"]) == cells and stored.brdf is not None:
+                coarse = stored
+                # a peak without the LU says nothing of what the LU needs: stay without it
+                local_inverses = local_inverses or str(attrs.get("settings", "")).startswith("local")
         fine_options, settings = fine_solve_options(options, np.nan, 1.0, f"{cells}²", local_inverses)
         if coarse is None:
             log(f"{label}: BEM at {cells}² cells, {settings}")
@@ -360,25 +346,17 @@ def _stored_pair(study: str, label: str, surface, fine_cells: int, log=None):
     :func:`finer_pair` of ``study`` whose coarse solve was of this ``surface`` (its cells) in the
     scene ``label``, refined to ``fine_cells``, and did not fail; else None (a pair of another
     surface — a random realization drawn anew at other cells — is not used, and ``log`` says so)."""
-    import h5py
-
-    from wavebrdf.jobs.compare import Measurement
-    from wavebrdf.solver.auto import REFERENCE
-
     path = WORK / f"{study}_pair_{surface.cells}_{fine_cells}.h5"
     if not path.is_file():
         return None
-    with h5py.File(path) as h5:
-        a = h5.attrs
-        if a["failure"] or "brdf" not in h5 or "coarse_brdf" not in h5:
-            return None
-        if str(a["scene"]) != label or str(a.get("surface_digest", "")) != surface_digest(surface):
-            if log is not None:
-                log(f"{label}: {path.name} is of another scene or surface: not used")
-            return None
-        fine = Measurement(REFERENCE, label, float(a["wall_s"]), float(a["cpu_s"]), float(a["peak_mb"]), h5["brdf"][()])
-        coarse = Measurement(REFERENCE, label, cpu_s=float(a["coarse_cpu_s"]), brdf=h5["coarse_brdf"][()])
-        return fine, coarse, str(a["settings"])
+    fine, coarse, a = _read_refinement(path, label)
+    if fine.failure or fine.brdf is None or coarse.brdf is None:
+        return None
+    if str(a["scene"]) != label or str(a.get("surface_digest", "")) != surface_digest(surface):
+        if log is not None:
+            log(f"{label}: {path.name} is of another scene or surface: not used")
+        return None
+    return fine, coarse, str(a["settings"])
 
 
 def _write_refinement(store: Path, label: str, fine_cells: int, fine, coarse, settings: str, **extra) -> None:
@@ -394,33 +372,49 @@ def _write_refinement(store: Path, label: str, fine_cells: int, fine, coarse, se
                 h5[name] = run_.brdf
 
 
+def _read_refinement(store: Path, label: str):
+    """(the fine Measurement, the coarse one, the attrs) of a :func:`_write_refinement` .h5."""
+    import h5py
+
+    from wavebrdf.jobs.compare import Measurement
+    from wavebrdf.solver.auto import REFERENCE
+
+    with h5py.File(store) as h5:
+        a = dict(h5.attrs)
+        fine = Measurement(REFERENCE, label, float(a["wall_s"]), float(a["cpu_s"]), float(a["peak_mb"]),
+                           h5["brdf"][()] if "brdf" in h5 else None, {}, a["failure"] or None)
+        coarse = Measurement(REFERENCE, label, cpu_s=float(a["coarse_cpu_s"]),
+                             brdf=h5["coarse_brdf"][()] if "coarse_brdf" in h5 else None)
+    return fine, coarse, a
+
+
+def _refinement_row(fine, coarse, attrs: dict, scene) -> dict:
+    """The convergence tables' figures of one refinement: times, settings and, unless it failed,
+    the coarse BRDF's errors with the fine one as truth."""
+    from wavebrdf.jobs.compare import comparison_metrics
+
+    row = {"cpu_s": coarse.cpu_s, "fine_cpu_s": fine.cpu_s, "fine_peak_mb": fine.peak_mb,
+           "fine_settings": attrs.get("settings", ""), "failure": fine.failure or ""}
+    if fine.failure is None:
+        row.update(comparison_metrics(coarse, fine, scene.grid, _speckle_sigma(scene), scene.theta_i, scene.phi_i))
+    return row
+
+
 def finer_pairs(configs: list[Path]) -> list[dict]:
     """The rows of every stored :func:`finer_pair` of ``configs`` beyond the table's own spacing:
     the convergence table's columns."""
-    import h5py
-
-    from wavebrdf.jobs.compare import Measurement, comparison_metrics
     from wavebrdf.jobs.config import load_config
-    from wavebrdf.solver.auto import REFERENCE
 
     rows = []
     for path in configs:
         label, scene = hardest_scene(path)
         for stored in sorted(WORK.glob(f"{load_config(path).cases[0].name}_pair_*.h5")):
-            with h5py.File(stored) as h5:
-                a = dict(h5.attrs)
-                if (int(a["coarse_cells"]) == scene.surface.cells
-                        and str(a.get("surface_digest", "")) == surface_digest(scene.surface)):
-                    continue  # the table's own check: convergence() reads it, its table lists it
-                row = {"suite": path.parent.name, "scene": label, "spacing_um": a["size_um"] / a["coarse_cells"],
-                       "fine_spacing_um": a["size_um"] / a["cells"], "cpu_s": a["coarse_cpu_s"],
-                       "fine_cpu_s": a["cpu_s"], "fine_peak_mb": a["peak_mb"], "fine_settings": a["settings"],
-                       "failure": a["failure"]}
-                if not a["failure"]:
-                    row.update(comparison_metrics(Measurement(REFERENCE, label, brdf=h5["coarse_brdf"][()]),
-                                                  Measurement(REFERENCE, label, brdf=h5["brdf"][()]), scene.grid,
-                                                  _speckle_sigma(scene), scene.theta_i, scene.phi_i))
-            rows.append(row)
+            fine, coarse, a = _read_refinement(stored, label)
+            if int(a["coarse_cells"]) == scene.surface.cells and str(a.get("surface_digest", "")) == surface_digest(
+                    scene.surface):
+                continue  # the table's own check: convergence() reads it, its table lists it
+            rows.append({"suite": path.parent.name, "scene": label, "spacing_um": a["size_um"] / a["coarse_cells"],
+                         "fine_spacing_um": a["size_um"] / a["cells"], **_refinement_row(fine, coarse, a, scene)})
     return rows
 
 
