@@ -1,13 +1,15 @@
-"""Warm starts across a sub-area's wavelengths (docs/aim.md quotes its output).
+"""Warm starts and set-up reuse across a sub-area's wavelengths (docs/aim.md quotes its output).
 
 One sub-area of the reference simulator's family (random bumps of 0.1 µm rms height, correlation
 1 µm, d = 0.025 µm, aluminium from its wvl.txt rows, exact beam of waist L/4.8) solved at
-consecutive wavelengths twice: cold (every solve from zero, ``[model.aim] warm_start = false``)
-and warm (each solve from the previous wavelength's solution, bem3d/warm_start.py). Prints per
-wavelength the products per polarization, the initial residual of the guess, the set-up,
-Krylov and total wall and CPU seconds, the warm result's BRDF relative L2 and albedo change
-against the cold one, and the CPU ratios cold/warm of the wavelengths after the first and of the
-whole sweep.
+consecutive wavelengths twice: cold (every solve from zero and every set-up whole,
+``[model.aim] warm_start = false``, ``reuse_setup = false``) and warm (each solve from the
+previous wavelength's solution, bem3d/warm_start.py, and each set-up with the static singular
+tables of the first, elements.py ``StaticTables``: a study's defaults). Prints per wavelength
+the products per polarization, the initial residual of the guess, the static tables' seconds,
+the set-up, Krylov and total wall and CPU seconds, the warm result's BRDF relative L2 and albedo
+change against the cold one, and the CPU ratios cold/warm of the wavelengths after the first
+and of the whole sweep.
 
     # the acceptance case: one ≥ 10⁵-unknown sub-area (192 cells, 4.8 µm, 146 688 unknowns),
     # settings fitted to 8 GiB, 3 wavelengths (tens of minutes on the 2-core machine)
@@ -59,18 +61,23 @@ def pair(values, spec: str) -> str:
 
 
 def sweep(ctx, surface, rows, aim: AIMOptions, waist: float, theta: float, phi: float, grid, warm: WarmStarts | None):
-    """One solve per (λ, index) row in order; per row (BRDF (2, R, R), figures)."""
+    """One solve per (λ, index) row in order, each set-up given the static tables the previous one
+    kept (with ``aim.reuse_setup``); per row (BRDF (2, R, R), figures)."""
     out = []
+    static = None
     for lam, index in rows:
         t0, c0 = time.perf_counter(), cpu_s()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", BEMWarning)
-            solver = BEMSolver(ctx, surface, lam, index, method="aim", aim=aim, warm_starts=warm)
+            solver = BEMSolver(ctx, surface, lam, index, method="aim", aim=aim, warm_starts=warm,
+                               static_tables=static)
             setup_wall, setup_cpu = time.perf_counter() - t0, cpu_s() - c0
+            static = solver.operator.static_tables
             ff = solver.farfield(theta, phi, grid, waist_um=waist)
         d = ff.diagnostics
         out.append((ff.brdf(), {
             "wavelength_um": lam, "products": d["iterations"], "initial_residual": d.get("initial_residual"),
+            "static_s": d["aim_setup"]["near_detail"]["element_static_s"],
             "setup_s": setup_wall, "setup_cpu_s": setup_cpu, "krylov_s": d["solve_s"],
             "wall_s": time.perf_counter() - t0, "cpu_s": cpu_s() - c0, "unknowns": d["unknowns"]}))
         del solver
@@ -110,19 +117,20 @@ def main():
           f"θ_i {args.theta:g}°, φ_i {args.phi:g}°; settings {json.dumps(aim.__dict__, default=str)}", flush=True)
     grid = HemisphereGrid(args.resolution)
     theta, phi = np.deg2rad(args.theta), np.deg2rad(args.phi)
-    cold = sweep(ctx, surface, rows, replace(aim, warm_start=False), waist, theta, phi, grid, None)
-    warm = sweep(ctx, surface, rows, replace(aim, warm_start=True), waist, theta, phi, grid, WarmStarts())
+    cold = sweep(ctx, surface, rows, replace(aim, warm_start=False, reuse_setup=False), waist, theta, phi, grid, None)
+    warm = sweep(ctx, surface, rows, replace(aim, warm_start=True, reuse_setup=True), waist, theta, phi, grid,
+                 WarmStarts())
     print(f"unknowns {cold[0][1]['unknowns']}")
-    header = (f"{'λ µm':>7} {'run':>5} {'products':>12} {'initial r':>16} {'set-up s':>9} {'Krylov s':>9} "
-              f"{'wall s':>8} {'CPU s':>8} {'BRDF L2 vs cold':>18} {'Δalbedo':>18}")
+    header = (f"{'λ µm':>7} {'run':>5} {'products':>12} {'initial r':>16} {'static s':>9} {'set-up s':>9} "
+              f"{'Krylov s':>9} {'wall s':>8} {'CPU s':>8} {'BRDF L2 vs cold':>18} {'Δalbedo':>18}")
     print(header)
     for (b_cold, f_cold), (b_warm, f_warm) in zip(cold, warm):
         l2 = relative_l2(b_warm, b_cold, grid)
         dalb = albedo(b_warm, grid) - albedo(b_cold, grid)
         for name, f, extra in (("cold", f_cold, ""), ("warm", f_warm, f" {pair(l2, '.1e'):>18} {pair(dalb, '+.1e'):>18}")):
             r = "-" if f["initial_residual"] is None else pair(f["initial_residual"], ".3f")
-            print(f"{f['wavelength_um']:>7.3f} {name:>5} {str(f['products']):>12} {r:>16} {f['setup_s']:>9.1f} "
-                  f"{f['krylov_s']:>9.1f} {f['wall_s']:>8.1f} {f['cpu_s']:>8.1f}{extra}")
+            print(f"{f['wavelength_um']:>7.3f} {name:>5} {str(f['products']):>12} {r:>16} {f['static_s']:>9.1f} "
+                  f"{f['setup_s']:>9.1f} {f['krylov_s']:>9.1f} {f['wall_s']:>8.1f} {f['cpu_s']:>8.1f}{extra}")
     steps_cold = sum(sum(f["products"]) for _, f in cold[1:])
     steps_warm = sum(sum(f["products"]) for _, f in warm[1:])
     cpu_cold, cpu_warm = sum(f["cpu_s"] for _, f in cold), sum(f["cpu_s"] for _, f in warm)

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Callable
 
 import numpy as np
@@ -120,10 +120,17 @@ def _run_patch(ctx, plan, task, pool, parts):
 
 
 def _estimate_model(plan, task) -> Estimate:
+    """The model's estimate of the task's scene; a patch task after its sub-area's first
+    wavelength takes the time of a solve that follows the previous one in its worker (the plan
+    orders sub-area → wavelength and the scheduler keeps a sub-area on one worker)."""
     model = plan.model_spec(task).build()
     if task.checks:  # the rung its series is expected to take (jobs/spot_checks.py)
-        return model.estimate(plan.model_scene(task), like=expectation_scene(plan, task))
-    return model.estimate(plan.model_scene(task))
+        estimate = model.estimate(plan.model_scene(task), like=expectation_scene(plan, task))
+    else:
+        estimate = model.estimate(plan.model_scene(task))
+    if task.kind == "patch" and task.wavelength > 0 and estimate.following_seconds is not None:
+        return replace(estimate, seconds=estimate.following_seconds)
+    return estimate
 
 
 def _estimate_check(plan, task) -> Estimate:

@@ -565,7 +565,9 @@ class AutoModel(Model):
         reachable = [n for n, (e, _) in choice.candidates.items()
                      if n != REFERENCE and np.isfinite(e) and e < choice.candidates.get(choice.model, (0.0,))[0]]
         others = [self.rung(n).estimate(scene) for n in (reachable if self.options.check else [])]
-        chosen = dataclasses.replace(_largest_of([chosen] + others), seconds=chosen.seconds + extra, detail=chosen.detail)
+        following = None if chosen.following_seconds is None else chosen.following_seconds + extra
+        chosen = dataclasses.replace(_largest_of([chosen] + others), seconds=chosen.seconds + extra,
+                                     following_seconds=following, detail=chosen.detail)
         avoided = "" if choice.avoided is None else (
             f"; avoids {REFERENCE} ≈ {choice.avoided.seconds:.3g} s, {choice.avoided.memory_bytes / 2**30:.2f} GiB")
         missed = "" if choice.within else f"; cannot meet tolerance {self.options.tolerance:g} within the budget"

@@ -202,6 +202,9 @@ class Estimate:
     memory_bytes: float
     seconds: float
     detail: str = ""
+    # the time when the worker has just solved the same surface at the previous wavelength (a set-up
+    # part kept, a warm start; solver/bem3d/aim/estimate.py); None: ``seconds`` then too
+    following_seconds: float | None = None
     # device side, checked by `wavebrdf plan`/`run` against the device (None: not reported)
     device_bytes: float | None = None  # device memory held at once
     largest_buffer_bytes: float | None = None  # the largest single device buffer (max allocation)

@@ -17,7 +17,9 @@ its figures (residual, iterations, times) into ``diagnostics``, ``farfield(mesh,
 theta_i=, phi_i=, incident_power=, diagnostics=)`` → FarField, and ``diagnostics()`` (set-up
 figures). :func:`bem_farfield` is the one-shot entry point of both methods. Given a
 :class:`~wavebrdf.solver.bem3d.warm_start.WarmStarts`, an AIM solve starts from the previous
-wavelength's solution of the same surface and incidence (warm_start.py).
+wavelength's solution of the same surface and incidence (warm_start.py); given the
+:class:`~wavebrdf.solver.bem3d.elements.StaticTables` of an earlier solve of the surface, its AIM
+set-up skips the static singular tables (``[model.aim] reuse_setup``).
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ from wavebrdf.solver.bem3d.aim.operator import AIMOperator
 from wavebrdf.solver.bem3d.aim.options import AIM_QUADRATURE, AIMOptions
 from wavebrdf.solver.bem3d.checks import check_material, check_resolution, check_surface_plasmons
 from wavebrdf.solver.bem3d.dense import DenseOperator
+from wavebrdf.solver.bem3d.elements import StaticTables
 from wavebrdf.solver.bem3d.excitation import BeamExcitation, SurfaceRule, beam_excitation, power_into_material
 from wavebrdf.solver.bem3d.farfield import radiated_fields
 from wavebrdf.solver.bem3d.media import Media
@@ -71,13 +74,15 @@ class BEMSolver:
     "aim" only), ``residual`` ("auto" | "copy" | "reassemble" | "none") and ``memory_limit_bytes``
     (default 85% of MemAvailable) of the dense path, ``progress`` (callable(stage, fraction)),
     ``warm_starts`` (a WarmStarts the AIM solves read their initial guess from and keep their
-    solution in, when ``aim.warm_start``; None: every solve starts from zero).
+    solution in, when ``aim.warm_start``; None: every solve starts from zero), ``static_tables``
+    (the StaticTables of an earlier AIM solve of this surface, used where they serve its geometry;
+    with ``aim.reuse_setup`` the operator keeps its own as ``operator.static_tables``).
     """
 
     def __init__(self, ctx, surface: HeightField, wavelength_um: float, index: complex, *, method: str = "dense",
                  exterior_index: float = 1.0, quadrature=None, z_reference: float | None = None, aim=None,
                  residual: str = "auto", memory_limit_bytes: float | None = None, progress=None,
-                 warm_starts: WarmStarts | None = None):
+                 warm_starts: WarmStarts | None = None, static_tables: StaticTables | None = None):
         if method not in METHODS:
             raise ValueError(f"bem method must be one of {METHODS}, got {method!r}")
         if method == "aim" and ctx is None:
@@ -112,7 +117,7 @@ class BEMSolver:
                                           memory_limit_bytes=memory_limit_bytes, progress=self.progress)
         else:
             self.operator = AIMOperator(ctx, self.mesh, self.media, self.aim, quadrature=quadrature,
-                                        progress=self.progress, clock=self.clock)
+                                        progress=self.progress, clock=self.clock, static_tables=static_tables)
         setup = self.operator.diagnostics()
         self.continuation = None
         if continued:

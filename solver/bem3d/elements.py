@@ -18,7 +18,8 @@ Quadrature (quadrature.py):
 * all other pairs: tensor Gauss–Legendre with a distance- and decay-adaptive order.
 
 Both kernels run for any list of element pairs (the dense matrix uses all of them; the AIM
-near-field correction uses a sparse list). The static tables are cached per geometry.
+near-field correction uses a sparse list). The static tables are cached per geometry
+(:class:`StaticTables`), and a patch's wavelengths may share them (``[model.aim] reuse_setup``).
 Kernels: kernels/bem_elements.cl (``bem_regular_pairs``, ``bem_singular_pairs``); NumPy twins
 :func:`regular_pairs_numpy`, :func:`singular_pairs_numpy`.
 """
@@ -51,7 +52,9 @@ __all__ = [
     "KIND_FULL",
     "KIND_REMAINDER",
     "KIND_STATIC",
+    "STATIC_BYTES_PER_ELEMENT",
     "TABLE",
+    "StaticTables",
     "green_terms",
     "regular_pairs_numpy",
     "regular_pairs_opencl",
@@ -279,19 +282,46 @@ def touching_pairs(cells: int, elements) -> tuple[np.ndarray, np.ndarray]:
 # ---------------------------------------------------------------------------------------------
 # Orchestration
 
+STATIC_BYTES_PER_ELEMENT = 9 * TABLE * 8  # the float64 static tables of an element's 9 touching pairs
+
+
+class StaticTables:
+    """The static singular tables (the G₀ = 1/(4πR) parts) of one mesh's touching element pairs at
+    one quadrature order: real (33,) rows by test element and neighbour slot, filled as pairs are
+    asked for (pages are touched only where written: at most :data:`STATIC_BYTES_PER_ELEMENT` per
+    element). They depend on the geometry alone, not on the wavelength or the material, so the
+    solves of one patch at several wavelengths can share them (:meth:`serves`)."""
+
+    def __init__(self, mesh: BEMMesh, static_order: int):
+        self.key = (mesh.digest, int(static_order))
+        slots = 9 * mesh.n_elements
+        self.values = np.empty((slots, TABLE))
+        self.known = np.zeros(slots, dtype=bool)
+
+    def serves(self, mesh: BEMMesh, static_order: int) -> bool:
+        """Whether these are the tables of ``mesh``'s geometry at ``static_order``."""
+        return self.key == (mesh.digest, int(static_order))
+
+    def bytes(self) -> int:
+        """Bytes of the rows filled so far (and their flags)."""
+        return int(np.count_nonzero(self.known)) * TABLE * 8 + self.known.nbytes
+
 
 class ElementIntegrals:
     """Tables of arbitrary element-pair lists of one mesh, with cached static singular parts.
 
-    ``ctx`` None runs the NumPy twins (reference path); otherwise the OpenCL kernels.
+    ``ctx`` None runs the NumPy twins (reference path); otherwise the OpenCL kernels. ``static``:
+    the StaticTables of an earlier solve of this geometry, used (and filled further) when they
+    serve this mesh at this static order (:meth:`StaticTables.serves`), else new ones are made.
     """
 
-    def __init__(self, mesh: BEMMesh, options: QuadratureOptions | None = None, ctx=None):
+    def __init__(self, mesh: BEMMesh, options: QuadratureOptions | None = None, ctx=None,
+                 static: StaticTables | None = None):
         self.mesh = mesh
         self.options = options or QuadratureOptions()
         self.ctx = ctx
-        self._static = None  # (n_elements · 9, 33) static tables by touching slot, filled lazily
-        self._static_known = None
+        served = static is not None and static.serves(mesh, self.options.static_order)
+        self.static = static if served else None  # made at the first touching pair otherwise
         self._scratch = None  # reused table buffer of indexed_tables(scratch=True)
         self.timings = {"static_s": 0.0, "singular_s": 0.0, "regular_s": 0.0}
         self._remainder_orders: dict = {}  # wavenumbers → [order per medium]
@@ -403,12 +433,11 @@ class ElementIntegrals:
     def static_tables(self, test, source, case, code_t, code_s) -> np.ndarray:
         """Real (P, 33) static tables of touching pairs, computed once per pair and cached
         (rows by test element and neighbour slot: lookups cost O(P) however large the cache)."""
-        if self._static is None:
-            slots = 9 * self.mesh.n_elements
-            self._static = np.empty((slots, TABLE))  # pages are touched only where written
-            self._static_known = np.zeros(slots, dtype=bool)
+        if self.static is None:
+            self.static = StaticTables(self.mesh, self.options.static_order)
+        cache = self.static
         slot = self._touching_slot(test, source)
-        missing = np.flatnonzero(~self._static_known[slot])
+        missing = np.flatnonzero(~cache.known[slot])
         if len(missing):
             t0 = time.perf_counter()
             _, first = np.unique(slot[missing], return_index=True)  # a pair listed twice: once
@@ -419,11 +448,11 @@ class ElementIntegrals:
                 values = np.empty((len(sel), TABLE))
                 self._singular(test[sel], source[sel], code_t[sel], code_s[sel], rule, (0.0, 0.0),
                                KIND_STATIC, values)
-                self._static[slot[sel]] = values
-            self._static_known[slot[missing]] = True
+                cache.values[slot[sel]] = values
+            cache.known[slot[missing]] = True
             self.timings["static_s"] += time.perf_counter() - t0
             self.counts["static"] += len(missing)
-        return self._static[slot]
+        return cache.values[slot]
 
     def release_scratch(self) -> None:
         """Free the scratch table buffer (the next scratch call allocates a new one)."""

@@ -35,6 +35,7 @@ through these.
 
 from __future__ import annotations
 
+import hashlib
 import logging
 from dataclasses import dataclass
 from functools import cached_property
@@ -101,6 +102,13 @@ class BEMMesh:
         """Corner heights minus the reference (µm), shape (N+1, N+1)."""
         ref = float(np.mean(self.surface.z)) if self.z_reference is None else float(self.z_reference)
         return self.surface.z - ref
+
+    @cached_property
+    def digest(self) -> tuple:
+        """What makes two meshes the same geometry: a hash of the heights (reference subtracted),
+        their shape and the patch size (µm)."""
+        heights = np.ascontiguousarray(self.heights, dtype=float)
+        return (hashlib.sha1(heights.tobytes()).hexdigest(), heights.shape, float(self.surface.size_um))
 
     @property
     def n_elements(self) -> int:

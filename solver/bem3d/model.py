@@ -9,7 +9,9 @@ The operator of one (surface, wavelength, material) serves every incident direct
 polarizations (the LU factors, or the AIM near-field matrix, grid spectra and preconditioner), so
 a model instance keeps the last one and reuses it while consecutive scenes share it; its AIM
 solves start from the previous wavelength's solution of the same surface and incidence
-(bem3d/warm_start.py; ``[model.aim] warm_start``). The planner orders tasks case → wavelength →
+(bem3d/warm_start.py; ``[model.aim] warm_start``), and its AIM set-up at a new wavelength of the
+same surface reuses the static singular tables of the last (``[model.aim] reuse_setup``; the
+wavelength-independent part of the set-up, docs/aim.md). The planner orders tasks case → wavelength →
 direction, and steered patches patch → wavelength → basic direction, and the scheduler keeps a
 patch on one worker, to make both the common case.
 """
@@ -70,6 +72,7 @@ class BEMModel(Model):
         self._kept: tuple | None = None  # (key, BEMSolver) of the last scene
         self._fits: dict = {}  # budget fits by scene geometry (aim/budget.py)
         self.warm_starts = WarmStarts()  # the last solutions of one surface, the next wavelength's guesses
+        self._static: tuple | None = None  # (surface digest, StaticTables) of the last AIM set-up
 
     def aim_options(self, scene: SurfaceScene) -> AIMOptions:
         """[model.aim] with the scene's precision applied when it is single, fitted to the scene's
@@ -115,14 +118,21 @@ class BEMModel(Model):
         if self._kept is None or self._kept[0] != key:
             self._kept = None  # free the previous operator before building the next one
             aim = self.aim_options(scene) if self.options.method == "aim" else None
+            surface = (*key[1:3], scene.z_reference)  # the heights the mesh gets: its tables' geometry
+            if self._static is not None and (self._static[0] != surface or aim is None or not aim.reuse_setup):
+                self._static = None  # another surface's tables go before this one's set-up
             solver = BEMSolver(ctx, scene.surface, scene.wavelength_um, scene.index, method=self.options.method,
                                exterior_index=scene.exterior_index, z_reference=scene.z_reference, aim=aim,
-                               progress=_reporter(ctx), warm_starts=self.warm_starts)
+                               progress=_reporter(ctx), warm_starts=self.warm_starts,
+                               static_tables=None if self._static is None else self._static[1])
+            kept = getattr(solver.operator, "static_tables", None)
+            self._static = None if kept is None else (surface, kept)
             self._kept = (key, solver)
         return self._kept[1]
 
     def release(self) -> None:
         self._kept = None
+        self._static = None
         self.warm_starts.clear()
 
     def check(self, scene: SurfaceScene) -> None:
@@ -152,7 +162,7 @@ class BEMModel(Model):
             chosen = "; " + ", ".join(f"{k} = {b!r}" for k, (a, b) in fit.changed.items()) if fit.changed else ""
             return Estimate(est["bytes"], est["seconds"],
                             f"aim {est['unknowns']} unknowns, ~{est['iterations_guess']} products{chosen}; "
-                            f"{memory_breakdown(est)}")
+                            f"{memory_breakdown(est)}", following_seconds=est["following_seconds"])
         from wavebrdf.solver.bem3d.dense import estimate_dense
 
         est = estimate_dense(scene.surface)

@@ -22,7 +22,6 @@ all (the oldest keys go first), stored in complex64 (a guess needs no more).
 
 from __future__ import annotations
 
-import hashlib
 from collections import OrderedDict
 from typing import NamedTuple
 
@@ -37,10 +36,10 @@ MAX_EXTRAPOLATION = 2.0  # the step to the new k₁ at most twice the last one
 
 
 def surface_key(mesh: BEMMesh, *extra) -> tuple:
-    """What makes two solves' unknowns the same currents: the mesh heights (reference height
-    subtracted), the side, and ``extra`` (exterior index, precision, ...)."""
-    heights = np.ascontiguousarray(mesh.heights, dtype=float)
-    return (hashlib.sha1(heights.tobytes()).hexdigest(), heights.shape, float(mesh.surface.size_um), *extra)
+    """What makes two solves' unknowns the same currents: the mesh geometry (``BEMMesh.digest``:
+    heights with the reference subtracted, their shape, the size) and ``extra`` (exterior index,
+    precision, ...)."""
+    return (*mesh.digest, *extra)
 
 
 def incident_phase(mesh: BEMMesh, dk: float, theta_i: float, phi_i: float) -> np.ndarray:

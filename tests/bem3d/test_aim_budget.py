@@ -7,6 +7,8 @@ themselves are compared with measured runs in docs/aim.md ("Memory and time at s
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import pytest
 
 from wavebrdf.jobs.config import load_config
@@ -123,3 +125,56 @@ def test_the_local_inverses_are_a_candidate_between_the_lu_and_none(surface):
     assert fit.fits and fit.estimate["seconds"] == pytest.approx(fastest)
     if fastest == local[1]:
         assert fit.options.preconditioner == "local" and "restart" in fit.summary()
+
+
+def test_the_static_tables_kept_between_wavelengths_are_counted_and_dropped_when_they_do_not_fit(surface):
+    """With ``reuse_setup`` the estimate holds the static tables (9 touching pairs × 33 float64 per
+    element) through the solve; every candidate comes with and without them (the same predicted
+    time), and a budget between the given settings' needs with and without them gets the fastest
+    that fits, with the tables kept unless they are what does not fit."""
+    kept = estimate_aim(surface, 0.4, AL, aim=AIMOptions())
+    dropped = estimate_aim(surface, 0.4, AL, aim=AIMOptions(reuse_setup=False))
+    assert kept["held"]["static tables"] == 9 * 33 * 8 * surface.cells**2 and dropped["held"]["static tables"] == 0
+    assert kept["bytes"] - dropped["bytes"] == pytest.approx(kept["held"]["static tables"], abs=8)
+    assert dropped["seconds"] == pytest.approx(kept["seconds"])
+    table = _estimates(surface, AIMOptions())
+    assert all(replace(o, reuse_setup=False) in [p for p, _ in table] for o, _ in table)
+    budget = 0.5 * (kept["bytes"] + dropped["bytes"])
+    fit = fit_to_budget(surface, 0.4, AL, AIMOptions(), budget)
+    assert fit.fits and fit.estimate["seconds"] == pytest.approx(min(e["seconds"] for _, e in table
+                                                                     if e["bytes"] <= budget))
+    assert fit.estimate["seconds"] <= kept["seconds"] * (1 + 1e-12)
+    # from the fastest settings, a budget they fit only without the tables: the same, without them
+    fastest = replace(fit.options, reuse_setup=True)
+    need = estimate_aim(surface, 0.4, AL, aim=fastest)["bytes"]
+    tight = need - 0.5 * kept["held"]["static tables"]
+    refit = fit_to_budget(surface, 0.4, AL, fastest, tight)
+    assert refit.fits and refit.options == replace(fastest, reuse_setup=False)
+    assert "reuse_setup True -> False" in refit.summary()
+    given_without = fit_to_budget(surface, 0.4, AL, AIMOptions(fit_memory=False), budget)
+    assert not given_without.fits  # fit_memory = false: not even the tables are dropped
+
+
+def test_a_sub_area_after_its_first_wavelength_is_planned_as_a_following_solve():
+    """A steered study's patch tasks: the first wavelength of a sub-area is planned as a whole solve,
+    the next ones (same worker, just after it) without the kept static tables (COST
+    ``static_table_s`` per element) and with warm-started products; with both off they cost the same."""
+    from wavebrdf.solver.bem3d.aim.estimate import COST
+
+    config = {**CONFIG, "surface": {**CONFIG["surface"], "size_um": 6.0, "cells": 240},
+              "illumination": {"wavelengths_um": [0.4, 0.412], "directions_deg": [[0, 0]], "waist_um": 1.0},
+              "material": {"table": [[0.4, 0.46582, 4.7119], [0.412, 0.4998, 4.8561]]},
+              "steering": {"patches": [2, 1], "patch_size_um": 4.0, "shift_um": 2.0}}
+    for aim, kept in (({}, True), ({"reuse_setup": False, "warm_start": False}, False)):
+        plan = plan_study(load_config({**config, "model": {"name": "bem", "method": "aim", "aim": aim}}))
+        patches = [t for t in plan.tasks if t.kind == "patch"]
+        assert {t.wavelength for t in patches} == {0, 1} and len(patches) == 4
+        for task in patches:
+            whole = plan.model_spec(task).build().estimate(plan.model_scene(task))
+            planned = plan.estimate(task).seconds
+            if task.wavelength == 0 or not kept:
+                assert planned == whole.seconds
+                continue
+            assert planned == whole.following_seconds
+            cells = plan.model_scene(task).surface.cells
+            assert whole.seconds - planned >= COST["static_table_s"] * cells**2 * (1 - 1e-9)

@@ -15,7 +15,7 @@ from wavebrdf.solver.bem3d.assembly import (
 )
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
-from wavebrdf.solver.bem3d.quadrature import pair_case, singular_rule
+from wavebrdf.solver.bem3d.quadrature import QuadratureOptions, pair_case, singular_rule
 from wavebrdf.solver.surface import HeightField, generate
 
 
@@ -228,3 +228,30 @@ def test_tables_of_overlapping_lists_match_a_fresh_computation(cl_ctx, curved_me
     assert np.array_equal(tables[index], fresh)
     reference = el.ElementIntegrals(curved_mesh, ctx=None).tables(second_t, second_s, ks)
     assert _rel(fresh, reference) < 1e-10
+
+
+def test_static_tables_serve_another_wavelength_of_their_geometry_and_no_other(cl_ctx, curved_mesh, rng, references):
+    """The static tables (G₀ parts) of one solve, given to the next wavelength's integrals of the
+    same geometry, are used without computing any again, and the tables there equal a fresh
+    computation exactly (and the NumPy twins); another geometry or static order gets its own."""
+    near_t, near_s = _random_pairs(curved_mesh, rng, 60, touching=True)
+    first = el.ElementIntegrals(curved_mesh, ctx=cl_ctx)
+    first.tables(near_t, near_s, _ks(references, references["al_400"]))
+    assert first.counts["static"] > 0 and first.static.bytes() > 0
+    other_k = (2 * np.pi / 0.55, 2 * np.pi / 0.55 * (0.96 - 6.69j))  # another wavelength and index
+    again = el.ElementIntegrals(curved_mesh, ctx=cl_ctx, static=first.static)
+    assert again.static is first.static
+    tables = again.tables(near_t, near_s, other_k)
+    assert again.counts["static"] == 0 and again.timings["static_s"] == 0.0
+    assert np.array_equal(tables, el.ElementIntegrals(curved_mesh, ctx=cl_ctx).tables(near_t, near_s, other_k))
+    assert _rel(tables, el.ElementIntegrals(curved_mesh, ctx=None).tables(near_t, near_s, other_k)) < 1e-10
+    # the mesh geometry is the heights minus the reference: another reference is another key
+    shifted = BEMMesh(curved_mesh.surface, z_reference=float(np.mean(curved_mesh.surface.z)) + 0.01)
+    assert not first.static.serves(shifted, first.options.static_order)
+    bumped = BEMMesh(HeightField(curved_mesh.surface.z * 1.01, curved_mesh.surface.size_um))
+    refused = el.ElementIntegrals(bumped, ctx=cl_ctx, static=first.static)
+    assert refused.static is None
+    refused.tables(near_t, near_s, other_k)
+    assert refused.counts["static"] > 0 and refused.static is not first.static
+    higher = QuadratureOptions(static_order=first.options.static_order + 1)
+    assert el.ElementIntegrals(curved_mesh, higher, ctx=cl_ctx, static=first.static).static is None

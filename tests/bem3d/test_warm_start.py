@@ -206,3 +206,71 @@ def test_warm_starts_save_products_on_a_sweep(sweeps):
             assert np.all(np.array(run[i][1]["initial_residual"]) < 0.2)
             assert sum(run[i][1]["iterations"]) < sum(cold[i][1]["iterations"])
     assert tuple(warm[2][1]["warm_start_from_um"]) == (0.4, 0.412)  # the third solve extrapolates from two
+
+
+# --- the wavelength-independent set-up: the static tables kept across a patch's wavelengths -----
+
+
+def test_a_patch_keeps_its_static_tables_for_its_next_wavelength_with_the_same_result(cl_ctx, monkeypatch):
+    """The bem model run at two wavelengths of one patch, then at another patch: the second
+    set-up computes no static singular table (it reuses the first's), the third computes its own
+    (the first patch's freed before its set-up starts), and every BRDF equals that of runs
+    computing them afresh (``reuse_setup = false``) bit for bit (cold solves: the warm start is
+    off in both)."""
+    import weakref
+
+    from wavebrdf.solver.bem3d import driver
+    from wavebrdf.solver.models import SurfaceScene, get_model
+
+    alive_at_setup = []
+    build = driver.BEMSolver.__init__
+
+    def recording(self, *args, static_tables=None, **kwargs):
+        alive_at_setup.append([ref() is not None for ref in kept_refs])
+        build(self, *args, static_tables=static_tables, **kwargs)
+
+    monkeypatch.setattr(driver.BEMSolver, "__init__", recording)
+    kept_refs: list = []
+
+    patch = generate("gaussian", cells=32, size_um=0.8, seed=1, rms_height_um=0.1, correlation_um=1.0)
+    other = generate("gaussian", cells=32, size_um=0.8, seed=2, rms_height_um=0.1, correlation_um=1.0)
+    runs = ((patch, ALUMINIUM[0]), (patch, ALUMINIUM[1]), (other, ALUMINIUM[1]))
+
+    def run(reuse: bool):
+        model = get_model("bem", {"method": "aim", "aim": {"warm_start": False, "reuse_setup": reuse}})
+        out = []
+        for surface, (lam, index) in runs:
+            scene = SurfaceScene(surface=surface, wavelength_um=lam, index=index, theta_i=0.3, phi_i=0.2,
+                                 waist_um=surface.size_um / 4.8, grid=HemisphereGrid(64))
+            with warnings.catch_warnings():  # the small patch truncates ~2 % of the beam, the same for every run
+                warnings.simplefilter("ignore")
+                ff = model.run(cl_ctx, scene)
+            out.append((ff.brdf(), ff.diagnostics["aim_setup"]))
+            if reuse:
+                kept_refs.append(weakref.ref(model.solver(cl_ctx, scene).operator.static_tables))
+        return out
+
+    kept = run(True)
+    # the first patch's tables are there for its second set-up and gone before the other patch's
+    assert alive_at_setup[:3] == [[], [True], [False, False]]
+    fresh = run(False)
+    assert [setup["static_tables_reused"] for _, setup in kept] == [False, True, False]
+    assert not any(setup["static_tables_reused"] for _, setup in fresh)
+    static_s = [setup["near_detail"]["element_static_s"] for _, setup in kept]
+    assert static_s[1] == 0.0 < min(static_s[0], static_s[2])
+    for (a, _), (b, _) in zip(kept, fresh):
+        assert np.array_equal(a, b, equal_nan=True)  # NaN outside the hemisphere
+
+
+def test_the_flat_continuation_keeps_no_tables_of_its_ring(cl_ctx):
+    """With ``edge = "flat"`` only the patch's static tables are kept for the next wavelength: the
+    continuation's ring operator frees its own after its set-up."""
+    surface = generate("gaussian", cells=24, size_um=0.6, seed=1, rms_height_um=0.02, correlation_um=0.2)
+    z = surface.z.copy()
+    z[:3], z[-3:], z[:, :3], z[:, -3:] = 0.0, 0.0, 0.0, 0.0  # a border in one plane
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        solver = BEMSolver(cl_ctx, HeightField(z, surface.size_um), 0.4, ALUMINIUM[0][1], method="aim",
+                           aim={"edge": "flat"})
+    assert solver.operator.static_tables is not None and solver.operator.static_tables.bytes() > 0
+    assert solver.continuation.ring_operator.static_tables is None

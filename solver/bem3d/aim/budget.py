@@ -10,8 +10,10 @@ projections; the accuracy cost is measured in docs/aim.md), the LU on tiles of t
 complex-symmetric MINRES "csym", six vectors), and for a lossy material whose
 interior field is still on the grid, the near radius at which it decays within the near field
 (green.py ``grid_media``: the interior then leaves the grid, halving its FFTs, spectra and
-projections for a larger near field) — and keeps the one with the shortest predicted time among
-those that fit. It says what it changed and what that costs
+projections for a larger near field), each also without the static tables a worker keeps for a
+patch's next wavelength (``reuse_setup``, 2.3 KB per element) — and keeps the one with the shortest
+predicted time among those that fit (a cold task's time, ``estimate_aim`` ``seconds``; of equal
+times, the first listed: with the tables kept). It says what it changed and what that costs
 (:meth:`BudgetFit.summary`). When nothing fits it returns the settings of the smallest need
 (``fits`` false), which the batch layer's memory check then refuses (jobs/plan.py
 ``check_memory``), naming that need. ``[model.aim] fit_memory = false`` keeps the settings as
@@ -31,7 +33,8 @@ from wavebrdf.solver.surface import HeightField
 
 __all__ = ["BudgetFit", "FITTED_KEYS", "candidate_options", "fit_to_budget", "interior_leaves_grid_cells"]
 
-FITTED_KEYS = ("precision", "near_cells", "preconditioner", "preconditioner_tile_cells", "solver", "restart")
+FITTED_KEYS = ("precision", "near_cells", "preconditioner", "preconditioner_tile_cells", "solver", "restart",
+               "reuse_setup")
 LOCAL_RESTART = 30  # GMRES restart with the local inverses: products as with 60, half the vectors (docs/aim.md)
 MIN_TILE_CELLS = 24  # smaller LU tiles barely cut the products (docs/aim.md)
 
@@ -116,6 +119,8 @@ def candidate_options(options: AIMOptions, cells: int, media: Media | None = Non
             # without a preconditioner: MINRES "csym" (six vectors; measured at 6.4·10⁵ unknowns),
             # not restarted GMRES, whose products at hundreds of iterations were never measured
             out.append(replace(base, preconditioner="none", solver="csym"))
+    if options.reuse_setup:  # each also without the static tables kept between wavelengths
+        out = [v for o in out for v in (o, replace(o, reuse_setup=False))]
     unique = []
     for o in out:
         if o not in unique:

@@ -119,7 +119,9 @@ class FlatContinuation:
         self.ctx, self.mesh, self.media, self.options = ctx, mesh, media, options
         self.ring_cells = math.ceil(options.near_cells) + 2
         self.ring_mesh = embedded_mesh(mesh, self.ring_cells)
-        self.ring_operator = AIMOperator(ctx, self.ring_mesh, media, replace(options, preconditioner="none"),
+        # the ring's static tables are not kept for another wavelength (only the patch's are)
+        self.ring_operator = AIMOperator(ctx, self.ring_mesh, media,
+                                         replace(options, preconditioner="none", reuse_setup=False),
                                          quadrature=quadrature)
         self._patch_in_ring = embedded_bases(mesh.cells, self.ring_cells)
         self._extended: dict = {}

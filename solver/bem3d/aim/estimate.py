@@ -17,10 +17,12 @@ import numpy as np
 from wavebrdf.solver.bem3d.aim.continuation import FLUX_LEFT
 from wavebrdf.solver.bem3d.aim.green import grid_media
 from wavebrdf.solver.bem3d.aim.grid import build_grid
+from wavebrdf.solver.bem3d.aim.near_assembly import RepeatingTables
 from wavebrdf.solver.bem3d.aim.nearfield import NearPattern
 from wavebrdf.solver.bem3d.aim.options import AIMOptions
 from wavebrdf.solver.bem3d.aim.preconditioner import (LOCAL_OVERLAP, PRECONDITIONER_OVERLAP, SUPERLU_BYTES,
                                                        local_inverse_entries, tiles_per_axis)
+from wavebrdf.solver.bem3d.elements import STATIC_BYTES_PER_ELEMENT
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.fitted import fitted
@@ -115,6 +117,10 @@ def _local_inverse_cost(cells: int, unknowns: int, options: AIMOptions) -> tuple
     return 8.0 * entries, per_axis**2 * COST["local_inverse_s"] * m**3, entries
 
 
+# Products of a warm-started solve over a cold one, by preconditioner (docs/aim.md, warm starts)
+WARM_PRODUCTS = {"local": COST["warm_products_local"], "near": COST["warm_products_near"],
+                 "none": COST["warm_products_none"]}
+
 # Memory the stages need besides their arrays (what each is: solver/data/aim_cost.csv)
 RUNTIME_BYTES = COST["runtime_bytes"]  # interpreter, NumPy/SciPy, OpenCL runtime and built kernels
 ASSEMBLY_BYTES = COST["assembly_bytes"]  # near-field assembly above what it keeps
@@ -132,6 +138,9 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     at a stage, ``held`` by part, plus that stage's transient, ``transient``; the set-up's
     transients come before the preconditioner; :func:`memory_breakdown` prints them), ``seconds``
     (set-up + ``directions`` × both polarizations, with ``setup_s`` and ``product_s``),
+    ``following_seconds`` (the same solve right after its patch's previous wavelength in one worker:
+    without the static tables with ``reuse_setup``, ``warm_products_*`` of the products with
+    ``warm_start``),
     ``iterations_guess`` (products per polarization) and the grid sizes. With ``edge = "flat"`` it
     adds the continuation: the ring operator and the extended mesh, whose size follows from
     ``waist_um`` (default L/2.5, a border at 1.25 w). ``resolution``: the output image side.
@@ -149,6 +158,9 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     pattern = NearPattern.build(mesh.cells, options.near_cells)
     n, n_b = mesh.n_unknowns, mesh.n_bases
     flat = bool(np.ptp(mesh.heights) == 0)
+    if "repeating" not in cache:
+        cache["repeating"] = RepeatingTables.worthwhile(mesh)
+    repeating = cache["repeating"]
     farfield_matching = options.projection == "farfield"
     groups = len(gm) if farfield_matching else 1
     real = options.precision.real.itemsize
@@ -167,6 +179,10 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
         # weights by basis and by grid point (aim.cl), inverse map, origins
         "projections": groups * 2 * 3 * S * n_b * weight + 4 * (compact + n_b * S) + 12 * n_b,
         "preconditioner": 0.0,
+        # kept for the patch's next wavelength from the near-field set-up on (elements.py); a
+        # patch whose element pairs repeat (flat, tilted, 1-D periodic) fills a few rows only
+        "static tables": STATIC_BYTES_PER_ELEMENT * mesh.n_elements if options.reuse_setup and not repeating
+        else 0.0,
     }
     preconditioner_s = local_entries = 0.0
     if options.preconditioner == "near":
@@ -217,7 +233,13 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     iterations = _products(options, size_waves, abs(media.index), cache[key])
     setup_s = (_near_assembly_s(stored_pairs, flat) + _grid_setup_s(n, flat) + preconditioner_s
                + continuation_s)
-    seconds = setup_s + directions * iterations * product_s * COST["product_overhead"]
+    krylov_s = directions * iterations * product_s * COST["product_overhead"]
+    seconds = setup_s + krylov_s
+    # the same solve right after its patch's previous wavelength in one worker: the static tables
+    # kept (a repeating patch's cost next to nothing) and the solves warm-started
+    kept_s = COST["static_table_s"] * mesh.n_elements if options.reuse_setup and not repeating else 0.0
+    warm = WARM_PRODUCTS[options.preconditioner] if options.warm_start else 1.0
+    following_seconds = setup_s - kept_s + warm * krylov_s
     return {
         "unknowns": n,
         "near_nnz": stored_pairs,
@@ -229,6 +251,7 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
         "preconditioner_bytes": int(held["preconditioner"]),
         "continuation_bytes": int(continuation),
         "seconds": float(seconds),
+        "following_seconds": float(following_seconds),
         "setup_s": float(setup_s),
         "product_s": float(product_s),
         "iterations_guess": int(iterations),

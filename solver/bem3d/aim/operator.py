@@ -32,7 +32,7 @@ from wavebrdf.solver.bem3d.aim.options import AIM_QUADRATURE, AIMOptions
 from wavebrdf.solver.bem3d.aim.preconditioner import (LocalInversePreconditioner, NearPreconditioner,
                                                        symmetric_scaling)
 from wavebrdf.solver.bem3d.aim.projection import project
-from wavebrdf.solver.bem3d.elements import ElementIntegrals
+from wavebrdf.solver.bem3d.elements import ElementIntegrals, StaticTables
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.bem3d.quadrature import QuadratureOptions
@@ -97,7 +97,11 @@ class AIMOperator:
     """Z x ≈ (B + C) x for one mesh, wavelength and material (see the module docstring)."""
 
     def __init__(self, ctx, mesh: BEMMesh, media: Media, options: AIMOptions | None = None, *,
-                 quadrature: QuadratureOptions | None = None, progress=None, clock: StageClock | None = None):
+                 quadrature: QuadratureOptions | None = None, progress=None, clock: StageClock | None = None,
+                 static_tables: StaticTables | None = None):
+        """``static_tables``: those of an earlier solve of this patch, used where they serve its
+        geometry; with ``options.reuse_setup`` the ones this operator used are kept as
+        ``self.static_tables`` (for the patch's next wavelength), else freed after the set-up."""
         t0 = time.perf_counter()
         self.clock = clock = clock or StageClock()
         self.ctx = ctx
@@ -115,11 +119,15 @@ class AIMOperator:
         precondition = options.preconditioner != "none"
         with clock("near field"):
             self.pattern = NearPattern.build(mesh.cells, options.near_cells)
-            integrals = ElementIntegrals(mesh, quadrature or AIM_QUADRATURE, ctx)  # its tables go with it
+            integrals = ElementIntegrals(mesh, quadrature or AIM_QUADRATURE, ctx, static=static_tables)
+            static_reused = integrals.static is not None
+            del static_tables
             self.near = assemble_near(ctx, mesh, media, self.pattern, groups, integrals=integrals,
                                       storage=options.near_storage, progress=progress,
                                       exact_cells=self._exact_cells(options))
-            del integrals  # its static tables go before the preconditioner and the solve
+            # kept for the next wavelength, or freed before the preconditioner and the solve
+            self.static_tables = integrals.static if options.reuse_setup else None
+            del integrals
             if ctx is not None:
                 self.near.upload(ctx)
         t3 = time.perf_counter()
@@ -140,6 +148,7 @@ class AIMOperator:
             "preconditioner_s": 0.0 if self.preconditioner is None else self.preconditioner.seconds,
             "preconditioner_fill": 0.0 if self.preconditioner is None else
             self.preconditioner.factor_nnz / self.preconditioner.nnz,
+            "static_tables_reused": static_reused,
         }
         self.setup_s = time.perf_counter() - t0
         self._grid_farfields: dict = {}
@@ -236,4 +245,5 @@ class AIMOperator:
 
     def bytes(self) -> int:
         extra = 0 if self.preconditioner is None else self.preconditioner.bytes()
-        return self.near.bytes() + self.base.bytes() + extra
+        kept = 0 if self.static_tables is None else self.static_tables.bytes()
+        return self.near.bytes() + self.base.bytes() + extra + kept

@@ -56,6 +56,10 @@ class AIMOptions:
                         surface and incidence in this worker, phase-moved and least-squares
                         scaled (bem3d/warm_start.py); false: from zero (bitwise the same result
                         whatever the task order)
+    reuse_setup         true: a worker keeps the wavelength-independent set-up of a patch (the
+                        static singular tables of its touching element pairs, 2.3 KB per element)
+                        for the patch's next wavelengths; false: each solve computes it again
+                        (the planner turns it off where the budget is tight)
     preconditioner      "near" (sparse LU of the exact entries within preconditioner_cells) |
                         "local" (the inverses of local_tile_cells tiles of the entries within local_cells, each
                         extended by one cell: ~1.15 KB per unknown at 4 cells) | "none"
@@ -96,6 +100,7 @@ class AIMOptions:
     max_iterations: int = option(3000, low=1)
     restart: int = option(60, low=1)
     warm_start: bool = option(True)
+    reuse_setup: bool = option(True)
     preconditioner: str = option("near", choices=PRECONDITIONERS)
     preconditioner_cells: float = option(2.3, low=0, low_open=True)
     preconditioner_tile_cells: int = option(0, low=0)
