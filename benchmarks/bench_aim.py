@@ -269,6 +269,11 @@ PLANNER_SURFACES = {  # name → (λ µm, material, generator and parameters): n
     "brushed-glass-600": (0.6, "glass", dict(generator="brushed", rms_height_um=0.1, correlation_um=[2.0, 0.5],
                                              angle_deg=20.0, seed=53)),
     "rough-gold-600": (0.6, "gold", dict(generator="gaussian", rms_height_um=0.08, correlation_um=0.8, seed=54)),
+    # round 4, chosen before the plasmon-binding model (commit after e3850b0) ran on them
+    "rough-al-600": (0.6, "aluminium", dict(generator="gaussian", rms_height_um=0.05, correlation_um=0.6, seed=61)),
+    "sinusoid-glass-550": (0.55, "glass", dict(generator="sinusoid", amplitude_um=0.06, period_um=0.7)),
+    "brushed-gold-650": (0.65, "gold", dict(generator="brushed", rms_height_um=0.06, correlation_um=[1.5, 0.3],
+                                            angle_deg=40.0, seed=63)),
 }
 
 

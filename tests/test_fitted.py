@@ -93,10 +93,10 @@ def _product_tool():
     return module
 
 
-PRODUCT_ROWS = ("products_minres", "products_minres_index_exp", "products_minres_index_exp2", "products_minres_size_exp",
-                "products_minres_slope_exp", "products_minres_slope_index_exp", "products_local_ratio",
-                "products_local_size_exp")
-RANGE_ROWS = ("products_fine_slope_max", "products_index_contrast_min", "products_index_contrast_max")
+PRODUCT_ROWS = ("products_minres", "products_minres_size_exp", "products_minres_slope_exp", "products_metal_slope_exp",
+                "products_plasmon_exp", "products_dielectric_ratio", "products_local_ratio", "products_local_size_exp")
+RANGE_ROWS = ("products_slope_offset", "products_fine_slope_max", "products_plasmon_binding_min",
+              "products_plasmon_binding_max")
 
 
 @pytest.mark.parametrize("scale_um", [0.1, 0.2])
@@ -124,8 +124,7 @@ def test_product_rows_are_the_fit_of_the_measured_counts():
     them through the same feature (the relief's rms slope finer than λ)."""
     tool = _product_tool()
     counts = tool.measured_counts()
-    index_ref = fitted("aim_cost")["products_minres_index_ref"]
-    values = {**tool.fit(counts, index_ref), **tool.fitted_ranges(counts, index_ref)}
+    values = {**tool.fit(counts), **tool.fitted_ranges(counts)}
     assert set(values) == set(PRODUCT_ROWS + RANGE_ROWS)
     for name in values:
         assert fitted("aim_cost")[name] == pytest.approx(values[name], rel=5e-3, abs=1e-3), name
@@ -134,7 +133,7 @@ def test_product_rows_are_the_fit_of_the_measured_counts():
     aim = {"precision": "single", "near_cells": 7, "preconditioner": "local", "restart": 30}
     planned = estimate.estimate_aim(surface, 0.5, 1.5, waist_um=5.0 / 4.8, aim=aim)["iterations_guess"]
     options = estimate.AIMOptions.from_mapping(aim)
-    assert planned == int(estimate._products(options, row["size_waves"], 1.5, row["fine_slope"]))
+    assert planned == int(estimate._products(options, row["size_waves"], 1.5 + 0j, row["fine_slope"]))
     assert planned == pytest.approx(row["products"], rel=0.2)
 
 
@@ -143,21 +142,34 @@ def test_product_fit_recovers_known_constants():
     data file's surfaces and indices: the fit returns those constants."""
     tool = _product_tool()
     rows = [r for r in tool.measured_counts() if r["role"] == "fit"]
-    truth = {"products_minres": 60.0, "products_minres_index_exp": 0.3, "products_minres_index_exp2": -0.4,
-             "products_minres_size_exp": 0.45, "products_minres_slope_exp": 3.0, "products_minres_slope_index_exp": 1.5,
+    truth = {"products_minres": 900.0, "products_minres_size_exp": 0.3, "products_minres_slope_exp": 0.5,
+             "products_metal_slope_exp": 0.1, "products_plasmon_exp": 0.25, "products_dielectric_ratio": 0.1,
              "products_local_ratio": 0.3, "products_local_size_exp": 0.2}
-    cost = {**fitted("aim_cost"), **truth, "products_fine_slope_max": 10.0, "products_index_contrast_min": -10.0,
-            "products_index_contrast_max": 10.0}
+    cost = {**fitted("aim_cost"), **truth, "products_fine_slope_max": 10.0, "products_plasmon_binding_min": -100.0,
+            "products_plasmon_binding_max": 100.0}
     for r in rows:
         options = estimate.AIMOptions(preconditioner="local" if r["local"] else "none",
                                       solver="gmres" if r["local"] else "csym")
-        r["products"] = estimate._products(options, r["size_waves"], r["index_modulus"], r["fine_slope"], cost)
-    values = tool.fit(rows, cost["products_minres_index_ref"])
+        r["products"] = estimate._products(options, r["size_waves"], r["index_complex"], r["fine_slope"], cost)
+    values = tool.fit(rows, cost["products_slope_offset"])
     assert values == pytest.approx(truth, rel=1e-9)
+
+
+def test_plasmon_binding_against_the_closed_form():
+    """b = ln(Re n_spp − 1) of the flat interface's surface plasmon, n_spp² = ε/(1+ε) (Raether,
+    *Surface Plasmons*, eq. 2.2, written out here for a lossless Drude-like ε = −9: n_spp = √(9/8)),
+    and none for a dielectric or for −1 ≤ Re ε < 0."""
+    assert estimate.plasmon_binding(3j) == pytest.approx(math.log(math.sqrt(9 / 8) - 1), rel=1e-12)
+    al = 0.46582 - 4.7119j  # aluminium at 0.4 µm: ε = −22.0 − 4.39j, weakly bound
+    eps = al**2
+    spp = complex(np.sqrt(eps / (1 + eps)))
+    assert estimate.plasmon_binding(al) == pytest.approx(math.log(spp.real - 1), rel=1e-12)
+    assert -5 < estimate.plasmon_binding(al) < estimate.plasmon_binding(3j) < -2
+    assert estimate.plasmon_binding(1.5) is None and estimate.plasmon_binding(0.5j) is None
 
 
 def test_product_fit_refuses_data_that_cannot_determine_it():
     tool = _product_tool()
     counts = [r for r in tool.measured_counts() if not r["local"]]
     with pytest.raises(ValueError, match="do not determine the model"):
-        tool.fit(counts, 4.74)
+        tool.fit(counts)

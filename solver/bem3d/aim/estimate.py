@@ -28,7 +28,7 @@ from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.fitted import fitted
 from wavebrdf.solver.surface import HeightField
 
-__all__ = ["COST", "estimate_aim", "memory_breakdown"]
+__all__ = ["COST", "estimate_aim", "memory_breakdown", "plasmon_binding"]
 
 COST = fitted("aim_cost")  # the cost model's fitted constants (solver/data/aim_cost.csv)
 
@@ -230,7 +230,7 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     key = ("rms_slope_below", exterior_wavelength)  # the surface's, for every candidate of one fit
     if key not in cache:
         cache[key] = surface.rms_slope_below(exterior_wavelength)
-    iterations = _products(options, size_waves, abs(media.index), cache[key])
+    iterations = _products(options, size_waves, complex(media.index) / exterior_index, cache[key])
     setup_s = (_near_assembly_s(stored_pairs, flat) + _grid_setup_s(n, flat) + preconditioner_s
                + continuation_s)
     krylov_s = directions * iterations * product_s * COST["product_overhead"]
@@ -261,34 +261,50 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     }
 
 
-def _products(options: AIMOptions, size_waves: float, index_modulus: float, fine_slope: float,
+def plasmon_binding(index: complex) -> float | None:
+    """b = ln(Re n_spp − 1): how tightly a flat interface of relative ``index`` (n − jκ) binds its
+    surface plasmon, n_spp = √(ε/(1 + ε)), ε = n² (the plasmon's wavenumber over the exterior
+    one); None where Re ε ≥ −1 (a dielectric: no bound plasmon)."""
+    eps = complex(index) ** 2
+    if eps.real >= -1.0:
+        return None
+    excess = (eps / (1.0 + eps)) ** 0.5
+    return math.log(max(excess.real - 1.0, 1e-12))
+
+
+def _products(options: AIMOptions, size_waves: float, index: complex, fine_slope: float,
               cost: dict = COST) -> float:
     """Operator products per polarization to the tolerance (``cost``: :data:`COST`): with the whole
     near LU a + b √(L/λ), ``products_tiled_ratio`` × that on tiles. Without a preconditioner (MINRES)
-    the count follows the roughness as much as the size: c e^{α ν + α₂ ν²} (L/λ)^β e^{(γ + δ ν) s}
-    (ν = ln(|n|/n_ref), fitted on glass and on aluminium at 0.4–0.65 µm, where the count is not
-    monotonic in |n|; gold, whose plasmon couples more strongly, takes twice the count it gives:
-    docs/aim.md; s: the rms slope of the relief finer than λ,
-    ``HeightField.rms_slope_below``, which slows a metal's solve more than a dielectric's; c,
-    n_ref, α, α₂, β, γ, δ: the ``products_minres*`` rows); with the local inverses (GMRES),
-    ``products_local_ratio`` (L/10λ)^``products_local_size_exp`` × that (both fitted by
-    tools/refit_product_counts.py to solver/data/aim_products.csv). Beyond the fitted ranges of s
-    and ν (``products_fine_slope_max``, ``products_index_contrast_min``/``_max``) the count is the
-    one at the nearest fitted value: the exponential and the quadratic are not extrapolated."""
+    the count follows the roughness as much as the size:
+
+        c (L/λ)^β (s + s₀)^γ × { e^{α b} (s + s₀)^δ   a metal (its plasmon bound: b = plasmon_binding)
+                                { g                     a dielectric
+
+    with s the rms slope of the relief finer than λ (``HeightField.rms_slope_below``: roughness at
+    and below λ couples nearby elements) and ``index`` relative to the exterior; a more tightly
+    bound plasmon takes more products (gold more than aluminium, aluminium at 0.4 µm more than at
+    0.55 µm: docs/aim.md). With the local inverses (GMRES), ``products_local_ratio``
+    (L/10λ)^``products_local_size_exp`` × that. c, β, γ, δ, α, g, the local ratio and its exponent
+    are fitted by tools/refit_product_counts.py to solver/data/aim_products.csv; s₀
+    (``products_slope_offset``) was chosen there by leave-one-out. Beyond the fitted ranges of s
+    and b (``products_fine_slope_max``, ``products_plasmon_binding_min``/``_max``) the count is the
+    one at the nearest fitted value."""
     size_waves = max(size_waves, 1.0)
-    fine_slope = min(fine_slope, cost["products_fine_slope_max"])
     if options.preconditioner == "near":
         whole = cost["products_lu_base"] + cost["products_lu_per_sqrt_size"] * math.sqrt(size_waves)
         return whole * (1.0 if options.preconditioner_tile_cells == 0 else cost["products_tiled_ratio"])
     ratio = 1.0
     if options.preconditioner == "local":  # the local inverses leave the long-range part, which grows with L/λ
         ratio = cost["products_local_ratio"] * (size_waves / 10.0) ** cost["products_local_size_exp"]
-    contrast = min(max(math.log(index_modulus / cost["products_minres_index_ref"]),
-                       cost["products_index_contrast_min"]), cost["products_index_contrast_max"])
-    slope_exp = cost["products_minres_slope_exp"] + cost["products_minres_slope_index_exp"] * contrast
-    index_term = cost["products_minres_index_exp"] * contrast + cost["products_minres_index_exp2"] * contrast**2
-    return ratio * (cost["products_minres"] * math.exp(index_term)
-                    * size_waves ** cost["products_minres_size_exp"] * math.exp(slope_exp * fine_slope))
+    roughness = min(fine_slope, cost["products_fine_slope_max"]) + cost["products_slope_offset"]
+    count = (cost["products_minres"] * size_waves ** cost["products_minres_size_exp"]
+             * roughness ** cost["products_minres_slope_exp"])
+    binding = plasmon_binding(index)
+    if binding is None:
+        return ratio * count * cost["products_dielectric_ratio"]
+    binding = min(max(binding, cost["products_plasmon_binding_min"]), cost["products_plasmon_binding_max"])
+    return ratio * count * math.exp(cost["products_plasmon_exp"] * binding) * roughness ** cost["products_metal_slope_exp"]
 
 
 def memory_breakdown(estimate: dict) -> str:
