@@ -160,12 +160,37 @@ def test_plasmon_binding_against_the_closed_form():
     *Surface Plasmons*, eq. 2.2, written out here for a lossless Drude-like ε = −9: n_spp = √(9/8)),
     and none for a dielectric or for −1 ≤ Re ε < 0."""
     assert estimate.plasmon_binding(3j) == pytest.approx(math.log(math.sqrt(9 / 8) - 1), rel=1e-12)
-    al = 0.46582 - 4.7119j  # aluminium at 0.4 µm: ε = −22.0 − 4.39j, weakly bound
-    eps = al**2
-    spp = complex(np.sqrt(eps / (1 + eps)))
-    assert estimate.plasmon_binding(al) == pytest.approx(math.log(spp.real - 1), rel=1e-12)
+    # a lossy metal, in real arithmetic: ε = (n² − κ²) − 2nκ j; w = ε/(1+ε) = a + b j;
+    # Re √w = √((|w| + a)/2) (the half-angle formula, branch-free)
+    n, kappa = 0.46582, 4.7119  # aluminium at 0.4 µm: ε = −22.0 − 4.39j, weakly bound
+    er, ei = n * n - kappa * kappa, -2 * n * kappa
+    den = (1 + er) ** 2 + ei**2
+    a, b = (er * (1 + er) + ei * ei) / den, (ei * (1 + er) - er * ei) / den
+    expected = math.log(math.sqrt((math.hypot(a, b) + a) / 2) - 1)
+    al = complex(n, -kappa)
+    assert estimate.plasmon_binding(al) == pytest.approx(expected, rel=1e-12)
+    assert estimate.plasmon_binding(al.conjugate()) == pytest.approx(expected, rel=1e-12)  # Re n_spp: either sign of κ
     assert -5 < estimate.plasmon_binding(al) < estimate.plasmon_binding(3j) < -2
     assert estimate.plasmon_binding(1.5) is None and estimate.plasmon_binding(0.5j) is None
+    assert estimate.plasmon_binding(1j) is None and estimate.plasmon_binding(1.001j) > 0  # ε = −1: unbound; just below: tight
+
+
+def test_the_count_of_a_metal_in_water_uses_the_relative_index_and_holds_the_binding():
+    """estimate_aim counts a metal's products at its index relative to the exterior, L/λ and the
+    fine slope in the exterior wavelength; an unbound plasmon (−1 ≤ Re ε < 0) gets the most
+    tightly bound fitted count, not a dielectric's."""
+    surface = generate("gaussian", cells=40, size_um=1.0, seed=2, rms_height_um=0.02, correlation_um=0.2)
+    aim = {"precision": "single", "preconditioner": "local", "restart": 30}
+    options = estimate.AIMOptions.from_mapping(aim)
+    al, water, lam = 0.46582 - 4.7119j, 1.33, 0.4
+    planned = estimate.estimate_aim(surface, lam, al, exterior_index=water, aim=aim, waist_um=0.3)["iterations_guess"]
+    inside = lam / water
+    assert planned == int(estimate._products(options, surface.size_um / inside, al / water,
+                                             surface.rms_slope_below(inside)))
+    assert planned != int(estimate._products(options, surface.size_um / inside, al, surface.rms_slope_below(inside)))
+    unbound = estimate._products(options, 10.0, 0.3 - 1.0j, 0.2)  # ε = −0.91 − 0.6j
+    assert unbound > 2 * estimate._products(options, 10.0, 1.5, 0.2)  # not glass's count
+    assert unbound == pytest.approx(estimate._products(options, 10.0, 1.0001j, 0.2), rel=1e-9)  # the tightest
 
 
 def test_product_fit_refuses_data_that_cannot_determine_it():

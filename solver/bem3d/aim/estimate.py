@@ -278,8 +278,8 @@ def _products(options: AIMOptions, size_waves: float, index: complex, fine_slope
     near LU a + b √(L/λ), ``products_tiled_ratio`` × that on tiles. Without a preconditioner (MINRES)
     the count follows the roughness as much as the size:
 
-        c (L/λ)^β (s + s₀)^γ × { e^{α b} (s + s₀)^δ   a metal (its plasmon bound: b = plasmon_binding)
-                                { g                     a dielectric
+        c (L/λ)^β (s + s₀)^γ × { e^{α b} (s + s₀)^δ   a metal, Re ε < 0 (b = plasmon_binding)
+                                { g                     a dielectric, Re ε ≥ 0
 
     with s the rms slope of the relief finer than λ (``HeightField.rms_slope_below``: roughness at
     and below λ couples nearby elements) and ``index`` relative to the exterior; a more tightly
@@ -289,7 +289,10 @@ def _products(options: AIMOptions, size_waves: float, index: complex, fine_slope
     are fitted by tools/refit_product_counts.py to solver/data/aim_products.csv; s₀
     (``products_slope_offset``) was chosen there by leave-one-out. Beyond the fitted ranges of s
     and b (``products_fine_slope_max``, ``products_plasmon_binding_min``/``_max``) the count is the
-    one at the nearest fitted value."""
+    one at the nearest fitted value; a metal whose plasmon is not bound (−1 ≤ Re ε < 0) takes the
+    most tightly bound one's. Not held: L/λ (the local rows' growth with it rests on one row at
+    L/λ = 30) and a dielectric's index (only n = 1.5 was measured: any dielectric gets glass's
+    count)."""
     size_waves = max(size_waves, 1.0)
     if options.preconditioner == "near":
         whole = cost["products_lu_base"] + cost["products_lu_per_sqrt_size"] * math.sqrt(size_waves)
@@ -300,9 +303,10 @@ def _products(options: AIMOptions, size_waves: float, index: complex, fine_slope
     roughness = min(fine_slope, cost["products_fine_slope_max"]) + cost["products_slope_offset"]
     count = (cost["products_minres"] * size_waves ** cost["products_minres_size_exp"]
              * roughness ** cost["products_minres_slope_exp"])
-    binding = plasmon_binding(index)
-    if binding is None:
+    if (complex(index) ** 2).real >= 0.0:
         return ratio * count * cost["products_dielectric_ratio"]
+    binding = plasmon_binding(index)  # None for −1 ≤ Re ε < 0, near the plasmon resonance: the tightest fitted
+    binding = cost["products_plasmon_binding_max"] if binding is None else binding
     binding = min(max(binding, cost["products_plasmon_binding_min"]), cost["products_plasmon_binding_max"])
     return ratio * count * math.exp(cost["products_plasmon_exp"] * binding) * roughness ** cost["products_metal_slope_exp"]
 
