@@ -72,8 +72,8 @@ MEANINGS = {
 
 
 def measured_counts(path: Path = DATA) -> list[dict]:
-    """The data file's rows with their features: ``index_complex`` (n − jκ, in air), ``index_modulus``,
-    ``size_waves``, ``fine_slope``, ``local`` (bool) and ``products`` (the geometric mean of s and p)."""
+    """The data file's rows with their features: ``index_complex`` (n − jκ, in air), ``size_waves``,
+    ``fine_slope``, ``local`` (bool) and ``products`` (the geometric mean of s and p)."""
     from wavebrdf.solver.surface import generate
 
     rows = []
@@ -86,7 +86,7 @@ def measured_counts(path: Path = DATA) -> list[dict]:
             surface = generate(spec.pop("generator"), **spec)
             lam = float(row["wavelength_um"])
             index = complex(row["index"].replace(" ", ""))
-            rows.append({**row, "index_modulus": abs(index), "index_complex": index,
+            rows.append({**row, "index_complex": index,
                          "size_waves": max(surface.size_um / lam, 1.0), "fine_slope": surface.rms_slope_below(lam),
                          "local": row["kind"] == "local",
                          "products": float(np.sqrt(float(row["products_s"]) * float(row["products_p"])))})
@@ -95,12 +95,12 @@ def measured_counts(path: Path = DATA) -> list[dict]:
 
 def _design(rows: list[dict], slope_offset: float) -> np.ndarray:
     """The least-squares design of the model (module docstring), one row per measured solve."""
-    from wavebrdf.solver.bem3d.aim.estimate import plasmon_binding
+    from wavebrdf.solver.bem3d.aim.estimate import metallic, plasmon_binding
 
     local = np.array([r["local"] for r in rows], float)
     size = np.log([r["size_waves"] for r in rows])
     slope = np.log([r["fine_slope"] + slope_offset for r in rows])
-    metal = np.array([(r["index_complex"] ** 2).real < 0.0 for r in rows], float)
+    metal = np.array([metallic(r["index_complex"]) for r in rows], float)
     binding = [plasmon_binding(r["index_complex"]) for r in rows]
     if any(m and v is None for m, v in zip(metal, binding)):
         raise ValueError("a metal row whose surface plasmon is not bound (−1 ≤ Re ε < 0): the model has no binding "

@@ -28,7 +28,7 @@ from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.fitted import fitted
 from wavebrdf.solver.surface import HeightField
 
-__all__ = ["COST", "estimate_aim", "memory_breakdown", "plasmon_binding"]
+__all__ = ["COST", "estimate_aim", "memory_breakdown", "metallic", "plasmon_binding"]
 
 COST = fitted("aim_cost")  # the cost model's fitted constants (solver/data/aim_cost.csv)
 
@@ -160,7 +160,9 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     flat = bool(np.ptp(mesh.heights) == 0)
     if "repeating" not in cache:
         cache["repeating"] = RepeatingTables.worthwhile(mesh)
-    repeating = cache["repeating"]
+    # the static tables kept for the patch's next wavelength (elements.py); a patch whose element
+    # pairs repeat (flat, tilted, 1-D periodic) fills a few rows only, at next to no cost
+    keeps_tables = options.reuse_setup and not cache["repeating"]
     farfield_matching = options.projection == "farfield"
     groups = len(gm) if farfield_matching else 1
     real = options.precision.real.itemsize
@@ -179,10 +181,7 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
         # weights by basis and by grid point (aim.cl), inverse map, origins
         "projections": groups * 2 * 3 * S * n_b * weight + 4 * (compact + n_b * S) + 12 * n_b,
         "preconditioner": 0.0,
-        # kept for the patch's next wavelength from the near-field set-up on (elements.py); a
-        # patch whose element pairs repeat (flat, tilted, 1-D periodic) fills a few rows only
-        "static tables": STATIC_BYTES_PER_ELEMENT * mesh.n_elements if options.reuse_setup and not repeating
-        else 0.0,
+        "static tables": STATIC_BYTES_PER_ELEMENT * mesh.n_elements if keeps_tables else 0.0,  # from the near field on
     }
     preconditioner_s = local_entries = 0.0
     if options.preconditioner == "near":
@@ -236,8 +235,8 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     krylov_s = directions * iterations * product_s * COST["product_overhead"]
     seconds = setup_s + krylov_s
     # the same solve right after its patch's previous wavelength in one worker: the static tables
-    # kept (a repeating patch's cost next to nothing) and the solves warm-started
-    kept_s = COST["static_table_s"] * mesh.n_elements if options.reuse_setup and not repeating else 0.0
+    # kept and the solves warm-started
+    kept_s = COST["static_table_s"] * mesh.n_elements if keeps_tables else 0.0
     warm = WARM_PRODUCTS[options.preconditioner] if options.warm_start else 1.0
     following_seconds = setup_s - kept_s + warm * krylov_s
     return {
@@ -259,6 +258,11 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
         "fft": grid.padded,
         "grid_media": gm,
     }
+
+
+def metallic(index: complex) -> bool:
+    """Whether a material of relative ``index`` (n − jκ) counts as a metal in the product count: Re ε < 0."""
+    return (complex(index) ** 2).real < 0.0
 
 
 def plasmon_binding(index: complex) -> float | None:
@@ -303,12 +307,13 @@ def _products(options: AIMOptions, size_waves: float, index: complex, fine_slope
     roughness = min(fine_slope, cost["products_fine_slope_max"]) + cost["products_slope_offset"]
     count = (cost["products_minres"] * size_waves ** cost["products_minres_size_exp"]
              * roughness ** cost["products_minres_slope_exp"])
-    if (complex(index) ** 2).real >= 0.0:
+    if not metallic(index):
         return ratio * count * cost["products_dielectric_ratio"]
     binding = plasmon_binding(index)  # None for −1 ≤ Re ε < 0, near the plasmon resonance: the tightest fitted
     binding = cost["products_plasmon_binding_max"] if binding is None else binding
     binding = min(max(binding, cost["products_plasmon_binding_min"]), cost["products_plasmon_binding_max"])
-    return ratio * count * math.exp(cost["products_plasmon_exp"] * binding) * roughness ** cost["products_metal_slope_exp"]
+    metal = math.exp(cost["products_plasmon_exp"] * binding) * roughness ** cost["products_metal_slope_exp"]
+    return ratio * count * metal
 
 
 def memory_breakdown(estimate: dict) -> str:

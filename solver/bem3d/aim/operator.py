@@ -121,7 +121,6 @@ class AIMOperator:
             self.pattern = NearPattern.build(mesh.cells, options.near_cells)
             integrals = ElementIntegrals(mesh, quadrature or AIM_QUADRATURE, ctx, static=static_tables)
             static_reused = integrals.static is not None
-            del static_tables
             self.near = assemble_near(ctx, mesh, media, self.pattern, groups, integrals=integrals,
                                       storage=options.near_storage, progress=progress,
                                       exact_cells=self._exact_cells(options))
