@@ -276,8 +276,8 @@ PLANNER_SURFACES = {  # name → (λ µm, material, generator and parameters): n
                                             angle_deg=40.0, seed=63)),
     # round 5, chosen before the refit that adds round 4's rows ran on them
     "rough-copper-650": (0.65, "copper", dict(generator="gaussian", rms_height_um=0.07, correlation_um=0.8, seed=71)),
-    "brushed-al-450": (0.45, "aluminium", dict(generator="brushed", rms_height_um=0.06, correlation_um=[1.2, 0.4],
-                                               angle_deg=60.0, seed=72)),
+    "brushed-al-450-60deg": (0.45, "aluminium", dict(generator="brushed", rms_height_um=0.06,
+                                                     correlation_um=[1.2, 0.4], angle_deg=60.0, seed=72)),
     "rough-glass-500": (0.5, "glass", dict(generator="gaussian", rms_height_um=0.08, correlation_um=0.6, seed=73)),
 }
 
