@@ -314,9 +314,11 @@ class ExactGaussianBeam(_GaussianBeam):
         norm = self.plane_waves["norm"]
         return E / norm, H / norm
 
-    def fields(self, points, chunk: int = 4096, interface_index: complex | None = None):
+    def fields(self, points, chunk: int = 4096, interface_index: complex | None = None,
+               weights: np.ndarray | None = None):
         """E, H (2, ..., 3) at ``points``; with ``interface_index``, the total field above the flat
-        interface z = 0 with that material below: the beam plus its Fresnel reflection."""
+        interface z = 0 with that material below: the beam plus its Fresnel reflection. ``weights``
+        (M,) scales each plane wave of ``plane_waves`` (and its reflection) before the sum."""
         waves = [(self.plane_waves, self.focus_um)]
         if interface_index is not None:
             waves.append((self.reflected_waves(interface_index), self.focus_um * [1.0, 1.0, -1.0]))
@@ -332,6 +334,8 @@ class ExactGaussianBeam(_GaussianBeam):
             # columns: E_s, E_p, H_s, H_p (x, y, z each)
             amps = np.concatenate([pw["E"].transpose(1, 0, 2).reshape(m, 6), pw["H"].transpose(1, 0, 2).reshape(m, 6)],
                                   axis=1)
+            if weights is not None:
+                amps = amps * np.asarray(weights)[:, None]
             summed = _lattice_sum(pw, amps, flat, _shifted(distinct, origin)) if on_lattice else None
             if summed is not None:
                 out += summed

@@ -20,7 +20,9 @@ its grid part). The far field is that of [x_S, c_F] on the extended mesh.
 Flat-interface currents (exterior side, normal n̂ = ẑ): J = ẑ × H, M = E × ẑ (unknowns J and
 M̃ = M/η₀, mesh.py), with E, H the incident plus Fresnel-reflected fields at z = 0. On a flat
 element a rooftop of coefficient c carries J·t̂ = 4c/d across its shared edge (mesh.py: the
-half-basis weight 1 + u is 2 there and |r_u| = d/2), so c = d J·t̂ / 4 at the edge midpoint.
+half-basis weight 1 + u is 2 there and |r_u| = d/2), so c = d J·t̂ / 4 at the edge midpoint for
+each plane wave, divided by the rooftop's form factor at its transverse wavevector (the Galerkin
+solution's amplitude: ``rooftop_form_factor``).
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ from wavebrdf.solver.farfield import ETA0
 from wavebrdf.solver.surface import HeightField
 
 __all__ = ["FLUX_LEFT", "FlatContinuation", "border_height", "check_flat_border", "embedded_mesh",
-           "flat_interface_coefficients"]
+           "flat_interface_coefficients", "rooftop_form_factor"]
 
 FLUX_LEFT = 1e-6  # beam flux (relative) allowed to fall outside the extended mesh
 BORDER_TOLERANCE = 0.05  # largest |border height − continuation plane| in cells d
@@ -47,20 +49,32 @@ BORDER_TOLERANCE = 0.05  # largest |border height − continuation plane| in cel
 def flat_interface_coefficients(mesh: BEMMesh, beam, media: Media) -> np.ndarray:
     """Rooftop coefficients [J | M̃] (2, 2N_b) of the flat-interface currents on ``mesh`` (taken
     as flat at z = 0): the exact ``beam`` and its Fresnel reflection (``ExactGaussianBeam.fields``
-    with ``interface_index``)."""
+    with ``interface_index``), each plane wave over the form factor of the rooftops it is held on."""
     nb = mesh.n_bases
+    d = mesh.spacing_um
     centres = mesh.basis_centres.copy()
     centres[:, 2] = 0.0
-    E, H = beam.fields(centres, interface_index=complex(media.index))
     horizontal = np.arange(nb) < mesh.n_horizontal
+    kx, ky = beam.plane_waves["kvec"][:, 0], beam.plane_waves["kvec"][:, 1]
     z = np.array([0.0, 0.0, 1.0])
-    J = np.cross(z, H)
-    M = np.cross(E, z)
-    scale = 0.25 * mesh.spacing_um
     x = np.empty((2, 2 * nb), dtype=complex)
-    x[:, :nb] = scale * np.where(horizontal, J[..., 0], J[..., 1])
-    x[:, nb:] = scale * np.where(horizontal, M[..., 0], M[..., 1]) / ETA0
+    for rows, axis, form in ((horizontal, 0, rooftop_form_factor(kx, ky, d)),
+                             (~horizontal, 1, rooftop_form_factor(ky, kx, d))):
+        E, H = beam.fields(centres[rows], interface_index=complex(media.index), weights=1.0 / form)
+        x[:, :nb][:, rows] = 0.25 * d * np.cross(z, H)[..., axis]
+        x[:, nb:][:, rows] = 0.25 * d * np.cross(E, z)[..., axis] / ETA0
     return x
+
+
+def rooftop_form_factor(k_along, k_across, spacing_um: float) -> np.ndarray:
+    """Fourier transform of a flat rooftop relative to its value at κ = 0: sinc²(k_along d/2)
+    sinc(k_across d/2) (a hat of half-width d along its current, a box of width d across it).
+
+    The Galerkin currents of a plane wave of transverse wavevector κ on a flat rooftop mesh are its
+    samples divided by this factor (they radiate the plane wave's amplitude); bare samples radiate
+    it times the factor, 1 − (k_along² / 12 + k_across² / 24) d² toward grazing."""
+    along = np.sinc(np.asarray(k_along) * spacing_um / (2 * np.pi))
+    return along**2 * np.sinc(np.asarray(k_across) * spacing_um / (2 * np.pi))
 
 
 def _border(z: np.ndarray) -> np.ndarray:
