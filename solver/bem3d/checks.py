@@ -21,6 +21,7 @@ __all__ = [
     "ResolutionWarning",
     "SolverWarning",
     "check_beam_spectrum",
+    "check_continuation_flux",
     "check_footprint",
     "check_material",
     "check_resolution",
@@ -60,19 +61,34 @@ def emit(diagnostics: dict | None, category: type[Warning], message: str, stackl
     warnings.warn(message, category, stacklevel=stacklevel)
 
 
+def _check_power_outside(fraction: float, key: str, message: str, diagnostics=None):
+    """Record ``fraction`` (of the incident power) as ``diagnostics[key]``; warn with ``message``
+    (a FootprintWarning) when it exceeds OUTSIDE_FRACTION."""
+    if diagnostics is not None:
+        diagnostics[key] = float(fraction)
+    if not np.isfinite(fraction) or fraction > OUTSIDE_FRACTION:
+        emit(diagnostics, FootprintWarning, message, stacklevel=4)
+
+
 def check_footprint(outside_fraction: float, theta_i: float, patch_um: float, beam: str, diagnostics=None):
     """Warn when more than OUTSIDE_FRACTION of the incident power crosses z = 0 outside the patch."""
-    if diagnostics is not None:
-        diagnostics["incident_outside_fraction"] = float(outside_fraction)
-    if not np.isfinite(outside_fraction) or outside_fraction > OUTSIDE_FRACTION:
-        emit(
-            diagnostics,
-            FootprintWarning,
-            f"{outside_fraction:.3g} of the incident power of the {beam} beam at θ_i = "
-            f"{np.rad2deg(theta_i):.4g}° falls outside the {patch_um:g} µm patch (limit {OUTSIDE_FRACTION:g}): "
-            "the currents are truncated at the patch edge, so edge diffraction and a wrong Φ_i enter "
-            "the BRDF; use a larger patch or a smaller waist (grazing incidence spreads the footprint)",
-        )
+    _check_power_outside(
+        outside_fraction, "incident_outside_fraction",
+        f"{outside_fraction:.3g} of the incident power of the {beam} beam at θ_i = "
+        f"{np.rad2deg(theta_i):.4g}° falls outside the {patch_um:g} µm patch (limit {OUTSIDE_FRACTION:g}): "
+        "the currents are truncated at the patch edge, so edge diffraction and a wrong Φ_i enter "
+        "the BRDF; use a larger patch or a smaller waist (grazing incidence spreads the footprint)", diagnostics)
+
+
+def check_continuation_flux(flux_left: float, theta_i: float, extent_um: float, diagnostics=None):
+    """Warn when more than OUTSIDE_FRACTION of the incident power crosses z = 0 beyond the flat
+    continuation's extended mesh (side ``extent_um``), where its currents stop."""
+    _check_power_outside(
+        flux_left, "continuation_flux_left",
+        f"{flux_left:.3g} of the incident power of the exact beam at θ_i = {np.rad2deg(theta_i):.4g}° falls "
+        f"beyond the flat continuation ({extent_um:.4g} µm square; limit {OUTSIDE_FRACTION:g}): the light cone "
+        "cuts the beam's spectrum and its footprint's tails reach past the continuation, whose currents "
+        "stop there; use a larger waist (docs/dataset.md, 'toward grazing')", diagnostics)
 
 
 def check_beam_spectrum(evanescent_fraction: float, theta_i: float, waist_um: float, wavelength_um: float,

@@ -30,10 +30,11 @@ from typing import NamedTuple
 import numpy as np
 
 from wavebrdf.solver.beams import make_beam
-from wavebrdf.solver.bem3d.aim.continuation import FlatContinuation, border_height
+from wavebrdf.solver.bem3d.aim.continuation import FlatContinuation, border_height, flux_beyond
 from wavebrdf.solver.bem3d.aim.operator import AIMOperator
 from wavebrdf.solver.bem3d.aim.options import AIM_QUADRATURE, AIMOptions
-from wavebrdf.solver.bem3d.checks import check_material, check_resolution, check_surface_plasmons
+from wavebrdf.solver.bem3d.checks import (check_continuation_flux, check_material, check_resolution,
+                                          check_surface_plasmons)
 from wavebrdf.solver.bem3d.dense import DenseOperator
 from wavebrdf.solver.bem3d.elements import StaticTables
 from wavebrdf.solver.bem3d.excitation import BeamExcitation, SurfaceRule, beam_excitation, power_into_material
@@ -192,6 +193,7 @@ class BEMSolver:
                                   patch_size_um=self.mesh.surface.size_um)
             margin = self.continuation.margin(footprint)
             extent = self.mesh.surface.size_um + 2 * margin * self.mesh.spacing_um
+            check_continuation_flux(flux_beyond(footprint, extent), theta_i, extent, record)
         with self.clock("excitation"):
             excitation = beam_excitation(self.mesh, self.media, theta_i, phi_i, waist_um=waist_um, beam=beam,
                                          focus_um=focus_um, rhs_order=self.quadrature.rhs_order,

@@ -16,10 +16,13 @@ import warnings
 import numpy as np
 import pytest
 
+from wavebrdf.solver.beams import make_beam
 from wavebrdf.solver.bem3d import AIMOptions, BEMSolver
-from wavebrdf.solver.bem3d.aim.continuation import flat_interface_coefficients, rooftop_form_factor
-from wavebrdf.solver.bem3d.checks import BEMWarning
+from wavebrdf.solver.bem3d.aim.continuation import (FLUX_LEFT, extended_margin, flat_interface_coefficients,
+                                                  flux_beyond, rooftop_form_factor)
+from wavebrdf.solver.bem3d.checks import OUTSIDE_FRACTION, BEMWarning
 from wavebrdf.solver.bem3d.excitation import beam_excitation
+from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.farfield import HemisphereGrid, albedo
 from wavebrdf.solver.surface import HeightField, generate
 
@@ -51,6 +54,24 @@ def test_rooftop_form_factor_is_the_rooftop_fourier_transform():
         quadrature = (np.sum(hat * np.exp(1j * k_along * x)) / np.sum(hat)) * np.mean(np.exp(1j * k_across * y))
         assert rooftop_form_factor(k_along, k_across, d) == pytest.approx(quadrature.real, abs=1e-6)
         assert abs(quadrature.imag) < 1e-9
+
+
+@pytest.mark.parametrize("theta_deg, waist, cut", [(0.0, 1.6, False), (70.0, 3.6, False), (80.0, 2.4, True)])
+def test_continuation_measures_the_flux_its_margin_leaves(theta_deg, waist, cut):
+    """The margin's own check stops at the beam's lattice period, where the copies fill the square;
+    ``flux_beyond`` measures one beam's flux outside it. Within FLUX_LEFT (×5) where the light cone
+    leaves the spectrum whole (3·10⁻⁴ cut at 70° for 3.6 µm); toward grazing (0.29 cut at 80° for
+    2.4 µm) the tails leave more than the warning's limit (OUTSIDE_FRACTION) beyond it."""
+    lam, cells, size = 0.4, 48, 2.4
+    mesh = BEMMesh(generate("flat", cells=cells, size_um=size), z_reference=0.0)
+    beam = make_beam("exact", lam, np.deg2rad(theta_deg), 0.0, waist, focus_um=(0.0, 0.0, 0.0), patch_size_um=size)
+    extent = size + 2 * extended_margin(mesh, beam, 8) * mesh.spacing_um
+    left = flux_beyond(beam, extent)
+    print(f"θ_i = {theta_deg}°, waist {waist} µm: continuation {extent:.3g} µm, flux beyond it {left:.2e}")
+    if cut:
+        assert left > OUTSIDE_FRACTION
+    else:
+        assert left <= 5 * FLUX_LEFT
 
 
 @pytest.mark.parametrize("lam, index, theta, cells", [(0.5, 1.5, 0.0, 64), (0.5, 1.5, 0.5, 64), (0.5, 1.5, 0.9, 100),
@@ -89,6 +110,8 @@ def test_flat_continuation_meets_fresnel_where_the_pinned_edge_does_not(cl_ctx, 
             solver = BEMSolver(cl_ctx, surface, 0.5, index, method="aim", aim={"edge": edge})
             ff = solver.farfield(theta, 0.0, grid, waist_um=1.6)
             errors[edge] = albedo(ff.brdf(), grid) / ff.diagnostics["beam_reflectance"] - 1
+            if edge == "flat":
+                assert ff.diagnostics["continuation_flux_left"] <= 5 * FLUX_LEFT
     print(f"n = {index}, θ = {theta}: albedo error: flat continuation {errors['flat']}, pinned {errors['pinned']}")
     assert np.all(np.abs(errors["flat"]) < 0.005)
     assert np.max(np.abs(errors["pinned"])) > 0.005  # the case does need the continuation

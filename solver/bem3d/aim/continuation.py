@@ -40,7 +40,7 @@ from wavebrdf.solver.farfield import ETA0
 from wavebrdf.solver.surface import HeightField
 
 __all__ = ["FLUX_LEFT", "FlatContinuation", "border_height", "check_flat_border", "embedded_mesh",
-           "flat_interface_coefficients", "rooftop_form_factor"]
+           "flat_interface_coefficients", "flux_beyond", "rooftop_form_factor"]
 
 FLUX_LEFT = 1e-6  # beam flux (relative) allowed to fall outside the extended mesh
 BORDER_TOLERANCE = 0.05  # largest |border height − continuation plane| in cells d
@@ -117,6 +117,14 @@ def extended_margin(mesh: BEMMesh, beam, minimum: int) -> int:
     while beam.outside_fraction(L + 2 * margin * d) > FLUX_LEFT:
         margin = math.ceil(1.1 * margin) + 1
     return margin
+
+
+def flux_beyond(beam, extent_um: float) -> float:
+    """Share of one exact ``beam``'s incident flux crossing z = focus outside the square of side
+    ``extent_um`` about the origin: the same beam with a lattice period of ≥ 2.8 extents, so that
+    its periodic copies do not fill the square (the margin's own check, ``extended_margin``, stops
+    at the period where the tails of a beam cut by the light cone reach it)."""
+    return max(0.0, replace(beam, patch_size_um=2.0 * extent_um).outside_fraction(extent_um))
 
 
 class FlatContinuation:
