@@ -4,7 +4,7 @@
   Mueller matrix of the Fresnel coefficients (tests/references.py, written from Born & Wolf and
   Collett; not from wavebrdf) with r_p/r_s scaled by the beam's √(P_s/P_p) (Novotny & Hecht's
   angular spectrum; 1 − 7·10⁻⁵ for the approximate rungs' 30 µm waist at 80°), metal and
-  dielectric, 20°, 50° and 80° (the full wave: 20° and 50°), within 0.5 % of M₀₀; off the plane of incidence only the vector-field models (bem, po) carry
+  dielectric, 20°, 50° and 80° (the full wave: 20°, 50° and 70°), within 0.5 % of M₀₀; off the plane of incidence only the vector-field models (bem, po) carry
   the polarization, which is why the dataset stores Jones/Mueller matrices from them alone.
 * Steered studies answer in the requested direction's incident frame.
 * Reciprocity: the full wave's Mueller matrix of the reversed path is R Mᵀ R (the relation the

@@ -22,8 +22,8 @@ fewer products than at 0.4 µm and gold at 0.6 µm more than both, as their plas
 and more tightly (docs/aim.md). L/λ the patch side in exterior wavelengths (at least 1). Fitted by
 least squares in log P to the geometric mean of each row's s and p counts; s₀ is fixed
 (``SLOPE_OFFSET``: of 0.005, 0.01, 0.02, 0.05, 0.1 and 0.2 the one whose leave-one-out errors over
-the data file put the most rows within 20 % — 24 of the 28 that the others determine; 0.005 and
-0.01 tie — and of those the smallest rms; ``--dry-run`` prints them). A row of the data file
+the data file put the most rows within 20 % — 24 of the 31 that the others determine; 0.01 and
+0.02 tie — and of those the smallest rms; ``--dry-run`` prints them). A row of the data file
 is one measured solve: its surface (``generate``'s arguments as JSON), wavelength, index, the
 preconditioner (``kind``: ``minres`` or ``local``), its ``role`` (``fit``: fitted; ``check``: a
 surface the fit has not seen, measured by ``benchmarks/bench_aim.py planner``, whose error is
@@ -63,8 +63,8 @@ MEANINGS = {
                             "with products_minres",
     "products_local_size_exp": "growth of that ratio with L/λ: (L/10λ)^ε, fitted with products_minres",
     "products_slope_offset": "s₀ of products_minres: of 0.005, 0.01, 0.02, 0.05, 0.1, 0.2 the one whose leave-one-out "
-                             "errors over solver/data/aim_products.csv put the most rows within 20 % (24 of 28; 0.005 "
-                             "and 0.01 tie), and of those the smallest rms (fixed, not fitted)",
+                             "errors over solver/data/aim_products.csv put the most rows within 20 % (24 of 31; 0.01 "
+                             "and 0.02 tie), and of those the smallest rms (fixed, not fitted)",
     "products_fine_slope_max": "the largest fine slope s of the fitted rows: the count is not extrapolated beyond it",
     "products_plasmon_binding_min": "the smallest plasmon binding b of the fitted metal rows: b is held within the range",
     "products_plasmon_binding_max": "the largest plasmon binding b of the fitted metal rows",

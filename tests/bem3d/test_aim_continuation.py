@@ -20,7 +20,7 @@ from wavebrdf.solver.beams import make_beam
 from wavebrdf.solver.bem3d import AIMOptions, BEMSolver
 from wavebrdf.solver.bem3d.aim.continuation import (FLUX_LEFT, extended_margin, flat_interface_coefficients,
                                                   flux_beyond, rooftop_form_factor)
-from wavebrdf.solver.bem3d.checks import OUTSIDE_FRACTION, BEMWarning
+from wavebrdf.solver.bem3d.checks import OUTSIDE_FRACTION, BEMWarning, FootprintWarning, check_continuation_flux
 from wavebrdf.solver.bem3d.excitation import beam_excitation
 from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.farfield import HemisphereGrid, albedo
@@ -56,22 +56,32 @@ def test_rooftop_form_factor_is_the_rooftop_fourier_transform():
         assert abs(quadrature.imag) < 1e-9
 
 
-@pytest.mark.parametrize("theta_deg, waist, cut", [(0.0, 1.6, False), (70.0, 3.6, False), (80.0, 2.4, True)])
-def test_continuation_measures_the_flux_its_margin_leaves(theta_deg, waist, cut):
+@pytest.mark.parametrize("theta_deg, waist, tails", [(0.0, 1.6, "none"), (70.0, 3.6, "small"), (80.0, 2.4, "large")])
+def test_continuation_measures_the_flux_its_margin_leaves(theta_deg, waist, tails):
     """The margin's own check stops at the beam's lattice period, where the copies fill the square;
-    ``flux_beyond`` measures one beam's flux outside it. Within FLUX_LEFT (×5) where the light cone
-    leaves the spectrum whole (3·10⁻⁴ cut at 70° for 3.6 µm); toward grazing (0.29 cut at 80° for
-    2.4 µm) the tails leave more than the warning's limit (OUTSIDE_FRACTION) beyond it."""
+    ``flux_beyond`` measures one beam's flux outside it. Within FLUX_LEFT (×2) where the light cone
+    leaves the spectrum whole; above it but within the warning's limit (OUTSIDE_FRACTION) for a cut
+    of 3·10⁻⁴ (70°, 3.6 µm); beyond that limit, with the warning, for a cut of 0.29 (80°, 2.4 µm)."""
     lam, cells, size = 0.4, 48, 2.4
     mesh = BEMMesh(generate("flat", cells=cells, size_um=size), z_reference=0.0)
     beam = make_beam("exact", lam, np.deg2rad(theta_deg), 0.0, waist, focus_um=(0.0, 0.0, 0.0), patch_size_um=size)
-    extent = size + 2 * extended_margin(mesh, beam, 8) * mesh.spacing_um
+    extent = size + 2 * extended_margin(mesh, beam, 10) * mesh.spacing_um  # the driver's minimum: ring + 2
     left = flux_beyond(beam, extent)
     print(f"θ_i = {theta_deg}°, waist {waist} µm: continuation {extent:.3g} µm, flux beyond it {left:.2e}")
-    if cut:
+    diagnostics = {}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_continuation_flux(left, np.deg2rad(theta_deg), extent, diagnostics)
+    assert diagnostics["continuation_flux_left"] == left
+    warned = [w for w in caught if issubclass(w.category, FootprintWarning)]
+    if tails == "large":
         assert left > OUTSIDE_FRACTION
+        assert len(warned) == 1 and "beyond the flat continuation" in str(warned[0].message)
+        assert diagnostics["warnings"]
     else:
-        assert left <= 5 * FLUX_LEFT
+        assert left <= (2 * FLUX_LEFT if tails == "none" else OUTSIDE_FRACTION)
+        assert tails == "none" or left > FLUX_LEFT
+        assert not warned and "warnings" not in diagnostics
 
 
 @pytest.mark.parametrize("lam, index, theta, cells", [(0.5, 1.5, 0.0, 64), (0.5, 1.5, 0.5, 64), (0.5, 1.5, 0.9, 100),
@@ -111,7 +121,7 @@ def test_flat_continuation_meets_fresnel_where_the_pinned_edge_does_not(cl_ctx, 
             ff = solver.farfield(theta, 0.0, grid, waist_um=1.6)
             errors[edge] = albedo(ff.brdf(), grid) / ff.diagnostics["beam_reflectance"] - 1
             if edge == "flat":
-                assert ff.diagnostics["continuation_flux_left"] <= 5 * FLUX_LEFT
+                assert ff.diagnostics["continuation_flux_left"] <= 2 * FLUX_LEFT
     print(f"n = {index}, θ = {theta}: albedo error: flat continuation {errors['flat']}, pinned {errors['pinned']}")
     assert np.all(np.abs(errors["flat"]) < 0.005)
     assert np.max(np.abs(errors["pinned"])) > 0.005  # the case does need the continuation

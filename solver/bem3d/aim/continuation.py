@@ -120,11 +120,13 @@ def extended_margin(mesh: BEMMesh, beam, minimum: int) -> int:
 
 
 def flux_beyond(beam, extent_um: float) -> float:
-    """Share of one exact ``beam``'s incident flux crossing z = focus outside the square of side
-    ``extent_um`` about the origin: the same beam with a lattice period of ≥ 2.8 extents, so that
-    its periodic copies do not fill the square (the margin's own check, ``extended_margin``, stops
-    at the period where the tails of a beam cut by the light cone reach it)."""
-    return max(0.0, replace(beam, patch_size_um=2.0 * extent_um).outside_fraction(extent_um))
+    """Share of one exact ``beam``'s incident flux crossing z = focus outside the extended mesh, a
+    square of side ``extent_um`` about the patch centre: measured outside the largest square about
+    the focus within it, for the same beam with a lattice period of ≥ 2.8 extents, so that its
+    periodic copies do not fill the square (the margin's own check, ``extended_margin``, stops at
+    the period where the tails of a beam cut by the light cone reach it)."""
+    inside = extent_um - 2.0 * float(np.max(np.abs(beam.focus_um[:2])))
+    return max(0.0, replace(beam, patch_size_um=4.0 * extent_um).outside_fraction(inside))
 
 
 class FlatContinuation:
