@@ -191,9 +191,10 @@ class BEMSolver:
             footprint = make_beam(beam, self.media.wavelength_um, theta_i, phi_i, waist_um,
                                   exterior_index=self.media.exterior_index, focus_um=(*focus_um, 0.0),
                                   patch_size_um=self.mesh.surface.size_um)
-            margin = self.continuation.margin(footprint)
-            extent = self.mesh.surface.size_um + 2 * margin * self.mesh.spacing_um
-            check_continuation_flux(flux_beyond(footprint, extent), theta_i, extent, record)
+            with self.clock("continuation reach"):
+                margin = self.continuation.margin(footprint)
+                extent = self.mesh.surface.size_um + 2 * margin * self.mesh.spacing_um
+                check_continuation_flux(flux_beyond(footprint, extent), theta_i, extent, record)
         with self.clock("excitation"):
             excitation = beam_excitation(self.mesh, self.media, theta_i, phi_i, waist_um=waist_um, beam=beam,
                                          focus_um=focus_um, rhs_order=self.quadrature.rhs_order,
