@@ -6,8 +6,8 @@ at angles, patches, meshes and output resolutions the test does not reach, and p
 normalized Mueller element's distance from Fresnel's (tests/references.py, independent of the
 code under test).
 
-    .venv/bin/python benchmarks/grazing_mueller.py --size 4.8 --cells 144 192 --waist 1.2 \\
-        --angles 80 --resolutions 256 --materials aluminium
+    .venv/bin/python benchmarks/grazing_mueller.py --size 2.4 --cells 48 72 --waist 6 \\
+        --angles 80 --resolutions 1024 --materials aluminium glass
 """
 
 from __future__ import annotations

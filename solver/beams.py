@@ -22,7 +22,11 @@ iff ∇²U + k²U = 0.
   exp(−|ρ|²/w²)·e^{−jk_∥·ρ} on the focal plane, sampled on a lattice of pitch 2π/P and truncated
   to |κ| < k. It is an exact solution of Maxwell's equations (periodic with period P ≫ the patch,
   so the neighbouring copies do not reach it); its incident power (per period cell) and its
-  flat-interface reflectance follow exactly from the plane-wave amplitudes.
+  flat-interface reflectance follow exactly from the plane-wave amplitudes. The normalisation
+  (central amplitude) and ``continuous_power`` / ``continuous_reflectance`` are those of the
+  non-periodic beam, by a polar quadrature of the spectrum that ends at the light cone: where the
+  cone cuts the spectrum (toward grazing) the lattice samples that cut coarsely, and its power per
+  period cell moves by percents with P.
 * ``"plane"`` (:class:`PlaneWave`): unit amplitude plane wave, for tests.
 """
 
@@ -283,11 +287,50 @@ class ExactGaussianBeam(_GaussianBeam):
         return float(np.sum(weight[KX**2 + KY**2 >= k**2]) / np.sum(weight))
 
     @cached_property
+    def _spectral_rule(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(κx, κy, weights): a quadrature of d²κ over the propagating disk |κ| < k where the
+        Gaussian weight is ≥ SPECTRUM_TAIL, in polar coordinates κ = k sin t (cos φ, sin φ) with
+        d²κ = k² sin t cos t dt dφ, so the cone's cut is an end point and the integrands stay smooth
+        in t (k_z = k cos t): Gauss–Legendre panels of ≤ 1/(2wk) in t and of ≤ 1/(2wκ_max) in φ
+        (trapezoid over the whole circle when the Gaussian covers κ = 0)."""
+        k, w = self.k, self.waist_um
+        centre = self.k * self.frame[2][:2]
+        kc = float(np.hypot(*centre))
+        reach = 2.0 * np.sqrt(np.log(1.0 / SPECTRUM_TAIL)) / w
+        lo, hi = max(0.0, kc - reach), min(k, kc + reach)
+        t_lo, t_hi = np.arcsin(lo / k), np.arcsin(hi / k)
+        t, wt = _panels(t_lo, t_hi, 0.5 / (w * k))
+        if kc <= reach:
+            n = int(np.ceil(8.0 * np.pi * hi * w)) + 64
+            phi, wp = 2.0 * np.pi * np.arange(n) / n, np.full(n, 2.0 * np.pi / n)
+        else:
+            half = float(np.arcsin(reach / kc))
+            phi, wp = _panels(-half, half, 0.5 / (w * hi))
+            phi = phi + np.arctan2(centre[1], centre[0])
+        T, PHI = np.meshgrid(t, phi, indexing="ij")
+        rho = k * np.sin(T)
+        weights = np.outer(wt, wp) * k * rho * np.cos(T)
+        return (rho * np.cos(PHI)).ravel(), (rho * np.sin(PHI)).ravel(), weights.ravel()
+
+    @cached_property
+    def _continuum(self) -> dict:
+        """The non-periodic beam's central amplitude ``norm`` (x_b component of the unnormalised p
+        field at the focus, ∫ Ê_p·x̂_b d²κ) and downward ``power`` per polarization (2,) after that
+        normalisation, (2π)² ∫ |Ê|² k_z / (2η₀k₀) d²κ, by ``_spectral_rule``."""
+        kx, ky, wq = self._spectral_rule
+        kvec, E, _ = self._densities(kx, ky)
+        norm = np.sum(wq * (E[1] @ self.frame[0]))
+        flux = (2.0 * np.pi) ** 2 * np.sum(np.abs(E) ** 2, axis=2) * (-kvec[:, 2]) / (2 * ETA0 * self.k0)
+        return {"norm": norm, "power": np.sum(wq * flux, axis=1) / abs(norm) ** 2}
+
+    @cached_property
     def plane_waves(self) -> dict:
         """The plane-wave content: ``kvec`` (M, 3), ``E`` and ``H`` (2, M, 3) amplitudes.
 
-        E(r) = Σ_m E[:, m] e^{−j kvec_m·(r − focus)}, normalised like the paraxial beam (the x_b
-        component of the p field at the focus is 1).
+        E(r) = Σ_m E[:, m] e^{−j kvec_m·(r − focus)}, normalised like the paraxial beam: the x_b
+        component of the non-periodic beam's p field at the focus is 1 (the periodic one's differs
+        where the lattice samples a cut spectrum coarsely; BRDFs divide by a power of the same
+        normalisation, so it cancels).
         """
         k, w, P = self.k, self.waist_um, self.period_um
         k_par = self.k * self.frame[2][:2]
@@ -300,7 +343,7 @@ class ExactGaussianBeam(_GaussianBeam):
         keep = (gauss >= SPECTRUM_TAIL) & (KX**2 + KY**2 < k**2)
         kvec, E, H = self._densities(KX[keep], KY[keep])
         E, H = E * dk**2, H * dk**2
-        norm = np.sum(E[1] @ self.frame[0])  # x_b component of the p field at the focus
+        norm = self._continuum["norm"]  # the non-periodic beam's x_b component of the p field at the focus
         logger.debug("exact beam: %d plane waves, period %.3g µm", len(kvec), P)
         lattice = np.nonzero(keep)  # (κx, κy) lattice indices of each wave
         return {"kvec": kvec, "E": E / norm, "H": H / norm, "period_um": P, "norm": norm,
@@ -349,26 +392,27 @@ class ExactGaussianBeam(_GaussianBeam):
 
     def reflected_waves(self, index: complex) -> dict:
         """The plane waves reflected by the flat interface z = 0 over a material of ``index``
-        (``kvec``, ``E``, ``H`` like ``plane_waves``; phases about the mirrored focus).
-
-        Every wave k (k_z < 0) goes to k_r = (k_x, k_y, −k_z): TE by r_s on E·ŝ, TM by r_p on H·ŝ
-        (fresnel.py's r_p is the ratio of the magnetic amplitudes), ŝ = ẑ × k̂ / |ẑ × k̂| (y_b at
-        normal incidence); a plane wave has H = k̂ × E / η₁.
+        (``kvec``, ``E``, ``H`` like ``plane_waves``; phases about the mirrored focus; ``_reflect``).
         """
         pw = self.plane_waves
-        kvec = pw["kvec"]
-        khat = kvec / np.linalg.norm(kvec, axis=1, keepdims=True)
-        s_hat = np.cross([0.0, 0.0, 1.0], khat)
-        norm = np.linalg.norm(s_hat, axis=1, keepdims=True)
-        s_hat = np.where(norm > 1e-12, s_hat / np.where(norm > 0, norm, 1.0), self.frame[1])
-        r_s, r_p = fresnel_rs_rp(complex(index) / self.exterior_index, -khat[:, 2])
-        eta1 = ETA0 / self.exterior_index
-        kr = kvec * np.array([1.0, 1.0, -1.0])
-        kr_hat = khat * np.array([1.0, 1.0, -1.0])
-        E_te = (r_s * np.einsum("pmc,mc->pm", pw["E"], s_hat))[..., None] * s_hat
-        H_tm = (r_p * np.einsum("pmc,mc->pm", pw["H"], s_hat))[..., None] * s_hat
-        return {"kvec": kr, "E": E_te + eta1 * np.cross(H_tm, kr_hat), "H": H_tm + np.cross(kr_hat, E_te) / eta1,
-                "lattice": pw["lattice"], "kx_axis": pw["kx_axis"], "ky_axis": pw["ky_axis"]}
+        kr, E, H = _reflect(pw["kvec"], pw["E"], pw["H"], complex(index) / self.exterior_index,
+                            ETA0 / self.exterior_index, self.frame[1])
+        return {"kvec": kr, "E": E, "H": H, "lattice": pw["lattice"], "kx_axis": pw["kx_axis"], "ky_axis": pw["ky_axis"]}
+
+    def interface_spectrum(self, kx, ky, index: complex) -> tuple[np.ndarray, np.ndarray]:
+        """The continuous beam's total field on the flat interface z = 0 over a material of
+        ``index``, as spectral densities (E, H of shape (2, ..., 3), per unit κ area) at (κx, κy)
+        (propagating ones; beyond the light cone k_z is taken as 0, values to be masked): E(x, y, 0) = ∫ Ê(κ) e^{−jκ·(x, y)} d²κ, incident plus Fresnel-reflected wave
+        (``reflected_waves``), the focus's phase included. The beam is the non-periodic one whose
+        lattice samples ``plane_waves`` are."""
+        kx, ky = np.broadcast_arrays(np.asarray(kx, dtype=float), np.asarray(ky, dtype=float))
+        kvec, E, H = self._densities(kx, ky)
+        norm = self.plane_waves["norm"]
+        _, E_r, H_r = _reflect(kvec, E / norm, H / norm, complex(index) / self.exterior_index,
+                               ETA0 / self.exterior_index, self.frame[1])
+        f = self.focus_um
+        phase = np.exp(1j * (kx * f[0] + ky * f[1] + kvec[..., 2] * f[2]))[..., None]
+        return (E / norm + E_r) * phase, (H / norm + H_r) * phase
 
     def _flux_weights(self) -> np.ndarray:
         """Downward power of each plane wave per period cell, shape (2, M)."""
@@ -377,8 +421,28 @@ class ExactGaussianBeam(_GaussianBeam):
         return pw["period_um"] ** 2 * np.sum(np.abs(pw["E"]) ** 2, axis=2) * kz / (2 * ETA0 * self.k0)
 
     def incident_power(self, patch_size_um=None):
-        """Exact downward power through any plane z = const, per period cell (= one beam)."""
+        """Exact downward power of the periodic beam ``plane_waves`` through any plane z = const,
+        per period cell: what lights a patch (its copies being negligible there)."""
         return np.sum(self._flux_weights(), axis=1)
+
+    def continuous_power(self) -> np.ndarray:
+        """Downward power of the non-periodic beam, per polarization (``_continuum``): what the
+        whole plane's closed-form reflection carries (a flat continuation's far field). The
+        power per period cell tends to it as the period grows; where the light cone cuts the
+        spectrum (toward grazing) the lattice samples that cut coarsely and the two differ by
+        percents."""
+        return self._continuum["power"].copy()
+
+    def continuous_reflectance(self, index: complex) -> np.ndarray:
+        """Flat-interface reflectance of the non-periodic beam per polarization (``_spectral_rule``;
+        ``reflectance`` is the periodic beam's)."""
+        kx, ky, wq = self._spectral_rule
+        kvec, E, H = self._densities(kx, ky)
+        _, E_r, _ = _reflect(kvec, E, H, complex(index) / self.exterior_index, ETA0 / self.exterior_index,
+                             self.frame[1])
+        weights = wq * (-kvec[:, 2])
+        return (np.sum(weights * np.sum(np.abs(E_r) ** 2, axis=-1), axis=1)
+                / np.sum(weights * np.sum(np.abs(E) ** 2, axis=-1), axis=1))
 
     def outside_fraction(self, patch_size_um: float) -> float:
         """Fraction of the exact incident power (one beam) crossing z = focus outside the patch."""
@@ -392,6 +456,34 @@ class ExactGaussianBeam(_GaussianBeam):
         reflected = self.reflected_waves(index)["E"]
         return (np.sum(weights * np.sum(np.abs(reflected) ** 2, axis=2), axis=1)
                 / np.sum(weights * np.sum(np.abs(pw["E"]) ** 2, axis=2), axis=1))
+
+
+def _panels(a: float, b: float, width: float, order: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """Composite Gauss–Legendre nodes and weights on [a, b] with panels of at most ``width``."""
+    n = max(1, int(np.ceil((b - a) / width)))
+    x, w = np.polynomial.legendre.leggauss(order)
+    edges = np.linspace(a, b, n + 1)
+    half = 0.5 * np.diff(edges)
+    nodes = (0.5 * (edges[:-1] + edges[1:]))[:, None] + half[:, None] * x[None, :]
+    return nodes.ravel(), (half[:, None] * w[None, :]).ravel()
+
+
+def _reflect(kvec: np.ndarray, E: np.ndarray, H: np.ndarray, relative_index: complex, eta1: float,
+             normal_s: np.ndarray):
+    """Plane waves (kvec (..., 3) with k_z < 0, E and H (2, ..., 3)) reflected by the flat interface
+    z = 0 at ``relative_index`` n₂/n₁: (k_r, E_r, H_r). Every wave k goes to k_r = (k_x, k_y, −k_z):
+    TE by r_s on E·ŝ, TM by r_p on H·ŝ (fresnel.py's r_p is the ratio of the magnetic amplitudes),
+    ŝ = ẑ × k̂ / |ẑ × k̂| (``normal_s`` at normal incidence); a plane wave has H = k̂ × E / η₁."""
+    khat = kvec / np.linalg.norm(kvec, axis=-1, keepdims=True)
+    s_hat = np.cross([0.0, 0.0, 1.0], khat)
+    norm = np.linalg.norm(s_hat, axis=-1, keepdims=True)
+    s_hat = np.where(norm > 1e-12, s_hat / np.where(norm > 0, norm, 1.0), normal_s)
+    r_s, r_p = fresnel_rs_rp(relative_index, -khat[..., 2])
+    flip = np.array([1.0, 1.0, -1.0])
+    kr_hat = khat * flip
+    E_te = (r_s * np.sum(E * s_hat, axis=-1))[..., None] * s_hat
+    H_tm = (r_p * np.sum(H * s_hat, axis=-1))[..., None] * s_hat
+    return kvec * flip, E_te + eta1 * np.cross(H_tm, kr_hat), H_tm + np.cross(kr_hat, E_te) / eta1
 
 
 LATTICE_SUM_BYTES = 64 * 2**20  # field values of one block of x columns in _lattice_sum

@@ -82,13 +82,14 @@ def check_footprint(outside_fraction: float, theta_i: float, patch_um: float, be
 
 def check_continuation_flux(flux_left: float, theta_i: float, extent_um: float, diagnostics=None):
     """Warn when more than OUTSIDE_FRACTION of the incident power crosses z = 0 beyond the flat
-    continuation's extended mesh (side ``extent_um``), where its currents stop."""
+    continuation's extended mesh (side ``extent_um``), where the currents whose field enters the
+    patch's right-hand side stop (the far field radiates them on the whole plane)."""
     _check_power_outside(
         flux_left, "continuation_flux_left",
         f"{flux_left:.3g} of the incident power of the exact beam at θ_i = {np.rad2deg(theta_i):.4g}° falls "
         f"beyond the flat continuation ({extent_um:.4g} µm square; limit {OUTSIDE_FRACTION:g}): the light cone "
-        "cuts the beam's spectrum and its footprint's tails reach past the continuation, whose currents "
-        "stop there; use a larger waist (docs/dataset.md, 'toward grazing')", diagnostics)
+        "cuts the beam's spectrum and its footprint's tails reach past the continuation, whose currents' "
+        "field on the patch stops there; use a larger waist (docs/dataset.md, 'toward grazing')", diagnostics)
 
 
 def check_beam_spectrum(evanescent_fraction: float, theta_i: float, waist_um: float, wavelength_um: float,

@@ -9,12 +9,13 @@ and both polarizations:
     → operator.solve (dense.py: LU; aim/operator.py: Krylov)
     → operator.farfield (radiation): dense — direct quadrature sum and the hemisphere-quadrature
       radiated power (farfield.py); AIM — chirp-z transforms of grid point sources
-      (aim/farfield.py), on the extended mesh when the patch is continued
+      (aim/farfield.py), plus the continued currents beyond the patch in closed form when it is
+      continued (``beyond``: FlatContinuation.radiation_beyond)
     → diagnostics.
 
 An operator has ``mesh``, ``solve(b, diagnostics)`` → a result with ``x`` (P, 2N_b) that records
 its figures (residual, iterations, times) into ``diagnostics``, ``farfield(mesh, x, grid, rule,
-theta_i=, phi_i=, incident_power=, diagnostics=)`` → FarField, and ``diagnostics()`` (set-up
+theta_i=, phi_i=, incident_power=, diagnostics=)`` → FarField (AIM adds ``beyond=``), and ``diagnostics()`` (set-up
 figures). :func:`bem_farfield` is the one-shot entry point of both methods. Given a
 :class:`~wavebrdf.solver.bem3d.warm_start.WarmStarts`, an AIM solve starts from the previous
 wavelength's solution of the same surface and incidence (warm_start.py); given the
@@ -25,6 +26,9 @@ set-up skips the static singular tables (``[model.aim] reuse_setup``).
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
+from dataclasses import replace
+from functools import partial
 from typing import NamedTuple
 
 import numpy as np
@@ -38,7 +42,7 @@ from wavebrdf.solver.bem3d.checks import (check_continuation_flux, check_materia
 from wavebrdf.solver.bem3d.dense import DenseOperator
 from wavebrdf.solver.bem3d.elements import StaticTables
 from wavebrdf.solver.bem3d.excitation import BeamExcitation, SurfaceRule, beam_excitation, power_into_material
-from wavebrdf.solver.bem3d.farfield import radiated_fields
+from wavebrdf.solver.bem3d.farfield import fields_from_integrals, radiated_fields
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.bem3d.quadrature import QuadratureOptions
@@ -54,14 +58,13 @@ METHODS = ("dense", "aim")
 
 
 class Solution(NamedTuple):
-    """One solve: the excitation, the patch's solution x (P, 2N_b), and the mesh and solution that
-    radiate (the extended mesh and [x_S, c_F] when the patch is continued)."""
+    """One solve: the excitation, the patch's solution x (P, 2N_b), and when the patch is
+    continued, the radiation integrals of the currents beyond it
+    (``FlatContinuation.radiation_beyond`` for the solve's beam: (κx, κy, separable=) → (P, ..., 6))."""
 
     excitation: BeamExcitation
     x: np.ndarray
-    radiating_mesh: BEMMesh
-    radiating_x: np.ndarray
-    radiating_part: object = None  # the extended mesh's AIM grid part when the patch is continued
+    beyond: Callable | None = None
 
 
 class BEMSolver:
@@ -148,11 +151,14 @@ class BEMSolver:
         t_solve = time.perf_counter()
         self.progress("far field", 0.0)
         inc, power = solution.excitation.beam, solution.excitation.incident_power
-        extra = {} if solution.radiating_part is None else {"grid_part": solution.radiating_part}
+        extra = {}
         with self.clock("far field"):
+            if solution.beyond is not None:
+                k1 = float(self.media.wavenumbers[0].real)
+                extra["beyond"] = np.moveaxis(solution.beyond(k1 * grid.u, k1 * grid.u, separable=True), -1, 1)
             # the dense operator's direct sum needs the surface rule; AIM radiates from grid sources
             rule = SurfaceRule.build(self.mesh, self.quadrature.farfield_order) if self.method == "dense" else None
-            ff = self.operator.farfield(solution.radiating_mesh, solution.radiating_x, grid, rule, theta_i=theta_i,
+            ff = self.operator.farfield(self.mesh, solution.x, grid, rule, theta_i=theta_i,
                                         phi_i=phi_i, incident_power=power, diagnostics=diag, **extra)
             into = power_into_material(self.mesh, solution.x, self.quadrature.farfield_order)  # through the patch only
         if not (np.all(np.isfinite(ff.E)) and np.all(np.isfinite(ff.H))):
@@ -161,19 +167,25 @@ class BEMSolver:
                               total_direction_s=time.perf_counter() - t0, into_material_fraction=into / power,
                               peak_memory_bytes=peak_memory_mb() * 2**20, stages=self.clock.as_dict())
         if beam == "exact":
-            ff.diagnostics["beam_reflectance"] = inc.reflectance(self.media.index)
+            ff.diagnostics["beam_reflectance"] = (inc.reflectance(self.media.index) if solution.beyond is None
+                                                  else inc.continuous_reflectance(self.media.index))
             ff.diagnostics["beam_plane_waves"] = len(inc.plane_waves["kvec"])
         return ff
 
     def brdf_at(self, theta_i: float, phi_i: float, directions: np.ndarray, *, waist_um: float | None,
                 beam: str = "exact", focus_um=(0.0, 0.0)) -> np.ndarray:
         """BRDF (sr⁻¹) per polarization (s, p) at arbitrary outgoing unit ``directions`` (M, 3), by
-        the direct quadrature sum."""
+        the direct quadrature sum (plus the continued currents' closed form when the patch is
+        continued)."""
         solution = self._solve(theta_i, phi_i, waist_um=waist_um, beam=beam, focus_um=focus_um)
         directions = np.atleast_2d(np.asarray(directions, dtype=float))
-        mesh = solution.radiating_mesh
-        rule = SurfaceRule.build(mesh, self.quadrature.farfield_order)
-        E, H = radiated_fields(self.ctx, mesh, self.media, solution.radiating_x, directions, rule)
+        rule = SurfaceRule.build(self.mesh, self.quadrature.farfield_order)
+        E, H = radiated_fields(self.ctx, self.mesh, self.media, solution.x, directions, rule)
+        if solution.beyond is not None:
+            k1 = float(self.media.wavenumbers[0].real)
+            F = solution.beyond(k1 * directions[:, 0], k1 * directions[:, 1])
+            E_beyond, H_beyond = fields_from_integrals(self.media, directions[None], F[..., :3], F[..., 3:])
+            E, H = E + E_beyond, H + H_beyond
         intensity = np.linalg.norm(0.5 * np.real(np.cross(E, np.conj(H))), axis=-1)
         return intensity / (solution.excitation.incident_power[:, None] * directions[None, :, 2])
 
@@ -200,7 +212,8 @@ class BEMSolver:
                                          focus_um=focus_um, rhs_order=self.quadrature.rhs_order,
                                          diagnostics=diagnostics, extent_um=extent)
         b = excitation.rhs
-        if margin is not None:
+        if margin is not None:  # the far field carries the whole plane's reflection: the beam's own power
+            excitation = replace(excitation, incident_power=excitation.beam.continuous_power())
             t_fixed = time.perf_counter()
             with self.clock("continuation field"):
                 fixed, field = self.continuation.fixed_currents(excitation.beam, margin)
@@ -224,12 +237,11 @@ class BEMSolver:
             raise
         if self.warm_starts is not None:
             self.warm_starts.keep(self._warm_key, incidence, k1, self.media.wavelength_um, result.x)
-        mesh, x, part = self.mesh, result.x, None
-        if margin is not None:  # the far field of the patch's and the continued currents
-            mesh, x = self.continuation.extended_solution(margin, fixed, result.x)
-            part = self.continuation.extended(margin)[1]
+        beyond = None
+        if margin is not None:  # the continued currents radiate from the whole plane beyond the patch
+            beyond = partial(self.continuation.radiation_beyond, excitation.beam)
             record["continuation_bytes"] = self.continuation.bytes()
-        return Solution(excitation, result.x, mesh, x, part)
+        return Solution(excitation, result.x, beyond)
 
 
 def bem_farfield(ctx, surface: HeightField, wavelength_um: float, index: complex, theta_i: float, phi_i: float,

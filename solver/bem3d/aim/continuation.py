@@ -15,7 +15,9 @@ Z_SS is the patch's AIM operator. Z_SF c_F comes in two parts, both independent 
 solve: the rooftops of F within ``near_cells`` + 2 cells of the patch (the *ring*) through a full
 AIM operator (near + grid) of the patch grown by that margin, and the rest through the grid part
 alone of the extended mesh (those pairs lie beyond the near radius, where the AIM operator is
-its grid part). The far field is that of [x_S, c_F] on the extended mesh.
+its grid part). The far field is that of x_S on the patch plus that of c_F on the whole plane
+outside it (``radiation_beyond``: the whole plane's flat-interface currents in closed form, less
+the patch rooftops' share), so the extended mesh's edge does not cut the far field.
 
 Flat-interface currents (exterior side, normal n̂ = ẑ): J = ẑ × H, M = E × ẑ (unknowns J and
 M̃ = M/η₀, mesh.py), with E, H the incident plus Fresnel-reflected fields at z = 0. On a flat
@@ -40,9 +42,11 @@ from wavebrdf.solver.farfield import ETA0
 from wavebrdf.solver.surface import HeightField
 
 __all__ = ["FLUX_LEFT", "FlatContinuation", "border_height", "check_flat_border", "embedded_mesh",
-           "flat_interface_coefficients", "flux_beyond", "rooftop_form_factor"]
+           "flat_interface_coefficients", "flat_interface_integrals", "flat_rooftop_integrals", "flux_beyond",
+           "rooftop_form_factor"]
 
 FLUX_LEFT = 1e-6  # beam flux (relative) allowed to fall outside the extended mesh
+PHASE_BLOCK_BYTES = 64 * 2**20  # phases of one block of directions in flat_rooftop_integrals
 BORDER_TOLERANCE = 0.05  # largest |border height − continuation plane| in cells d
 
 
@@ -64,6 +68,64 @@ def flat_interface_coefficients(mesh: BEMMesh, beam, media: Media) -> np.ndarray
         x[:, :nb][:, rows] = 0.25 * d * np.cross(z, H)[..., axis]
         x[:, nb:][:, rows] = 0.25 * d * np.cross(E, z)[..., axis] / ETA0
     return x
+
+
+def flat_interface_integrals(beam, media: Media, kx, ky) -> np.ndarray:
+    """Radiation integrals [F_J | F_M] (2, ..., 6), M = η₀M̃ (aim/farfield.py), of the flat-interface
+    currents on the whole plane z = 0 under the continuous exact ``beam``, toward the outgoing
+    directions of transverse wavevector (κx, κy) = k₁ r̂_t: the plane integral of J e^{jκ·ρ} picks the
+    currents' spectral density, F = (2π)² (ẑ × Ĥ, Ê × ẑ)(κ) (``ExactGaussianBeam.interface_spectrum``)."""
+    E, H = beam.interface_spectrum(kx, ky, complex(media.index))
+    z = np.array([0.0, 0.0, 1.0])
+    return (2.0 * np.pi) ** 2 * np.concatenate([np.cross(z, H), np.cross(E, z)], axis=-1)
+
+
+def flat_rooftop_integrals(mesh: BEMMesh, x: np.ndarray, kx: np.ndarray, ky: np.ndarray, *,
+                           separable: bool = False) -> np.ndarray:
+    """Radiation integrals [F_J | F_M] (P, ..., 6), M = η₀M̃, of rooftop coefficients ``x`` (P, 2N_b)
+    laid on ``mesh``'s lattice flat at z = 0: a rooftop of coefficient c at edge midpoint r_n
+    radiates 4cd·(its form factor)·e^{jκ·r_n} along its current (``flat_interface_coefficients``).
+    Toward (κx[i], κy[i]) (any shape); with ``separable``, toward the grid κx[i] × κy[j] (1-D
+    axes, output (P, n_x, n_y, 6)) by two matrix products per component."""
+    x = np.atleast_2d(x)
+    nb, d = mesh.n_bases, mesh.spacing_um
+    centres = mesh.basis_centres[:, :2]
+    kx, ky = np.asarray(kx, dtype=float), np.asarray(ky, dtype=float)
+    shape = (kx.size, ky.size) if separable else np.broadcast_shapes(kx.shape, ky.shape)
+    out = np.zeros((len(x),) + shape + (6,), dtype=complex)
+    horizontal = np.arange(nb) < mesh.n_horizontal
+    for rows, axis in ((horizontal, 0), (~horizontal, 1)):
+        r = centres[rows]
+        if separable:
+            form = rooftop_form_factor(*((kx[:, None], ky[None, :]) if axis == 0 else (ky[None, :], kx[:, None])), d)
+            ux, ix = np.unique(r[:, 0], return_inverse=True)
+            uy, iy = np.unique(r[:, 1], return_inverse=True)
+            ex = np.exp(1j * np.outer(kx, ux))
+            ey = np.exp(1j * np.outer(uy, ky))
+        else:
+            form = rooftop_form_factor(*((kx, ky) if axis == 0 else (ky, kx)), d)
+        for part, offset in ((0, 0), (1, nb)):
+            c = 4.0 * d * x[:, offset:offset + nb][:, rows] * (ETA0 if part else 1.0)
+            if separable:
+                lattice = np.zeros((len(x), len(ux), len(uy)), dtype=complex)
+                lattice[:, ix, iy] = c
+                summed = ex @ lattice @ ey
+            else:
+                summed = _phase_sums(kx, ky, r, c, shape)
+            out[..., 3 * part + axis] = summed * form
+    return out
+
+
+def _phase_sums(kx, ky, points: np.ndarray, c: np.ndarray, shape) -> np.ndarray:
+    """Σ_n c[p, n] e^{j(κx x_n + κy y_n)} (P, *shape), over blocks of directions of about
+    PHASE_BLOCK_BYTES of phases."""
+    KX, KY = (np.broadcast_to(k, shape).ravel() for k in (kx, ky))
+    out = np.empty((len(c), KX.size), dtype=complex)
+    block = max(1, PHASE_BLOCK_BYTES // (16 * max(1, len(points))))
+    for s in range(0, KX.size, block):
+        phase = np.exp(1j * (np.outer(KX[s:s + block], points[:, 0]) + np.outer(KY[s:s + block], points[:, 1])))
+        out[:, s:s + block] = c @ phase.T
+    return out.reshape((len(c),) + tuple(shape))
 
 
 def rooftop_form_factor(k_along, k_across, spacing_um: float) -> np.ndarray:
@@ -185,12 +247,15 @@ class FlatContinuation:
                  + y_outer[:, unknown_indices(patch, nb_ext)])
         return c, field.astype(complex)
 
-    def extended_solution(self, margin: int, c: np.ndarray, x_patch: np.ndarray) -> tuple[BEMMesh, np.ndarray]:
-        """(extended mesh, [x_S, c_F] on it) from ``fixed_currents``' c and the patch solution."""
-        ext, _, patch, _ = self.extended(margin)
-        x = c.copy()
-        x[:, unknown_indices(patch, ext.n_bases)] = x_patch
-        return ext, x
+    def radiation_beyond(self, beam, kx, ky, *, separable: bool = False) -> np.ndarray:
+        """Radiation integrals [F_J | F_M] (2, ..., 6) of the continued currents, every rooftop
+        but the patch's on the whole plane, toward (κx, κy) (``flat_rooftop_integrals``' shapes): the
+        whole plane's in closed form less the patch rooftops' flat-interface coefficients'. No
+        mesh truncates them, so their far field does not depend on the margin."""
+        KX, KY = np.meshgrid(kx, ky, indexing="ij") if separable else (kx, ky)
+        whole = flat_interface_integrals(beam, self.media, KX, KY)
+        own = flat_interface_coefficients(self.mesh, beam, self.media)
+        return whole - flat_rooftop_integrals(self.mesh, own, kx, ky, separable=separable)
 
     def bytes(self) -> int:
         """Memory held: the ring operator and the extended mesh's grid part."""

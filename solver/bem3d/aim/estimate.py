@@ -35,9 +35,11 @@ COST = fitted("aim_cost")  # the cost model's fitted constants (solver/data/aim_
 
 def _continuation_cost(mesh: BEMMesh, options: AIMOptions, waist_um: float | None, near_entry: int, cplx: int,
                        stencil_points: int) -> tuple[float, float, float]:
-    """(bytes, set-up seconds, far-field bytes) of the flat continuation (continuation.py): the ring
-    operator's near storage and set-up, the extended mesh's grid weights, and the far field of the
-    extended mesh (which replaces the patch's)."""
+    """(bytes, set-up seconds, far-field bytes per output pixel) of the flat continuation
+    (continuation.py): the ring operator's near storage and set-up, the extended mesh's grid
+    weights, and the closed-form radiation of the continued currents (``radiation_beyond``: the
+    whole plane's, the patch rooftops' and their difference, 6 components per polarization, and
+    the beam's spectral densities behind them)."""
     n, d, L = mesh.cells, mesh.spacing_um, mesh.surface.size_um
     ring = n + 2 * (math.ceil(options.near_cells) + 2)
     waist = waist_um or L / 2.5
@@ -46,9 +48,7 @@ def _continuation_cost(mesh: BEMMesh, options: AIMOptions, waist_um: float | Non
     ring_pairs = NearPattern.build(ring, options.near_cells).stored_entries()
     extended_bases = 2 * extended * (extended - 1)
     weights = 2 * cplx * 3 * stencil_points * extended_bases
-    # the extended mesh radiates from its own grid sources (farfield.py): 6 components per
-    # polarization on its compact grid, one plane (the continuation is flat), complex128
-    farfield = 2 * 6 * (extended + 4) ** 2 * 16
+    farfield = 16 * 2 * 6 * 7
     seconds = _near_assembly_s(ring_pairs, flat=True) + _grid_setup_s(2 * extended_bases, flat=True)
     return ring_pairs * near_entry + weights, seconds, farfield
 
@@ -209,7 +209,7 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
         continuation, continuation_s, farfield = _continuation_cost(mesh, options, waist_um, near_entry, cplx,
                                                                      S * groups)
         held["continuation"] = continuation
-        transient["far field"] += farfield
+        transient["far field"] += farfield * resolution**2
     # the set-up's transients come before the preconditioner and the continuation exist
     before_preconditioner = sum(v for k, v in held.items() if k not in ("preconditioner", "continuation"))
     total = max(before_preconditioner + transient["set-up"],

@@ -88,8 +88,9 @@ class GridFarField:
                 out[:, 3 * part + c] = scale * (m @ xs).T.reshape((len(x),) + shape)
         return out
 
-    def radiation_integrals(self, x: np.ndarray) -> np.ndarray:
-        """F (P, 6, res, res) = Σ_p h(p) e^{jk₁ r̂·p} at every pixel (zero outside the disk).
+    def radiation_integrals(self, x: np.ndarray, beyond: np.ndarray | None = None) -> np.ndarray:
+        """F (P, 6, res, res) = Σ_p h(p) e^{jk₁ r̂·p} at every pixel (zero outside the disk), plus
+        ``beyond`` (P, 6, res, res): the integrals of currents off the mesh (a flat continuation's).
 
         Streamed over the grid's z planes: two chirp-z transforms of one plane at a time, summed
         with the plane's phase e^{jk₁ μ z_l}, so no array holds every plane's transform."""
@@ -104,18 +105,22 @@ class GridFarField:
             out = self.czt[0](plane, axis=1, workers=self.workers)
             out = self.czt[1](out, axis=2, workers=self.workers).reshape(P, 6, res, res)
             F += out * np.exp(1j * self.k * z * mu)
+        if beyond is not None:
+            F += beyond
         return np.where(self.output.inside, F, 0.0)
 
-    def fields(self, x: np.ndarray):
-        """E, H (P, 3, res, res) on the output grid for solutions x (P, 2N_b)."""
-        F = np.moveaxis(self.radiation_integrals(x), 1, -1)  # (P, res, res, 6)
+    def fields(self, x: np.ndarray, beyond: np.ndarray | None = None):
+        """E, H (P, 3, res, res) on the output grid for solutions x (P, 2N_b) (and ``beyond``, as in
+        ``radiation_integrals``)."""
+        F = np.moveaxis(self.radiation_integrals(x, beyond), 1, -1)  # (P, res, res, 6)
         E, H = fields_from_integrals(self.media, self.output.directions[None], F[..., :3], F[..., 3:])
         inside = self.output.inside[None, :, :, None]
         return np.moveaxis(np.where(inside, E, 0.0), -1, 1), np.moveaxis(np.where(inside, H, 0.0), -1, 1)
 
-    def farfield(self, x: np.ndarray, *, theta_i: float, phi_i: float, incident_power, diagnostics=None) -> FarField:
-        """FarField (rows of ``x`` = polarizations s, p)."""
-        E, H = self.fields(x)
+    def farfield(self, x: np.ndarray, *, theta_i: float, phi_i: float, incident_power, diagnostics=None,
+                 beyond: np.ndarray | None = None) -> FarField:
+        """FarField (rows of ``x`` = polarizations s, p; ``beyond`` as in ``radiation_integrals``)."""
+        E, H = self.fields(x, beyond)
         return FarField(grid=self.output, wavelength_um=self.media.wavelength_um,
                         exterior_index=self.media.exterior_index, theta_i=float(theta_i), phi_i=float(phi_i),
                         E=E, H=H, incident_power=incident_power, diagnostics=dict(diagnostics or {}))

@@ -208,33 +208,30 @@ class AIMOperator:
         return result
 
     def farfield(self, mesh: BEMMesh, x: np.ndarray, grid, rule=None, *, theta_i: float, phi_i: float,
-                 incident_power: np.ndarray, diagnostics: dict, grid_part: GridPart | None = None):
-        """The far field of the currents ``x`` on ``mesh`` (the patch's, or the extended mesh of the
-        flat continuation, whose ``grid_part`` is then given) from grid point sources by chirp-z
-        transforms (farfield.py); ``rule`` is not used (the dense operator's direct sum needs it)."""
-        return self._grid_farfield(grid, mesh, grid_part).farfield(x, theta_i=theta_i, phi_i=phi_i,
-                                                                   incident_power=incident_power,
-                                                                   diagnostics=diagnostics)
+                 incident_power: np.ndarray, diagnostics: dict, beyond: np.ndarray | None = None):
+        """The far field of the currents ``x`` on the operator's ``mesh`` from grid point sources by
+        chirp-z transforms (farfield.py), plus the radiation integrals ``beyond`` (P, 6, res, res)
+        of currents off the mesh (a flat continuation's); ``rule`` is not used (the dense
+        operator's direct sum needs it)."""
+        if mesh is not self.mesh:
+            raise ValueError("the AIM far field radiates the operator's own mesh")
+        return self._grid_farfield(grid).farfield(x, theta_i=theta_i, phi_i=phi_i, incident_power=incident_power,
+                                                  diagnostics=diagnostics, beyond=beyond)
 
-    def _grid_farfield(self, grid, mesh: BEMMesh, grid_part: GridPart | None = None) -> GridFarField:
-        """The far-field transform of ``mesh`` onto ``grid``, kept (one extended mesh at a time:
-        its size follows the beam). With ``farfield_sources = "operator"`` the point sources are
-        the operator's own exterior-medium projection (no second projection is built or held);
-        with "matched", or when the operator's projection is not far-field matched at k₁, a grid
-        of its own matched on the upper hemisphere."""
-        key = (grid.resolution, mesh.cells)
-        if key not in self._grid_farfields:
-            if mesh is not self.mesh:
-                self._grid_farfields = {k: v for k, v in self._grid_farfields.items() if k[1] == self.mesh.cells}
+    def _grid_farfield(self, grid) -> GridFarField:
+        """The far-field transform of the mesh onto ``grid``, kept per output resolution. With
+        ``farfield_sources = "operator"`` the point sources are the operator's own exterior-medium
+        projection (no second projection is built or held); with "matched", or when the operator's
+        projection is not far-field matched at k₁, a grid of its own matched on the upper hemisphere."""
+        if grid.resolution not in self._grid_farfields:
             o = self.options
-            part = self.grid_part if mesh is self.mesh else grid_part
             projection = None
-            if o.farfield_sources == "operator" and part is not None:
-                projection = part.exterior_projection(self.media)
-            self._grid_farfields[key] = GridFarField(
-                mesh, self.media, grid, projection=projection, grid_options=GridOptions(stencil=o.farfield_stencil),
+            if o.farfield_sources == "operator" and self.grid_part is not None:
+                projection = self.grid_part.exterior_projection(self.media)
+            self._grid_farfields[grid.resolution] = GridFarField(
+                self.mesh, self.media, grid, projection=projection, grid_options=GridOptions(stencil=o.farfield_stencil),
                 directions=o.farfield_directions or None, regularization=o.farfield_regularization)
-        return self._grid_farfields[key]
+        return self._grid_farfields[grid.resolution]
 
     def diagnostics(self) -> dict:
         """Set-up figures of the operator (for the run's diagnostics)."""
