@@ -395,21 +395,21 @@ class ExactGaussianBeam(_GaussianBeam):
         (``kvec``, ``E``, ``H`` like ``plane_waves``; phases about the mirrored focus; ``_reflect``).
         """
         pw = self.plane_waves
-        kr, E, H = _reflect(pw["kvec"], pw["E"], pw["H"], complex(index) / self.exterior_index,
-                            ETA0 / self.exterior_index, self.frame[1])
-        return {"kvec": kr, "E": E, "H": H, "lattice": pw["lattice"], "kx_axis": pw["kx_axis"], "ky_axis": pw["ky_axis"]}
+        kr, E, H = self._reflect(pw["kvec"], pw["E"], pw["H"], index)
+        return {"kvec": kr, "E": E, "H": H, "lattice": pw["lattice"], "kx_axis": pw["kx_axis"],
+                "ky_axis": pw["ky_axis"]}
 
     def interface_spectrum(self, kx, ky, index: complex) -> tuple[np.ndarray, np.ndarray]:
         """The continuous beam's total field on the flat interface z = 0 over a material of
         ``index``, as spectral densities (E, H of shape (2, ..., 3), per unit κ area) at (κx, κy)
-        (propagating ones; beyond the light cone k_z is taken as 0, values to be masked): E(x, y, 0) = ∫ Ê(κ) e^{−jκ·(x, y)} d²κ, incident plus Fresnel-reflected wave
+        (propagating ones; beyond the light cone k_z is taken as 0, values to be masked):
+        E(x, y, 0) = ∫ Ê(κ) e^{−jκ·(x, y)} d²κ, incident plus Fresnel-reflected wave
         (``reflected_waves``), the focus's phase included. The beam is the non-periodic one whose
         lattice samples ``plane_waves`` are."""
         kx, ky = np.broadcast_arrays(np.asarray(kx, dtype=float), np.asarray(ky, dtype=float))
         kvec, E, H = self._densities(kx, ky)
         norm = self.plane_waves["norm"]
-        _, E_r, H_r = _reflect(kvec, E / norm, H / norm, complex(index) / self.exterior_index,
-                               ETA0 / self.exterior_index, self.frame[1])
+        _, E_r, H_r = self._reflect(kvec, E / norm, H / norm, index)
         f = self.focus_um
         phase = np.exp(1j * (kx * f[0] + ky * f[1] + kvec[..., 2] * f[2]))[..., None]
         return (E / norm + E_r) * phase, (H / norm + H_r) * phase
@@ -438,11 +438,11 @@ class ExactGaussianBeam(_GaussianBeam):
         ``reflectance`` is the periodic beam's)."""
         kx, ky, wq = self._spectral_rule
         kvec, E, H = self._densities(kx, ky)
-        _, E_r, _ = _reflect(kvec, E, H, complex(index) / self.exterior_index, ETA0 / self.exterior_index,
-                             self.frame[1])
-        weights = wq * (-kvec[:, 2])
-        return (np.sum(weights * np.sum(np.abs(E_r) ** 2, axis=-1), axis=1)
-                / np.sum(weights * np.sum(np.abs(E) ** 2, axis=-1), axis=1))
+        return _flux_ratio(wq * (-kvec[:, 2]), self._reflect(kvec, E, H, index)[1], E)
+
+    def _reflect(self, kvec, E, H, index: complex):
+        """``_reflect`` by the flat interface over a material of ``index``, in this beam's medium."""
+        return _reflect(kvec, E, H, complex(index) / self.exterior_index, ETA0 / self.exterior_index, self.frame[1])
 
     def outside_fraction(self, patch_size_um: float) -> float:
         """Fraction of the exact incident power (one beam) crossing z = focus outside the patch."""
@@ -452,10 +452,13 @@ class ExactGaussianBeam(_GaussianBeam):
     def reflectance(self, index: complex) -> np.ndarray:
         """Exact flat-interface reflectance per polarization: Σ_m |k_z,m| |E_r,m|² / Σ_m |k_z,m| |E_m|²."""
         pw = self.plane_waves
-        weights = -pw["kvec"][:, 2]
-        reflected = self.reflected_waves(index)["E"]
-        return (np.sum(weights * np.sum(np.abs(reflected) ** 2, axis=2), axis=1)
-                / np.sum(weights * np.sum(np.abs(pw["E"]) ** 2, axis=2), axis=1))
+        return _flux_ratio(-pw["kvec"][:, 2], self.reflected_waves(index)["E"], pw["E"])
+
+
+def _flux_ratio(weights: np.ndarray, reflected: np.ndarray, incident: np.ndarray) -> np.ndarray:
+    """Σ w |E_r|² / Σ w |E|² per polarization for plane-wave amplitudes (2, M, 3) and weights (M,)."""
+    return (np.sum(weights * np.sum(np.abs(reflected) ** 2, axis=-1), axis=1)
+            / np.sum(weights * np.sum(np.abs(incident) ** 2, axis=-1), axis=1))
 
 
 def _panels(a: float, b: float, width: float, order: int = 8) -> tuple[np.ndarray, np.ndarray]:

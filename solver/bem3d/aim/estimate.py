@@ -34,12 +34,10 @@ COST = fitted("aim_cost")  # the cost model's fitted constants (solver/data/aim_
 
 
 def _continuation_cost(mesh: BEMMesh, options: AIMOptions, waist_um: float | None, near_entry: int, cplx: int,
-                       stencil_points: int) -> tuple[float, float, float]:
-    """(bytes, set-up seconds, far-field bytes per output pixel) of the flat continuation
-    (continuation.py): the ring operator's near storage and set-up, the extended mesh's grid
-    weights, and the closed-form radiation of the continued currents (``radiation_beyond``: the
-    whole plane's, the patch rooftops' and their difference, 6 components per polarization, and
-    the beam's spectral densities behind them)."""
+                       stencil_points: int) -> tuple[float, float]:
+    """(bytes, set-up seconds) of the flat continuation (continuation.py): the ring operator's near
+    storage and set-up and the extended mesh's grid weights (the closed form of its far field:
+    BEYOND_PIXEL_BYTES per output pixel)."""
     n, d, L = mesh.cells, mesh.spacing_um, mesh.surface.size_um
     ring = n + 2 * (math.ceil(options.near_cells) + 2)
     waist = waist_um or L / 2.5
@@ -48,9 +46,8 @@ def _continuation_cost(mesh: BEMMesh, options: AIMOptions, waist_um: float | Non
     ring_pairs = NearPattern.build(ring, options.near_cells).stored_entries()
     extended_bases = 2 * extended * (extended - 1)
     weights = 2 * cplx * 3 * stencil_points * extended_bases
-    farfield = 16 * 2 * 6 * 7
     seconds = _near_assembly_s(ring_pairs, flat=True) + _grid_setup_s(2 * extended_bases, flat=True)
-    return ring_pairs * near_entry + weights, seconds, farfield
+    return ring_pairs * near_entry + weights, seconds
 
 
 # Set-up time: the near-field assembly per stored pair and the projection, kernel spectra and
@@ -127,6 +124,9 @@ ASSEMBLY_BYTES = COST["assembly_bytes"]  # near-field assembly above what it kee
 BLOCK_BYTES = COST["block_bytes"]  # the beam's fields and surface power over element blocks (excitation.py)
 EXCITATION_BYTES_PER_UNKNOWN = COST["excitation_bytes_per_unknown"]
 FARFIELD_PIXEL_BYTES = 16 * 2 * 36  # per output pixel: F (6), E, H (3 + 3) per polarization, CZT planes
+# per output pixel, a flat continuation's closed form (radiation_beyond): three arrays of 6 components
+# per polarization (whole plane, patch rooftops, difference) and the spectral densities behind them
+BEYOND_PIXEL_BYTES = 16 * 2 * 6 * 7
 
 
 def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, exterior_index: float = 1.0,
@@ -206,10 +206,9 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     }
     continuation = continuation_s = 0.0
     if options.edge == "flat":
-        continuation, continuation_s, farfield = _continuation_cost(mesh, options, waist_um, near_entry, cplx,
-                                                                     S * groups)
+        continuation, continuation_s = _continuation_cost(mesh, options, waist_um, near_entry, cplx, S * groups)
         held["continuation"] = continuation
-        transient["far field"] += farfield * resolution**2
+        transient["far field"] += BEYOND_PIXEL_BYTES * resolution**2
     # the set-up's transients come before the preconditioner and the continuation exist
     before_preconditioner = sum(v for k, v in held.items() if k not in ("preconditioner", "continuation"))
     total = max(before_preconditioner + transient["set-up"],
