@@ -20,7 +20,10 @@
  * (o = 0: values at the row, X_V at row + s) or transposed (o = 1: values and X_H at row - s).
  * The loops run offset by offset over the tile, so each offset's values stream as 6
  * contiguous runs of T P reals (hardware prefetch; docs/aim.md), and Y accumulates in memory
- * (a tile of Y stays in cache). On CPUs a work-item takes a whole row width in WB_VW-lane
+ * (a tile of Y stays in cache). The right-hand sides take turns over the tile within each
+ * offset: the offset's values come from memory once and from cache for the next right-hand
+ * side, while one right-hand side's rows of X and Y stay in cache (both right-hand sides' rows
+ * at once overflowed a 1 MiB L2 in double precision at 10^6 unknowns: 2.7x slower). On CPUs a work-item takes a whole row width in WB_VW-lane
  * vectors (wb_vcomplex.h), on GPUs one site (WB_VW = 1).
  * near_move puts x onto the lattice, and adds Y into y (zeroing Y).
  * NumPy twin: NearMatrix.apply_numpy (a scipy.sparse matrix of the same entries).
@@ -53,28 +56,22 @@ typedef float near_s;
 #define VSTORE(v, p) WB_PASTE(vstore, WB_VW)((v), 0, (p))
 #endif
 
-/* Y += C_pair X for one stored slice and WB_VW sites: v at [ee re] (component c, part r at
-   v + (2c + r) cs); x and y at [J re] / [E re] of one orientation of right-hand side 0 (parts at
-   + plane, next right-hand side + 8 planes) */
+/* Y += C_pair X for one stored slice, one right-hand side and WB_VW sites: v at [ee re] (component
+   c, part r at v + (2c + r) cs); x and y at [J re] / [E re] of one orientation (parts at + plane) */
 inline void near_pair(__global const near_s *v, const int cs, __global const real_t *x, __global real_t *y,
                       const size_t plane)
 {
     const vcplx_t ee = vc_new(VLOAD(v), VLOAD(v + cs));
     const vcplx_t em = vc_new(VLOAD(v + 2 * cs), VLOAD(v + 3 * cs));
     const vcplx_t mm = vc_new(VLOAD(v + 4 * cs), VLOAD(v + 5 * cs));
-#pragma unroll
-    for (int b = 0; b < NEAR_BATCH; ++b) {
-        __global const real_t *xb = x + (size_t)b * 8 * plane;
-        __global real_t *yb = y + (size_t)b * 8 * plane;
-        const vcplx_t xj = vc_new(VLOAD(xb), VLOAD(xb + plane));
-        const vcplx_t xm = vc_new(VLOAD(xb + 2 * plane), VLOAD(xb + 3 * plane));
-        const vcplx_t ye = vc_fma(ee, xj, vc_fma(em, xm, vc_new(VLOAD(yb), VLOAD(yb + plane))));
-        const vcplx_t yh = vc_fma(em, xj, vc_fma(mm, xm, vc_new(VLOAD(yb + 2 * plane), VLOAD(yb + 3 * plane))));
-        VSTORE(ye.re, yb);
-        VSTORE(ye.im, yb + plane);
-        VSTORE(yh.re, yb + 2 * plane);
-        VSTORE(yh.im, yb + 3 * plane);
-    }
+    const vcplx_t xj = vc_new(VLOAD(x), VLOAD(x + plane));
+    const vcplx_t xm = vc_new(VLOAD(x + 2 * plane), VLOAD(x + 3 * plane));
+    const vcplx_t ye = vc_fma(ee, xj, vc_fma(em, xm, vc_new(VLOAD(y), VLOAD(y + plane))));
+    const vcplx_t yh = vc_fma(em, xj, vc_fma(mm, xm, vc_new(VLOAD(y + 2 * plane), VLOAD(y + 3 * plane))));
+    VSTORE(ye.re, y);
+    VSTORE(ye.im, y + plane);
+    VSTORE(yh.re, y + 2 * plane);
+    VSTORE(yh.im, y + 3 * plane);
 }
 
 /* the values of offset j at lattice row r, site 0 */
@@ -101,27 +98,33 @@ __kernel void near_tiles(const int o, const int N, const int P, const int T, con
     for (int j = 0; j < nsame; ++j) {
         const int2 ab = same_ab[j];
         const int s = ab.x + P * ab.y;
-        for (int r = r0; r < r1; ++r) {
-            __global const near_s *v = near_values(same, j, r, tiles, T, P);
-            const size_t m = (size_t)r * P;
-            for (int x = x0; x < x1; x += WB_VW) near_pair(v + x, cs, Xown + m + s + x, Yown + m + x, plane);
-        }
-        if (s == 0) continue;
-        for (int r = r0; r < r1; ++r) {
-            __global const near_s *v = near_values(same, j, r - ab.y, tiles, T, P) - ab.x;
-            const size_t m = (size_t)r * P;
-            for (int x = x0; x < x1; x += WB_VW) near_pair(v + x, cs, Xown + m - s + x, Yown + m + x, plane);
+        for (int b = 0; b < NEAR_BATCH; ++b) {
+            const size_t rhs = (size_t)b * 8 * plane;
+            for (int r = r0; r < r1; ++r) {
+                __global const near_s *v = near_values(same, j, r, tiles, T, P);
+                const size_t m = (size_t)r * P + rhs;
+                for (int x = x0; x < x1; x += WB_VW) near_pair(v + x, cs, Xown + m + s + x, Yown + m + x, plane);
+            }
+            if (s == 0) continue;
+            for (int r = r0; r < r1; ++r) {
+                __global const near_s *v = near_values(same, j, r - ab.y, tiles, T, P) - ab.x;
+                const size_t m = (size_t)r * P + rhs;
+                for (int x = x0; x < x1; x += WB_VW) near_pair(v + x, cs, Xown + m - s + x, Yown + m + x, plane);
+            }
         }
     }
     for (int j = 0; j < ncross; ++j) {
         const int2 ab = cross_ab[j];
         const int s = ab.x + P * ab.y;
-        for (int r = r0; r < r1; ++r) {
-            __global const near_s *v = o == 0 ? near_values(cross, j, r, tiles, T, P)
-                                              : near_values(cross, j, r - ab.y, tiles, T, P) - ab.x;
-            const size_t m = (size_t)r * P;
-            __global const real_t *xc = Xother + m + (o == 0 ? s : -s);
-            for (int x = x0; x < x1; x += WB_VW) near_pair(v + x, cs, xc + x, Yown + m + x, plane);
+        for (int b = 0; b < NEAR_BATCH; ++b) {
+            const size_t rhs = (size_t)b * 8 * plane;
+            for (int r = r0; r < r1; ++r) {
+                __global const near_s *v = o == 0 ? near_values(cross, j, r, tiles, T, P)
+                                                  : near_values(cross, j, r - ab.y, tiles, T, P) - ab.x;
+                const size_t m = (size_t)r * P + rhs;
+                __global const real_t *xc = Xother + m + (o == 0 ? s : -s);
+                for (int x = x0; x < x1; x += WB_VW) near_pair(v + x, cs, xc + x, Yown + m + x, plane);
+            }
         }
     }
 }
