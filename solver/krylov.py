@@ -8,7 +8,9 @@ Methods (``method``):
 
 ``"gmres"``
     restarted GMRES(m) with modified Gram–Schmidt (Saad & Schultz 1986); minimal residual over
-    the Krylov space, m + 1 stored vectors per right-hand side.
+    the Krylov space, m + 1 stored vectors per right-hand side. With ``deflate`` = k > 0:
+    GMRES-DR(m, k) (Morgan 2002), which keeps the k harmonic Ritz vectors nearest zero across
+    each restart, in the same m + 1 vectors.
 ``"csym"``
     complex-symmetric MINRES (A = Aᵀ, not Hermitian): the Saunders–Simon–Yip tridiagonalization
     A V̄_k = V_{k+1} T_k with a minimal-residual QR of T_k (Bunse-Gerstner & Stöver 1999; the
@@ -127,6 +129,20 @@ def _givens(a: np.ndarray, b: np.ndarray):
 # ---------------------------------------------------------------------------------------------
 
 
+def _arnoldi(A: _Counter, V, H, idx, rows, j):
+    """Arnoldi step j for the rows ``idx`` of V and H (right-hand sides ``rows``): V[idx, j + 1]
+    and H[idx, : j + 2, j] by modified Gram–Schmidt; returns ‖w‖ per row (0: breakdown)."""
+    w = A(V[idx, j], rows)
+    for i in range(j + 1):
+        h = np.sum(np.conj(V[idx, i]) * w, axis=1)
+        H[idx, i, j] = h
+        w -= h[:, None] * V[idx, i]
+    hn = _norms(w)
+    H[idx, j + 1, j] = hn
+    V[idx, j + 1] = w / np.where(hn > 0, hn, 1.0)[:, None]
+    return hn
+
+
 def _gmres_cycle(A: _Counter, x, r, bnorm, which, tol, m, budget):
     """One GMRES(m) cycle for the right-hand sides ``which``; updates x in place."""
     P, n = len(which), x.shape[1]
@@ -144,14 +160,7 @@ def _gmres_cycle(A: _Counter, x, r, bnorm, which, tol, m, budget):
         idx = np.flatnonzero(live & (A.products[which] < budget))
         if len(idx) == 0:
             break
-        w = A(V[idx, j], which[idx])
-        for i in range(j + 1):  # modified Gram–Schmidt
-            h = np.sum(np.conj(V[idx, i]) * w, axis=1)
-            H[idx, i, j] = h
-            w -= h[:, None] * V[idx, i]
-        hn = _norms(w)
-        H[idx, j + 1, j] = hn
-        V[idx, j + 1] = w / np.where(hn > 0, hn, 1.0)[:, None]
+        hn = _arnoldi(A, V, H, idx, which[idx], j)
         for i in range(j):  # previous rotations on column j
             a, b = H[idx, i, j], H[idx, i + 1, j]
             H[idx, i, j] = cs[idx, i] * a + sn[idx, i] * b
@@ -189,6 +198,93 @@ def _gmres(A, b, x, tol, max_iterations, restart, bnorm):
         r[which] = b[which] - A(x[which], which)
         true[which] = _norms(r[which]) / bnorm[which]
         active = true > tol
+    return x, estimate, true
+
+
+def _least_squares(Hbar: np.ndarray, c: np.ndarray):
+    """(y, c − H̄ y) of min ‖c − H̄ y‖ for a small (j+1) × j matrix, in double precision."""
+    y = np.linalg.lstsq(Hbar, c, rcond=None)[0]
+    return y, c - Hbar @ y
+
+
+def _deflate(H: np.ndarray, rho: np.ndarray, k: int):
+    """The restart of GMRES-DR (Morgan 2002): the (m+1) × (k+1) orthonormal Q whose first k columns
+    span the k harmonic Ritz vectors of H̄ (m+1) × m nearest zero and whose span holds the residual
+    coefficients ``rho``; the next cycle starts from V Q, H̄ ← Qᴴ H̄ Q[:m, :k], c ← Qᴴ rho."""
+    m = H.shape[1]
+    Hm = H[:m, :m]
+    f = np.linalg.solve(Hm.conj().T, np.eye(m)[-1])
+    theta, G = np.linalg.eig(Hm + np.abs(H[m, m - 1]) ** 2 * np.outer(f, np.eye(m)[-1]))
+    basis = np.zeros((m + 1, k + 1), dtype=complex)
+    basis[:m, :k] = G[:, np.argsort(np.abs(theta))[:k]]
+    basis[:, k] = rho
+    return np.linalg.qr(basis)[0]
+
+
+def _gmres_dr(A, b, x, tol, max_iterations, m, k, bnorm):
+    """GMRES-DR(m, k): restarted GMRES that keeps, at each restart, the k harmonic Ritz vectors
+    nearest zero beside the residual (Morgan 2002), so the slow modes a plain restart forgets are
+    deflated; same stored vectors as GMRES(m). The residual is carried in the Arnoldi basis between
+    cycles and the true one computed where the estimate reaches ``tol`` (a miss restarts afresh)."""
+    P, n = b.shape
+    everyone = np.arange(P)
+    r = b - A(x, everyone) if np.any(x) else b.copy()
+    true = _norms(r) / bnorm
+    estimate = true.copy()
+    V = np.zeros((P, m + 1, n), dtype=b.dtype)
+    H = np.zeros((P, m + 1, m), dtype=complex)
+    c = np.zeros((P, m + 1), dtype=complex)
+    first = np.zeros(P, dtype=np.int64)  # the columns a cycle inherits from the last (0: a fresh start)
+    fresh = np.ones(P, dtype=bool)
+    active = true > tol
+    while True:
+        which = np.flatnonzero(active & (A.products < max_iterations))
+        if len(which) == 0:
+            break
+        for p in which[fresh[which]]:
+            beta = np.linalg.norm(r[p])
+            V[p, 0] = r[p] / beta
+            H[p], c[p], first[p] = 0.0, 0.0, 0
+            c[p, 0] = beta
+        fresh[which] = False
+        steps = first.copy()
+        live = np.zeros(P, dtype=bool)
+        live[which] = True
+        for j in range(int(first[which].min()), m):
+            idx = which[live[which] & (first[which] <= j) & (A.products[which] < max_iterations)]
+            if len(idx) == 0:
+                break
+            hn = _arnoldi(A, V, H, idx, idx, j)
+            steps[idx] = j + 1
+            res = np.array([np.linalg.norm(_least_squares(H[p, : j + 2, : j + 1], c[p, : j + 2])[1])
+                            for p in idx]) / bnorm[idx]
+            estimate[idx] = res
+            A.record(idx, res)
+            live[idx[(res <= tol) | (hn == 0)]] = False
+        check = []
+        for p in which:
+            j = int(steps[p])
+            if j == 0:
+                continue
+            y, rho = _least_squares(H[p, : j + 1, :j], c[p, : j + 1])
+            x[p] += (y @ V[p, :j]).astype(x.dtype)
+            estimate[p] = np.linalg.norm(rho) / bnorm[p]
+            if estimate[p] <= tol or j < m or A.products[p] >= max_iterations:
+                check.append(p)
+                continue
+            Q = _deflate(H[p], rho, k)
+            V[p, : k + 1] = Q.T.astype(V.dtype) @ V[p]
+            H[p, : k + 1, :k] = Q.conj().T @ H[p] @ Q[:m, :k]
+            H[p, k + 1 :], H[p, :, k:] = 0.0, 0.0
+            c[p] = 0.0
+            c[p, : k + 1] = Q.conj().T @ rho
+            first[p] = k
+        if check:
+            check = np.array(check)
+            r[check] = b[check] - A(x[check], check)
+            true[check] = _norms(r[check]) / bnorm[check]
+            active[check] = true[check] > tol
+            fresh[check] = True
     return x, estimate, true
 
 
@@ -319,7 +415,8 @@ def _scaled_guess(A: _Counter, apply, b: np.ndarray, x0: np.ndarray, bnorm: np.n
 
 
 def solve(matvec, b: np.ndarray, *, method: str = "gmres", tol: float = 1e-4, max_iterations: int = 1000,
-          restart: int = 60, x0: np.ndarray | None = None, preconditioner=None, progress=None) -> KrylovResult:
+          restart: int = 60, deflate: int = 0, x0: np.ndarray | None = None, preconditioner=None,
+          progress=None) -> KrylovResult:
     """Solve A x = b for right-hand sides b (P, n); see the module docstring.
 
     ``max_iterations`` bounds the operator products per right-hand side (the initial guess's one
@@ -337,6 +434,8 @@ def solve(matvec, b: np.ndarray, *, method: str = "gmres", tol: float = 1e-4, ma
         raise ValueError(f"krylov max_iterations must be a positive integer, got {max_iterations!r}")
     if int(restart) != restart or restart < 1:
         raise ValueError(f"krylov restart must be a positive integer, got {restart!r}")
+    if int(deflate) != deflate or not 0 <= deflate < restart:
+        raise ValueError(f"krylov deflate must be an integer in [0, restart = {restart}), got {deflate!r}")
     b = np.atleast_2d(np.asarray(b))
     dtype = np.result_type(b, np.complex64)
     b = b.astype(dtype, copy=False)
@@ -359,7 +458,9 @@ def solve(matvec, b: np.ndarray, *, method: str = "gmres", tol: float = 1e-4, ma
             raise ValueError(f"krylov: x0 has shape {x0.shape}, the right-hand sides {b.shape}")
         start, r, initial = _scaled_guess(A, apply, b, x0.astype(dtype, copy=False), bnorm)
     x = np.zeros_like(b)
-    if method == "gmres":
+    if method == "gmres" and deflate:
+        x, estimate, true = _gmres_dr(A, r, x, tol, max_iterations, int(restart), int(deflate), bnorm)
+    elif method == "gmres":
         x, estimate, true = _gmres(A, r, x, tol, max_iterations, int(restart), bnorm)
     elif method == "csym":
         x, estimate, true = _csym(A, r, x, tol, max_iterations, bnorm)

@@ -399,6 +399,12 @@ def test_options_errors_name_the_parameter():
     for bad in (-1, 2.5, True):
         with pytest.raises(ValueError, match="aim.preconditioner_tile_cells"):
             AIMOptions(preconditioner_tile_cells=bad)
+    with pytest.raises(ValueError, match="aim.deflate .*restart = 30.*got 30"):
+        AIMOptions(restart=30, deflate=30)
+    with pytest.raises(ValueError, match="aim.deflate .*'bicgstab'"):
+        AIMOptions(solver="bicgstab", deflate=4)
+    with pytest.raises(ValueError, match=r"\[model.aim\] deflate"):
+        AIMOptions.from_mapping({"deflate": -2})
 
 
 def test_flat_surface_has_no_vertical_projection():

@@ -75,3 +75,58 @@ def test_csym_in_lockstep_is_each_right_hand_side_alone(system):
     for p in range(2):
         assert np.allclose(both.x[p], alone[p].x[0], rtol=0, atol=1e-10 * np.abs(exact).max())
     assert len(calls) <= max(both.iterations) + 2 and max(calls) == 2
+
+
+@pytest.fixture(scope="module")
+def slow_modes():
+    """A normal matrix whose spectrum is a disc around 1 plus six eigenvalues of modulus 0.01:
+    restarted GMRES forgets the slow modes at each restart and stagnates."""
+    rng = np.random.default_rng(3)
+    n = 400
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)) + 1j * rng.standard_normal((n, n)))
+    lam = 1 + 0.5 * np.sqrt(rng.random(n)) * np.exp(2j * np.pi * rng.random(n))
+    lam[:6] = 0.01 * np.exp(2j * np.pi * np.arange(6) / 6)
+    A = (Q * lam) @ Q.conj().T
+    b = rng.standard_normal((2, n)) + 1j * rng.standard_normal((2, n))
+    return A, b, np.linalg.solve(A, b.T).T
+
+
+def test_deflated_restarts_keep_the_slow_modes(slow_modes):
+    """GMRES-DR(20, 6) (Morgan 2002) reaches the direct solution where GMRES(20) stagnates: the
+    six small eigenvalues are deflated instead of rediscovered in every cycle."""
+    A, b, exact = slow_modes
+    with pytest.raises(KrylovNotConverged):
+        solve(lambda X: X @ A.T, b, tol=1e-8, max_iterations=1000, restart=20)
+    result = solve(lambda X: X @ A.T, b, tol=1e-8, max_iterations=1000, restart=20, deflate=6)
+    true = np.linalg.norm(b - result.x @ A.T, axis=1) / np.linalg.norm(b, axis=1)
+    err = np.linalg.norm(result.x - exact, axis=1) / np.linalg.norm(exact, axis=1)
+    assert np.all(true <= 1e-8) and np.allclose(true, result.true_residual)
+    assert np.all(err < 1e-6)
+    assert np.all(result.iterations < 150)  # measured 66–67 products
+
+
+@pytest.mark.parametrize("dtype", [np.complex128, np.complex64])
+def test_deflated_gmres_in_lockstep_is_each_right_hand_side_alone(system, dtype):
+    """Both right-hand sides at once take the products and reach the solutions each does alone,
+    in single and double precision, with a preconditioner."""
+    A, b, exact = system
+    M = np.linalg.inv(A + 0.3 * np.diag(np.diag(A)))
+    tol = 1e-9 if dtype == np.complex128 else 1e-5
+
+    def run(rhs):
+        return solve(lambda X: (X @ A.T).astype(X.dtype), rhs.astype(dtype), tol=tol, max_iterations=2000,
+                     restart=12, deflate=4, preconditioner=lambda X: (X @ M.T).astype(X.dtype))
+
+    both = run(b)
+    alone = [run(b[p : p + 1]) for p in range(2)]
+    assert both.iterations.tolist() == [r.iterations[0] for r in alone]
+    for p in range(2):
+        assert np.allclose(both.x[p], alone[p].x[0], rtol=0, atol=10 * tol * np.abs(exact).max())
+        assert np.linalg.norm(both.x[p] - exact[p]) / np.linalg.norm(exact[p]) < 100 * tol
+
+
+def test_deflation_must_be_below_the_restart():
+    with pytest.raises(ValueError, match="deflate"):
+        solve(lambda X: X, np.ones((1, 3)), restart=5, deflate=5)
+    with pytest.raises(ValueError, match="deflate"):
+        solve(lambda X: X, np.ones((1, 3)), restart=5, deflate=-1)

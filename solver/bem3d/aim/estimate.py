@@ -190,6 +190,7 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
         held["preconditioner"], preconditioner_s, local_entries = _local_inverse_cost(mesh.cells, n, options)
     # Krylov vectors are complex128 (solver/krylov.py works in the rhs dtype: complex for the driver)
     krylov = 16 * n * P * (options.restart + 4 if options.solver == "gmres" else 8)
+    krylov += 16 * n * (options.deflate + 1) if options.deflate else 0  # GMRES-DR's restart: V Q, one rhs at a time
     nx, ny, nz = grid.shape
     px = grid.padded[0]
     slab = 3 * 64 * 2**20

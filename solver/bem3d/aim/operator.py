@@ -194,11 +194,12 @@ class AIMOperator:
         try:
             if self.preconditioner is not None:
                 result = solve(apply, rhs, method=o.solver, tol=o.tolerance, max_iterations=o.max_iterations,
-                               restart=o.restart, x0=x0, preconditioner=self.preconditioner, progress=self.progress)
+                               restart=o.restart, deflate=o.deflate, x0=x0, preconditioner=self.preconditioner,
+                               progress=self.progress)
             else:
                 s = symmetric_scaling(self.mesh.n_bases, self.dtype)  # entries 1 and j: S⁻¹ = S̄
                 result = solve(lambda Y: s * apply(s * Y), s * rhs, method=o.solver, tol=o.tolerance,
-                               max_iterations=o.max_iterations, restart=o.restart,
+                               max_iterations=o.max_iterations, restart=o.restart, deflate=o.deflate,
                                x0=None if x0 is None else np.conj(s) * x0, progress=self.progress)
                 result.x = s * result.x
         finally:

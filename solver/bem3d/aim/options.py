@@ -52,6 +52,8 @@ class AIMOptions:
     tolerance           ‖r‖/‖b‖ of the Krylov solve (checked on the true residual)
     max_iterations      operator products per polarization
     restart             GMRES restart length
+    deflate             GMRES-DR: harmonic Ritz vectors kept at each restart (0: plain GMRES(restart);
+                        < restart; solver/krylov.py)
     warm_start          true: a solve starts from the previous wavelength's solution of the same
                         surface and incidence in this worker, phase-moved and least-squares
                         scaled (bem3d/warm_start.py); false: from zero (bitwise the same result
@@ -99,6 +101,7 @@ class AIMOptions:
     tolerance: float = option(1e-4, low=0, low_open=True, high=1, high_open=True)
     max_iterations: int = option(3000, low=1)
     restart: int = option(60, low=1)
+    deflate: int = option(0, low=0)
     warm_start: bool = option(True)
     reuse_setup: bool = option(True)
     preconditioner: str = option("near", choices=PRECONDITIONERS)
@@ -123,6 +126,9 @@ class AIMOptions:
             raise ValueError(f"aim.solver must be one of {KRYLOV_METHODS}, got {self.solver!r}")
         if self.preconditioner not in PRECONDITIONERS:
             raise ValueError(f"aim.preconditioner must be one of {PRECONDITIONERS}, got {self.preconditioner!r}")
+        if self.deflate and (self.solver != "gmres" or self.deflate >= self.restart):
+            raise ValueError(f"aim.deflate must be 0 or, with solver 'gmres', below restart = {self.restart}; "
+                             f"got {self.deflate!r} with solver {self.solver!r}")
         if self.preconditioner != "none" and self.solver == "csym":
             raise ValueError(f"aim.solver 'csym' cannot use the {self.preconditioner!r} preconditioner; "
                              "set preconditioner = 'none'")
