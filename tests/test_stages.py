@@ -86,22 +86,50 @@ def test_one_blas_thread_limits_every_loaded_blas_and_lifts_the_limit():
         assert counts() == before
 
 
-def test_huge_page_advice_is_off_unless_the_user_asks(monkeypatch):
-    """Importing the solver switched numpy's MADV_HUGEPAGE off; NUMPY_MADVISE_HUGEPAGE wins."""
+def test_huge_page_advice_follows_the_measurement_unless_the_user_asks(monkeypatch):
+    """Without NUMPY_MADVISE_HUGEPAGE the advice is what huge_pages_pay measures; the variable wins."""
     from numpy._core.multiarray import _set_madvise_hugepage  # numpy >= 2, as locked
 
+    from wavebrdf.solver import resources
     from wavebrdf.solver.resources import huge_page_advice
 
     previous = _set_madvise_hugepage(False)
     try:
-        if "NUMPY_MADVISE_HUGEPAGE" not in os.environ:
-            assert previous is False  # as the package import left it
         monkeypatch.delenv("NUMPY_MADVISE_HUGEPAGE", raising=False)
-        _set_madvise_hugepage(True)
-        assert huge_page_advice() is True and _set_madvise_hugepage(False) is False
-        monkeypatch.setenv("NUMPY_MADVISE_HUGEPAGE", "1")
-        huge_page_advice()
-        assert _set_madvise_hugepage(False) is True
+        for measured in (True, False):
+            monkeypatch.setattr(resources, "huge_pages_pay", lambda measured=measured: measured)
+            _set_madvise_hugepage(not measured)
+            huge_page_advice()
+            assert _set_madvise_hugepage(False) is measured
+        monkeypatch.setattr(resources, "huge_pages_pay", lambda: pytest.fail("the user's choice is not measured"))
+        for value, expected in (("1", True), ("0", False)):
+            monkeypatch.setenv("NUMPY_MADVISE_HUGEPAGE", value)
+            _set_madvise_hugepage(not expected)
+            huge_page_advice()
+            assert _set_madvise_hugepage(False) is expected
         assert huge_page_advice(False) is False and huge_page_advice(True) is False
     finally:
-        _set_madvise_hugepage(False)
+        _set_madvise_hugepage(previous)
+
+
+def test_huge_pages_do_not_pay_where_the_kernel_has_them_off(monkeypatch, tmp_path):
+    """THP "never" (or no THP settings at all): no advice, and nothing is probed."""
+    from wavebrdf.solver import resources
+
+    monkeypatch.setattr(resources, "_first_touch_seconds", lambda *a: pytest.fail("probed"))
+    (tmp_path / "enabled").write_text("always madvise [never]\n")
+    monkeypatch.setattr(resources, "THP_SETTINGS", str(tmp_path))
+    assert resources.huge_pages_pay() is False
+    monkeypatch.setattr(resources, "THP_SETTINGS", str(tmp_path / "missing"))
+    assert resources.huge_pages_pay() is False
+
+
+def test_huge_pages_pay_where_advised_pages_fill_no_slower(monkeypatch, tmp_path):
+    from wavebrdf.solver import resources
+
+    (tmp_path / "enabled").write_text("always [madvise] never\n")
+    monkeypatch.setattr(resources, "THP_SETTINGS", str(tmp_path))
+    for advised, plain, expected in ((0.001, 0.007, True), (0.2, 0.007, False)):
+        monkeypatch.setattr(resources, "_first_touch_seconds",
+                            lambda n, advise, a=advised, p=plain: a if advise else p)
+        assert resources.huge_pages_pay() is expected
