@@ -129,14 +129,17 @@ def _givens(a: np.ndarray, b: np.ndarray):
 # ---------------------------------------------------------------------------------------------
 
 
-def _arnoldi(A: _Counter, V, H, idx, rows, j):
+def _arnoldi(A: _Counter, V, H, idx, rows, j, passes: int = 1):
     """Arnoldi step j for the rows ``idx`` of V and H (right-hand sides ``rows``): V[idx, j + 1]
-    and H[idx, : j + 2, j] by modified Gram–Schmidt; returns ‖w‖ per row (0: breakdown)."""
+    and H[idx, : j + 2, j] by modified Gram–Schmidt, ``passes`` times (2: reorthogonalized, for a
+    basis carried across restarts); returns ‖w‖ per row (0: breakdown)."""
     w = A(V[idx, j], rows)
-    for i in range(j + 1):
-        h = np.sum(np.conj(V[idx, i]) * w, axis=1)
-        H[idx, i, j] = h
-        w -= h[:, None] * V[idx, i]
+    H[idx, : j + 1, j] = 0.0
+    for _ in range(passes):
+        for i in range(j + 1):
+            h = np.sum(np.conj(V[idx, i]) * w, axis=1)
+            H[idx, i, j] += h
+            w -= h[:, None] * V[idx, i]
     hn = _norms(w)
     H[idx, j + 1, j] = hn
     V[idx, j + 1] = w / np.where(hn > 0, hn, 1.0)[:, None]
@@ -254,7 +257,7 @@ def _gmres_dr(A, b, x, tol, max_iterations, m, k, bnorm):
             idx = which[live[which] & (first[which] <= j) & (A.products[which] < max_iterations)]
             if len(idx) == 0:
                 break
-            hn = _arnoldi(A, V, H, idx, idx, j)
+            hn = _arnoldi(A, V, H, idx, idx, j, passes=2)
             steps[idx] = j + 1
             res = np.array([np.linalg.norm(_least_squares(H[p, : j + 2, : j + 1], c[p, : j + 2])[1])
                             for p in idx]) / bnorm[idx]
@@ -267,12 +270,16 @@ def _gmres_dr(A, b, x, tol, max_iterations, m, k, bnorm):
             if j == 0:
                 continue
             y, rho = _least_squares(H[p, : j + 1, :j], c[p, : j + 1])
-            x[p] += (y @ V[p, :j]).astype(x.dtype)
+            x[p] += y.astype(V.dtype) @ V[p, :j]
             estimate[p] = np.linalg.norm(rho) / bnorm[p]
             if estimate[p] <= tol or j < m or A.products[p] >= max_iterations:
                 check.append(p)
                 continue
-            Q = _deflate(H[p], rho, k)
+            try:
+                Q = _deflate(H[p], rho, k)
+            except np.linalg.LinAlgError:  # singular H_m (exact stagnation): restart plainly
+                check.append(p)
+                continue
             V[p, : k + 1] = Q.T.astype(V.dtype) @ V[p]
             H[p, : k + 1, :k] = Q.conj().T @ H[p] @ Q[:m, :k]
             H[p, k + 1 :], H[p, :, k:] = 0.0, 0.0

@@ -124,6 +124,18 @@ def test_huge_pages_do_not_pay_where_the_kernel_has_them_off(monkeypatch, tmp_pa
     assert resources.huge_pages_pay() is False
 
 
+def test_the_probe_touches_a_fresh_mapping_and_records_its_answer(monkeypatch, tmp_path):
+    """The real first-touch measurement on this machine, both ways, and its record."""
+    from wavebrdf.solver import resources
+
+    assert resources._first_touch_seconds(2**21, False) > 0 and resources._first_touch_seconds(2**21, True) > 0
+    (tmp_path / "enabled").write_text("always [madvise] never\n")
+    monkeypatch.setattr(resources, "THP_SETTINGS", str(tmp_path))
+    monkeypatch.setattr(resources, "HUGE_PAGE_PROBE", {})
+    answer = resources.huge_pages_pay()
+    assert resources.HUGE_PAGE_PROBE["pays"] is answer and resources.HUGE_PAGE_PROBE["plain_s"] > 0
+
+
 def test_huge_pages_pay_where_advised_pages_fill_no_slower(monkeypatch, tmp_path):
     from wavebrdf.solver import resources
 

@@ -178,3 +178,16 @@ def test_a_sub_area_after_its_first_wavelength_is_planned_as_a_following_solve()
             assert planned == whole.following_seconds
             cells = plan.model_scene(task).surface.cells
             assert whole.seconds - planned >= COST["static_table_s"] * cells**2 * (1 - 1e-9)
+
+
+def test_the_budget_fit_keeps_deflation_within_each_candidates_solver():
+    """Deflated restarts survive the planner's candidates: none with MINRES, below the local
+    inverses' shorter restart."""
+    from wavebrdf.solver.bem3d.aim import AIMOptions
+    from wavebrdf.solver.bem3d.aim.budget import candidate_options
+
+    for deflate in (10, 45):
+        for o in candidate_options(AIMOptions(deflate=deflate, restart=60), 64):
+            assert o.deflate == 0 if o.solver == "csym" else o.deflate < o.restart
+            if o.preconditioner == "local":
+                assert o.deflate == min(deflate, o.restart - 1)

@@ -34,7 +34,7 @@ from wavebrdf.solver.surface import HeightField
 __all__ = ["BudgetFit", "FITTED_KEYS", "candidate_options", "fit_to_budget", "interior_leaves_grid_cells"]
 
 FITTED_KEYS = ("precision", "near_cells", "preconditioner", "preconditioner_tile_cells", "solver", "restart",
-               "reuse_setup")
+               "deflate", "reuse_setup")
 LOCAL_RESTART = 30  # GMRES restart with the local inverses: products as with 60, half the vectors (docs/aim.md)
 MIN_TILE_CELLS = 24  # smaller LU tiles barely cut the products (docs/aim.md)
 
@@ -115,10 +115,12 @@ def candidate_options(options: AIMOptions, cells: int, media: Media | None = Non
             if base.preconditioner == "near":
                 out.append(replace(base, preconditioner_tile_cells=0))
                 out += [replace(base, preconditioner_tile_cells=t) for t in _tile_sizes(cells)]
-            out.append(replace(base, preconditioner="local", solver="gmres", restart=min(base.restart, LOCAL_RESTART)))
+            restart = min(base.restart, LOCAL_RESTART)
+            out.append(replace(base, preconditioner="local", solver="gmres", restart=restart,
+                               deflate=min(base.deflate, restart - 1)))
             # without a preconditioner: MINRES "csym" (six vectors; measured at 6.4·10⁵ unknowns),
             # not restarted GMRES, whose products at hundreds of iterations were never measured
-            out.append(replace(base, preconditioner="none", solver="csym"))
+            out.append(replace(base, preconditioner="none", solver="csym", deflate=0))
     if options.reuse_setup:  # each also without the static tables kept between wavelengths
         out = [v for o in out for v in (o, replace(o, reuse_setup=False))]
     unique = []
