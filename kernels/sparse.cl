@@ -22,8 +22,9 @@
  * contiguous runs of T P reals (hardware prefetch; docs/aim.md), and Y accumulates in memory
  * (a tile of Y stays in cache). The right-hand sides take turns over the tile within each
  * offset: the offset's values come from memory once and from cache for the next right-hand
- * side, and only one right-hand side's rows of X and Y need the cache (docs/aim.md). On CPUs a work-item takes a whole row width in WB_VW-lane
- * vectors (wb_vcomplex.h), on GPUs one site (WB_VW = 1).
+ * side, and only one right-hand side's rows of X and Y need the cache (docs/aim.md). On CPUs
+ * a work-item takes a whole row width in WB_VW-lane vectors (wb_vcomplex.h), on GPUs one site
+ * (WB_VW = 1).
  * near_move puts x onto the lattice, and adds Y into y (zeroing Y).
  * NumPy twin: NearMatrix.apply_numpy (a scipy.sparse matrix of the same entries).
  */

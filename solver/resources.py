@@ -182,11 +182,11 @@ def huge_pages_pay() -> bool:
         plain = min(_first_touch_seconds(HUGE_PAGE_PROBE_BYTES, False) for _ in range(2))
     except (OSError, ValueError, AttributeError):  # no MADV_HUGEPAGE on this platform
         return False
-    HUGE_PAGE_PROBE.update(advised_s=advised, plain_s=plain, pays=advised <= plain)
+    pays = advised <= plain
+    HUGE_PAGE_PROBE.update(advised_s=advised, plain_s=plain, pays=pays)
     logger.info("huge pages: advised first touch of %d MiB %.2f ms, plain %.2f ms: advice %s",
-                HUGE_PAGE_PROBE_BYTES // 2**20,
-                1e3 * advised, 1e3 * plain, "on" if advised <= plain else "off")
-    return advised <= plain
+                HUGE_PAGE_PROBE_BYTES // 2**20, 1e3 * advised, 1e3 * plain, "on" if pays else "off")
+    return pays
 
 
 def huge_page_advice(enabled: bool | None = None) -> bool | None:
