@@ -126,6 +126,23 @@ def test_pruned_fft_convolution_is_the_linear_convolution(rough_mesh, rng):
         assert np.isclose(conv.ravel()[p], np.sum(g * q.ravel()), rtol=1e-10)
 
 
+@pytest.mark.parametrize("compact, padded", [((7, 3), (14, 6)), ((3, 7), (6, 14)), ((5, 5), (10, 12))])
+def test_pruned_plane_transforms_are_numpys_zero_padded_fft(rng, compact, padded):
+    """The slab's (y, z) transforms, in either order of the pruning (the longer compact axis first),
+    are numpy's 2-D FFT of the zero-padded block, and the inverse keeps its compact block."""
+    from wavebrdf.solver.bem3d.aim.convolution import _pruned_plane_fft
+
+    shape = (2, 3)
+    q = rng.standard_normal(shape + compact) + 1j * rng.standard_normal(shape + compact)
+    S = np.full(shape + padded, np.nan + 0j)  # stale contents must not leak into the padding
+    _pruned_plane_fft(S, q.copy(), workers=1)
+    assert np.allclose(S, np.fft.fft2(q, s=padded), rtol=0, atol=1e-12)
+    F = rng.standard_normal(shape + padded) + 1j * rng.standard_normal(shape + padded)
+    out = np.zeros(shape + compact, dtype=complex)
+    _pruned_plane_fft(F.copy(), out, workers=1, inverse=True)
+    assert np.allclose(out, np.fft.ifft2(F)[..., : compact[0], : compact[1]], rtol=0, atol=1e-14)
+
+
 def test_interior_leaves_the_grid_only_when_it_has_decayed():
     """Decay criterion, not κ ≠ 0: a weak absorber keeps its interior on the grid; continuity in κ."""
     r = 0.2
