@@ -1,8 +1,9 @@
 """The speed/accuracy trade table of record: every scene of ``configs/compare/trade/<suite>/*.toml``
 through every rung that fits it, against the full-wave reference (AIM BEM), each reference shown
 converged in the mesh, aggregated into ``docs/trade.md``, ``docs/images/trade_<suite>.png``,
-``solver/data/trade.csv`` (the data ``model = "auto"`` fits its rule to) and
-``solver/data/trade_convergence.csv``.
+``solver/data/trade.csv`` (the data ``model = "auto"`` fits its rule to),
+``solver/data/trade_convergence.csv`` and ``solver/data/trade_finer_pairs.csv`` (the refinements
+beyond the table's spacing, ``--finer-pair``).
 
     .venv/bin/python benchmarks/trade.py              # resumes: scenes already compared are reused
     .venv/bin/python benchmarks/trade.py --force      # recompute every scene
@@ -19,7 +20,8 @@ most the solve it was on. The errors of the table are recomputed from the stored
 one definition (``jobs.compare.comparison_metrics``).
 
 The committed tables are the record that outlives ``out/``: a config whose comparison is not in
-``out/trade`` keeps its rows of ``solver/data/trade.csv`` (and of ``trade_convergence.csv``) as long
+``out/trade`` keeps its rows of ``solver/data/trade.csv`` (and of ``trade_convergence.csv`` and
+``trade_finer_pairs.csv``) as long
 as its content is unchanged (``config_digest``: the parsed TOML, comments and the output path
 left out), and the end-to-end ``auto`` runs are kept in ``benchmarks/results/trade_auto.csv`` per
 (scene, tolerance, rung picked). So a fresh clone adds a new scene config by measuring that config
@@ -68,6 +70,9 @@ COLUMNS = ("suite", "config", "config_digest", "scene", "model", "wall_s", "cpu_
 CONVERGENCE_COLUMNS = ("suite", "config", "config_digest", "scene", "spacing_um", "fine_spacing_um", "cells",
                        "fine_cells", "cpu_s", "fine_cpu_s", "fine_peak_mb", "fine_settings", "rel_l2", "rel_l2_smooth",
                        "rel_l2_smooth_s", "rel_l2_smooth_p", "failure")
+PAIR_COLUMNS = ("suite", "config_digest", "scene", "refinement", "cells", "fine_cells", "spacing_um", "fine_spacing_um", "cpu_s",
+                "fine_cpu_s", "fine_peak_mb", "fine_settings", "rel_l2", "rel_l2_smooth", "rel_l2_smooth_s",
+                "rel_l2_smooth_p", "failure")
 AUTO_COLUMNS = ("suite", "scene", "config_digest", "tolerance", "picked", "ran", "error", "error_s", "error_p",
                 "cpu_s")
 
@@ -113,6 +118,7 @@ class Record:
     rows: dict[str, list[dict]]
     convergence: dict[str, dict]
     auto: dict[tuple[str, float, str], dict]  # (scene, tolerance, rung picked) → the run
+    pairs: list[dict] = dataclasses.field(default_factory=list)  # finer_pair rows (trade_finer_pairs.csv)
 
     @classmethod
     def read(cls) -> "Record":
@@ -124,7 +130,11 @@ class Record:
         convergence = {r.get("config_digest", ""): r for r in _read_csv(TRADE_TABLE.with_name("trade_convergence.csv"))
                        if not r["failure"]}
         auto = {(r["scene"], float(r["tolerance"]), r["picked"]): r for r in _read_csv(AUTO_RUNS)}
-        return cls(rows, convergence, auto)
+        pairs = [{**r, "refinement": r.get("refinement") or "refined", "cells": int(r["cells"]),
+                  "fine_cells": int(r["fine_cells"]), "spacing_um": float(r["spacing_um"]),
+                  "fine_spacing_um": float(r["fine_spacing_um"])}
+                 for r in _read_csv(TRADE_TABLE.with_name("trade_finer_pairs.csv"))]
+        return cls(rows, convergence, auto, pairs)
 
     def kept_rows(self, path: Path) -> list[dict] | None:
         """The table's rows of ``path`` when they cover its every scene with the reference, else None."""
@@ -290,22 +300,29 @@ def convergence(path: Path, force: bool, log, run: bool = True, record: Record |
     return {**cells_row, **_refinement_row(*_read_refinement(store, label), scene)}
 
 
-def finer_pair(path: Path, cells: int, log, local_inverses: bool = False) -> Path:
+def finer_pair(path: Path, cells: int, log, local_inverses: bool = False, subdivide: int | None = None) -> Path:
     """One refinement beyond the table's: the config's hardest scene at ``cells`` per side against
-    BEM at ``REFINEMENT`` × ``cells`` (stored in ``out/trade/<study>_pair_<cells>_<fine>.h5`` and listed
+    BEM on a finer mesh, by default the scene rebuilt at ``REFINEMENT`` × ``cells`` (stored in ``out/trade/<study>_pair_<cells>_<fine>.h5`` and listed
     under the convergence table). The solve at ``cells`` is taken from the config's converged store
     where that holds it (the table's own fine solve), else run. ``local_inverses``: both solves run
     here with local inverses and GMRES(30) even where the near LU would fit (it factors slowly
-    there); they converge to the same discrete solution as the LU's, to the solver's tolerance."""
+    there); they converge to the same discrete solution as the LU's, to the solver's tolerance.
+    ``subdivide``: the fine mesh is the surface at ``cells`` with every cell split into
+    ``subdivide``² (:func:`wavebrdf.solver.surface.subdivided`: the same bilinear geometry), so the
+    pair measures the solver's discretization alone, not the scene's sampling
+    (``<study>_pair_<cells>_<fine>_subdivided.h5``)."""
     from wavebrdf.jobs.compare import MeasuringProcess
     from wavebrdf.jobs.config import load_config
     from wavebrdf.solver.auto import REFERENCE
-    from wavebrdf.solver.surface import refined
+    from wavebrdf.solver.surface import refined, subdivided
 
+    if subdivide is not None and (int(subdivide) != subdivide or subdivide < 2):
+        raise ValueError(f"--subdivide must be an integer >= 2, got {subdivide!r}")
     label, scene = hardest_scene(path)
     case = load_config(path).cases[0]
-    fine_cells = int(round(REFINEMENT * cells))
-    out = WORK / f"{case.name}_pair_{cells}_{fine_cells}.h5"
+    fine_cells = cells * subdivide if subdivide else int(round(REFINEMENT * cells))
+    kind = "subdivided" if subdivide else "refined"
+    out = WORK / f"{case.name}_pair_{cells}_{fine_cells}{'_subdivided' if subdivide else ''}.h5"
     store = WORK / f"{case.name}_converged.h5"
     options = case.model.options
     with MeasuringProcess() as process:
@@ -323,13 +340,13 @@ def finer_pair(path: Path, cells: int, log, local_inverses: bool = False) -> Pat
             coarse = process.measure(REFERENCE, fine_options, at_cells, label)
         fine_options, settings = fine_solve_options(options, coarse.peak_mb, (fine_cells / cells) ** 2, f"{cells}²",
                                                     local_inverses)
-        log(f"{label}: BEM at {fine_cells}² cells, {settings}")
-        fine = dataclasses.replace(scene, surface=refined(scene.surface, fine_cells))
-        m = process.measure(REFERENCE, fine_options, fine, label)
+        log(f"{label}: BEM at {fine_cells}² cells ({kind}), {settings}")
+        coarse_surface = refined(scene.surface, cells)
+        fine_surface = subdivided(coarse_surface, subdivide) if subdivide else refined(scene.surface, fine_cells)
+        m = process.measure(REFERENCE, fine_options, dataclasses.replace(scene, surface=fine_surface), label)
     WORK.mkdir(parents=True, exist_ok=True)
     _write_refinement(out, label, fine_cells, m, coarse, settings, suite=path.parent.name, coarse_cells=cells,
-                      size_um=scene.surface.size_um,
-                      surface_digest=surface_digest(refined(scene.surface, cells)))
+                      size_um=scene.surface.size_um, surface_digest=surface_digest(coarse_surface), refinement=kind)
     return out
 
 
@@ -400,21 +417,40 @@ def _refinement_row(fine, coarse, attrs: dict, scene) -> dict:
     return row
 
 
-def finer_pairs(configs: list[Path]) -> list[dict]:
-    """The rows of every stored :func:`finer_pair` of ``configs`` beyond the table's own spacing:
-    the convergence table's columns."""
+def _pair_key(row: dict) -> tuple:
+    """Which refinement a finer-pair row is: its config, scene, kind and both meshes' cells."""
+    return (row["config_digest"], row["scene"], row.get("refinement") or "refined", int(row["cells"]),
+            int(row["fine_cells"]))
+
+
+def finer_pairs(configs: list[Path], record: Record | None = None) -> list[dict]:
+    """The rows of every stored :func:`finer_pair` of ``configs`` beyond the table's own spacing
+    (the convergence table's columns), and those ``record`` keeps of a config whose pair is no
+    longer in ``out/trade`` (while the config is unchanged)."""
     from wavebrdf.jobs.config import load_config
+    from wavebrdf.solver.surface import refined
 
     rows = []
     for path in configs:
         label, scene = hardest_scene(path)
         for stored in sorted(WORK.glob(f"{load_config(path).cases[0].name}_pair_*.h5")):
             fine, coarse, a = _read_refinement(stored, label)
-            if int(a["coarse_cells"]) == scene.surface.cells and str(a.get("surface_digest", "")) == surface_digest(
-                    scene.surface):
+            refinement = str(a.get("refinement", "refined"))
+            coarse_cells = int(a["coarse_cells"])
+            if str(a["scene"]) != label or str(a.get("surface_digest", "")) != surface_digest(
+                    refined(scene.surface, coarse_cells)):
+                logging.getLogger("trade").info(f"{stored.name} is of another scene or surface than {path.name}'s: "
+                                                "not listed")
+                continue
+            if refinement == "refined" and coarse_cells == scene.surface.cells:
                 continue  # the table's own check: convergence() reads it, its table lists it
-            rows.append({"suite": path.parent.name, "scene": label, "spacing_um": a["size_um"] / a["coarse_cells"],
-                         "fine_spacing_um": a["size_um"] / a["cells"], **_refinement_row(fine, coarse, a, scene)})
+            rows.append({"suite": path.parent.name, "config_digest": config_digest(path), "scene": label,
+                         "refinement": refinement, "cells": coarse_cells, "fine_cells": int(a["cells"]),
+                         "spacing_um": a["size_um"] / coarse_cells, "fine_spacing_um": a["size_um"] / a["cells"],
+                         **_refinement_row(fine, coarse, a, scene)})
+    measured = {_pair_key(r) for r in rows}
+    digests = {config_digest(path) for path in configs}
+    rows += [r for r in (record.pairs if record else []) if r["config_digest"] in digests and _pair_key(r) not in measured]
     return rows
 
 
@@ -586,14 +622,20 @@ def main(argv=None) -> int:
     parser.add_argument("--finer-pair", nargs=2, metavar=("CONFIG", "CELLS"),
                         help="only solve one refinement beyond the table's: CONFIG's hardest scene at CELLS per side "
                              f"and at {REFINEMENT:g}× CELLS (listed under the convergence table at the next run)")
+    parser.add_argument("--subdivide", type=int, metavar="FACTOR",
+                        help="with --finer-pair: the fine mesh is the surface at CELLS with every cell split into "
+                             "FACTOR² (the same bilinear geometry: the solver's convergence alone), not the scene "
+                             f"rebuilt at {REFINEMENT:g}× CELLS")
     parser.add_argument("--local-inverses", action="store_true",
                         help="with --finer-pair: both solves with local inverses and GMRES(30) even where the "
                              "near LU fits (the LU factors slowly at ≳ 150,000 unknowns)")
     args = parser.parse_args(argv)
+    if args.subdivide is not None and not args.finer_pair:
+        parser.error("--subdivide goes with --finer-pair CONFIG CELLS")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", stream=sys.stderr)
     log = logging.getLogger("trade").info
     if args.finer_pair:
-        log(f"wrote {finer_pair(Path(args.finer_pair[0]).resolve(), int(args.finer_pair[1]), log, args.local_inverses)}")
+        log(f"wrote {finer_pair(Path(args.finer_pair[0]).resolve(), int(args.finer_pair[1]), log, args.local_inverses, args.subdivide)}")
         return 0
     configs = sorted(p.resolve() for p in args.configs) if args.configs else suite_configs()
     record = Record.read()
@@ -616,8 +658,10 @@ def main(argv=None) -> int:
     for suite in dict.fromkeys(r["suite"] for r in table):
         plot([r for r in table if r["suite"] == suite], args.tolerance, ROOT / "docs" / "images" / f"trade_{suite}.png",
              SUITES.get(suite, suite))
+    pairs = finer_pairs(configs, record)
+    _write_csv(TRADE_TABLE.with_name("trade_finer_pairs.csv"), PAIR_COLUMNS, pairs)
     (ROOT / "docs" / "trade.md").write_text(markdown(table, converged, auto_rows, args.tolerance, sweep, ran, unseen,
-                                                     finer_pairs(configs)))
+                                                     pairs))
     log("wrote docs/trade.md and docs/images/trade_*.png")
     return 0
 
@@ -694,13 +738,23 @@ def markdown(table: list[dict], converged: list[dict], auto_rows: list[dict], to
         lines += ["", f"Worst convergence figure {worst:.3g} over the {len(measured)} configs measured "
                   f"({len(converged) - len(measured)} not measured): those serve tolerances ≥ "
                   f"{worst / CONVERGENCE_SHARE:.3g} (each row: its own)."]
-    if pairs:
+    head = ["| suite | scene | d (µm) | fine d (µm) | rel L2 (speckle-avg) | s | p | raw | serves tolerance ≥ | "
+            "CPU (s) | fine CPU (s) | fine solve |", "|" + "---|" * 12]
+    further = [r for r in pairs if (r.get("refinement") or "refined") == "refined"]
+    if further:
         lines += ["", "Beyond the table's spacing (`benchmarks/trade.py --finer-pair CONFIG CELLS`): the same scene one "
                   f"refinement further, at {REFINEMENT:g}× CELLS against CELLS, where the table's reference misses ⅓ of "
-                  "0.05: how fast it converges, and what a finer table would serve.", "",
-                  "| suite | scene | d (µm) | fine d (µm) | rel L2 (speckle-avg) | s | p | raw | serves tolerance ≥ | "
-                  "CPU (s) | fine CPU (s) | fine solve |", "|" + "---|" * 12]
-        lines += [_convergence_line(r) for r in pairs]
+                  "0.05: how fast it converges, and what a finer table would serve.", ""] + head
+        lines += [_convergence_line(r) for r in further]
+    fixed = [r for r in pairs if r.get("refinement") == "subdivided"]
+    if fixed:
+        lines += ["", "The solver alone, on a fixed surface (`benchmarks/trade.py --finer-pair CONFIG CELLS --subdivide "
+                  "FACTOR`): the scene's surface at CELLS with every bilinear cell split into FACTOR² (solver/surface.py "
+                  "`subdivided`: the same geometry), so the difference is the BEM's discretization of that surface "
+                  "and not the scene's sampling, which the tables above include (there the scene is rebuilt on the "
+                  "finer grid: its edges and walls move). The table compares every rung with BEM on one and the "
+                  "same sampled surface, the one at the table's spacing.", ""] + head
+        lines += [_convergence_line(r) for r in fixed]
     for tol, rows in ran.items():
         lines += ["", f"## auto run on every scene, tolerance {tol:g} (measured)", "",
                   "`model = \"auto\"` run as a one-task study on each scene (the rule fitted to this table, its "

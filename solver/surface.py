@@ -43,6 +43,7 @@ __all__ = [
     "generator",
     "load_heights",
     "refined",
+    "subdivided",
 ]
 
 MIN_NODES = 4  # at least 3×3 cells
@@ -937,6 +938,30 @@ def refined(field: HeightField, cells: int) -> HeightField:
         z = RectBivariateSpline(coarse, coarse, field.z, kx=3, ky=3)(fine, fine)
     recorded = None if field.parameters is None else {**field.parameters, "refined_from_cells": field.cells}
     return HeightField(z, field.size_um, field.origin_um, field.ensemble, recorded)
+
+
+def subdivided(field: HeightField, factor: int) -> HeightField:
+    """The same bilinear surface on a grid ``factor`` times finer (a solver-convergence study on a
+    fixed geometry): every cell's bilinear patch z = z00 + z10 u + z01 v + z11 u v (the BEM's
+    element, bem3d/mesh.py) split into factor² patches by bilinear interpolation of its four
+    nodes, so each sub-patch lies on it exactly. Unlike :func:`refined`, the geometry does not
+    change: what changes between the two meshes is the solver's discretization alone."""
+    if int(factor) != factor or factor < 1:
+        raise SurfaceError(f"subdivided: factor must be an integer >= 1, got {factor!r}")
+    factor = int(factor)
+    z = np.asarray(field.z, dtype=np.float64)
+    steps = np.arange(field.cells * factor + 1) / factor  # fine nodes in coarse cell units
+    cell = np.minimum(np.floor(steps).astype(np.int64), field.cells - 1)
+    t = steps - cell
+    a, b = cell[:, None], cell[None, :]
+    ti, tj = t[:, None], t[None, :]
+    fine = ((1 - ti) * (1 - tj) * z[a, b] + ti * (1 - tj) * z[a + 1, b]
+            + (1 - ti) * tj * z[a, b + 1] + ti * tj * z[a + 1, b + 1])
+    # no "generator": refined() would rebuild the scene instead of keeping this geometry
+    recorded = None if field.parameters is None else {
+        **{k: v for k, v in field.parameters.items() if k != "generator"},
+        "subdivided_from": field.parameters.get("generator", "heights"), "subdivided_from_cells": field.cells}
+    return HeightField(fine, field.size_um, field.origin_um, field.ensemble, recorded)
 
 
 def _fourier_interpolated(tile: np.ndarray, cells: int) -> np.ndarray:

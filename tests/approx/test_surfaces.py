@@ -461,3 +461,32 @@ def test_refined_realization_is_the_band_limited_surface_through_every_coarse_no
     assert np.allclose(fine.z, generate("sinusoid", cells=60, size_um=4.0, amplitude_um=0.04, period_um=1.0).z)
     with pytest.raises(SurfaceError, match="cells must be an integer >= the field's 20"):
         refined(grating, 10)
+
+
+def test_subdivided_surface_is_the_same_bilinear_surface_on_a_finer_mesh():
+    """A solver-convergence study on a fixed geometry: every element of the subdivided surface's
+    BEM mesh lies on the coarse surface's bilinear patches (scipy's linear interpolation on the
+    rectangular grid is the bilinear interpolant), at random points inside it, not only at the
+    coarse nodes, so the fine mesh differs from the coarse one in its discretization alone."""
+    from scipy.interpolate import RegularGridInterpolator
+
+    from wavebrdf.solver.bem3d.mesh import BEMMesh, bilinear_frame
+    from wavebrdf.solver.surface import subdivided
+
+    coarse = generate("corner-cubes", cells=18, size_um=1.8, period_um=0.6, seed=3)
+    surface = RegularGridInterpolator((coarse.x, coarse.y), coarse.z, method="linear")
+    rng = np.random.default_rng(5)
+    for factor in (2, 3):
+        fine = subdivided(coarse, factor)
+        assert fine.cells == 18 * factor and fine.size_um == coarse.size_um
+        assert np.array_equal(fine.z[::factor, ::factor], coarse.z)
+        mesh = BEMMesh(fine, z_reference=0.0)
+        u, v = rng.uniform(-1, 1, (2, mesh.n_elements))
+        r, _, _ = bilinear_frame(mesh.geometry, mesh.half, u, v)
+        assert np.allclose(r[:, 2], surface(np.clip(r[:, :2], -0.9, 0.9)), atol=1e-13, rtol=0)
+    assert fine.parameters["subdivided_from_cells"] == 18 and fine.parameters["subdivided_from"] == "corner-cubes"
+    assert np.allclose(refined(fine, 2 * fine.cells).z[::2, ::2], fine.z, rtol=0, atol=1e-12)  # not rebuilt
+    assert np.array_equal(subdivided(coarse, 1).z, coarse.z)
+    for bad in (1.5, 0):
+        with pytest.raises(SurfaceError, match=f"factor must be an integer >= 1, got {bad}"):
+            subdivided(coarse, bad)
