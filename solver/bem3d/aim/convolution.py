@@ -461,24 +461,17 @@ def _pruned_plane_fft(S: np.ndarray, compact: np.ndarray, workers: int, inverse:
     for p_y short z transforms instead of n_y (docs/aim.md, Performance: the FFT stage −15 % at
     10⁶ unknowns in double, −3 % in single)."""
     ny, nz = compact.shape[-2:]
-    y_first = nz <= ny
+    # the first transform (forward) runs on the compact columns of the other axis only
+    first, second, pruned = (-2, -1, S[..., :nz]) if nz <= ny else (-1, -2, S[..., :ny, :])
     if not inverse:
         S[..., ny:, :] = 0
         S[..., :ny, nz:] = 0
         S[..., :ny, :nz] = compact
-        if y_first:
-            _fft_in_place(S[..., :nz], -2, workers)  # columns n_z..p_z are zero: pruned
-            _fft_in_place(S, -1, workers)
-        else:
-            _fft_in_place(S[..., :ny, :], -1, workers)  # rows n_y..p_y are zero: pruned
-            _fft_in_place(S, -2, workers)
+        _fft_in_place(pruned, first, workers)
+        _fft_in_place(S, second, workers)
         return
-    if y_first:
-        _fft_in_place(S, -1, workers, inverse=True)
-        _fft_in_place(S[..., :nz], -2, workers, inverse=True)
-    else:
-        _fft_in_place(S, -2, workers, inverse=True)
-        _fft_in_place(S[..., :ny, :], -1, workers, inverse=True)
+    _fft_in_place(S, second, workers, inverse=True)
+    _fft_in_place(pruned, first, workers, inverse=True)
     compact[...] = S[..., :ny, :nz]
 
 
