@@ -489,6 +489,7 @@ PRECONDITIONER_VARIANTS = {  # label → AIM options over single precision
     "none (MINRES)": {"preconditioner": "none", "solver": "csym"},
     "local inverses, 4-cell tiles (GMRES(30))": {"preconditioner": "local", "restart": 30},
     "near LU, whole patch (GMRES(60))": {"preconditioner": "near"},
+    "flat interface, damped (GMRES(30))": {"preconditioner": "flat", "restart": 30},
 }
 
 

@@ -13,8 +13,10 @@ import functools
 import math
 
 import numpy as np
+import scipy.fft
 
 from wavebrdf.solver.bem3d.aim.continuation import FLUX_LEFT
+from wavebrdf.solver.bem3d.aim.flat_circulant import kernel_radius_cells
 from wavebrdf.solver.bem3d.aim.green import grid_media
 from wavebrdf.solver.bem3d.aim.grid import build_grid
 from wavebrdf.solver.bem3d.aim.near_assembly import RepeatingTables
@@ -114,9 +116,19 @@ def _local_inverse_cost(cells: int, unknowns: int, options: AIMOptions) -> tuple
     return 8.0 * entries, per_axis**2 * COST["local_inverse_s"] * m**3, entries
 
 
-# Products of a warm-started solve over a cold one, by preconditioner (docs/aim.md, warm starts)
+def _flat_cost(media: Media, cells: int, spacing_um: float, unknowns: int, options: AIMOptions) -> tuple[float, float, int]:
+    """(bytes, set-up seconds, torus points) of the flat-interface preconditioner: 16 complex64
+    per point of its torus and two indices per unknown (flat_circulant.py); its set-up
+    ``flat_setup_s`` per torus point (:data:`COST`)."""
+    radius = kernel_radius_cells(media, spacing_um, options.flat_damping, cells)
+    points = scipy.fft.next_fast_len(cells + radius) ** 2
+    return 16 * 8.0 * points + 16.0 * unknowns, COST["flat_setup_s"] * points, points
+
+
+# Products of a warm-started solve over a cold one, by preconditioner (docs/aim.md, warm starts);
+# not measured with the flat interface's preconditioner: no gain counted
 WARM_PRODUCTS = {"local": COST["warm_products_local"], "near": COST["warm_products_near"],
-                 "none": COST["warm_products_none"]}
+                 "none": COST["warm_products_none"], "flat": 1.0}
 
 # Memory the stages need besides their arrays (what each is: solver/data/aim_cost.csv)
 RUNTIME_BYTES = COST["runtime_bytes"]  # interpreter, NumPy/SciPy, OpenCL runtime and built kernels
@@ -183,11 +195,13 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
         "preconditioner": 0.0,
         "static tables": STATIC_BYTES_PER_ELEMENT * mesh.n_elements if keeps_tables else 0.0,  # from the near field on
     }
-    preconditioner_s = local_entries = 0.0
+    preconditioner_s = local_entries = torus_points = 0.0
     if options.preconditioner == "near":
         held["preconditioner"], preconditioner_s = _preconditioner_cost(mesh.cells, n, options, flat=flat)
     elif options.preconditioner == "local":
         held["preconditioner"], preconditioner_s, local_entries = _local_inverse_cost(mesh.cells, n, options)
+    elif options.preconditioner == "flat":
+        held["preconditioner"], preconditioner_s, torus_points = _flat_cost(media, mesh.cells, d, n, options)
     # Krylov vectors are complex128 (solver/krylov.py works in the rhs dtype: complex for the driver)
     krylov = 16 * n * P * (options.restart + 4 if options.solver == "gmres" else 8)
     krylov += 16 * n * (options.deflate + 1) if options.deflate else 0  # GMRES-DR's restart: V Q, one rhs at a time
@@ -223,7 +237,7 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
         product_s *= COST["product_single_ratio"]
     if options.preconditioner == "near":
         product_s += 2.0 * held["preconditioner"] / SUPERLU_BYTES * COST["lu_solve_s"]
-    product_s += 2.0 * local_entries * COST["local_apply_s"]
+    product_s += 2.0 * local_entries * COST["local_apply_s"] + 2.0 * torus_points * COST["flat_apply_s"]
     size_waves = surface.size_um * exterior_index / wavelength_um
     exterior_wavelength = wavelength_um / exterior_index
     key = ("rms_slope_below", exterior_wavelength)  # the surface's, for every candidate of one fit
@@ -288,7 +302,8 @@ def _products(options: AIMOptions, size_waves: float, index: complex, fine_slope
     with s the rms slope of the relief finer than λ (``HeightField.rms_slope_below``: roughness at
     and below λ couples nearby elements) and ``index`` relative to the exterior; a more tightly
     bound plasmon takes more products (gold more than aluminium, aluminium at 0.4 µm more than at
-    0.55 µm: docs/aim.md). With the local inverses (GMRES), ``products_local_ratio``
+    0.55 µm: docs/aim.md). With the flat interface's inverse, ``products_flat_ratio`` × that
+    (measured on one patch). With the local inverses (GMRES), ``products_local_ratio``
     (L/10λ)^``products_local_size_exp`` × that. c, β, γ, δ, α, g, the local ratio and its exponent
     are fitted by tools/refit_product_counts.py to solver/data/aim_products.csv; s₀
     (``products_slope_offset``) was chosen there by leave-one-out. Beyond the fitted ranges of s
@@ -304,6 +319,8 @@ def _products(options: AIMOptions, size_waves: float, index: complex, fine_slope
     ratio = 1.0
     if options.preconditioner == "local":  # the local inverses leave the long-range part, which grows with L/λ
         ratio = cost["products_local_ratio"] * (size_waves / 10.0) ** cost["products_local_size_exp"]
+    elif options.preconditioner == "flat":  # one measured patch (L = 10 λ): not fitted, not chosen by the planner
+        ratio = cost["products_flat_ratio"]
     roughness = min(fine_slope, cost["products_fine_slope_max"]) + cost["products_slope_offset"]
     count = (cost["products_minres"] * size_waves ** cost["products_minres_size_exp"]
              * roughness ** cost["products_minres_slope_exp"])

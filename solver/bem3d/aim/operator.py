@@ -5,8 +5,9 @@
 * C (nearfield.py, assembled by near_assembly.py): exact minus grid entries of near pairs,
   diagonal (offset) storage on the rooftop lattice;
 * a Krylov solve (solver/krylov.py) for both polarizations at once, right-preconditioned by the
-  sparse LU of the exact near entries within ``preconditioner_cells`` or by the local inverses
-  of small tiles of them (preconditioner.py);
+  sparse LU of the exact near entries within ``preconditioner_cells``, by the local inverses
+  of small tiles of them (preconditioner.py) or by the inverse of the damped flat interface on
+  the patch's lattice (flat_circulant.py);
   without a preconditioner, on the rescaled system S Z S y = S b with S = diag(I, jI)
   (complex-symmetric like Z, but with its spectrum in the right half-plane, which roughly halves
   the GMRES iterations). Both measured in docs/aim.md.
@@ -24,6 +25,7 @@ import numpy as np
 
 from wavebrdf.solver.bem3d.aim.convolution import PACKED_BATCHES, BaseOperator, GridGroup, batch_chunks
 from wavebrdf.solver.bem3d.aim.farfield import GridFarField
+from wavebrdf.solver.bem3d.aim.flat_circulant import FlatCirculantPreconditioner
 from wavebrdf.solver.bem3d.aim.green import grid_media, interior_decay, kernel_spectra
 from wavebrdf.solver.bem3d.aim.grid import GridOptions, build_grid
 from wavebrdf.solver.bem3d.aim.near_assembly import assemble_near
@@ -136,6 +138,8 @@ class AIMOperator:
             with clock("preconditioner"):
                 if options.preconditioner == "near":
                     self.preconditioner = NearPreconditioner(self.near, options.preconditioner_tile_cells)
+                elif options.preconditioner == "flat":
+                    self.preconditioner = FlatCirculantPreconditioner(ctx, mesh, media, damping=options.flat_damping)
                 else:
                     self.preconditioner = LocalInversePreconditioner(self.near, options.local_tile_cells)
                     self.near.exact = self.near.exact_offsets = None  # in the local inverses now: memory

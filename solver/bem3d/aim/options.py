@@ -10,6 +10,7 @@ import numpy as np
 
 from wavebrdf.solver.bem3d.aim.convolution import FFT_BACKENDS
 from wavebrdf.solver.bem3d.aim.farfield import FARFIELD_STENCIL
+from wavebrdf.solver.bem3d.aim.flat_circulant import FLAT_DAMPING
 from wavebrdf.solver.bem3d.aim.green import DECAY_TOLERANCE
 from wavebrdf.solver.bem3d.aim.grid import GridOptions
 from wavebrdf.solver.bem3d.aim.projection import PROJECTIONS
@@ -26,7 +27,7 @@ __all__ = ["AIM_QUADRATURE", "EDGES", "FARFIELD_SOURCES", "PRECONDITIONERS", "AI
 # these settings, far below the AIM error (~5e-4), at a third of the cost.
 AIM_QUADRATURE = QuadratureOptions(tolerance=1e-4, static_order=5)
 
-PRECONDITIONERS = ("near", "local", "none")
+PRECONDITIONERS = ("near", "local", "flat", "none")
 EDGES = ("pinned", "flat")  # AIMOptions.edge
 FARFIELD_SOURCES = ("operator", "matched")  # AIMOptions.farfield_sources
 
@@ -64,11 +65,14 @@ class AIMOptions:
                         (the planner turns it off where the budget is tight)
     preconditioner      "near" (sparse LU of the exact entries within preconditioner_cells) |
                         "local" (the inverses of local_tile_cells tiles of the entries within local_cells, each
-                        extended by one cell: ~1.15 KB per unknown at 4 cells) | "none"
+                        extended by one cell: ~1.15 KB per unknown at 4 cells) | "flat" (the inverse
+                        of the damped flat interface on the patch's lattice by 2-D FFTs, ~50 B per
+                        unknown: flat_circulant.py) | "none"
     preconditioner_cells   radius of the preconditioner's pairs (cells)
     preconditioner_tile_cells   side of the preconditioner's LU tiles in cells (0: one LU)
     local_tile_cells    side of the "local" preconditioner's tiles in cells
     local_cells         radius of the "local" preconditioner's pairs (cells)
+    flat_damping        ε of the "flat" preconditioner's exterior k₁(1 − jε)
     farfield_sources    "operator": the far field's point sources are the operator's own
                         exterior-medium projection (no second projection) | "matched": a grid
                         of their own, matched on the upper hemisphere (the options below)
@@ -110,6 +114,7 @@ class AIMOptions:
     local_tile_cells: int = option(4, low=1)
     # measured at 101 760 unknowns: products 122 / 111 / 118 at radius 2.3 / 3.5 / 5 (docs/aim.md)
     local_cells: float = option(3.5, low=0, low_open=True)
+    flat_damping: float = option(FLAT_DAMPING, low=0, low_open=True, high=10)
     farfield_sources: str = option("operator", choices=FARFIELD_SOURCES)
     farfield_stencil: tuple[int, int, int] = option(FARFIELD_STENCIL, length=3, low=0)
     farfield_directions: int = option(0, low=0)

@@ -1,0 +1,142 @@
+"""The flat interface's inverse as a preconditioner (solver/bem3d/aim/flat_circulant.py).
+
+* its kernel is the damped flat operator: every entry of the dense PMCHWT matrix of a flat patch
+  (assembled block by block, assembly.assemble_dense, with the same lossy exterior) at its
+  lattice offset;
+* the preconditioner is the exact inverse of that kernel's block circulant on the torus (checked
+  against a dense inverse of the circulant built entry by entry);
+* on a rough aluminium patch it cuts GMRES's products at least 3×, against the dense matrix;
+* ``[model.aim] preconditioner = "flat"`` end to end gives the BRDF of the near LU's solve.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from wavebrdf.solver.bem3d import BEMSolver, BEMWarning, estimate_aim
+from wavebrdf.solver.bem3d.aim.flat_circulant import (DampedExterior, FlatCirculantPreconditioner, flat_kernel,
+                                                      kernel_radius_cells, rooftops)
+from wavebrdf.solver.bem3d.assembly import assemble_dense
+from wavebrdf.solver.bem3d.excitation import beam_excitation
+from wavebrdf.solver.bem3d.media import Media
+from wavebrdf.solver.bem3d.mesh import BEMMesh
+from wavebrdf.solver.bem3d.quadrature import QuadratureOptions
+from wavebrdf.solver.farfield import HemisphereGrid
+from wavebrdf.solver.krylov import solve
+from wavebrdf.solver.metrics import relative_l2
+from wavebrdf.solver.surface import generate
+
+AL_400 = 0.46582 - 4.7119j
+
+
+def _fields(cells: int):
+    """Per unknown of an N-cell mesh ([J_h | J_v | M̃_h | M̃_v]): its field (0–3) and lattice (x, y)."""
+    field, x, y = [], [], []
+    for magnetic in (0, 1):
+        for o in (0, 1):
+            xo, yo, _ = rooftops(cells, o)
+            field.append(np.full(len(xo), 2 * magnetic + o))
+            x.append(xo)
+            y.append(yo)
+    return np.concatenate(field), np.concatenate(x), np.concatenate(y)
+
+
+def test_the_kernel_is_the_damped_flat_operator_at_every_offset(cl_ctx):
+    """Every entry of the dense matrix of a flat 8-cell aluminium patch with a lossy exterior
+    equals the kernel at the pair's lattice offset (translation invariance and the placement of
+    the four fields)."""
+    cells, d = 8, 0.03
+    damped = DampedExterior(0.4, AL_400, damping=0.3)
+    dense, _ = assemble_dense(cl_ctx, BEMMesh(generate("flat", cells=cells, size_um=cells * d)), damped)
+    torus = (2 * cells, 2 * cells)
+    K = flat_kernel(cl_ctx, damped, d, cells - 1, torus)
+    field, x, y = _fields(cells)
+    from_kernel = K[field[:, None], field[None, :], (x[:, None] - x[None, :]) % torus[0],
+                    (y[:, None] - y[None, :]) % torus[1]]
+    assert np.abs(from_kernel - dense).max() < 1e-6 * np.abs(dense).max()
+    # the loss is what the exterior sees: the undamped patch differs
+    plain, _ = assemble_dense(cl_ctx, BEMMesh(generate("flat", cells=cells, size_um=cells * d)), Media(0.4, AL_400))
+    assert np.abs(plain - dense).max() > 1e-3 * np.abs(dense).max()
+
+
+def test_it_applies_the_inverse_of_the_kernels_block_circulant(cl_ctx):
+    """M x is the patch's part of C⁻¹ (x placed in the torus), C the block circulant of the kernel
+    built entry by entry over the whole torus and inverted densely."""
+    cells, d = 6, 0.03
+    media = Media(0.4, AL_400)
+    mesh = BEMMesh(generate("gaussian", cells=cells, size_um=cells * d, rms_height_um=0.01, correlation_um=0.05))
+    pc = FlatCirculantPreconditioner(cl_ctx, mesh, media, damping=0.3, radius_cells=3)
+    Mx, My = pc.torus
+    K = flat_kernel(cl_ctx, DampedExterior(0.4, AL_400, damping=0.3), d, 3, pc.torus)
+    sx, sy = np.meshgrid(np.arange(Mx), np.arange(My), indexing="ij")
+    sx, sy = sx.ravel(), sy.ravel()
+    C = np.zeros((4, Mx * My, 4, Mx * My), dtype=complex)
+    for i in range(4):
+        for j in range(4):
+            C[i, :, j, :] = K[i, j][(sx[:, None] - sx[None, :]) % Mx, (sy[:, None] - sy[None, :]) % My]
+    C = C.reshape(4 * Mx * My, 4 * Mx * My)
+    field, x, y = _fields(cells)
+    site = field * Mx * My + x * My + y
+    rng = np.random.default_rng(2)
+    X = rng.standard_normal((2, mesh.n_unknowns)) + 1j * rng.standard_normal((2, mesh.n_unknowns))
+    placed = np.zeros((2, 4 * Mx * My), dtype=complex)
+    placed[:, site] = X
+    expected = np.linalg.solve(C, placed.T).T[:, site]
+    got = pc(X)
+    assert got.dtype == X.dtype and got.shape == X.shape
+    assert np.linalg.norm(got - expected) / np.linalg.norm(expected) < 1e-5  # complex64 transforms
+    assert np.allclose(pc(X[0]), got[0])
+
+
+def test_it_cuts_gmres_products_on_rough_aluminium(cl_ctx):
+    """A rough aluminium patch (24 cells at d = λ/10, rms slope ≈ 0.15) against its dense matrix:
+    GMRES(30) takes at least 3× fewer products with the flat preconditioner than without."""
+    lam, cells, d = 0.4, 24, 0.04
+    media = Media(lam, AL_400)
+    mesh = BEMMesh(generate("gaussian", cells=cells, size_um=cells * d, seed=5, rms_height_um=0.03,
+                            correlation_um=0.25))
+    Z, _ = assemble_dense(cl_ctx, mesh, media)
+    b = beam_excitation(mesh, media, 0.0, 0.0, waist_um=cells * d / 5, beam="exact", focus_um=(0.0, 0.0),
+                        rhs_order=QuadratureOptions().rhs_order).rhs
+
+    def matvec(X):
+        return (Z @ np.atleast_2d(X).T).T
+
+    pc = FlatCirculantPreconditioner(cl_ctx, mesh, media)
+    assert pc.radius_cells == kernel_radius_cells(media, d, 0.3, cells)
+    plain = solve(matvec, b, restart=30, max_iterations=2000)
+    flat = solve(matvec, b, restart=30, max_iterations=2000, preconditioner=pc)
+    print("GMRES(30) products without / with the flat preconditioner:", plain.iterations, flat.iterations)
+    assert max(flat.iterations) * 3 <= min(plain.iterations)
+    x = np.linalg.solve(Z, b.T).T
+    assert np.linalg.norm(flat.x - x) / np.linalg.norm(x) < 1e-3
+
+
+def test_the_flat_option_end_to_end_gives_the_near_lu_result(cl_ctx):
+    """``preconditioner = "flat"`` through BEMSolver: the BRDF of the LU-preconditioned solve within
+    the Krylov tolerance's reach, and the preconditioner's memory a few hundred bytes per unknown,
+    as the planner's estimate has it."""
+    surface = generate("gaussian", cells=32, size_um=1.6, seed=3, rms_height_um=0.03, correlation_um=0.3)
+    grid = HemisphereGrid(32)
+    ffs = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", BEMWarning)
+        for name in ("near", "flat"):
+            solver = BEMSolver(cl_ctx, surface, 0.5, 1.5, method="aim", aim={"preconditioner": name, "restart": 30})
+            ffs[name] = solver.farfield(0.2, 0.0, grid, waist_um=surface.size_um / 5)
+            if name == "flat":
+                pc = solver.operator.preconditioner
+                assert isinstance(pc, FlatCirculantPreconditioner)
+                assert pc.bytes() < 600 * solver.mesh.n_unknowns
+                planned = estimate_aim(surface, 0.5, 1.5, aim={"preconditioner": "flat", "restart": 30})
+                assert planned["preconditioner_bytes"] == pytest.approx(pc.bytes(), rel=0.01)
+    assert np.all(relative_l2(ffs["flat"].brdf(), ffs["near"].brdf(), grid) < 1e-3)
+
+
+@pytest.mark.parametrize("damping", [-0.1, float("nan")])
+def test_a_negative_or_missing_damping_is_refused(damping):
+    with pytest.raises(ValueError, match="flat_damping"):
+        DampedExterior(0.5, 1.5, damping=damping)
