@@ -99,6 +99,29 @@ def _run_one(ctx, name: str, options, scene) -> dict:
         return dict(failure=f"{type(exc).__name__}: {exc}", trace=traceback.format_exc())
 
 
+PROGRESS_FILE_VARIABLE = "WAVEBRDF_MEASURE_PROGRESS"
+
+
+class _ProgressFile:
+    """The measuring process's progress reporter: one timestamped line per report (stage, fraction,
+    figures such as Krylov products and residual), at most one per ``seconds`` and at every new
+    stage, appended to a file that can be watched while a long solve runs."""
+
+    def __init__(self, path: str, seconds: float = 30.0):
+        from wavebrdf.solver.progress import RateLimit
+
+        self.path, self._due, self._stage = path, RateLimit(seconds), None
+
+    def __call__(self, stage: str, fraction: float | None = None, **figures) -> None:
+        if stage == self._stage and not self._due():
+            return
+        self._stage = stage
+        done = "" if fraction is None else f" {100 * fraction:.0f} %"
+        shown = " ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in figures.items())
+        with open(self.path, "a") as fh:
+            fh.write(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {stage}{done} {shown}\n")
+
+
 def _worker_main() -> None:
     """Entry of the measuring process: (name, options, scene) requests, length-prefixed pickles on
     stdin, each answered on the original stdout (model output is sent to stderr)."""
@@ -114,6 +137,8 @@ def _worker_main() -> None:
     os.dup2(2, 1)
     requests = sys.stdin.buffer
     ctx = create_context()
+    if path := os.environ.get(PROGRESS_FILE_VARIABLE):
+        ctx.progress = _ProgressFile(path)
     while header := requests.read(8):
         name, options, scene = pickle.loads(requests.read(int.from_bytes(header, "little")))
         data = pickle.dumps(_run_one(ctx, name, options, scene))
@@ -125,11 +150,14 @@ class MeasuringProcess:
     """One process that runs the models of a comparison one at a time, so that the interpreter
     and OpenCL start once, not per model; each model's peak memory is measured from a reset of the
     process's peak RSS (``clear_refs``). A model that kills the process is reported as a failure
-    and the next one gets a fresh process. Use as a context manager."""
+    and the next one gets a fresh process. ``progress_path``: the models' progress reports
+    (solver/progress.py) are appended there, one line at most every 30 s per stage, to watch a
+    long solve. Use as a context manager."""
 
-    def __init__(self):
+    def __init__(self, progress_path: Path | None = None):
         self._proc = None
         self._stderr = None
+        self.progress_path = progress_path
 
     def __enter__(self):
         return self
@@ -162,6 +190,8 @@ class MeasuringProcess:
         # a fixed mmap threshold: large arrays are mapped and unmapped, never kept in the heap for the
         # next model (glibc's dynamic threshold would hide that model's peak)
         env = {**os.environ, "MALLOC_MMAP_THRESHOLD_": str(1 << 17)}
+        if self.progress_path is not None:
+            env[PROGRESS_FILE_VARIABLE] = str(self.progress_path)
         self._proc = subprocess.Popen([sys.executable, "-c", "from wavebrdf.jobs.compare import _worker_main; "
                                        "_worker_main()"], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                       stderr=self._stderr, env=env)

@@ -145,3 +145,27 @@ def test_a_measuring_process_that_dies_is_a_failure_and_the_next_model_still_run
     assert killed.failure and "exited with -9" in killed.failure
     assert gm.failure is None and kirchhoff.failure is None
     assert gm.peak_mb > kirchhoff.peak_mb > 0
+
+
+def test_a_measuring_process_appends_its_solves_progress_to_the_file_it_is_given(tmp_path):
+    """``MeasuringProcess(progress_path=…)``: a full-wave solve in the measuring process leaves
+    timestamped lines of its stages in the file, the Krylov stage with its products and residual,
+    so a solve of hours can be watched; the file is appended to, not replaced."""
+    import re
+
+    from wavebrdf.jobs.compare import MeasuringProcess
+
+    surface = generate("gaussian", cells=16, size_um=0.8, rms_height_um=0.03, correlation_um=0.2, seed=3)
+    scene = SurfaceScene(surface, 0.5, 1.5 + 0j, 0.0, 0.0, 0.2, HemisphereGrid(32))
+    path = tmp_path / "solve.progress"
+    path.write_text("an earlier line\n")
+    with MeasuringProcess(progress_path=path) as process:
+        m = process.measure("bem", {"method": "aim"}, scene, "rough glass")
+    assert m.failure is None
+    lines = path.read_text().splitlines()
+    assert lines[0] == "an earlier line"
+    stamp = r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d "
+    assert all(re.match(stamp, line) for line in lines[1:]), lines
+    krylov = [line for line in lines if " krylov " in line]
+    assert krylov and all(re.search(r"products=\d+ residual=[0-9.e+-]+$", line) for line in krylov), lines
+    assert any(" far field" in line for line in lines), lines
