@@ -473,8 +473,9 @@ def fine_solve_options(options, coarse_peak_mb: float, unknowns_ratio: float,
     need = coarse_peak_mb * 2**20 * unknowns_ratio * LU_FILL_GROWTH
     fits = not np.isfinite(need) or need <= FINE_MEMORY_SHARE * meminfo_bytes("MemTotal")
     if fits and not local_inverses:
-        return options, "the table's settings"
-    aim = dataclasses.replace(options.aim, preconditioner="local", solver="gmres", restart=restart, fit_memory=False)
+        return options, "the table's settings"  # the near LU: a restart other than the table's is not used
+    aim = dataclasses.replace(options.aim, preconditioner="local", solver="gmres", restart=restart,
+                              deflate=min(options.aim.deflate, restart - 1), fit_memory=False)
     why = "asked for" if fits else f"the LU would need ≈ {need / 2**30:.0f} GiB"
     if np.isfinite(coarse_peak_mb):
         why += f"; the solve at {measured_at} peaked at {coarse_peak_mb / 1024:.1f} GiB"
@@ -635,18 +636,18 @@ def main(argv=None) -> int:
     parser.add_argument("--local-inverses", action="store_true",
                         help="with --finer-pair: both solves with local inverses and GMRES(--restart) even where "
                              "the near LU fits (the LU factors slowly at ≳ 150,000 unknowns)")
-    parser.add_argument("--restart", type=int, default=30, metavar="M",
+    parser.add_argument("--restart", type=int, default=None, metavar="M",
                         help="with --finer-pair: GMRES's restart length where the local inverses are used "
                              "(default 30; Krylov vectors take 32 n M bytes for n unknowns)")
     args = parser.parse_args(argv)
     if args.subdivide is not None and not args.finer_pair:
         parser.error("--subdivide goes with --finer-pair CONFIG CELLS")
-    if args.restart < 1 or (args.restart != 30 and not args.finer_pair):
+    if args.restart is not None and (args.restart < 1 or not args.finer_pair):
         parser.error(f"--restart must be a positive integer and goes with --finer-pair; got {args.restart}")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", stream=sys.stderr)
     log = logging.getLogger("trade").info
     if args.finer_pair:
-        log(f"wrote {finer_pair(Path(args.finer_pair[0]).resolve(), int(args.finer_pair[1]), log, args.local_inverses, args.subdivide, args.restart)}")
+        log(f"wrote {finer_pair(Path(args.finer_pair[0]).resolve(), int(args.finer_pair[1]), log, args.local_inverses, args.subdivide, args.restart or 30)}")
         return 0
     configs = sorted(p.resolve() for p in args.configs) if args.configs else suite_configs()
     record = Record.read()

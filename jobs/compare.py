@@ -105,21 +105,34 @@ PROGRESS_FILE_VARIABLE = "WAVEBRDF_MEASURE_PROGRESS"
 class _ProgressFile:
     """The measuring process's progress reporter: one timestamped line per report (stage, fraction,
     figures such as Krylov products and residual), at most one per ``seconds`` and at every new
-    stage, appended to a file that can be watched while a long solve runs."""
+    stage, appended to a file that can be watched while a long solve runs. A file that cannot be
+    written ends the reports, not the solve."""
 
     def __init__(self, path: str, seconds: float = 30.0):
-        from wavebrdf.solver.progress import RateLimit
-
-        self.path, self._due, self._stage = path, RateLimit(seconds), None
+        self.path, self.seconds = path, seconds
+        self._stage, self._last = None, -float("inf")
 
     def __call__(self, stage: str, fraction: float | None = None, **figures) -> None:
-        if stage == self._stage and not self._due():
+        now = time.monotonic()
+        if self.path is None or (stage == self._stage and now - self._last < self.seconds):
             return
-        self._stage = stage
+        self._stage, self._last = stage, now
         done = "" if fraction is None else f" {100 * fraction:.0f} %"
-        shown = " ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in figures.items())
-        with open(self.path, "a") as fh:
-            fh.write(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {stage}{done} {shown}\n")
+        shown = " ".join(f"{k}={v:.3g}" if isinstance(v, (float, np.floating)) else f"{k}={v}"
+                         for k, v in figures.items())
+        if not write_progress_line(self.path, f"{stage}{done} {shown}".rstrip()):
+            self.path = None
+
+
+def write_progress_line(path, text: str) -> bool:
+    """Append ``text`` to ``path`` with a timestamp; False (and a warning) where it cannot be written."""
+    try:
+        with open(path, "a") as fh:
+            fh.write(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {text}\n")
+        return True
+    except OSError as exc:
+        logger.warning("progress file %s: %s; no more progress lines", path, exc)
+        return False
 
 
 def _worker_main() -> None:
@@ -204,6 +217,9 @@ class MeasuringProcess:
             self.close()
             self._start()
         request = pickle.dumps((name, options, scene))
+        if self.progress_path is not None:
+            write_progress_line(self.progress_path, f"{name} on {label} ({scene.surface.cells}² cells)"
+                                if hasattr(scene, "surface") else f"{name} on {label}")
         try:
             self._proc.stdin.write(len(request).to_bytes(8, "little") + request)
             self._proc.stdin.flush()

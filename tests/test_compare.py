@@ -169,3 +169,22 @@ def test_a_measuring_process_appends_its_solves_progress_to_the_file_it_is_given
     krylov = [line for line in lines if " krylov " in line]
     assert krylov and all(re.search(r"products=\d+ residual=[0-9.e+-]+$", line) for line in krylov), lines
     assert any(" far field" in line for line in lines), lines
+
+
+def test_the_progress_reporter_limits_its_rate_and_a_file_it_cannot_write_ends_the_reports(tmp_path):
+    """One line per stage change and at most one per interval within a stage; NumPy figures are
+    formatted; a path in a missing folder warns once and stops reporting without raising."""
+    from wavebrdf.jobs.compare import _ProgressFile
+
+    path = tmp_path / "p.progress"
+    report = _ProgressFile(str(path), seconds=60.0)
+    report("near field", 0.5)
+    report("near field", 0.6)  # within the interval: dropped
+    report("krylov", None, products=np.int64(3), residual=np.float32(0.0123456))
+    report("krylov", None, products=4, residual=0.01)  # dropped
+    lines = path.read_text().splitlines()
+    assert [line.split(" ", 2)[2] for line in lines] == ["near field 50 %", "krylov products=3 residual=0.0123"]
+    lost = _ProgressFile(str(tmp_path / "missing" / "p.progress"))
+    lost("krylov", None, residual=0.5)
+    assert lost.path is None
+    lost("far field", 0.0)  # no further attempt, no exception

@@ -2,7 +2,7 @@
 
 * its kernel is the damped flat operator: every entry of the dense PMCHWT matrix of a flat patch
   (assembled block by block, assembly.assemble_dense, with the same lossy exterior) at its
-  lattice offset;
+  lattice offset, cut at its radius, on a torus that does not wrap the patch onto itself;
 * the preconditioner is the exact inverse of that kernel's block circulant on the torus (checked
   against a dense inverse of the circulant built entry by entry);
 * on a rough aluminium patch it cuts GMRES's products at least 3×, against the dense matrix;
@@ -60,6 +60,26 @@ def test_the_kernel_is_the_damped_flat_operator_at_every_offset(cl_ctx):
     # the loss is what the exterior sees: the undamped patch differs
     plain, _ = assemble_dense(cl_ctx, BEMMesh(generate("flat", cells=cells, size_um=cells * d)), Media(0.4, AL_400))
     assert np.abs(plain - dense).max() > 1e-3 * np.abs(dense).max()
+
+
+def test_the_kernel_is_cut_at_its_radius_and_the_torus_holds_the_patch_without_wrapping(cl_ctx):
+    """With a radius R < N − 1: the preconditioner's torus is at least N + R per side; the kernel,
+    looked up at the pair offsets of a 10-cell patch on that torus, is the damped flat patch's
+    dense matrix wherever |Δx|, |Δy| ≤ R and zero beyond (no offset wraps onto a kept one)."""
+    cells, d, R = 10, 0.03, 3
+    media = Media(0.4, AL_400)
+    mesh = BEMMesh(generate("flat", cells=cells, size_um=cells * d))
+    pc = FlatCirculantPreconditioner(cl_ctx, mesh, media, damping=0.3, radius_cells=R)
+    assert pc.radius_cells == R and min(pc.torus) >= cells + R
+    damped = DampedExterior(0.4, AL_400, damping=0.3)
+    dense, _ = assemble_dense(cl_ctx, mesh, damped)
+    K = flat_kernel(cl_ctx, damped, d, R, pc.torus)
+    field, x, y = _fields(cells)
+    dx, dy = x[:, None] - x[None, :], y[:, None] - y[None, :]
+    looked_up = K[field[:, None], field[None, :], dx % pc.torus[0], dy % pc.torus[1]]
+    inside = (np.abs(dx) <= R) & (np.abs(dy) <= R)
+    assert np.abs(looked_up[inside] - dense[inside]).max() < 1e-6 * np.abs(dense).max()
+    assert np.all(looked_up[~inside] == 0) and np.any(dense[~inside] != 0)
 
 
 def test_it_applies_the_inverse_of_the_kernels_block_circulant(cl_ctx):
@@ -140,3 +160,11 @@ def test_the_flat_option_end_to_end_gives_the_near_lu_result(cl_ctx):
 def test_a_negative_or_missing_damping_is_refused(damping):
     with pytest.raises(ValueError, match="flat_damping"):
         DampedExterior(0.5, 1.5, damping=damping)
+
+
+def test_the_config_refuses_a_damping_of_zero_naming_the_key():
+    from wavebrdf.solver.bem3d.aim import AIMOptions
+    from wavebrdf.solver.options import OptionsError
+
+    with pytest.raises(OptionsError, match=r"flat_damping.*0"):
+        AIMOptions.from_mapping({"preconditioner": "flat", "flat_damping": 0})

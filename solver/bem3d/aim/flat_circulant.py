@@ -21,8 +21,10 @@ docs/aim.md ("A preconditioner from the flat interface").
 
 Set-up: the entries of one rooftop of each orientation of a damped flat lattice with every
 rooftop within the radius (assembly.basis_pair_entries), 16 FFTs and one 4 × 4 inverse per
-torus point. Memory: 16 complex64 per torus point (40 MB for the 12 µm sub-area). Each
-application: 8 FFTs of the torus per right-hand side, in complex64 (it only steers the solve).
+torus point (a transient of 768 B per torus point while it is inverted). Memory: 16 complex64
+per torus point and two indices per unknown (77 B per unknown at 101 760 unknowns, 52 MB for the
+12 µm sub-area). Each application: 8 FFTs of the torus per right-hand side, in complex64 (it only
+steers the solve).
 """
 
 from __future__ import annotations
@@ -43,12 +45,13 @@ from wavebrdf.solver.surface import generate
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["FLAT_DAMPING", "FLAT_KERNEL_DECAY", "DampedExterior", "FlatCirculantPreconditioner", "flat_kernel",
+__all__ = ["FLAT_DAMPING", "FLAT_KERNEL_DECAY", "SETUP_BYTES_PER_POINT", "DampedExterior", "FlatCirculantPreconditioner", "flat_kernel",
            "kernel_radius_cells", "rooftops"]
 
 FLAT_DAMPING = 0.3  # ε of k₁(1 − jε): products on rough aluminium, docs/aim.md
 FLAT_KERNEL_DECAY = 1e-3  # the kernel is kept where e^{−ε k₁ r} is above this
 MIN_RADIUS_CELLS = 4
+SETUP_BYTES_PER_POINT = 768  # complex128 at the set-up's peak: the spectrum, the 4 × 4 inverses and their workspace
 
 
 @dataclass(frozen=True)
@@ -61,7 +64,7 @@ class DampedExterior(Media):
     def __post_init__(self):
         super().__post_init__()
         if not (math.isfinite(self.damping) and self.damping >= 0):
-            raise ValueError(f"aim.flat_damping must be a number >= 0, got {self.damping!r}")
+            raise ValueError(f"aim.flat_damping must be a number >= 0 (0: no loss), got {self.damping!r}")
 
     @property
     def indices(self) -> tuple[complex, complex]:
@@ -123,16 +126,18 @@ class FlatCirculantPreconditioner:
         damped = DampedExterior(media.wavelength_um, media.index, media.exterior_index, damping=self.damping)
         R = kernel_radius_cells(media, d, self.damping, N) if radius_cells is None else int(radius_cells)
         if not 1 <= R < N:
-            raise ValueError(f"aim flat preconditioner: radius_cells must be in [1, {N - 1}], got {radius_cells!r}")
+            raise ValueError(f"aim flat preconditioner: radius_cells must be in [1, {N - 1}], got {R!r}")
         self.radius_cells = R
         self.torus = (scipy.fft.next_fast_len(N + R),) * 2
-        kernel = flat_kernel(ctx, damped, d, R, self.torus)
-        self.nnz = int(np.count_nonzero(kernel))
-        spectrum = scipy.fft.fft2(kernel, axes=(2, 3), workers=fft_workers())  # (4, 4, Mx, My)
+        spectrum = scipy.fft.fft2(flat_kernel(ctx, damped, d, R, self.torus), axes=(2, 3), workers=fft_workers(),
+                                  overwrite_x=True)  # (4, 4, Mx, My)
         inverse = np.linalg.inv(np.moveaxis(spectrum, (0, 1), (2, 3)))  # (Mx, My, 4, 4)
-        self.inverse = np.ascontiguousarray(np.moveaxis(inverse, (2, 3), (0, 1)), dtype=np.complex64)
-        self.factor_nnz = self.inverse.size
+        del spectrum
         self.largest_gain = float(np.abs(inverse).max())
+        self.inverse = np.ascontiguousarray(np.moveaxis(inverse, (2, 3), (0, 1)), dtype=np.complex64)
+        del inverse
+        # stored entries (16 per torus point), as the other preconditioners count theirs: fill 1
+        self.nnz = self.factor_nnz = self.inverse.size
         # unknown positions and torus sites of the four fields [J_h, J_v, M̃_h, M̃_v]
         n_b, My = mesh.n_bases, self.torus[1]
         self._fields = []
@@ -149,7 +154,7 @@ class FlatCirculantPreconditioner:
         return int(self.inverse.nbytes + sum(u.nbytes + s.nbytes for u, s in self._fields))
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
-        """M X for X (P, 2N_b) or (2N_b,), in X's dtype."""
+        """M X for X (P, 2N_b) or (2N_b,), complex, in X's precision."""
         t0 = time.perf_counter()
         single = np.ndim(X) == 1
         X = np.atleast_2d(X)
@@ -164,7 +169,7 @@ class FlatCirculantPreconditioner:
             for j in range(1, 4):
                 out[:, i] += self.inverse[i, j] * spectra[:, j]
         fields = scipy.fft.ifft2(out, axes=(2, 3), workers=fft_workers(), overwrite_x=True).reshape(P, 4, Mx * My)
-        Y = np.empty(X.shape, dtype=X.dtype)
+        Y = np.empty(X.shape, dtype=np.result_type(X, np.complex64))
         for f, (unknowns, sites) in enumerate(self._fields):
             Y[:, unknowns] = fields[:, f, sites]
         self.apply_s += time.perf_counter() - t0

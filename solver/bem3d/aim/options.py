@@ -66,13 +66,13 @@ class AIMOptions:
     preconditioner      "near" (sparse LU of the exact entries within preconditioner_cells) |
                         "local" (the inverses of local_tile_cells tiles of the entries within local_cells, each
                         extended by one cell: ~1.15 KB per unknown at 4 cells) | "flat" (the inverse
-                        of the damped flat interface on the patch's lattice by 2-D FFTs, ~50 B per
-                        unknown: flat_circulant.py) | "none"
+                        of the damped flat interface on the patch's lattice by 2-D FFTs, ~80 B per
+                        unknown: flat_circulant.py; measured with restart = 30) | "none"
     preconditioner_cells   radius of the preconditioner's pairs (cells)
     preconditioner_tile_cells   side of the preconditioner's LU tiles in cells (0: one LU)
     local_tile_cells    side of the "local" preconditioner's tiles in cells
     local_cells         radius of the "local" preconditioner's pairs (cells)
-    flat_damping        ε of the "flat" preconditioner's exterior k₁(1 − jε)
+    flat_damping        ε > 0 of the "flat" preconditioner's exterior k₁(1 − jε)
     farfield_sources    "operator": the far field's point sources are the operator's own
                         exterior-medium projection (no second projection) | "matched": a grid
                         of their own, matched on the upper hemisphere (the options below)
