@@ -312,8 +312,7 @@ def finer_pair(path: Path, cells: int, log, local_inverses: bool = False, subdiv
     ``subdivide``² (:func:`wavebrdf.solver.surface.subdivided`: the same bilinear geometry), so the
     pair measures the solver's discretization alone, not the scene's sampling
     (``<study>_pair_<cells>_<fine>_subdivided.h5``). ``restart``: GMRES's restart length with the
-    local inverses (restarted every 30 products the 360² solve of the steep hemispheres stalled
-    near a residual of 0.14)."""
+    local inverses."""
     from wavebrdf.jobs.compare import MeasuringProcess
     from wavebrdf.jobs.config import load_config
     from wavebrdf.solver.auto import REFERENCE
@@ -765,9 +764,9 @@ def markdown(table: list[dict], converged: list[dict], auto_rows: list[dict], to
                   "`subdivided`: the same geometry), so the difference is the BEM's discretization of that surface "
                   "and not the scene's sampling, which the tables above include (there the scene is rebuilt on the "
                   "finer grid: its edges and walls move). The table compares every rung with BEM on one and the "
-                  "same sampled surface, the one at the table's spacing. With the local inverses restarted every 30 "
-                  "products the subdivided steep hemispheres' solve stalled near a relative residual of 0.14 after "
-                  "244 products; these pairs are solved with `--restart 200` (GMRES(200)).", ""] + head
+                  "same sampled surface, the one at the table's spacing. Each pair's fine-solve column gives the "
+                  "settings it ran with (`--restart M`: GMRES(M) with the local inverses; the subdivided steep "
+                  "hemispheres' 360² solve stalled with them at GMRES(30) and GMRES(200): docs/aim.md).", ""] + head
         lines += [_convergence_line(r) for r in fixed]
     for tol, rows in ran.items():
         lines += ["", f"## auto run on every scene, tolerance {tol:g} (measured)", "",

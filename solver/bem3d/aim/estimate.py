@@ -13,10 +13,9 @@ import functools
 import math
 
 import numpy as np
-import scipy.fft
 
 from wavebrdf.solver.bem3d.aim.continuation import FLUX_LEFT
-from wavebrdf.solver.bem3d.aim.flat_circulant import SETUP_BYTES_PER_POINT, kernel_radius_cells
+from wavebrdf.solver.bem3d.aim.flat_circulant import SETUP_BYTES_PER_POINT, kernel_radius_cells, torus_side
 from wavebrdf.solver.bem3d.aim.green import grid_media
 from wavebrdf.solver.bem3d.aim.grid import build_grid
 from wavebrdf.solver.bem3d.aim.near_assembly import RepeatingTables
@@ -120,16 +119,8 @@ def _flat_cost(media: Media, cells: int, spacing_um: float, unknowns: int, optio
     """(bytes, set-up seconds, torus points) of the flat-interface preconditioner: 16 complex64
     per point of its torus and two indices per unknown (flat_circulant.py); its set-up
     ``flat_setup_s`` per torus point (:data:`COST`)."""
-    radius = kernel_radius_cells(media, spacing_um, options.flat_damping, cells)
-    points = scipy.fft.next_fast_len(cells + radius) ** 2
+    points = torus_side(cells, kernel_radius_cells(media, spacing_um, options.flat_damping, cells)) ** 2
     return 16 * 8.0 * points + 16.0 * unknowns, COST["flat_setup_s"] * points, points
-
-
-def _flat_transient(media: Media, cells: int, spacing_um: float, options: AIMOptions) -> float:
-    """Bytes the flat preconditioner's set-up holds at its peak, before what it keeps exists
-    (complex128 spectrum, inverses and workspace: :data:`SETUP_BYTES_PER_POINT` per torus point)."""
-    radius = kernel_radius_cells(media, spacing_um, options.flat_damping, cells)
-    return float(SETUP_BYTES_PER_POINT * scipy.fft.next_fast_len(cells + radius) ** 2)
 
 
 # Products of a warm-started solve over a cold one, by preconditioner (docs/aim.md, warm starts);
@@ -226,8 +217,8 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
         "products": krylov + cplx * 8 * P * (px * ny * nz + compact) + slab + 2 * 16 * n * P,
         "far field": P * 6 * compact * max(cplx, 8) + FARFIELD_PIXEL_BYTES * resolution**2 + BLOCK_BYTES,
     }
-    if options.preconditioner == "flat":
-        transient["preconditioner"] = _flat_transient(media, mesh.cells, d, options)
+    if options.preconditioner == "flat":  # the set-up's complex128 peak, before what it keeps exists
+        transient["preconditioner"] = SETUP_BYTES_PER_POINT * torus_points
     continuation = continuation_s = 0.0
     if options.edge == "flat":
         continuation, continuation_s = _continuation_cost(mesh, options, waist_um, near_entry, cplx, S * groups)

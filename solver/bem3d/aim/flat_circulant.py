@@ -46,7 +46,7 @@ from wavebrdf.solver.surface import generate
 logger = logging.getLogger(__name__)
 
 __all__ = ["FLAT_DAMPING", "FLAT_KERNEL_DECAY", "SETUP_BYTES_PER_POINT", "DampedExterior", "FlatCirculantPreconditioner", "flat_kernel",
-           "kernel_radius_cells", "rooftops"]
+           "kernel_radius_cells", "rooftops", "torus_side"]
 
 FLAT_DAMPING = 0.3  # ε of k₁(1 − jε): products on rough aluminium, docs/aim.md
 FLAT_KERNEL_DECAY = 1e-3  # the kernel is kept where e^{−ε k₁ r} is above this
@@ -77,6 +77,12 @@ def kernel_radius_cells(media: Media, spacing_um: float, damping: float, cells: 
     decay_per_um = damping * media.k0 * media.exterior_index
     radius = math.log(1.0 / FLAT_KERNEL_DECAY) / (decay_per_um * spacing_um) if decay_per_um > 0 else float(cells)
     return int(min(max(math.ceil(radius), MIN_RADIUS_CELLS), cells - 1))
+
+
+def torus_side(cells: int, radius_cells: int) -> int:
+    """Cells per side of the preconditioner's torus: at least N + R, so that no kernel offset
+    within R wraps one patch site onto another (a fast FFT length)."""
+    return scipy.fft.next_fast_len(cells + radius_cells)
 
 
 def rooftops(cells: int, orientation: int):
@@ -128,12 +134,11 @@ class FlatCirculantPreconditioner:
         if not 1 <= R < N:
             raise ValueError(f"aim flat preconditioner: radius_cells must be in [1, {N - 1}], got {R!r}")
         self.radius_cells = R
-        self.torus = (scipy.fft.next_fast_len(N + R),) * 2
+        self.torus = (torus_side(N, R),) * 2
         spectrum = scipy.fft.fft2(flat_kernel(ctx, damped, d, R, self.torus), axes=(2, 3), workers=fft_workers(),
                                   overwrite_x=True)  # (4, 4, Mx, My)
         inverse = np.linalg.inv(np.moveaxis(spectrum, (0, 1), (2, 3)))  # (Mx, My, 4, 4)
         del spectrum
-        self.largest_gain = float(np.abs(inverse).max())
         self.inverse = np.ascontiguousarray(np.moveaxis(inverse, (2, 3), (0, 1)), dtype=np.complex64)
         del inverse
         # stored entries (16 per torus point), as the other preconditioners count theirs: fill 1
