@@ -14,6 +14,8 @@
                                                                # settings fitted to --memory-gb; --cells for smaller
     .venv/bin/python benchmarks/bench_aim.py products          # unpreconditioned MINRES products vs the planner's
                                                                # estimate on small surfaces of varied roughness
+    .venv/bin/python benchmarks/bench_aim.py flat-patch        # the flat patch's inner solve alone at 480 cells:
+                                                               # set-up, memory, one application
 
 Every run prints the machine load (other agents share the 2 cores): compare ratios measured in
 one run, not absolute times. CPU seconds and peak memory come from getrusage.
@@ -26,6 +28,7 @@ import json
 import math
 import os
 import resource
+import shlex
 import sys
 import time
 import warnings
@@ -292,11 +295,13 @@ def cmd_planner(args, ctx):
 
     print(load())
     aim = json.loads(args.aim)
-    run_as = AIMOptions.from_mapping(aim)  # the data file's kinds: MINRES alone, or local inverses with GMRES(30)
-    kind = {("none", "csym"): "minres", ("local", "gmres"): "local"}.get((run_as.preconditioner, run_as.solver))
-    if kind == "local" and run_as.restart != 30:
+    run_as = AIMOptions.from_mapping(aim)  # the data file's kinds: MINRES alone, local inverses or the flat patch with (F)GMRES(30)
+    kind = {("none", "csym"): "minres", ("local", "gmres"): "local",
+            ("flat-patch", "gmres"): "flat-patch"}.get((run_as.preconditioner, run_as.solver))
+    if kind in ("local", "flat-patch") and run_as.restart != 30 or kind == "flat-patch" and run_as.flat_inner_steps != 16:
         kind = None
     rows, records = [], []
+    command = (".venv/bin/python benchmarks/bench_aim.py " + shlex.join(sys.argv[1:])).replace('"', '""')  # a CSV field
     for name in args.surfaces:
         lam, material, params = PLANNER_SURFACES[name]
         params = dict(params)
@@ -312,7 +317,7 @@ def cmd_planner(args, ctx):
         rows.append((name, material, lam, surface.rms_slope_below(lam), planned["iterations_guess"], measured))
         spec = json.dumps({"generator": generator, "cells": args.cells, "size_um": size, **params}).replace('"', '""')
         records.append(f'"{name}: {material}, {generator}",{kind},check,{lam},{index.real:.6g}{index.imag:+.6g}j,"{spec}",'
-                       f"{measured[0]},{measured[1]},.venv/bin/python benchmarks/bench_aim.py {' '.join(sys.argv[1:])},<commit>")
+                       f"{measured[0]},{measured[1]},\"{command}\",<commit>")
     print("| surface | material, λ | rms slope finer than λ | planned products | measured (s / p) | planner error (s / p) |")
     for name, material, lam, slope, planned, measured in rows:
         errors = " / ".join(f"{planned / m - 1:+.0%}" for m in measured)
@@ -490,6 +495,7 @@ PRECONDITIONER_VARIANTS = {  # label → AIM options over single precision
     "local inverses, 4-cell tiles (GMRES(30))": {"preconditioner": "local", "restart": 30},
     "near LU, whole patch (GMRES(60))": {"preconditioner": "near"},
     "flat interface, damped (GMRES(30))": {"preconditioner": "flat", "restart": 30},
+    "flat patch, 16 inner steps (FGMRES(30))": {"preconditioner": "flat-patch", "restart": 30},
 }
 
 
@@ -527,6 +533,43 @@ def cmd_preconditioners(args, ctx):
                   f"solve {ff.diagnostics['solve_s']:.1f} s, total {total:.1f} s, process peak so far {peak_memory_mb() / 1024:.2f} GiB; "
                   f"BRDF vs the first variant {relative_l2(brdf, first, grid)}", flush=True)
             del solver, ff
+    print(load())
+
+
+def cmd_flat_patch(args, ctx):
+    """The flat-patch preconditioner alone at ``--cells`` (aluminium at 0.4 µm, d = 0.025 µm: the
+    12 µm sub-area's lattice at 480): its set-up time and peak memory, then one application (16
+    inner steps, both polarizations) and the products of T and of the damped circulant alone,
+    fastest of ``--repeat`` (the planner's ``flat_patch_*`` and ``flat_apply_s`` rows)."""
+    from wavebrdf.solver.bem3d.aim.flat_patch import FlatPatchPreconditioner
+
+    print(load())
+    mesh = BEMMesh(generate("flat", cells=args.cells, size_um=args.cells * 0.025))
+    before = resident_memory_mb()
+    t0 = time.perf_counter()
+    pc = FlatPatchPreconditioner(ctx, mesh, Media(0.4, AL_400))
+    setup = time.perf_counter() - t0
+    print(f"{args.cells} cells ({mesh.n_unknowns} unknowns): set-up {setup:.1f} s (T on a {pc.operator.torus} torus, "
+          f"the circulant on {pc.circulant.torus}); resident before {before:.0f} MB, process peak {peak_memory_mb():.0f} "
+          f"MB; kept {pc.bytes() / 2**20:.0f} MB ({pc.bytes() / mesh.n_unknowns:.0f} B per unknown)")
+    X = np.random.default_rng(1).standard_normal((2, mesh.n_unknowns)).astype(np.complex64)
+
+    def fastest(f):
+        times = []
+        for _ in range(args.repeat):
+            t0 = time.perf_counter()
+            f()
+            times.append(time.perf_counter() - t0)
+        return min(times)
+
+    whole, T, C = fastest(lambda: pc(X)), fastest(lambda: pc.operator(X)), fastest(lambda: pc.circulant(X))
+    steps = pc.steps
+    print(f"both polarizations: one application ({steps} inner steps) {whole:.3f} s; T alone {T:.3f} s, the circulant "
+          f"alone {C:.3f} s; the inner GMRES's own work {(whole - steps * (T + C)) / steps:.3f} s per step")
+    points = pc.operator.torus[0] * pc.operator.torus[1]
+    print(f"per polarization: (application / {steps} − circulant) per Toeplitz torus point "
+          f"{(whole / steps - C) / 2 / points:.3g} s; circulant per its torus point "
+          f"{C / 2 / (pc.circulant.torus[0] * pc.circulant.torus[1]):.3g} s")
     print(load())
 
 
@@ -597,6 +640,9 @@ def main():
     p.add_argument("--cases", nargs="+", default=list(PRECONDITIONER_CASES), choices=list(PRECONDITIONER_CASES))
     p.add_argument("--variants", nargs="+", default=list(PRECONDITIONER_VARIANTS), choices=list(PRECONDITIONER_VARIANTS))
     p.add_argument("--resolution", type=int, default=128)
+    p = sub.add_parser("flat-patch")
+    p.add_argument("--cells", type=int, default=480)
+    p.add_argument("--repeat", type=int, default=3)
     p = sub.add_parser("scale")
     p.add_argument("--cells", type=int, default=400)
     p.add_argument("--waist", type=float, default=None)
@@ -607,7 +653,7 @@ def main():
     args = parser.parse_args()
     ctx = create_context()
     print(f"device: {ctx.describe()}")
-    globals()[f"cmd_{args.command}"](args, ctx)
+    globals()[f"cmd_{args.command.replace('-', '_')}"](args, ctx)
     print("usage:", usage())
 
 

@@ -300,19 +300,19 @@ def convergence(path: Path, force: bool, log, run: bool = True, record: Record |
     return {**cells_row, **_refinement_row(*_read_refinement(store, label), scene)}
 
 
-def finer_pair(path: Path, cells: int, log, local_inverses: bool = False, subdivide: int | None = None,
+def finer_pair(path: Path, cells: int, log, preconditioner: str | None = None, subdivide: int | None = None,
                restart: int = 30) -> Path:
     """One refinement beyond the table's: the config's hardest scene at ``cells`` per side against
     BEM on a finer mesh, by default the scene rebuilt at ``REFINEMENT`` × ``cells`` (stored in ``out/trade/<study>_pair_<cells>_<fine>.h5`` and listed
     under the convergence table). The solve at ``cells`` is taken from the config's converged store
-    where that holds it (the table's own fine solve), else run. ``local_inverses``: both solves run
-    here with local inverses and GMRES(30) even where the near LU would fit (it factors slowly
-    there); they converge to the same discrete solution as the LU's, to the solver's tolerance.
+    where that holds it (the table's own fine solve), else run. ``preconditioner`` ("local" | "flat-patch"):
+    the solves run here with the local inverses and GMRES(``restart``), or the flat patch's inner
+    solve and FGMRES(``restart``), even where the near LU would fit (it factors slowly there); they
+    converge to the same discrete solution as the LU's, to the solver's tolerance.
     ``subdivide``: the fine mesh is the surface at ``cells`` with every cell split into
     ``subdivide``² (:func:`wavebrdf.solver.surface.subdivided`: the same bilinear geometry), so the
     pair measures the solver's discretization alone, not the scene's sampling
-    (``<study>_pair_<cells>_<fine>_subdivided.h5``). ``restart``: GMRES's restart length with the
-    local inverses."""
+    (``<study>_pair_<cells>_<fine>_subdivided.h5``)."""
     from wavebrdf.jobs.compare import MeasuringProcess
     from wavebrdf.jobs.config import load_config
     from wavebrdf.solver.auto import REFERENCE
@@ -337,14 +337,15 @@ def finer_pair(path: Path, cells: int, log, local_inverses: bool = False, subdiv
             if int(attrs["cells"]) == cells and stored.brdf is not None:
                 coarse = stored
                 # a peak without the LU says nothing of what the LU needs: stay without it
-                local_inverses = local_inverses or str(attrs.get("settings", "")).startswith("local")
-        fine_options, settings = fine_solve_options(options, np.nan, 1.0, f"{cells}²", local_inverses, restart)
+                if preconditioner is None and str(attrs.get("settings", "")).startswith("local"):
+                    preconditioner = "local"
+        fine_options, settings = fine_solve_options(options, np.nan, 1.0, f"{cells}²", preconditioner, restart)
         if coarse is None:
             log(f"{label}: BEM at {cells}² cells, {settings}")
             at_cells = dataclasses.replace(scene, surface=refined(scene.surface, cells))
             coarse = process.measure(REFERENCE, fine_options, at_cells, label)
         fine_options, settings = fine_solve_options(options, coarse.peak_mb, (fine_cells / cells) ** 2, f"{cells}²",
-                                                    local_inverses, restart)
+                                                    preconditioner, restart)
         log(f"{label}: BEM at {fine_cells}² cells ({kind}), {settings}")
         coarse_surface = refined(scene.surface, cells)
         fine_surface = subdivided(coarse_surface, subdivide) if subdivide else refined(scene.surface, fine_cells)
@@ -459,26 +460,39 @@ def finer_pairs(configs: list[Path], record: Record | None = None) -> list[dict]
     return rows
 
 
+FINE_PRECONDITIONERS = {  # the finer solve's preconditioner where the near LU is not used → what the table says
+    "local": "local inverses for the near LU, GMRES",
+    "flat-patch": "the flat patch's inner solve for the near LU, FGMRES",
+}
+
+
 def fine_solve_options(options, coarse_peak_mb: float, unknowns_ratio: float,
-                       measured_at: str = "the table's spacing", local_inverses: bool = False, restart: int = 30):
+                       measured_at: str = "the table's spacing", preconditioner: str | None = None,
+                       restart: int = 30):
     """(options, what they are) of the finer convergence solve: the table's own where the coarse
     solve's measured peak, scaled by the unknowns and the LU fill's growth, fits
-    :data:`FINE_MEMORY_SHARE` of this machine's RAM; else the same operator and tolerance with the
-    local inverses for the near LU (GMRES(``restart``), ~1.1 KB per unknown): more products, no
-    factor — the solution it converges to is the same to the solver's tolerance, only the path
-    there differs. ``local_inverses``: those whether or not the LU would fit."""
+    :data:`FINE_MEMORY_SHARE` of this machine's RAM; else the same operator and tolerance with
+    ``preconditioner`` for the near LU (default "local": the local inverses, GMRES(``restart``),
+    ~1.1 KB per unknown; "flat-patch": the flat patch's inner solve, FGMRES(``restart``), ~160 B per
+    unknown): no factor — the solution it converges to is the same to the solver's tolerance, only
+    the path there differs. ``preconditioner`` given: that one whether or not the LU would fit."""
     from wavebrdf.solver.resources import meminfo_bytes
 
     need = coarse_peak_mb * 2**20 * unknowns_ratio * LU_FILL_GROWTH
     fits = not np.isfinite(need) or need <= FINE_MEMORY_SHARE * meminfo_bytes("MemTotal")
-    if fits and not local_inverses:
+    if fits and preconditioner is None:
         return options, "the table's settings"  # the near LU: a restart other than the table's is not used
-    aim = dataclasses.replace(options.aim, preconditioner="local", solver="gmres", restart=restart,
-                              deflate=min(options.aim.deflate, restart - 1), fit_memory=False)
+    preconditioner = preconditioner or "local"
+    if preconditioner not in FINE_PRECONDITIONERS:
+        raise ValueError(f"the finer solve's preconditioner must be one of {tuple(FINE_PRECONDITIONERS)}, "
+                         f"got {preconditioner!r}")
+    deflate = 0 if preconditioner == "flat-patch" else min(options.aim.deflate, restart - 1)
+    aim = dataclasses.replace(options.aim, preconditioner=preconditioner, solver="gmres", restart=restart,
+                              deflate=deflate, fit_memory=False)
     why = "asked for" if fits else f"the LU would need ≈ {need / 2**30:.0f} GiB"
     if np.isfinite(coarse_peak_mb):
         why += f"; the solve at {measured_at} peaked at {coarse_peak_mb / 1024:.1f} GiB"
-    return dataclasses.replace(options, aim=aim), f"local inverses for the near LU, GMRES({restart}) ({why})"
+    return dataclasses.replace(options, aim=aim), f"{FINE_PRECONDITIONERS[preconditioner]}({restart}) ({why})"
 
 
 def scene_features(configs: list[Path], log) -> dict[str, dict]:
@@ -632,21 +646,27 @@ def main(argv=None) -> int:
                         help="with --finer-pair: the fine mesh is the surface at CELLS with every cell split into "
                              "FACTOR² (the same bilinear geometry: the solver's convergence alone), not the scene "
                              f"rebuilt at {REFINEMENT:g}× CELLS")
-    parser.add_argument("--local-inverses", action="store_true",
+    parser.add_argument("--local-inverses", dest="preconditioner", action="store_const", const="local",
                         help="with --finer-pair: both solves with local inverses and GMRES(--restart) even where "
                              "the near LU fits (the LU factors slowly at ≳ 150,000 unknowns)")
+    parser.add_argument("--flat-patch", dest="preconditioner", action="store_const", const="flat-patch",
+                        help="with --finer-pair: both solves with the flat patch's inner solve and FGMRES(--restart) "
+                             "even where the near LU fits")
     parser.add_argument("--restart", type=int, default=None, metavar="M",
-                        help="with --finer-pair: GMRES's restart length where the local inverses are used "
+                        help="with --finer-pair: (F)GMRES's restart length where the LU is not used "
                              "(default 30; Krylov vectors take 32 n M bytes for n unknowns)")
     args = parser.parse_args(argv)
     if args.subdivide is not None and not args.finer_pair:
         parser.error("--subdivide goes with --finer-pair CONFIG CELLS")
+    if args.preconditioner is not None and not args.finer_pair:
+        parser.error(f"--{'local-inverses' if args.preconditioner == 'local' else 'flat-patch'} goes with --finer-pair "
+                     "CONFIG CELLS")
     if args.restart is not None and (args.restart < 1 or not args.finer_pair):
         parser.error(f"--restart must be a positive integer and goes with --finer-pair; got {args.restart}")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", stream=sys.stderr)
     log = logging.getLogger("trade").info
     if args.finer_pair:
-        log(f"wrote {finer_pair(Path(args.finer_pair[0]).resolve(), int(args.finer_pair[1]), log, args.local_inverses, args.subdivide, args.restart or 30)}")
+        log(f"wrote {finer_pair(Path(args.finer_pair[0]).resolve(), int(args.finer_pair[1]), log, args.preconditioner, args.subdivide, args.restart or 30)}")
         return 0
     configs = sorted(p.resolve() for p in args.configs) if args.configs else suite_configs()
     record = Record.read()

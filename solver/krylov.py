@@ -20,7 +20,13 @@ Methods (``method``):
     BiCGStab (van der Vorst 1992), two products per iteration.
 
 Preconditioning (``preconditioner``, a callable M(X) ≈ A⁻¹X on blocks): right preconditioning,
-A M u = b, x = M u, so the residual is that of the original system ("gmres", "bicgstab").
+A M u = b, x = M u, so the residual is that of the original system ("gmres", "bicgstab"). A
+preconditioner with ``flexible = True`` (an inner iterative solve: not a fixed linear map) is used
+by flexible GMRES (FGMRES, Saad 1993; "gmres" without deflation only): each step's preconditioned
+vector z_j = M(v_j) is kept beside v_j (twice GMRES's stored vectors) and x = Z y.
+
+:func:`gmres_steps` runs a fixed number of GMRES steps from zero, without a stopping test: the
+inner solve of such a preconditioner.
 
 Initial guess (``x0``): taken scaled by the complex factor α = (A x0)ᴴ b / ‖A x0‖² per right-hand
 side, the least-squares fit of A x0 to b (one product; its residual ‖b − α A x0‖ is never above
@@ -46,7 +52,7 @@ from wavebrdf.solver.progress import RateLimit
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["KRYLOV_METHODS", "MIN_GUESS_GAIN", "KrylovNotConverged", "KrylovResult", "solve"]
+__all__ = ["KRYLOV_METHODS", "MIN_GUESS_GAIN", "KrylovNotConverged", "KrylovResult", "gmres_steps", "solve"]
 
 KRYLOV_METHODS = ("gmres", "csym", "bicgstab")
 MIN_GUESS_GAIN = 0.1  # an initial guess is used where it lowers ‖r‖/‖b‖ to 0.9 or less
@@ -129,11 +135,12 @@ def _givens(a: np.ndarray, b: np.ndarray):
 # ---------------------------------------------------------------------------------------------
 
 
-def _arnoldi(A: _Counter, V, H, idx, rows, j, passes: int = 1):
+def _arnoldi(A: _Counter, V, H, idx, rows, j, passes: int = 1, operand=None):
     """Arnoldi step j for the rows ``idx`` of V and H (right-hand sides ``rows``): V[idx, j + 1]
-    and H[idx, : j + 2, j] by modified Gram–Schmidt, ``passes`` times (2: reorthogonalized, for a
-    basis carried across restarts); returns ‖w‖ per row (0: breakdown)."""
-    w = A(V[idx, j], rows)
+    and H[idx, : j + 2, j] by modified Gram–Schmidt of A ``operand`` (default V[idx, j]; FGMRES:
+    the preconditioned vector), ``passes`` times (2: reorthogonalized, for a basis carried across
+    restarts); returns ‖w‖ per row (0: breakdown)."""
+    w = A(V[idx, j] if operand is None else operand, rows)
     H[idx, : j + 1, j] = 0.0
     for _ in range(passes):
         for i in range(j + 1):
@@ -146,11 +153,14 @@ def _arnoldi(A: _Counter, V, H, idx, rows, j, passes: int = 1):
     return hn
 
 
-def _gmres_cycle(A: _Counter, x, r, bnorm, which, tol, m, budget):
-    """One GMRES(m) cycle for the right-hand sides ``which``; updates x in place."""
+def _gmres_cycle(A: _Counter, x, r, bnorm, which, tol, m, budget, flexible=None):
+    """One GMRES(m) cycle for the right-hand sides ``which``; updates x in place. ``flexible``: a
+    preconditioner that may change from step to step (FGMRES, Saad 1993): A is then the plain
+    operator, each step's z_j = flexible(v_j) is kept and x += Z y."""
     P, n = len(which), x.shape[1]
     beta = _norms(r)
     V = np.zeros((P, m + 1, n), dtype=x.dtype)
+    Z = None if flexible is None else np.zeros((P, m, n), dtype=x.dtype)
     V[:, 0] = r / beta[:, None]
     H = np.zeros((P, m + 1, m), dtype=x.dtype)
     cs = np.zeros((P, m))
@@ -163,7 +173,11 @@ def _gmres_cycle(A: _Counter, x, r, bnorm, which, tol, m, budget):
         idx = np.flatnonzero(live & (A.products[which] < budget))
         if len(idx) == 0:
             break
-        hn = _arnoldi(A, V, H, idx, which[idx], j)
+        operand = None
+        if Z is not None:
+            Z[idx, j] = flexible(V[idx, j])
+            operand = Z[idx, j]
+        hn = _arnoldi(A, V, H, idx, which[idx], j, operand=operand)
         for i in range(j):  # previous rotations on column j
             a, b = H[idx, i, j], H[idx, i + 1, j]
             H[idx, i, j] = cs[idx, i] * a + sn[idx, i] * b
@@ -182,11 +196,11 @@ def _gmres_cycle(A: _Counter, x, r, bnorm, which, tol, m, budget):
         if k == 0:
             continue
         y = np.linalg.solve(np.triu(H[p, :k, :k]), g[p, :k])
-        x[p] += y @ V[p, :k]
+        x[p] += y @ (V[p, :k] if Z is None else Z[p, :k])
     return np.abs(g[np.arange(P), steps]) / bnorm
 
 
-def _gmres(A, b, x, tol, max_iterations, restart, bnorm):
+def _gmres(A, b, x, tol, max_iterations, restart, bnorm, flexible=None):
     P = len(b)
     everyone = np.arange(P)
     r = b - A(x, everyone) if np.any(x) else b.copy()
@@ -196,7 +210,7 @@ def _gmres(A, b, x, tol, max_iterations, restart, bnorm):
     while np.any(active) and np.any(A.products[active] < max_iterations):
         which = np.flatnonzero(active & (A.products < max_iterations))
         x_w = x[which]  # a copy (fancy indexing): the cycle updates it, then it is written back
-        estimate[which] = _gmres_cycle(A, x_w, r[which], bnorm[which], which, tol, restart, max_iterations)
+        estimate[which] = _gmres_cycle(A, x_w, r[which], bnorm[which], which, tol, restart, max_iterations, flexible)
         x[which] = x_w
         r[which] = b[which] - A(x[which], which)
         true[which] = _norms(r[which]) / bnorm[which]
@@ -443,6 +457,10 @@ def solve(matvec, b: np.ndarray, *, method: str = "gmres", tol: float = 1e-4, ma
         raise ValueError(f"krylov restart must be a positive integer, got {restart!r}")
     if int(deflate) != deflate or not 0 <= deflate < restart:
         raise ValueError(f"krylov deflate must be an integer in [0, restart = {restart}), got {deflate!r}")
+    flexible = preconditioner is not None and bool(getattr(preconditioner, "flexible", False))
+    if flexible and (method != "gmres" or deflate):
+        raise ValueError(f"a flexible preconditioner (an inner solve) needs krylov method 'gmres' without deflation "
+                         f"(FGMRES); got method {method!r}, deflate {deflate!r}")
     b = np.atleast_2d(np.asarray(b))
     dtype = np.result_type(b, np.complex64)
     b = b.astype(dtype, copy=False)
@@ -453,7 +471,7 @@ def solve(matvec, b: np.ndarray, *, method: str = "gmres", tol: float = 1e-4, ma
     def apply(X):
         return np.asarray(matvec(X)).astype(dtype, copy=False)
 
-    if preconditioner is None:
+    if preconditioner is None or flexible:
         A = _Counter(apply, len(b), progress)
     else:
         A = _Counter(lambda X: apply(preconditioner(X)), len(b), progress)
@@ -468,12 +486,13 @@ def solve(matvec, b: np.ndarray, *, method: str = "gmres", tol: float = 1e-4, ma
     if method == "gmres" and deflate:
         x, estimate, true = _gmres_dr(A, r, x, tol, max_iterations, int(restart), int(deflate), bnorm)
     elif method == "gmres":
-        x, estimate, true = _gmres(A, r, x, tol, max_iterations, int(restart), bnorm)
+        x, estimate, true = _gmres(A, r, x, tol, max_iterations, int(restart), bnorm,
+                                   flexible=preconditioner if flexible else None)
     elif method == "csym":
         x, estimate, true = _csym(A, r, x, tol, max_iterations, bnorm)
     else:
         x, estimate, true = _bicgstab(A, r, x, tol, max_iterations, bnorm)
-    if preconditioner is not None:
+    if preconditioner is not None and not flexible:
         x = np.asarray(preconditioner(x)).astype(dtype, copy=False)
     if start is not None:
         x = start + x
@@ -491,3 +510,24 @@ def solve(matvec, b: np.ndarray, *, method: str = "gmres", tol: float = 1e-4, ma
             diag,
         )
     return result
+
+
+def gmres_steps(matvec, b: np.ndarray, steps: int, preconditioner=None) -> np.ndarray:
+    """x (P, n) after ``steps`` GMRES steps on A x = b from zero for each right-hand side of b (P,
+    n), right-preconditioned by the fixed ``preconditioner`` (None: none); no stopping test (a
+    right-hand side stops early only at an exact breakdown), no restart. In b's precision."""
+    if int(steps) != steps or steps < 1:
+        raise ValueError(f"gmres_steps: steps must be a positive integer, got {steps!r}")
+    b = np.atleast_2d(b)
+    bnorm = _norms(b)
+    if preconditioner is None:
+        A = _Counter(lambda X: np.asarray(matvec(X)).astype(b.dtype, copy=False), len(b))
+    else:
+        A = _Counter(lambda X: np.asarray(matvec(preconditioner(X))).astype(b.dtype, copy=False), len(b))
+    x = np.zeros_like(b)
+    rows = np.flatnonzero(bnorm > 0)
+    if len(rows):
+        x_w = x[rows]
+        _gmres_cycle(A, x_w, b[rows], bnorm[rows], rows, 0.0, int(steps), int(steps))
+        x[rows] = x_w
+    return x if preconditioner is None else np.asarray(preconditioner(x)).astype(b.dtype, copy=False)

@@ -13,6 +13,11 @@ the local inverses with GMRES(30) at once:
             + [a dielectric]  log g
             [+ log r + ε log(L / 10λ) with the local inverses]
 
+and, fitted apart, FGMRES(30) with the flat patch's inner solve (16 inner steps), whose count does
+not grow with the size (the flat patch carries the coupling along the plane):
+
+    log P = log a + η log(s + s₀) + [a metal] α_f b + [a dielectric] log g_f
+
 s the rms slope of the relief finer than the wavelength (``HeightField.rms_slope_below``; every
 row is in air, so its wavelength is the vacuum one): roughness at and below λ couples nearby
 elements, and slows the solve more than long, gentle relief of the same total slope, more on a
@@ -25,7 +30,7 @@ least squares in log P to the geometric mean of each row's s and p counts; s₀ 
 the data file put the most rows within 20 % — 24 of the 31 that the others determine; 0.01 and
 0.02 tie — and of those the smallest rms; ``--dry-run`` prints them). A row of the data file
 is one measured solve: its surface (``generate``'s arguments as JSON), wavelength, index, the
-preconditioner (``kind``: ``minres`` or ``local``), its ``role`` (``fit``: fitted; ``check``: a
+preconditioner (``kind``: ``minres``, ``local`` or ``flat-patch``), its ``role`` (``fit``: fitted; ``check``: a
 surface the fit has not seen, measured by ``benchmarks/bench_aim.py planner``, whose error is
 printed, not fitted), the products of both polarizations, and the command and commit that
 measured them.
@@ -47,7 +52,7 @@ SLOPE_OFFSET = 0.02  # s₀ (module docstring)
 # rows of an earlier form of the model (ν = ln(|n|/n_ref) in place of the plasmon's binding), which a refit removes
 OBSOLETE = ("products_minres_index_ref", "products_minres_index_exp", "products_minres_index_exp2",
             "products_minres_slope_index_exp", "products_index_contrast_min", "products_index_contrast_max")
-KINDS = ("minres", "local")
+KINDS = ("minres", "local", "flat-patch")
 ROLES = ("fit", "check")
 MEANINGS = {
     "products_minres": "MINRES products per polarization without a preconditioner = c (L/λ)^β (s + s₀)^γ × (a metal: "
@@ -62,6 +67,12 @@ MEANINGS = {
     "products_local_ratio": "GMRES(30) products with the local inverses over the MINRES count at L = 10 λ: r, fitted "
                             "with products_minres",
     "products_local_size_exp": "growth of that ratio with L/λ: (L/10λ)^ε, fitted with products_minres",
+    "products_flat_patch": "FGMRES(30) products per polarization with the flat patch's inner solve (16 inner steps) = "
+                           "a (s + s₀)^η × (a metal: e^(α_f b); a dielectric: g_f), least squares in log products over the flat-patch "
+                           "rows of solver/data/aim_products.csv: a",
+    "products_flat_patch_slope_exp": "(see products_flat_patch): η",
+    "products_flat_patch_plasmon_exp": "(see products_flat_patch): α_f, the exponent of the metal's plasmon binding b",
+    "products_flat_patch_dielectric_ratio": "(see products_flat_patch): g_f, a dielectric's count over a metal's at b = 0",
     "products_slope_offset": "s₀ of products_minres: of 0.005, 0.01, 0.02, 0.05, 0.1, 0.2 the one whose leave-one-out "
                              "errors over solver/data/aim_products.csv put the most rows within 20 % (24 of 31; 0.01 "
                              "and 0.02 tie), and of those the smallest rms (fixed, not fitted)",
@@ -88,7 +99,7 @@ def measured_counts(path: Path = DATA) -> list[dict]:
             index = complex(row["index"].replace(" ", ""))
             rows.append({**row, "index_complex": index,
                          "size_waves": max(surface.size_um / lam, 1.0), "fine_slope": surface.rms_slope_below(lam),
-                         "local": row["kind"] == "local",
+                         "local": row["kind"] == "local", "flat_patch": row["kind"] == "flat-patch",
                          "products": float(np.sqrt(float(row["products_s"]) * float(row["products_p"])))})
     return rows
 
@@ -115,9 +126,9 @@ NAMES = ("products_minres", "products_minres_size_exp", "products_minres_slope_e
 
 
 def fit(rows: list[dict], slope_offset: float = SLOPE_OFFSET) -> dict[str, float]:
-    """The eight constants of the model (module docstring) from the ``fit`` rows of
-    :func:`measured_counts`."""
-    rows = [r for r in rows if r["role"] == "fit"]
+    """The eight constants of the model (module docstring) from the MINRES and local-inverse ``fit``
+    rows of :func:`measured_counts`."""
+    rows = [r for r in rows if r["role"] == "fit" and not r["flat_patch"]]
     design = _design(rows, slope_offset)
     local, metal = design[:, 6], 1.0 - design[:, 5]
     if (not local.any() or local.all() or not metal.any() or metal.all()
@@ -131,10 +142,34 @@ def fit(rows: list[dict], slope_offset: float = SLOPE_OFFSET) -> dict[str, float
     return values
 
 
+def _flat_patch_design(rows: list[dict], slope_offset: float) -> np.ndarray:
+    """The design of the flat-patch count: log a + η log(s + s₀) + [a metal] α_f b + [a dielectric] log g_f."""
+    from wavebrdf.solver.bem3d.aim.estimate import metallic, plasmon_binding
+
+    slope = np.log([r["fine_slope"] + slope_offset for r in rows])
+    metal = np.array([metallic(r["index_complex"]) for r in rows], float)
+    b = np.array([plasmon_binding(r["index_complex"]) or 0.0 if m else 0.0 for r, m in zip(rows, metal)])
+    return np.stack([np.ones(len(rows)), slope, metal * b, 1.0 - metal], axis=1)
+
+
+def fit_flat_patch(rows: list[dict], slope_offset: float = SLOPE_OFFSET) -> dict[str, float]:
+    """a, η, α_f and g_f of the flat-patch count (``estimate._flat_patch_products``) from the
+    ``flat-patch`` ``fit`` rows."""
+    rows = [r for r in rows if r["role"] == "fit" and r["flat_patch"]]
+    design = _flat_patch_design(rows, slope_offset) if rows else np.zeros((0, 4))
+    if len(rows) < 5 or np.linalg.matrix_rank(design) < 4:
+        raise ValueError("the flat-patch product counts do not determine their model: it needs at least 5 rows, metals "
+                         "of different plasmon binding and dielectrics, of different slopes")
+    coef, *_ = np.linalg.lstsq(design, np.log([r["products"] for r in rows]), rcond=None)
+    return {"products_flat_patch": float(np.exp(coef[0])), "products_flat_patch_slope_exp": float(coef[1]),
+            "products_flat_patch_plasmon_exp": float(coef[2]),
+            "products_flat_patch_dielectric_ratio": float(np.exp(coef[3]))}
+
+
 def leave_one_out(rows: list[dict], slope_offset: float = SLOPE_OFFSET) -> list[float]:
-    """Each ``fit`` row's relative error when the model is fitted to the others; NaN where the
-    others do not determine the model (the row alone fixes a constant)."""
-    rows = [r for r in rows if r["role"] == "fit"]
+    """Each MINRES and local-inverse ``fit`` row's relative error when the model is fitted to the
+    others; NaN where the others do not determine the model (the row alone fixes a constant)."""
+    rows = [r for r in rows if r["role"] == "fit" and not r["flat_patch"]]
     design, y = _design(rows, slope_offset), np.log([r["products"] for r in rows])
     errors = []
     for i in range(len(rows)):
@@ -152,7 +187,7 @@ def fitted_ranges(rows: list[dict], slope_offset: float = SLOPE_OFFSET) -> dict[
     the estimate does not extrapolate beyond them."""
     from wavebrdf.solver.bem3d.aim.estimate import plasmon_binding
 
-    rows = [r for r in rows if r["role"] == "fit"]
+    rows = [r for r in rows if r["role"] == "fit" and not r["flat_patch"]]
     binding = [b for b in (plasmon_binding(r["index_complex"]) for r in rows) if b is not None]
     return {"products_slope_offset": slope_offset, "products_fine_slope_max": max(r["fine_slope"] for r in rows),
             "products_plasmon_binding_min": min(binding), "products_plasmon_binding_max": max(binding)}
@@ -174,7 +209,7 @@ def main(argv=None) -> int:
     from refit_aim_cost import commit
 
     rows = measured_counts(Path(args.data))
-    values = {**fit(rows), **fitted_ranges(rows)}
+    values = {**fit(rows), **fit_flat_patch(rows), **fitted_ranges(rows)}
     for name, value in values.items():
         print(f"{name} = {value:.3g}")
     for offset in (0.005, 0.01, 0.02, 0.05, 0.1, 0.2):
@@ -186,7 +221,8 @@ def main(argv=None) -> int:
     cost = {**fitted("aim_cost"), **{k: float(f"{v:.3g}") for k, v in values.items()}}
     print("| case | kind | role | L/λ | rms slope finer than λ | measured (s / p) | planned | error |")
     for r in rows:
-        options = AIMOptions(preconditioner="local" if r["local"] else "none", solver="gmres" if r["local"] else "csym")
+        options = AIMOptions(preconditioner={"minres": "none"}.get(r["kind"], r["kind"]),
+                             solver="csym" if r["kind"] == "minres" else "gmres", restart=30)
         predicted = _products(options, r["size_waves"], r["index_complex"], r["fine_slope"], cost)
         print(f"| {r['case']} | {r['kind']} | {r['role']} | {r['size_waves']:.1f} | {r['fine_slope']:.3f} | "
               f"{r['products_s']} / {r['products_p']} | {int(predicted)} | {predicted / r['products'] - 1:+.0%} |")
@@ -196,7 +232,7 @@ def main(argv=None) -> int:
     rows_before = fitted_rows("aim_cost")
     ours = [i for i, row in enumerate(rows_before) if row["name"] in MEANINGS or row["name"] in OBSOLETE]
     at = ours[0] if ours else len(rows_before)
-    block = [{"name": name, "value": f"{value:.3g}", "unit": "products" if name == "products_minres" else "1",
+    block = [{"name": name, "value": f"{value:.3g}", "unit": "products" if name in ("products_minres", "products_flat_patch") else "1",
               "meaning": MEANINGS[name], "command": command.strip(), "commit": commit(),
               "machine": "any (a least-squares fit of solver/data/aim_products.csv, whose rows name the runs and "
                          "the 2-core development machine of docs/aim.md)"} for name, value in values.items()]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wavebrdf.solver.krylov import KRYLOV_METHODS, KrylovNotConverged, solve
+from wavebrdf.solver.krylov import KRYLOV_METHODS, KrylovNotConverged, gmres_steps, solve
 
 
 @pytest.fixture(scope="module")
@@ -153,3 +153,69 @@ def test_exact_stagnation_is_not_a_crash():
     b = np.eye(n)[:1].astype(complex)
     with pytest.raises(KrylovNotConverged):
         solve(lambda X: X @ A.T, b, tol=1e-8, max_iterations=60, restart=10, deflate=3)
+
+
+class _Flexible:
+    """A preconditioner that is not a fixed linear map: a few GMRES steps on a nearby matrix."""
+
+    flexible = True
+
+    def __init__(self, N, steps):
+        self.N, self.steps = N, steps
+
+    def __call__(self, X):
+        return gmres_steps(lambda Y: Y @ self.N.T, X, self.steps)
+
+
+def test_gmres_steps_minimize_the_residual_over_the_krylov_space(system):
+    """k steps from zero give the x in span{b, A b, …, A^{k−1} b} of least residual (checked by a
+    least-squares solve on that explicit basis), per right-hand side; n steps solve exactly."""
+    A, b, exact = system
+    k = 6
+    x = gmres_steps(lambda X: X @ A.T, b, k)
+    for p in range(len(b)):
+        K = np.empty((len(A), k), dtype=complex)
+        K[:, 0] = b[p]
+        for i in range(1, k):
+            K[:, i] = A @ K[:, i - 1]
+        c = np.linalg.lstsq(A @ K, b[p], rcond=None)[0]
+        assert np.linalg.norm(x[p] - K @ c) < 1e-8 * np.linalg.norm(K @ c)
+    small = A[:12, :12]
+    full = gmres_steps(lambda X: X @ small.T, b[:, :12], 12)
+    assert np.allclose(full, np.linalg.solve(small, b[:, :12].T).T, atol=1e-8)
+
+
+def test_a_fixed_preconditioner_gives_fgmres_the_iterates_of_right_preconditioned_gmres(system):
+    """With a fixed linear M, FGMRES (the preconditioned vectors kept) and GMRES on A M take the same
+    products to the same solution."""
+    A, b, exact = system
+    M = np.linalg.inv(A + 0.3 * np.diag(np.diag(A)))
+
+    class Fixed:
+        flexible = True
+
+        def __call__(self, X):
+            return X @ M.T
+
+    right = solve(lambda X: X @ A.T, b, tol=1e-9, max_iterations=2000, restart=20, preconditioner=lambda X: X @ M.T)
+    flexible = solve(lambda X: X @ A.T, b, tol=1e-9, max_iterations=2000, restart=20, preconditioner=Fixed())
+    assert np.array_equal(right.iterations, flexible.iterations)
+    assert np.allclose(flexible.x, exact, rtol=0, atol=1e-6 * np.abs(exact).max())
+
+
+def test_fgmres_converges_with_an_inner_solve_as_preconditioner(system):
+    """An inner GMRES on a perturbed matrix as the preconditioner: FGMRES reaches the direct
+    solution in fewer products than GMRES alone; the flexible preconditioner is refused by the
+    methods that cannot take it."""
+    A, b, exact = system
+    rng = np.random.default_rng(3)
+    N = A + 0.05 * (rng.standard_normal(A.shape) + 1j * rng.standard_normal(A.shape)) / np.sqrt(len(A))
+    plain = solve(lambda X: X @ A.T, b, tol=1e-9, max_iterations=3000, restart=30)
+    inner = solve(lambda X: X @ A.T, b, tol=1e-9, max_iterations=3000, restart=30, preconditioner=_Flexible(N, 40))
+    print("products: GMRES(30)", plain.iterations, "FGMRES(30), 40 inner steps", inner.iterations)
+    assert np.all(inner.iterations * 3 <= plain.iterations)
+    assert np.allclose(inner.x, exact, rtol=0, atol=1e-6 * np.abs(exact).max())
+    for method, deflate, why in (("csym", 0, "takes no preconditioner"), ("bicgstab", 0, "flexible preconditioner"),
+                                 ("gmres", 5, "flexible preconditioner")):
+        with pytest.raises(ValueError, match=why):
+            solve(lambda X: X @ A.T, b, method=method, deflate=deflate, restart=30, preconditioner=_Flexible(N, 4))

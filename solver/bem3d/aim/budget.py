@@ -6,7 +6,8 @@ fill grows with the patch), then the near field, the FFT grids and the Krylov ba
 the settings that trade time for memory — single precision (kernels, FFTs, grid spectra and
 projections; the accuracy cost is measured in docs/aim.md), the LU on tiles of the patch
 (restricted additive Schwarz: more products, less fill), the local inverses of 4-cell tiles
-(~1.15 KB per unknown, GMRES restarted every 30 products: 32 vectors), no preconditioner (the
+(~1.15 KB per unknown, GMRES restarted every 30 products: 32 vectors), the flat patch's inner solve
+(flat_patch.py: ~160 B per unknown, FGMRES(30): 61 vectors), no preconditioner (the
 complex-symmetric MINRES "csym", six vectors), and for a lossy material whose
 interior field is still on the grid, the near radius at which it decays within the near field
 (green.py ``grid_media``: the interior then leaves the grid, halving its FFTs, spectra and
@@ -118,6 +119,8 @@ def candidate_options(options: AIMOptions, cells: int, media: Media | None = Non
             restart = min(base.restart, LOCAL_RESTART)
             out.append(replace(base, preconditioner="local", solver="gmres", restart=restart,
                                deflate=min(base.deflate, restart - 1)))
+            # the flat patch's inner solve under FGMRES(30): ~160 B per unknown, twice the Krylov vectors
+            out.append(replace(base, preconditioner="flat-patch", solver="gmres", restart=restart, deflate=0))
             # without a preconditioner: MINRES "csym" (six vectors; measured at 6.4·10⁵ unknowns),
             # not restarted GMRES, whose products at hundreds of iterations were never measured
             out.append(replace(base, preconditioner="none", solver="csym", deflate=0))

@@ -16,6 +16,7 @@ import numpy as np
 
 from wavebrdf.solver.bem3d.aim.continuation import FLUX_LEFT
 from wavebrdf.solver.bem3d.aim.flat_circulant import SETUP_BYTES_PER_POINT, kernel_radius_cells, torus_side
+from wavebrdf.solver.bem3d.aim.flat_patch import TOEPLITZ_SETUP_BYTES_PER_POINT, toeplitz_torus_side
 from wavebrdf.solver.bem3d.aim.green import grid_media
 from wavebrdf.solver.bem3d.aim.grid import build_grid
 from wavebrdf.solver.bem3d.aim.near_assembly import RepeatingTables
@@ -123,10 +124,22 @@ def _flat_cost(media: Media, cells: int, spacing_um: float, unknowns: int, optio
     return 16 * 8.0 * points + 16.0 * unknowns, COST["flat_setup_s"] * points, points
 
 
+def _flat_patch_cost(media: Media, cells: int, spacing_um: float, unknowns: int,
+                     options: AIMOptions) -> tuple[float, float, int, int]:
+    """(bytes, set-up seconds, Toeplitz torus points, circulant torus points) of the flat patch's
+    inner solve (flat_patch.py): the damped circulant (:func:`_flat_cost`) and T's 8 nonzero blocks
+    in complex64 per point of its torus with two indices per unknown; T's set-up
+    ``flat_patch_setup_s`` per point of its torus (:data:`COST`)."""
+    circulant, circulant_s, circulant_points = _flat_cost(media, cells, spacing_um, unknowns, options)
+    points = toeplitz_torus_side(cells) ** 2
+    return (circulant + 8 * 8.0 * points + 16.0 * unknowns, circulant_s + COST["flat_patch_setup_s"] * points,
+            points, circulant_points)
+
+
 # Products of a warm-started solve over a cold one, by preconditioner (docs/aim.md, warm starts);
-# not measured with the flat interface's preconditioner: no gain counted
+# not measured with the flat interface's preconditioners: no gain counted
 WARM_PRODUCTS = {"local": COST["warm_products_local"], "near": COST["warm_products_near"],
-                 "none": COST["warm_products_none"], "flat": 1.0}
+                 "none": COST["warm_products_none"], "flat": 1.0, "flat-patch": 1.0}
 
 # Memory the stages need besides their arrays (what each is: solver/data/aim_cost.csv)
 RUNTIME_BYTES = COST["runtime_bytes"]  # interpreter, NumPy/SciPy, OpenCL runtime and built kernels
@@ -193,15 +206,20 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
         "preconditioner": 0.0,
         "static tables": STATIC_BYTES_PER_ELEMENT * mesh.n_elements if keeps_tables else 0.0,  # from the near field on
     }
-    preconditioner_s = local_entries = torus_points = 0.0
+    preconditioner_s = local_entries = torus_points = toeplitz_points = 0.0
     if options.preconditioner == "near":
         held["preconditioner"], preconditioner_s = _preconditioner_cost(mesh.cells, n, options, flat=flat)
     elif options.preconditioner == "local":
         held["preconditioner"], preconditioner_s, local_entries = _local_inverse_cost(mesh.cells, n, options)
     elif options.preconditioner == "flat":
         held["preconditioner"], preconditioner_s, torus_points = _flat_cost(media, mesh.cells, d, n, options)
-    # Krylov vectors are complex128 (solver/krylov.py works in the rhs dtype: complex for the driver)
-    krylov = 16 * n * P * (options.restart + 4 if options.solver == "gmres" else 8)
+    elif options.preconditioner == "flat-patch":
+        held["preconditioner"], preconditioner_s, toeplitz_points, torus_points = _flat_patch_cost(
+            media, mesh.cells, d, n, options)
+    # Krylov vectors are complex128 (solver/krylov.py works in the rhs dtype: complex for the driver);
+    # FGMRES keeps the preconditioned vectors too
+    stored = 2 * options.restart + 4 if options.preconditioner == "flat-patch" else options.restart + 4
+    krylov = 16 * n * P * (stored if options.solver == "gmres" else 8)
     krylov += 16 * n * (options.deflate + 1) if options.deflate else 0  # GMRES-DR's restart: V Q, one rhs at a time
     nx, ny, nz = grid.shape
     px = grid.padded[0]
@@ -217,8 +235,12 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
         "products": krylov + cplx * 8 * P * (px * ny * nz + compact) + slab + 2 * 16 * n * P,
         "far field": P * 6 * compact * max(cplx, 8) + FARFIELD_PIXEL_BYTES * resolution**2 + BLOCK_BYTES,
     }
-    if options.preconditioner == "flat":  # the set-up's complex128 peak, before what it keeps exists
-        transient["preconditioner"] = SETUP_BYTES_PER_POINT * torus_points
+    if options.preconditioner in ("flat", "flat-patch"):  # the set-up's complex128 peaks, before what it keeps exists
+        transient["preconditioner"] = max(SETUP_BYTES_PER_POINT * torus_points,
+                                          TOEPLITZ_SETUP_BYTES_PER_POINT * toeplitz_points
+                                          + COST["flat_lattice_bytes_per_cell"] * 4 * mesh.cells**2)
+    if options.preconditioner == "flat-patch":  # each application: the inner GMRES basis and the torus fields, complex64
+        transient["products"] += 8.0 * P * ((options.flat_inner_steps + 2) * n + 3 * 4 * toeplitz_points)
     continuation = continuation_s = 0.0
     if options.edge == "flat":
         continuation, continuation_s = _continuation_cost(mesh, options, waist_um, near_entry, cplx, S * groups)
@@ -237,7 +259,9 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
         product_s *= COST["product_single_ratio"]
     if options.preconditioner == "near":
         product_s += 2.0 * held["preconditioner"] / SUPERLU_BYTES * COST["lu_solve_s"]
-    product_s += 2.0 * local_entries * COST["local_apply_s"] + 2.0 * torus_points * COST["flat_apply_s"]
+    inner_steps = options.flat_inner_steps if options.preconditioner == "flat-patch" else 1
+    product_s += 2.0 * local_entries * COST["local_apply_s"] + 2.0 * inner_steps * (
+        torus_points * COST["flat_apply_s"] + toeplitz_points * COST["flat_patch_apply_s"])
     size_waves = surface.size_um * exterior_index / wavelength_um
     exterior_wavelength = wavelength_um / exterior_index
     key = ("rms_slope_below", exterior_wavelength)  # the surface's, for every candidate of one fit
@@ -321,16 +345,39 @@ def _products(options: AIMOptions, size_waves: float, index: complex, fine_slope
         ratio = cost["products_local_ratio"] * (size_waves / 10.0) ** cost["products_local_size_exp"]
     elif options.preconditioner == "flat":  # one measured patch (L = 10 λ): not fitted, not chosen by the planner
         ratio = cost["products_flat_ratio"]
+    elif options.preconditioner == "flat-patch":
+        return _flat_patch_products(index, fine_slope, cost)
     roughness = min(fine_slope, cost["products_fine_slope_max"]) + cost["products_slope_offset"]
     count = (cost["products_minres"] * size_waves ** cost["products_minres_size_exp"]
              * roughness ** cost["products_minres_slope_exp"])
     if not metallic(index):
         return ratio * count * cost["products_dielectric_ratio"]
-    binding = plasmon_binding(index)  # None for −1 ≤ Re ε < 0, near the plasmon resonance: the tightest fitted
-    binding = cost["products_plasmon_binding_max"] if binding is None else binding
-    binding = min(max(binding, cost["products_plasmon_binding_min"]), cost["products_plasmon_binding_max"])
-    metal = math.exp(cost["products_plasmon_exp"] * binding) * roughness ** cost["products_metal_slope_exp"]
+    metal = math.exp(cost["products_plasmon_exp"] * _held_binding(index, cost)) \
+        * roughness ** cost["products_metal_slope_exp"]
     return ratio * count * metal
+
+
+def _held_binding(index: complex, cost: dict) -> float:
+    """A metal's plasmon binding b held within the fitted range; −1 ≤ Re ε < 0 (near the plasmon
+    resonance, no bound plasmon) takes the most tightly bound fitted one's."""
+    binding = plasmon_binding(index)
+    binding = cost["products_plasmon_binding_max"] if binding is None else binding
+    return min(max(binding, cost["products_plasmon_binding_min"]), cost["products_plasmon_binding_max"])
+
+
+def _flat_patch_products(index: complex, fine_slope: float, cost: dict = COST) -> float:
+    """FGMRES products per polarization with the flat patch's inner solve (``flat_inner_steps`` =
+    16, restart 30): a (s + s₀)^η × (a metal: e^{α_f b}, b = plasmon_binding held within the fitted
+    range; a dielectric: g_f), s the rms slope finer than λ held at ``products_fine_slope_max``. The
+    size does not enter: the flat patch carries the coupling along the plane that makes the other
+    counts grow with L/λ (10 products at L = 10, 16 and 30 λ on the sub-area family, docs/aim.md).
+    a, η, α_f, g_f: tools/refit_product_counts.py on the ``flat-patch`` rows of
+    solver/data/aim_products.csv."""
+    roughness = min(fine_slope, cost["products_fine_slope_max"]) + cost["products_slope_offset"]
+    count = cost["products_flat_patch"] * roughness ** cost["products_flat_patch_slope_exp"]
+    if not metallic(index):
+        return count * cost["products_flat_patch_dielectric_ratio"]
+    return count * math.exp(cost["products_flat_patch_plasmon_exp"] * _held_binding(index, cost))
 
 
 def memory_breakdown(estimate: dict) -> str:

@@ -38,6 +38,7 @@ import numpy as np
 import scipy.fft
 
 from wavebrdf.solver.bem3d.assembly import basis_pair_entries
+from wavebrdf.solver.bem3d.elements import ElementIntegrals
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh, near_coords, near_first, near_row
 from wavebrdf.solver.opencl import fft_workers
@@ -45,12 +46,14 @@ from wavebrdf.solver.surface import generate
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["FLAT_DAMPING", "FLAT_KERNEL_DECAY", "SETUP_BYTES_PER_POINT", "DampedExterior", "FlatCirculantPreconditioner", "flat_kernel",
-           "kernel_radius_cells", "rooftops", "torus_side"]
+__all__ = ["FLAT_DAMPING", "FLAT_KERNEL_DECAY", "SETUP_BYTES_PER_POINT", "DampedExterior", "FlatCirculantPreconditioner",
+           "TorusPlacement", "block_convolve", "flat_kernel", "kernel_radius_cells", "nonzero_blocks", "rooftops",
+           "torus_side"]
 
 FLAT_DAMPING = 0.3  # ε of k₁(1 − jε): products on rough aluminium, docs/aim.md
 FLAT_KERNEL_DECAY = 1e-3  # the kernel is kept where e^{−ε k₁ r} is above this
 MIN_RADIUS_CELLS = 4
+KERNEL_CHUNK = 2**16  # target rooftops per call for the kernel's entries: bounds the element tables' memory
 SETUP_BYTES_PER_POINT = 768  # complex128 at the set-up's peak: the spectrum, the 4 × 4 inverses and their workspace
 
 
@@ -103,19 +106,77 @@ def flat_kernel(ctx, media: Media, spacing_um: float, radius_cells: int, torus: 
     Mx, My = torus
     K = np.zeros((4, 4, Mx, My), dtype=np.complex128)
     targets = [rooftops(cells, o) for o in (0, 1)]
+    integrals = ElementIntegrals(lattice, ctx=ctx)
     for oc in (0, 1):
         source = near_first(oc, cells) + int(near_row(oc, cells, R, R))
         for o in (0, 1):
             x, y, g = targets[o]
             dx, dy = x - R, y - R
             keep = (np.abs(dx) <= R) & (np.abs(dy) <= R)
-            ee, mm, em = basis_pair_entries(ctx, lattice, media, g[keep], np.full(int(keep.sum()), source))
-            sites = (dx[keep] % Mx, dy[keep] % My)
-            K[o, oc][sites] = ee
-            K[o, 2 + oc][sites] = em
-            K[2 + o, oc][sites] = em
-            K[2 + o, 2 + oc][sites] = mm
+            kept = np.flatnonzero(keep)
+            for part in np.array_split(kept, -(-len(kept) // KERNEL_CHUNK)):  # bounded element tables
+                ee, mm, em = basis_pair_entries(ctx, lattice, media, g[part], np.full(len(part), source), integrals)
+                sites = (dx[part] % Mx, dy[part] % My)
+                K[o, oc][sites] = ee
+                K[o, 2 + oc][sites] = em
+                K[2 + o, oc][sites] = em
+                K[2 + o, 2 + oc][sites] = mm
     return K
+
+
+class TorusPlacement:
+    """The patch's rooftops placed in a torus of (Mx, My) lattice sites: the four fields [J_h, J_v,
+    M̃_h, M̃_v] of a block of vectors (P, 2N_b) as (P, 4, Mx, My) complex64 (zero off the patch)
+    and back. Two indices per unknown."""
+
+    def __init__(self, mesh: BEMMesh, torus: tuple[int, int]):
+        self.torus = tuple(int(m) for m in torus)
+        if min(self.torus) < mesh.cells:
+            raise ValueError(f"a torus of {self.torus} sites cannot hold a patch of {mesh.cells} cells")
+        n_b, My = mesh.n_bases, self.torus[1]
+        self.fields = []  # (unknown positions, torus sites) per field
+        for magnetic in (0, 1):
+            for o in (0, 1):
+                x, y, g = rooftops(mesh.cells, o)
+                self.fields.append((magnetic * n_b + g, x * My + y))
+
+    def bytes(self) -> int:
+        return int(sum(u.nbytes + s.nbytes for u, s in self.fields))
+
+    def scatter(self, X: np.ndarray) -> np.ndarray:
+        """(P, 4, Mx, My) complex64 of X (P, 2N_b)."""
+        P, (Mx, My) = len(X), self.torus
+        fields = np.zeros((P, 4, Mx * My), dtype=np.complex64)
+        for f, (unknowns, sites) in enumerate(self.fields):
+            fields[:, f, sites] = X[:, unknowns]
+        return fields.reshape(P, 4, Mx, My)
+
+    def gather(self, fields: np.ndarray, dtype) -> np.ndarray:
+        """(P, 2N_b) of ``dtype`` (at least complex64) from the patch's sites of ``fields`` (P, 4, Mx, My)."""
+        P = len(fields)
+        fields = fields.reshape(P, 4, -1)
+        Y = np.empty((P, sum(len(u) for u, _ in self.fields)), dtype=np.result_type(dtype, np.complex64))
+        for f, (unknowns, sites) in enumerate(self.fields):
+            Y[:, unknowns] = fields[:, f, sites]
+        return Y
+
+
+def nonzero_blocks(spectrum: np.ndarray) -> list[tuple[int, int]]:
+    """The (i, j) of the 4 × 4 field blocks of ``spectrum`` (4, 4, Mx, My) that are not all zero
+    (on a flat lattice the J–M̃ coupling of coplanar rooftops vanishes: half the blocks)."""
+    return [(i, j) for i in range(4) for j in range(4) if np.any(spectrum[i, j])]
+
+
+def block_convolve(spectrum: np.ndarray, blocks, fields: np.ndarray) -> np.ndarray:
+    """The block-circulant product on the torus: F⁻¹ (spectrum(ξ) F fields) for ``fields`` (P, 4,
+    Mx, My), ``spectrum`` (4, 4, Mx, My) complex64 and its nonzero ``blocks``; overwrites ``fields``."""
+    spectra = scipy.fft.fft2(fields, axes=(2, 3), workers=fft_workers(), overwrite_x=True)
+    out = np.zeros_like(spectra)
+    scratch = np.empty_like(spectra[:, 0])
+    for i, j in blocks:
+        np.multiply(spectrum[i, j], spectra[:, j], out=scratch)
+        out[:, i] += scratch
+    return scipy.fft.ifft2(out, axes=(2, 3), workers=fft_workers(), overwrite_x=True)
 
 
 class FlatCirculantPreconditioner:
@@ -143,39 +204,21 @@ class FlatCirculantPreconditioner:
         del inverse
         # stored entries (16 per torus point), as the other preconditioners count theirs: fill 1
         self.nnz = self.factor_nnz = self.inverse.size
-        # unknown positions and torus sites of the four fields [J_h, J_v, M̃_h, M̃_v]
-        n_b, My = mesh.n_bases, self.torus[1]
-        self._fields = []
-        for magnetic in (0, 1):
-            for o in (0, 1):
-                x, y, g = rooftops(N, o)
-                self._fields.append((magnetic * n_b + g, x * My + y))
+        self.placement = TorusPlacement(mesh, self.torus)
+        self.blocks = nonzero_blocks(self.inverse)
         self.seconds = time.perf_counter() - t0
         self.apply_s = 0.0
         logger.info("flat preconditioner: damping %g, kernel radius %d cells, torus %s, %.1f MB, %.1f s",
                     self.damping, R, self.torus, self.bytes() / 2**20, self.seconds)
 
     def bytes(self) -> int:
-        return int(self.inverse.nbytes + sum(u.nbytes + s.nbytes for u, s in self._fields))
+        return int(self.inverse.nbytes + self.placement.bytes())
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
         """M X for X (P, 2N_b) or (2N_b,), complex, in X's precision."""
         t0 = time.perf_counter()
         single = np.ndim(X) == 1
         X = np.atleast_2d(X)
-        P, (Mx, My) = len(X), self.torus
-        fields = np.zeros((P, 4, Mx * My), dtype=np.complex64)
-        for f, (unknowns, sites) in enumerate(self._fields):
-            fields[:, f, sites] = X[:, unknowns]
-        spectra = scipy.fft.fft2(fields.reshape(P, 4, Mx, My), axes=(2, 3), workers=fft_workers(), overwrite_x=True)
-        out = np.empty_like(spectra)
-        for i in range(4):
-            np.multiply(self.inverse[i, 0], spectra[:, 0], out=out[:, i])
-            for j in range(1, 4):
-                out[:, i] += self.inverse[i, j] * spectra[:, j]
-        fields = scipy.fft.ifft2(out, axes=(2, 3), workers=fft_workers(), overwrite_x=True).reshape(P, 4, Mx * My)
-        Y = np.empty(X.shape, dtype=np.result_type(X, np.complex64))
-        for f, (unknowns, sites) in enumerate(self._fields):
-            Y[:, unknowns] = fields[:, f, sites]
+        Y = self.placement.gather(block_convolve(self.inverse, self.blocks, self.placement.scatter(X)), X.dtype)
         self.apply_s += time.perf_counter() - t0
         return Y[0] if single else Y

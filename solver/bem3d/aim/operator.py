@@ -7,7 +7,8 @@
 * a Krylov solve (solver/krylov.py) for both polarizations at once, right-preconditioned by the
   sparse LU of the exact near entries within ``preconditioner_cells``, by the local inverses
   of small tiles of them (preconditioner.py) or by the inverse of the damped flat interface on
-  the patch's lattice (flat_circulant.py);
+  the patch's lattice (flat_circulant.py), or by a few GMRES steps on the flat patch's operator
+  (flat_patch.py; the outer solve is then FGMRES);
   without a preconditioner, on the rescaled system S Z S y = S b with S = diag(I, jI)
   (complex-symmetric like Z, but with its spectrum in the right half-plane, which roughly halves
   the GMRES iterations). Both measured in docs/aim.md.
@@ -26,6 +27,7 @@ import numpy as np
 from wavebrdf.solver.bem3d.aim.convolution import PACKED_BATCHES, BaseOperator, GridGroup, batch_chunks
 from wavebrdf.solver.bem3d.aim.farfield import GridFarField
 from wavebrdf.solver.bem3d.aim.flat_circulant import FlatCirculantPreconditioner
+from wavebrdf.solver.bem3d.aim.flat_patch import FlatPatchPreconditioner
 from wavebrdf.solver.bem3d.aim.green import grid_media, interior_decay, kernel_spectra
 from wavebrdf.solver.bem3d.aim.grid import GridOptions, build_grid
 from wavebrdf.solver.bem3d.aim.near_assembly import assemble_near
@@ -140,6 +142,9 @@ class AIMOperator:
                     self.preconditioner = NearPreconditioner(self.near, options.preconditioner_tile_cells)
                 elif options.preconditioner == "flat":
                     self.preconditioner = FlatCirculantPreconditioner(ctx, mesh, media, damping=options.flat_damping)
+                elif options.preconditioner == "flat-patch":
+                    self.preconditioner = FlatPatchPreconditioner(ctx, mesh, media, steps=options.flat_inner_steps,
+                                                                  damping=options.flat_damping)
                 else:
                     self.preconditioner = LocalInversePreconditioner(self.near, options.local_tile_cells)
                     self.near.exact = self.near.exact_offsets = None  # in the local inverses now: memory
@@ -210,6 +215,10 @@ class AIMOperator:
             self.base.release_work()  # the products' arrays: the far field and the next set-up need the memory
         if diagnostics is not None:
             diagnostics.update(result.diagnostics(), matvec_timings=dict(self.base.timings))
+            if self.preconditioner is not None:
+                diagnostics["preconditioner_apply_s"] = self.preconditioner.apply_s
+            if hasattr(self.preconditioner, "inner_products"):  # "flat-patch": the inner steps' products with T
+                diagnostics["inner_products"] = self.preconditioner.inner_products
         return result
 
     def farfield(self, mesh: BEMMesh, x: np.ndarray, grid, rule=None, *, theta_i: float, phi_i: float,

@@ -11,6 +11,7 @@ import numpy as np
 from wavebrdf.solver.bem3d.aim.convolution import FFT_BACKENDS
 from wavebrdf.solver.bem3d.aim.farfield import FARFIELD_STENCIL
 from wavebrdf.solver.bem3d.aim.flat_circulant import FLAT_DAMPING
+from wavebrdf.solver.bem3d.aim.flat_patch import FLAT_INNER_STEPS
 from wavebrdf.solver.bem3d.aim.green import DECAY_TOLERANCE
 from wavebrdf.solver.bem3d.aim.grid import GridOptions
 from wavebrdf.solver.bem3d.aim.projection import PROJECTIONS
@@ -27,7 +28,7 @@ __all__ = ["AIM_QUADRATURE", "EDGES", "FARFIELD_SOURCES", "PRECONDITIONERS", "AI
 # these settings, far below the AIM error (~5e-4), at a third of the cost.
 AIM_QUADRATURE = QuadratureOptions(tolerance=1e-4, static_order=5)
 
-PRECONDITIONERS = ("near", "local", "flat", "none")
+PRECONDITIONERS = ("near", "local", "flat", "flat-patch", "none")
 EDGES = ("pinned", "flat")  # AIMOptions.edge
 FARFIELD_SOURCES = ("operator", "matched")  # AIMOptions.farfield_sources
 
@@ -67,12 +68,17 @@ class AIMOptions:
                         "local" (the inverses of local_tile_cells tiles of the entries within local_cells, each
                         extended by one cell: ~1.15 KB per unknown at 4 cells) | "flat" (the inverse
                         of the damped flat interface on the patch's lattice by 2-D FFTs, ~80 B per
-                        unknown: flat_circulant.py; measured with restart = 30) | "none"
+                        unknown: flat_circulant.py; measured with restart = 30) | "flat-patch"
+                        (flat_inner_steps GMRES steps on the flat patch's exact operator, by
+                        FFTs, each preconditioned by that inverse; the outer solve is FGMRES:
+                        solver "gmres", deflate 0; flat_patch.py) | "none"
     preconditioner_cells   radius of the preconditioner's pairs (cells)
     preconditioner_tile_cells   side of the preconditioner's LU tiles in cells (0: one LU)
     local_tile_cells    side of the "local" preconditioner's tiles in cells
     local_cells         radius of the "local" preconditioner's pairs (cells)
-    flat_damping        ε > 0 of the "flat" preconditioner's exterior k₁(1 − jε)
+    flat_damping        ε > 0 of the "flat" preconditioner's exterior k₁(1 − jε) (and of
+                        "flat-patch"'s inner one)
+    flat_inner_steps    inner GMRES steps of the "flat-patch" preconditioner
     farfield_sources    "operator": the far field's point sources are the operator's own
                         exterior-medium projection (no second projection) | "matched": a grid
                         of their own, matched on the upper hemisphere (the options below)
@@ -115,6 +121,7 @@ class AIMOptions:
     # measured at 101 760 unknowns: products 122 / 111 / 118 at radius 2.3 / 3.5 / 5 (docs/aim.md)
     local_cells: float = option(3.5, low=0, low_open=True)
     flat_damping: float = option(FLAT_DAMPING, low=0, low_open=True, high=10)
+    flat_inner_steps: int = option(FLAT_INNER_STEPS, low=1)
     farfield_sources: str = option("operator", choices=FARFIELD_SOURCES)
     farfield_stencil: tuple[int, int, int] = option(FARFIELD_STENCIL, length=3, low=0)
     farfield_directions: int = option(0, low=0)
@@ -134,6 +141,9 @@ class AIMOptions:
         if self.deflate and (self.solver != "gmres" or self.deflate >= self.restart):
             raise ValueError(f"aim.deflate must be 0 or, with solver 'gmres', below restart = {self.restart}; "
                              f"got {self.deflate!r} with solver {self.solver!r}")
+        if self.preconditioner == "flat-patch" and (self.solver != "gmres" or self.deflate):
+            raise ValueError(f"aim.preconditioner 'flat-patch' is an inner solve: it needs solver 'gmres' with "
+                             f"deflate = 0 (FGMRES); got solver {self.solver!r}, deflate {self.deflate!r}")
         if self.preconditioner != "none" and self.solver == "csym":
             raise ValueError(f"aim.solver 'csym' cannot use the {self.preconditioner!r} preconditioner; "
                              "set preconditioner = 'none'")
