@@ -291,6 +291,7 @@ def cmd_planner(args, ctx):
     with ``--aim`` (default: the planner's choice at the 12 µm sub-area). Prints the table and
     each run as a row of solver/data/aim_products.csv (to add it to the fit once it has served
     as a check: tools/refit_product_counts.py)."""
+    from wavebrdf.solver.bem3d.aim.flat_patch import FLAT_INNER_STEPS
     from wavebrdf.solver.materials import Material
 
     print(load())
@@ -298,7 +299,8 @@ def cmd_planner(args, ctx):
     run_as = AIMOptions.from_mapping(aim)  # the data file's kinds: MINRES alone, local inverses or the flat patch with (F)GMRES(30)
     kind = {("none", "csym"): "minres", ("local", "gmres"): "local",
             ("flat-patch", "gmres"): "flat-patch"}.get((run_as.preconditioner, run_as.solver))
-    if kind in ("local", "flat-patch") and run_as.restart != 30 or kind == "flat-patch" and run_as.flat_inner_steps != 16:
+    if kind in ("local", "flat-patch") and run_as.restart != 30 or \
+            kind == "flat-patch" and run_as.flat_inner_steps != FLAT_INNER_STEPS:
         kind = None
     rows, records = [], []
     command = (".venv/bin/python benchmarks/bench_aim.py " + shlex.join(sys.argv[1:])).replace('"', '""')  # a CSV field

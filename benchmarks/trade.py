@@ -646,15 +646,16 @@ def main(argv=None) -> int:
                         help="with --finer-pair: the fine mesh is the surface at CELLS with every cell split into "
                              "FACTOR² (the same bilinear geometry: the solver's convergence alone), not the scene "
                              f"rebuilt at {REFINEMENT:g}× CELLS")
-    parser.add_argument("--local-inverses", dest="preconditioner", action="store_const", const="local",
+    preconditioners = parser.add_mutually_exclusive_group()
+    preconditioners.add_argument("--local-inverses", dest="preconditioner", action="store_const", const="local",
                         help="with --finer-pair: both solves with local inverses and GMRES(--restart) even where "
                              "the near LU fits (the LU factors slowly at ≳ 150,000 unknowns)")
-    parser.add_argument("--flat-patch", dest="preconditioner", action="store_const", const="flat-patch",
+    preconditioners.add_argument("--flat-patch", dest="preconditioner", action="store_const", const="flat-patch",
                         help="with --finer-pair: both solves with the flat patch's inner solve and FGMRES(--restart) "
                              "even where the near LU fits")
     parser.add_argument("--restart", type=int, default=None, metavar="M",
                         help="with --finer-pair: (F)GMRES's restart length where the LU is not used "
-                             "(default 30; Krylov vectors take 32 n M bytes for n unknowns)")
+                             "(default 30; Krylov vectors take 32 n M bytes for n unknowns, FGMRES's 64 n M)")
     args = parser.parse_args(argv)
     if args.subdivide is not None and not args.finer_pair:
         parser.error("--subdivide goes with --finer-pair CONFIG CELLS")

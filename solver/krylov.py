@@ -195,7 +195,10 @@ def _gmres_cycle(A: _Counter, x, r, bnorm, which, tol, m, budget, flexible=None)
         k = steps[p]
         if k == 0:
             continue
-        y = np.linalg.solve(np.triu(H[p, :k, :k]), g[p, :k])
+        try:
+            y = np.linalg.solve(np.triu(H[p, :k, :k]), g[p, :k])
+        except np.linalg.LinAlgError:  # singular H: FGMRES can break down with a changing preconditioner
+            y = np.linalg.lstsq(np.triu(H[p, :k, :k]), g[p, :k], rcond=None)[0]
         x[p] += y @ (V[p, :k] if Z is None else Z[p, :k])
     return np.abs(g[np.arange(P), steps]) / bnorm
 
@@ -515,10 +518,12 @@ def solve(matvec, b: np.ndarray, *, method: str = "gmres", tol: float = 1e-4, ma
 def gmres_steps(matvec, b: np.ndarray, steps: int, preconditioner=None) -> np.ndarray:
     """x (P, n) after ``steps`` GMRES steps on A x = b from zero for each right-hand side of b (P,
     n), right-preconditioned by the fixed ``preconditioner`` (None: none); no stopping test (a
-    right-hand side stops early only at an exact breakdown), no restart. In b's precision."""
+    right-hand side stops early only at an exact breakdown), no restart. In b's precision (complex:
+    at least complex64)."""
     if int(steps) != steps or steps < 1:
         raise ValueError(f"gmres_steps: steps must be a positive integer, got {steps!r}")
     b = np.atleast_2d(b)
+    b = b.astype(np.result_type(b, np.complex64), copy=False)
     bnorm = _norms(b)
     if preconditioner is None:
         A = _Counter(lambda X: np.asarray(matvec(X)).astype(b.dtype, copy=False), len(b))

@@ -148,7 +148,11 @@ def _flat_patch_design(rows: list[dict], slope_offset: float) -> np.ndarray:
 
     slope = np.log([r["fine_slope"] + slope_offset for r in rows])
     metal = np.array([metallic(r["index_complex"]) for r in rows], float)
-    b = np.array([plasmon_binding(r["index_complex"]) or 0.0 if m else 0.0 for r, m in zip(rows, metal)])
+    binding = [plasmon_binding(r["index_complex"]) for r in rows]
+    if any(m and v is None for m, v in zip(metal, binding)):
+        raise ValueError("a flat-patch metal row whose surface plasmon is not bound (−1 ≤ Re ε < 0): the model has no "
+                         "binding for it to fit")
+    b = np.array([0.0 if v is None else v for v in binding])
     return np.stack([np.ones(len(rows)), slope, metal * b, 1.0 - metal], axis=1)
 
 

@@ -39,6 +39,8 @@ def test_the_flat_patch_operator_is_the_dense_flat_matrix(cl_ctx, index):
     X = rng.standard_normal((2, rough.n_unknowns)) + 1j * rng.standard_normal((2, rough.n_unknowns))
     expected = X @ dense.T
     got = T(X)
+    assert len(T.spectrum.pairs) == 8  # the J–M̃ blocks of a flat lattice are zero, and not kept
+    assert T.bytes() == T.spectrum.values.nbytes + T.placement.bytes()
     assert got.shape == X.shape
     assert np.linalg.norm(got - expected) / np.linalg.norm(expected) < 1e-5  # complex64 transforms
 

@@ -197,10 +197,13 @@ def test_a_fixed_preconditioner_gives_fgmres_the_iterates_of_right_preconditione
         def __call__(self, X):
             return X @ M.T
 
-    right = solve(lambda X: X @ A.T, b, tol=1e-9, max_iterations=2000, restart=20, preconditioner=lambda X: X @ M.T)
-    flexible = solve(lambda X: X @ A.T, b, tol=1e-9, max_iterations=2000, restart=20, preconditioner=Fixed())
-    assert np.array_equal(right.iterations, flexible.iterations)
-    assert np.allclose(flexible.x, exact, rtol=0, atol=1e-6 * np.abs(exact).max())
+    for restart in (20, 3):  # 3: several cycles, each restarted from the true residual
+        right = solve(lambda X: X @ A.T, b, tol=1e-9, max_iterations=2000, restart=restart,
+                      preconditioner=lambda X: X @ M.T)
+        flexible = solve(lambda X: X @ A.T, b, tol=1e-9, max_iterations=2000, restart=restart, preconditioner=Fixed())
+        assert np.array_equal(right.iterations, flexible.iterations)
+        assert np.allclose(flexible.x, exact, rtol=0, atol=1e-6 * np.abs(exact).max())
+    assert max(flexible.iterations) > 3 * 2
 
 
 def test_fgmres_converges_with_an_inner_solve_as_preconditioner(system):
@@ -215,6 +218,15 @@ def test_fgmres_converges_with_an_inner_solve_as_preconditioner(system):
     print("products: GMRES(30)", plain.iterations, "FGMRES(30), 40 inner steps", inner.iterations)
     assert np.all(inner.iterations * 3 <= plain.iterations)
     assert np.allclose(inner.x, exact, rtol=0, atol=1e-6 * np.abs(exact).max())
+    # restarted every 2 steps with 4 inner steps (several cycles), and from an initial guess
+    short = solve(lambda X: X @ A.T, b, tol=1e-9, max_iterations=3000, restart=2, preconditioner=_Flexible(N, 4))
+    assert max(short.iterations) > 2 * 3
+    assert np.allclose(short.x, exact, rtol=0, atol=1e-6 * np.abs(exact).max())
+    guess = exact + 1e-3 * np.abs(exact).max() * rng.standard_normal(exact.shape)
+    warm = solve(lambda X: X @ A.T, b, tol=1e-9, max_iterations=3000, restart=30, preconditioner=_Flexible(N, 40),
+                 x0=guess)
+    assert np.all(warm.initial_residual < 0.1)
+    assert np.allclose(warm.x, exact, rtol=0, atol=1e-6 * np.abs(exact).max())
     for method, deflate, why in (("csym", 0, "takes no preconditioner"), ("bicgstab", 0, "flexible preconditioner"),
                                  ("gmres", 5, "flexible preconditioner")):
         with pytest.raises(ValueError, match=why):

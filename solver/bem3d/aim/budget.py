@@ -26,6 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 from wavebrdf.solver.bem3d.aim.estimate import estimate_aim
+from wavebrdf.solver.bem3d.aim.flat_patch import FLAT_INNER_STEPS
 from wavebrdf.solver.bem3d.aim.green import grid_media
 from wavebrdf.solver.bem3d.aim.options import AIMOptions
 from wavebrdf.solver.bem3d.media import Media
@@ -36,7 +37,8 @@ __all__ = ["BudgetFit", "FITTED_KEYS", "candidate_options", "fit_to_budget", "in
 
 FITTED_KEYS = ("precision", "near_cells", "preconditioner", "preconditioner_tile_cells", "solver", "restart",
                "deflate", "reuse_setup")
-LOCAL_RESTART = 30  # GMRES restart with the local inverses: products as with 60, half the vectors (docs/aim.md)
+LOCAL_RESTART = 30  # GMRES restart with the local inverses: products as with 60, half the vectors (docs/aim.md);
+# FGMRES's with the flat patch too (it needs ~10 products: the restart only bounds the vectors)
 MIN_TILE_CELLS = 24  # smaller LU tiles barely cut the products (docs/aim.md)
 
 
@@ -119,8 +121,10 @@ def candidate_options(options: AIMOptions, cells: int, media: Media | None = Non
             restart = min(base.restart, LOCAL_RESTART)
             out.append(replace(base, preconditioner="local", solver="gmres", restart=restart,
                                deflate=min(base.deflate, restart - 1)))
-            # the flat patch's inner solve under FGMRES(30): ~160 B per unknown, twice the Krylov vectors
-            out.append(replace(base, preconditioner="flat-patch", solver="gmres", restart=restart, deflate=0))
+            # the flat patch's inner solve under FGMRES(30) with the inner steps its product count was
+            # fitted at: ~160 B per unknown, twice the Krylov vectors
+            out.append(replace(base, preconditioner="flat-patch", solver="gmres", restart=restart, deflate=0,
+                               flat_inner_steps=FLAT_INNER_STEPS))
             # without a preconditioner: MINRES "csym" (six vectors; measured at 6.4·10⁵ unknowns),
             # not restarted GMRES, whose products at hundreds of iterations were never measured
             out.append(replace(base, preconditioner="none", solver="csym", deflate=0))

@@ -58,12 +58,18 @@ NEAR_PAIR_S = {"rough": COST["near_pair_s_rough"], "flat": COST["near_pair_s_fla
 GRID_SETUP_S = {"rough": COST["grid_setup_s_rough"], "flat": COST["grid_setup_s_flat"]}
 
 
-def _near_assembly_s(stored_pairs: float, flat: bool) -> float:
-    return NEAR_PAIR_S["flat" if flat else "rough"] * stored_pairs
+def _near_assembly_s(stored_pairs: float, flat: bool, grid_media: int = 1) -> float:
+    """The near field's assembly; its grid subtraction (``near_grid_share`` of it with one grid
+    medium) repeats per medium on the grid."""
+    share = COST["near_grid_share"] * (grid_media - 1)
+    return NEAR_PAIR_S["flat" if flat else "rough"] * stored_pairs * (1.0 + share)
 
 
-def _grid_setup_s(unknowns: float, flat: bool) -> float:
-    return GRID_SETUP_S["flat" if flat else "rough"] * unknowns
+def _grid_setup_s(unknowns: float, flat: bool, grid_media: int = 1) -> float:
+    """Projection, kernel spectra and excitation; ``grid_setup_medium_share`` of them repeats per
+    medium on the grid."""
+    share = COST["grid_setup_medium_share"] * (grid_media - 1)
+    return GRID_SETUP_S["flat" if flat else "rough"] * unknowns * (1.0 + share)
 
 
 _GRIDS: dict = {}  # AIM grids of recent estimates by (cells, size, relief in cells, grid options)
@@ -117,11 +123,12 @@ def _local_inverse_cost(cells: int, unknowns: int, options: AIMOptions) -> tuple
 
 
 def _flat_cost(media: Media, cells: int, spacing_um: float, unknowns: int, options: AIMOptions) -> tuple[float, float, int]:
-    """(bytes, set-up seconds, torus points) of the flat-interface preconditioner: 16 complex64
-    per point of its torus and two indices per unknown (flat_circulant.py); its set-up
+    """(bytes, set-up seconds, torus points) of the flat-interface preconditioner: its inverse's 8
+    nonzero blocks in complex64 per point of its torus and two indices per unknown
+    (flat_circulant.py); its set-up
     ``flat_setup_s`` per torus point (:data:`COST`)."""
     points = torus_side(cells, kernel_radius_cells(media, spacing_um, options.flat_damping, cells)) ** 2
-    return 16 * 8.0 * points + 16.0 * unknowns, COST["flat_setup_s"] * points, points
+    return 8 * 8.0 * points + 16.0 * unknowns, COST["flat_setup_s"] * points, points
 
 
 def _flat_patch_cost(media: Media, cells: int, spacing_um: float, unknowns: int,
@@ -235,12 +242,16 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
         "products": krylov + cplx * 8 * P * (px * ny * nz + compact) + slab + 2 * 16 * n * P,
         "far field": P * 6 * compact * max(cplx, 8) + FARFIELD_PIXEL_BYTES * resolution**2 + BLOCK_BYTES,
     }
-    if options.preconditioner in ("flat", "flat-patch"):  # the set-up's complex128 peaks, before what it keeps exists
+    if options.preconditioner == "flat":  # the set-up's complex128 peak, before what it keeps exists
+        transient["preconditioner"] = SETUP_BYTES_PER_POINT * torus_points
+    elif options.preconditioner == "flat-patch":  # the circulant's peak, then T's on its flat lattice of 2N cells
         transient["preconditioner"] = max(SETUP_BYTES_PER_POINT * torus_points,
                                           TOEPLITZ_SETUP_BYTES_PER_POINT * toeplitz_points
                                           + COST["flat_lattice_bytes_per_cell"] * 4 * mesh.cells**2)
-    if options.preconditioner == "flat-patch":  # each application: the inner GMRES basis and the torus fields, complex64
-        transient["products"] += 8.0 * P * ((options.flat_inner_steps + 2) * n + 3 * 4 * toeplitz_points)
+        # each application, in complex64: the inner GMRES basis (steps + 1 vectors) and about 8 more
+        # (the right-hand side, iterate, Arnoldi and Gram–Schmidt temporaries, the circulant's output;
+        # the complex128 result counts as 2), and the torus fields, spectra and product of T
+        transient["products"] += 8.0 * P * ((options.flat_inner_steps + 9) * n + 3 * 4 * toeplitz_points)
     continuation = continuation_s = 0.0
     if options.edge == "flat":
         continuation, continuation_s = _continuation_cost(mesh, options, waist_um, near_entry, cplx, S * groups)
@@ -268,7 +279,7 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     if key not in cache:
         cache[key] = surface.rms_slope_below(exterior_wavelength)
     iterations = _products(options, size_waves, complex(media.index) / exterior_index, cache[key])
-    setup_s = (_near_assembly_s(stored_pairs, flat) + _grid_setup_s(n, flat) + preconditioner_s
+    setup_s = (_near_assembly_s(stored_pairs, flat, len(gm)) + _grid_setup_s(n, flat, len(gm)) + preconditioner_s
                + continuation_s)
     krylov_s = directions * iterations * product_s * COST["product_overhead"]
     seconds = setup_s + krylov_s

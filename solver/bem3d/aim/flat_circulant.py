@@ -21,10 +21,10 @@ docs/aim.md ("A preconditioner from the flat interface").
 
 Set-up: the entries of one rooftop of each orientation of a damped flat lattice with every
 rooftop within the radius (assembly.basis_pair_entries), 16 FFTs and one 4 × 4 inverse per
-torus point (a transient of 768 B per torus point while it is inverted). Memory: 16 complex64
-per torus point and two indices per unknown (77 B per unknown at 101 760 unknowns, 52 MB for the
-12 µm sub-area). Each application: 8 FFTs of the torus per right-hand side, in complex64 (it only
-steers the solve).
+torus point (a transient of 768 B per torus point while it is inverted). Memory: the 8 nonzero
+blocks of the inverse in complex64 per torus point (the J–M̃ blocks of a flat lattice are zero)
+and two indices per unknown. Each application: 8 FFTs of the torus per right-hand side, in
+complex64 (it only steers the solve).
 """
 
 from __future__ import annotations
@@ -46,9 +46,8 @@ from wavebrdf.solver.surface import generate
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["FLAT_DAMPING", "FLAT_KERNEL_DECAY", "SETUP_BYTES_PER_POINT", "DampedExterior", "FlatCirculantPreconditioner",
-           "TorusPlacement", "block_convolve", "flat_kernel", "kernel_radius_cells", "nonzero_blocks", "rooftops",
-           "torus_side"]
+__all__ = ["FLAT_DAMPING", "FLAT_KERNEL_DECAY", "SETUP_BYTES_PER_POINT", "BlockSpectrum", "DampedExterior",
+           "FlatCirculantPreconditioner", "TorusPlacement", "flat_kernel", "kernel_radius_cells", "rooftops", "torus_side"]
 
 FLAT_DAMPING = 0.3  # ε of k₁(1 − jε): products on rough aluminium, docs/aim.md
 FLAT_KERNEL_DECAY = 1e-3  # the kernel is kept where e^{−ε k₁ r} is above this
@@ -161,22 +160,31 @@ class TorusPlacement:
         return Y
 
 
-def nonzero_blocks(spectrum: np.ndarray) -> list[tuple[int, int]]:
-    """The (i, j) of the 4 × 4 field blocks of ``spectrum`` (4, 4, Mx, My) that are not all zero
-    (on a flat lattice the J–M̃ coupling of coplanar rooftops vanishes: half the blocks)."""
-    return [(i, j) for i in range(4) for j in range(4) if np.any(spectrum[i, j])]
+class BlockSpectrum:
+    """The nonzero 4 × 4 field blocks of a block-circulant operator's spectrum (4, 4, Mx, My), kept
+    in complex64: ``pairs`` [(i, j)] and ``values`` (len(pairs), Mx, My). On a flat lattice the
+    J–M̃ coupling of coplanar rooftops vanishes (exactly, and so in the inverse): half the blocks."""
 
+    def __init__(self, spectrum: np.ndarray):
+        self.pairs = [(i, j) for i in range(4) for j in range(4) if np.any(spectrum[i, j])]
+        self.values = np.empty((len(self.pairs),) + spectrum.shape[2:], dtype=np.complex64)
+        for k, (i, j) in enumerate(self.pairs):
+            self.values[k] = spectrum[i, j]
 
-def block_convolve(spectrum: np.ndarray, blocks, fields: np.ndarray) -> np.ndarray:
-    """The block-circulant product on the torus: F⁻¹ (spectrum(ξ) F fields) for ``fields`` (P, 4,
-    Mx, My), ``spectrum`` (4, 4, Mx, My) complex64 and its nonzero ``blocks``; overwrites ``fields``."""
-    spectra = scipy.fft.fft2(fields, axes=(2, 3), workers=fft_workers(), overwrite_x=True)
-    out = np.zeros_like(spectra)
-    scratch = np.empty_like(spectra[:, 0])
-    for i, j in blocks:
-        np.multiply(spectrum[i, j], spectra[:, j], out=scratch)
-        out[:, i] += scratch
-    return scipy.fft.ifft2(out, axes=(2, 3), workers=fft_workers(), overwrite_x=True)
+    @property
+    def nbytes(self) -> int:
+        return int(self.values.nbytes)
+
+    def convolve(self, fields: np.ndarray) -> np.ndarray:
+        """The block-circulant product on the torus, F⁻¹ (spectrum(ξ) F fields), for ``fields`` (P,
+        4, Mx, My) complex64 (overwritten)."""
+        spectra = scipy.fft.fft2(fields, axes=(2, 3), workers=fft_workers(), overwrite_x=True)
+        out = np.zeros_like(spectra)
+        scratch = np.empty_like(spectra[:, 0])
+        for (i, j), block in zip(self.pairs, self.values):
+            np.multiply(block, spectra[:, j], out=scratch)
+            out[:, i] += scratch
+        return scipy.fft.ifft2(out, axes=(2, 3), workers=fft_workers(), overwrite_x=True)
 
 
 class FlatCirculantPreconditioner:
@@ -200,12 +208,11 @@ class FlatCirculantPreconditioner:
                                   overwrite_x=True)  # (4, 4, Mx, My)
         inverse = np.linalg.inv(np.moveaxis(spectrum, (0, 1), (2, 3)))  # (Mx, My, 4, 4)
         del spectrum
-        self.inverse = np.ascontiguousarray(np.moveaxis(inverse, (2, 3), (0, 1)), dtype=np.complex64)
+        self.inverse = BlockSpectrum(np.moveaxis(inverse, (2, 3), (0, 1)))
         del inverse
-        # stored entries (16 per torus point), as the other preconditioners count theirs: fill 1
-        self.nnz = self.factor_nnz = self.inverse.size
+        # stored entries (8 blocks per torus point), as the other preconditioners count theirs: fill 1
+        self.nnz = self.factor_nnz = self.inverse.values.size
         self.placement = TorusPlacement(mesh, self.torus)
-        self.blocks = nonzero_blocks(self.inverse)
         self.seconds = time.perf_counter() - t0
         self.apply_s = 0.0
         logger.info("flat preconditioner: damping %g, kernel radius %d cells, torus %s, %.1f MB, %.1f s",
@@ -219,6 +226,6 @@ class FlatCirculantPreconditioner:
         t0 = time.perf_counter()
         single = np.ndim(X) == 1
         X = np.atleast_2d(X)
-        Y = self.placement.gather(block_convolve(self.inverse, self.blocks, self.placement.scatter(X)), X.dtype)
+        Y = self.placement.gather(self.inverse.convolve(self.placement.scatter(X)), X.dtype)
         self.apply_s += time.perf_counter() - t0
         return Y[0] if single else Y

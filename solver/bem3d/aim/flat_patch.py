@@ -29,8 +29,8 @@ import time
 import numpy as np
 import scipy.fft
 
-from wavebrdf.solver.bem3d.aim.flat_circulant import (FLAT_DAMPING, FlatCirculantPreconditioner, TorusPlacement,
-                                                      block_convolve, flat_kernel, nonzero_blocks)
+from wavebrdf.solver.bem3d.aim.flat_circulant import (FLAT_DAMPING, BlockSpectrum, FlatCirculantPreconditioner,
+                                                      TorusPlacement, flat_kernel)
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import BEMMesh
 from wavebrdf.solver.krylov import gmres_steps
@@ -42,8 +42,8 @@ __all__ = ["FLAT_INNER_STEPS", "TOEPLITZ_SETUP_BYTES_PER_POINT", "FlatPatchOpera
 
 FLAT_INNER_STEPS = 16  # inner steps: 10 AIM products at 101 760 and 261 120 unknowns (docs/aim.md)
 # T's set-up peak per point of its torus: the kernel in complex128 (256 B), its spectrum (256 B) and
-# the complex64 copy kept (128 B)
-TOEPLITZ_SETUP_BYTES_PER_POINT = 640
+# the 8 nonzero blocks kept in complex64 (64 B)
+TOEPLITZ_SETUP_BYTES_PER_POINT = 576
 
 
 def toeplitz_torus_side(cells: int) -> int:
@@ -61,19 +61,18 @@ class FlatPatchOperator:
         side = toeplitz_torus_side(N)
         self.torus = (side, side)
         kernel = flat_kernel(ctx, media, mesh.spacing_um, N - 1, self.torus)
-        self.spectrum = scipy.fft.fft2(kernel, axes=(2, 3), workers=fft_workers(), overwrite_x=True).astype(np.complex64)
+        self.spectrum = BlockSpectrum(scipy.fft.fft2(kernel, axes=(2, 3), workers=fft_workers(), overwrite_x=True))
         del kernel
-        self.blocks = nonzero_blocks(self.spectrum)
         self.placement = TorusPlacement(mesh, self.torus)
         self.products = 0
 
     def bytes(self) -> int:
-        return int(len(self.blocks) * self.spectrum[0, 0].nbytes + self.placement.bytes())
+        return int(self.spectrum.nbytes + self.placement.bytes())
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
         X = np.atleast_2d(X)
         self.products += len(X)
-        return self.placement.gather(block_convolve(self.spectrum, self.blocks, self.placement.scatter(X)), X.dtype)
+        return self.placement.gather(self.spectrum.convolve(self.placement.scatter(X)), X.dtype)
 
 
 class FlatPatchPreconditioner:
@@ -94,7 +93,7 @@ class FlatPatchPreconditioner:
         self.circulant = FlatCirculantPreconditioner(ctx, mesh, media, damping=damping)
         self.operator = FlatPatchOperator(ctx, mesh, media)
         # stored entries, counted as the other preconditioners count theirs (fill 1)
-        self.nnz = self.factor_nnz = self.circulant.nnz + len(self.operator.blocks) * self.operator.spectrum[0, 0].size
+        self.nnz = self.factor_nnz = self.circulant.nnz + self.operator.spectrum.values.size
         self.seconds = time.perf_counter() - t0
         self.apply_s = 0.0
         logger.info("flat-patch preconditioner: %d inner steps, Toeplitz torus %s, circulant torus %s, %.1f MB, %.1f s",

@@ -200,6 +200,8 @@ class AIMOperator:
         given). Raises KrylovNotConverged (with ``diagnostics``) when the tolerance is missed."""
         o = self.options
         apply = self.matvec if self.ctx is not None else self.matvec_numpy
+        pc = self.preconditioner
+        before = (getattr(pc, "apply_s", 0.0), getattr(pc, "inner_products", 0))  # this solve's share below
         try:
             if self.preconditioner is not None:
                 result = solve(apply, rhs, method=o.solver, tol=o.tolerance, max_iterations=o.max_iterations,
@@ -215,10 +217,10 @@ class AIMOperator:
             self.base.release_work()  # the products' arrays: the far field and the next set-up need the memory
         if diagnostics is not None:
             diagnostics.update(result.diagnostics(), matvec_timings=dict(self.base.timings))
-            if self.preconditioner is not None:
-                diagnostics["preconditioner_apply_s"] = self.preconditioner.apply_s
-            if hasattr(self.preconditioner, "inner_products"):  # "flat-patch": the inner steps' products with T
-                diagnostics["inner_products"] = self.preconditioner.inner_products
+            if pc is not None:
+                diagnostics["preconditioner_apply_s"] = pc.apply_s - before[0]
+            if hasattr(pc, "inner_products"):  # "flat-patch": this solve's inner products with T
+                diagnostics["inner_products"] = pc.inner_products - before[1]
         return result
 
     def farfield(self, mesh: BEMMesh, x: np.ndarray, grid, rule=None, *, theta_i: float, phi_i: float,
