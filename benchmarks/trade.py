@@ -473,7 +473,7 @@ def fine_solve_options(options, coarse_peak_mb: float, unknowns_ratio: float,
     solve's measured peak, scaled by the unknowns and the LU fill's growth, fits
     :data:`FINE_MEMORY_SHARE` of this machine's RAM; else the same operator and tolerance with
     ``preconditioner`` for the near LU (default "local": the local inverses, GMRES(``restart``),
-    ~1.1 KB per unknown; "flat-patch": the flat patch's inner solve, FGMRES(``restart``), ~160 B per
+    ~1.1 KB per unknown; "flat-patch": the flat patch's inner solve, FGMRES(``restart``), ~120 B per
     unknown): no factor — the solution it converges to is the same to the solver's tolerance, only
     the path there differs. ``preconditioner`` given: that one whether or not the LU would fit."""
     from wavebrdf.solver.resources import meminfo_bytes

@@ -7,7 +7,7 @@ the settings that trade time for memory — single precision (kernels, FFTs, gri
 projections; the accuracy cost is measured in docs/aim.md), the LU on tiles of the patch
 (restricted additive Schwarz: more products, less fill), the local inverses of 4-cell tiles
 (~1.15 KB per unknown, GMRES restarted every 30 products: 32 vectors), the flat patch's inner solve
-(flat_patch.py: ~160 B per unknown, FGMRES(30): 61 vectors), no preconditioner (the
+(flat_patch.py: ~120 B per unknown, FGMRES(30): 61 vectors), no preconditioner (the
 complex-symmetric MINRES "csym", six vectors), and for a lossy material whose
 interior field is still on the grid, the near radius at which it decays within the near field
 (green.py ``grid_media``: the interior then leaves the grid, halving its FFTs, spectra and
@@ -36,7 +36,7 @@ from wavebrdf.solver.surface import HeightField
 __all__ = ["BudgetFit", "FITTED_KEYS", "candidate_options", "fit_to_budget", "interior_leaves_grid_cells"]
 
 FITTED_KEYS = ("precision", "near_cells", "preconditioner", "preconditioner_tile_cells", "solver", "restart",
-               "deflate", "reuse_setup")
+               "deflate", "flat_inner_steps", "reuse_setup")
 LOCAL_RESTART = 30  # GMRES restart with the local inverses: products as with 60, half the vectors (docs/aim.md);
 # FGMRES's with the flat patch too (it needs ~10 products: the restart only bounds the vectors)
 MIN_TILE_CELLS = 24  # smaller LU tiles barely cut the products (docs/aim.md)
@@ -122,7 +122,7 @@ def candidate_options(options: AIMOptions, cells: int, media: Media | None = Non
             out.append(replace(base, preconditioner="local", solver="gmres", restart=restart,
                                deflate=min(base.deflate, restart - 1)))
             # the flat patch's inner solve under FGMRES(30) with the inner steps its product count was
-            # fitted at: ~160 B per unknown, twice the Krylov vectors
+            # fitted at: ~120 B per unknown, twice the Krylov vectors
             out.append(replace(base, preconditioner="flat-patch", solver="gmres", restart=restart, deflate=0,
                                flat_inner_steps=FLAT_INNER_STEPS))
             # without a preconditioner: MINRES "csym" (six vectors; measured at 6.4·10⁵ unknowns),

@@ -36,10 +36,10 @@ COST = fitted("aim_cost")  # the cost model's fitted constants (solver/data/aim_
 
 
 def _continuation_cost(mesh: BEMMesh, options: AIMOptions, waist_um: float | None, near_entry: int, cplx: int,
-                       stencil_points: int) -> tuple[float, float]:
+                       stencil_points: int, grid_media: int = 1) -> tuple[float, float]:
     """(bytes, set-up seconds) of the flat continuation (continuation.py): the ring operator's near
     storage and set-up and the extended mesh's grid weights (the closed form of its far field:
-    BEYOND_PIXEL_BYTES per output pixel)."""
+    BEYOND_PIXEL_BYTES per output pixel), on the solve's ``grid_media``."""
     n, d, L = mesh.cells, mesh.spacing_um, mesh.surface.size_um
     ring = n + 2 * (math.ceil(options.near_cells) + 2)
     waist = waist_um or L / 2.5
@@ -48,7 +48,8 @@ def _continuation_cost(mesh: BEMMesh, options: AIMOptions, waist_um: float | Non
     ring_pairs = NearPattern.build(ring, options.near_cells).stored_entries()
     extended_bases = 2 * extended * (extended - 1)
     weights = 2 * cplx * 3 * stencil_points * extended_bases
-    seconds = _near_assembly_s(ring_pairs, flat=True) + _grid_setup_s(2 * extended_bases, flat=True)
+    seconds = (_near_assembly_s(ring_pairs, True, grid_media)
+               + _grid_setup_s(2 * extended_bases, True, grid_media))
     return ring_pairs * near_entry + weights, seconds
 
 
@@ -254,7 +255,8 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
         transient["products"] += 8.0 * P * ((options.flat_inner_steps + 9) * n + 3 * 4 * toeplitz_points)
     continuation = continuation_s = 0.0
     if options.edge == "flat":
-        continuation, continuation_s = _continuation_cost(mesh, options, waist_um, near_entry, cplx, S * groups)
+        continuation, continuation_s = _continuation_cost(mesh, options, waist_um, near_entry, cplx, S * groups,
+                                                          len(gm))
         held["continuation"] = continuation
         transient["far field"] += BEYOND_PIXEL_BYTES * resolution**2
     # the set-up's transients come before the preconditioner and the continuation exist

@@ -67,7 +67,7 @@ class AIMOptions:
     preconditioner      "near" (sparse LU of the exact entries within preconditioner_cells) |
                         "local" (the inverses of local_tile_cells tiles of the entries within local_cells, each
                         extended by one cell: ~1.15 KB per unknown at 4 cells) | "flat" (the inverse
-                        of the damped flat interface on the patch's lattice by 2-D FFTs, ~80 B per
+                        of the damped flat interface on the patch's lattice by 2-D FFTs, ~50 B per
                         unknown: flat_circulant.py; measured with restart = 30) | "flat-patch"
                         (flat_inner_steps GMRES steps on the flat patch's exact operator, by
                         FFTs, each preconditioned by that inverse; the outer solve is FGMRES:
