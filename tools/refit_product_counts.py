@@ -104,19 +104,26 @@ def measured_counts(path: Path = DATA) -> list[dict]:
     return rows
 
 
-def _design(rows: list[dict], slope_offset: float) -> np.ndarray:
-    """The least-squares design of the model (module docstring), one row per measured solve."""
+def _metal_binding(rows: list[dict]) -> tuple[np.ndarray, np.ndarray]:
+    """Per row: 1 for a metal (Re ε < 0) else 0, and its plasmon binding b (0 for a dielectric); a
+    metal whose plasmon is not bound (−1 ≤ Re ε < 0) is refused: the models have no b to fit."""
     from wavebrdf.solver.bem3d.aim.estimate import metallic, plasmon_binding
 
+    metal = np.array([metallic(r["index_complex"]) for r in rows], float)
+    binding = [plasmon_binding(r["index_complex"]) for r in rows]
+    bad = [r["case"] for m, v, r in zip(metal, binding, rows) if m and v is None]
+    if bad:
+        raise ValueError(f"metal rows whose surface plasmon is not bound (−1 ≤ Re ε < 0): {bad}; the model has no "
+                         "binding for them to fit")
+    return metal, np.array([0.0 if v is None else v for v in binding])
+
+
+def _design(rows: list[dict], slope_offset: float) -> np.ndarray:
+    """The least-squares design of the model (module docstring), one row per measured solve."""
     local = np.array([r["local"] for r in rows], float)
     size = np.log([r["size_waves"] for r in rows])
     slope = np.log([r["fine_slope"] + slope_offset for r in rows])
-    metal = np.array([metallic(r["index_complex"]) for r in rows], float)
-    binding = [plasmon_binding(r["index_complex"]) for r in rows]
-    if any(m and v is None for m, v in zip(metal, binding)):
-        raise ValueError("a metal row whose surface plasmon is not bound (−1 ≤ Re ε < 0): the model has no binding "
-                         "for it to fit")
-    b = np.array([0.0 if v is None else v for v in binding])
+    metal, b = _metal_binding(rows)
     return np.stack([np.ones(len(rows)), size, slope, metal * slope, metal * b, 1.0 - metal, local,
                      local * (size - np.log(10.0))], axis=1)
 
@@ -144,15 +151,8 @@ def fit(rows: list[dict], slope_offset: float = SLOPE_OFFSET) -> dict[str, float
 
 def _flat_patch_design(rows: list[dict], slope_offset: float) -> np.ndarray:
     """The design of the flat-patch count: log a + η log(s + s₀) + [a metal] α_f b + [a dielectric] log g_f."""
-    from wavebrdf.solver.bem3d.aim.estimate import metallic, plasmon_binding
-
     slope = np.log([r["fine_slope"] + slope_offset for r in rows])
-    metal = np.array([metallic(r["index_complex"]) for r in rows], float)
-    binding = [plasmon_binding(r["index_complex"]) for r in rows]
-    if any(m and v is None for m, v in zip(metal, binding)):
-        raise ValueError("a flat-patch metal row whose surface plasmon is not bound (−1 ≤ Re ε < 0): the model has no "
-                         "binding for it to fit")
-    b = np.array([0.0 if v is None else v for v in binding])
+    metal, b = _metal_binding(rows)
     return np.stack([np.ones(len(rows)), slope, metal * b, 1.0 - metal], axis=1)
 
 
