@@ -1,14 +1,15 @@
 /* The AIM part B of near pairs, subtracted from the exact entries: C = A - B (solver/bem3d/aim/near_assembly.py).
  *
- * B of a pair uses exactly the sampled grid kernel of the FFT path (aim/green.py lattice_green),
- * given here as a table over the lattice offsets [lo, lo + T) per axis: green (T) and
- * gradient (3, T). Two steps per chunk of row rooftops s (the "sources"):
- *
- * aim_near_potentials  one work-item per (source s, window point w): the grid fields of the
- *   source's stencil charges at the window points p = o_s + wb + w,
- *     FG_c = sum_b g(p - q_b) L^c_s(b)   (c = t, z, d)
- *     FK   = sum_b grad g(p - q_b) x (L^t_s(b) t_s + L^z_s(b) z^)     (3 components)
- *   stored as pot[(s * 6 + f) * nW + w], f = (FG_t, FG_z, FG_d, FK_x, FK_y, FK_z).
+ * B of a pair uses exactly the sampled grid kernel of the FFT path (aim/green.py lattice_green).
+ * The host computes the grid fields of each row rooftop s (the "source") of a chunk of nrows at
+ * the window points p = o_s + wb + w (one BLAS product: near_assembly.py window_kernels), in
+ * three arrays of pot, row-major per source:
+ *   Pt (nrows, 3, nW) = L^t_s * (g, d1 g, d2 g), (d1, d2) = (dy, dz) horizontal, (dz, dx) vertical;
+ *   Pz (nrows, 3, nW) = L^z_s * (g, dx g, dy g);
+ *   Pd (nrows, nW)    = L^d_s * g,
+ * so FG_t = Pt[0], FG_z = Pz[0], FG_d = Pd, and FK = sum_b grad g(p - q_b) x (L^t_s t_s + L^z_s z^):
+ *   horizontal (t = x^): FK_x = Pz[2], FK_y = Pt[2] - Pz[1], FK_z = -Pt[1];
+ *   vertical (t = y^):   FK_x = Pz[2] - Pt[1], FK_y = -Pz[1], FK_z = Pt[2].
  * aim_near_correct     one work-item per stored pair (row r, offset j) of the chunk: the test
  *   rooftop n (the column) reads the fields over its stencil,
  *     Lvec = [same orientation] sum L^t_n FG_t + sum L^z_n FG_z,  Ldiv = sum L^d_n FG_d,
@@ -19,51 +20,6 @@
  */
 #include "aim_weights.h"
 #include "near_index.h"
-
-#define AIM_FIELDS 6
-
-__kernel void aim_near_potentials(__global const int *sources, const int nsrc, __global const int *origins,
-                                  const int nb, const int nh, __global const weight_t *W,
-                                  const int sx, const int sy, const int sz, const int4 wdim, const int4 wbase,
-                                  const int4 tlo, const int4 tdim, __global const cplx_t *green,
-                                  __global const cplx_t *gradient, __global cplx_t *pot)
-{
-    const int nW = wdim.x * wdim.y * wdim.z;
-    const size_t gid = get_global_id(0);
-    if (gid >= (size_t)nsrc * nW) return;
-    const int s = gid / nW, w = gid - (size_t)s * nW;
-    const int wz = w % wdim.z, wy = (w / wdim.z) % wdim.y, wx = w / (wdim.z * wdim.y);
-    const int g = sources[s];
-    const int S = sx * sy * sz;
-    const size_t wstride = (size_t)nb * S;
-    const int T = tdim.x * tdim.y * tdim.z;
-    cplx_t f[AIM_FIELDS];
-    for (int i = 0; i < AIM_FIELDS; ++i) f[i] = c_new(R(0.0), R(0.0));
-    const int horizontal = g < nh;
-    int slot = 0;
-    for (int a = 0; a < sx; ++a)
-        for (int b = 0; b < sy; ++b)
-            for (int c = 0; c < sz; ++c, ++slot) {
-                const int dx = wbase.x + wx - a - tlo.x, dy = wbase.y + wy - b - tlo.y, dz = wbase.z + wz - c - tlo.z;
-                const int ti = (dx * tdim.y + dy) * tdim.z + dz;
-                const cplx_t G = green[ti], Gx = gradient[ti], Gy = gradient[T + ti], Gz = gradient[2 * T + ti];
-                const size_t e = (size_t)g * S + slot;
-                const weight_t lt = W[e], lz = W[wstride + e], ld = W[2 * wstride + e];
-                f[0] = c_add(f[0], aim_wmul(lt, G));
-                f[1] = c_add(f[1], aim_wmul(lz, G));
-                f[2] = c_add(f[2], aim_wmul(ld, G));
-                if (horizontal) { /* v = (lt, 0, lz) */
-                    f[3] = c_add(f[3], aim_wmul(lz, Gy));
-                    f[4] = c_add(f[4], c_sub(aim_wmul(lt, Gz), aim_wmul(lz, Gx)));
-                    f[5] = c_sub(f[5], aim_wmul(lt, Gy));
-                } else { /* v = (0, lt, lz) */
-                    f[3] = c_add(f[3], c_sub(aim_wmul(lz, Gy), aim_wmul(lt, Gz)));
-                    f[4] = c_sub(f[4], aim_wmul(lz, Gx));
-                    f[5] = c_add(f[5], aim_wmul(lt, Gx));
-                }
-            }
-    for (int i = 0; i < AIM_FIELDS; ++i) pot[((size_t)s * AIM_FIELDS + i) * nW + w] = f[i];
-}
 
 /* orow, ocol: orientations of rows and columns; offsets (a, b): column = row + (a, b); rows: the
    block-local row of each chunk position r (its potentials are pot[r]); values (noff, nrows, 3) */
@@ -94,8 +50,9 @@ __kernel void aim_near_correct(const int orow, const int ocol, const int N, __gl
         v[0] = v[1] = v[2] = c_new(NAN, NAN); /* the window does not cover the pair: an error */
         return;
     }
-    __global const cplx_t *F = pot + (size_t)r * AIM_FIELDS * nW;
-    const int fk = ocol == 0 ? 3 : 4; /* K field tested by the in-plane component */
+    __global const cplx_t *Pt = pot + (size_t)r * 3 * nW;
+    __global const cplx_t *Pz = pot + ((size_t)nrows + r) * 3 * nW;
+    __global const cplx_t *Pd = pot + (size_t)nrows * 6 * nW + (size_t)r * nW;
     const int same = orow == ocol;
     cplx_t lvec = c_new(R(0.0), R(0.0)), ldiv = lvec, kk = lvec;
     int slot = 0;
@@ -105,10 +62,19 @@ __kernel void aim_near_correct(const int orow, const int ocol, const int N, __gl
                 const int w = ((rx + a) * wdim.y + (ry + b)) * wdim.z + (rz + cz);
                 const size_t e = (size_t)gn * S + slot;
                 const weight_t lt = W[e], lz = W[wstride + e], ld = W[2 * wstride + e];
-                if (same) lvec = c_add(lvec, aim_wmul(lt, F[w]));
-                lvec = c_add(lvec, aim_wmul(lz, F[nW + w]));
-                ldiv = c_add(ldiv, aim_wmul(ld, F[2 * nW + w]));
-                kk = c_add(kk, c_add(aim_wmul(lt, F[fk * nW + w]), aim_wmul(lz, F[5 * nW + w])));
+                if (same) lvec = c_add(lvec, aim_wmul(lt, Pt[w]));
+                lvec = c_add(lvec, aim_wmul(lz, Pz[w]));
+                ldiv = c_add(ldiv, aim_wmul(ld, Pd[w]));
+                /* the K field along the column's tangent (x^ for ocol 0, y^ for 1) and along z^ */
+                cplx_t fk, fz;
+                if (orow == 0) {
+                    fk = ocol == 0 ? Pz[2 * nW + w] : c_sub(Pt[2 * nW + w], Pz[nW + w]);
+                    fz = -Pt[nW + w];
+                } else {
+                    fk = ocol == 0 ? c_sub(Pz[2 * nW + w], Pt[nW + w]) : -Pz[nW + w];
+                    fz = Pt[2 * nW + w];
+                }
+                kk = c_add(kk, c_add(aim_wmul(lt, fk), aim_wmul(lz, fz)));
             }
     v[0] = c_sub(v[0], c_add(c_mul(coef[0], lvec), c_mul(coef[1], ldiv)));
     v[1] = c_sub(v[1], c_mul(coef[4], kk));

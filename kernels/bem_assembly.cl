@@ -4,7 +4,9 @@
  * table block) with slots slot[g][sigma] in 0..3 (divergence sign -,+,-,+). For a pair (m, n):
  *   L_vec,i = sum_{sigma,tau} T_i[A,B].Lvec[a][b],  L_div,i = sum s_a s_b T_i[A,B].Ldiv,
  *   K_i = sum T_i[A,B].K[a][b],  A = elem[m][sigma], B = elem[n][tau], a/b the slots,
- * and T = tables[pair_map[A * n_source + B]] (33 complex per medium, elements.py layout).
+ * and T = tables[pair_map[A * n_source + B]] (33 complex per medium, elements.py layout); a
+ * code -1 - r in pair_map: row r holds the table of (B, A), read with the slots swapped (the
+ * Galerkin symmetry: Lvec[b][a], K[b][a], Ldiv; aim/near_tables.py).
  * Outputs (scaled PMCHWT, media.py):
  *   ee = sum_i ee_vec[i] L_vec,i + ee_div[i] L_div,i,   mm likewise,   em = eta0 sum_i K_i.
  * bem_basis_block: all (row, col) of a block, entry = row * ncols + col.
@@ -33,8 +35,10 @@ inline void bem_basis_entry(__global const cplx_t *tables, __global const int *p
     const int ce[2] = {col_elem.x, col_elem.y}, cs[2] = {col_slot.x, col_slot.y};
     for (int s = 0; s < 2; ++s) {
         for (int t = 0; t < 2; ++t) {
-            __global const cplx_t *tab = tables + 2 * BEM_TABLE * pair_map[re[s] * n_source + ce[t]];
-            const int ab = 4 * rs[s] + cs[t];
+            /* code r: table row r; -1 - r: row r holds the pair's other order, read transposed */
+            const int code = pair_map[re[s] * n_source + ce[t]];
+            __global const cplx_t *tab = tables + 2 * BEM_TABLE * (code < 0 ? -1 - code : code);
+            const int ab = code < 0 ? 4 * cs[t] + rs[s] : 4 * rs[s] + cs[t];
             const real_t sign = bem_slot_sign(rs[s]) * bem_slot_sign(cs[t]);
             for (int m = 0; m < 2; ++m) {
                 lv[m] = c_add(lv[m], tab[m * BEM_TABLE + ab]);

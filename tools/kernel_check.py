@@ -156,7 +156,7 @@ KIRCHHOFF = {"kirchhoff_fields", "kirchhoff_accumulate"}
 HARVEY_SHACK = {"kirchhoff_fields", "hs_farfield", "sgrid_rows", "sgrid_columns"}
 RAYS = {"trace_paths", "path_weights", "visibility"}
 BEM = {"bem_regular_pairs", "bem_singular_pairs"}
-AIM = BEM | {"bem_basis_list", "aim_scatter", "aim_gather", "aim_fourier", "aim_near_potentials",
+AIM = BEM | {"bem_basis_list", "aim_scatter", "aim_gather", "aim_fourier",
              "aim_near_correct", "aim_plane_wave_moments", "near_tiles", "near_move"}
 # the kernels each case launches (run_cases checks it)
 LAUNCHES = {

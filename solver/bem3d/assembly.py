@@ -59,8 +59,10 @@ def _coefficients(media: Media) -> np.ndarray:
 def basis_entries_numpy(tables, pair_map, row_elem, row_slot, col_elem, col_slot, rows, cols, coef):
     """ee, mm, em of basis pairs (rows[p], cols[p]); twin of ``bem_basis_list``.
 
-    tables (T, 2, 33); pair_map (n_test, n_source) → table index; row_elem/row_slot (n_rows, 2)
-    local element index and slot of each row basis' two halves (likewise for columns).
+    tables (T, 2, 33); pair_map (n_test, n_source) → table row r, or −1 − r where row r holds the
+    table of the pair's other order (source, test), read transposed (its slots (b, a)); row_elem /
+    row_slot (n_rows, 2) local element index and slot of each row basis' two halves (likewise for
+    columns).
     """
     rows = np.asarray(rows)
     cols = np.asarray(cols)
@@ -69,10 +71,12 @@ def basis_entries_numpy(tables, pair_map, row_elem, row_slot, col_elem, col_slot
     kk = np.zeros(len(rows), dtype=complex)
     for s in range(2):
         for t in range(2):
-            tab = tables[pair_map[row_elem[rows, s], col_elem[cols, t]]]  # (P, 2, 33)
+            code = pair_map[row_elem[rows, s], col_elem[cols, t]]
+            turned = code < 0
+            tab = tables[np.where(turned, -1 - code, code)]  # (P, 2, 33)
             a = row_slot[rows, s]
             b = col_slot[cols, t]
-            ab = 4 * a + b
+            ab = np.where(turned, 4 * b + a, 4 * a + b)
             sign = SLOT_SIGN[a] * SLOT_SIGN[b]
             idx = np.arange(len(rows))
             lv += tab[idx, :, ab]
@@ -349,8 +353,9 @@ def basis_pair_entries(ctx, mesh: BEMMesh, media: Media, rows, cols,
 
     Computes the tables of exactly the element pairs these basis pairs touch; ``integrals`` is
     anything with ``indexed_tables(test, source, wavenumbers, scratch=True)`` (ElementIntegrals,
-    or the AIM's RepeatingTables); its tables are used before this returns, so they may live in
-    a buffer that the next call reuses.
+    or the AIM's RepeatingTables and TransposedTables, whose index −1 − r says that row r holds
+    the pair's other order); its tables are used before this returns, so they may live in a
+    buffer that the next call reuses.
     """
     rows = np.asarray(rows, dtype=np.int64)
     cols = np.asarray(cols, dtype=np.int64)

@@ -466,13 +466,15 @@ class ElementIntegrals:
         return self._scratch[:n]
 
     # -- tables -----------------------------------------------------------------------------
-    def indexed_tables(self, test, source, wavenumbers, *, scratch: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    def indexed_tables(self, test, source, wavenumbers, *, scratch: bool = False,
+                       out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(tables, index): complex (P, 2, 33) tables of the element pairs (test[p], source[p])
         for media k₁, k₂, stored grouped by quadrature (each kernel writes one contiguous block);
         pair p's table is ``tables[index[p]]``.
 
         ``scratch``: the tables live in a buffer that the next scratch call overwrites (callers
-        that use them at once, strip after strip, then touch no fresh pages per call)."""
+        that use them at once, strip after strip, then touch no fresh pages per call); ``out``:
+        they are written into this complex array of shape (len(test), 2, 33) instead."""
         test = np.asarray(test, dtype=np.int64)
         source = np.asarray(source, dtype=np.int64)
         if len(test) == 0:
@@ -486,7 +488,10 @@ class ElementIntegrals:
         index = np.empty(len(test), dtype=np.int64)
         index[order] = np.arange(len(test))
         bounds = np.flatnonzero(np.diff(group[order])) + 1
-        out = self._scratch_tables(len(test)) if scratch else np.empty((len(test), 2, TABLE), dtype=complex)
+        if out is None:
+            out = self._scratch_tables(len(test)) if scratch else np.empty((len(test), 2, TABLE), dtype=complex)
+        elif out.shape != (len(test), 2, TABLE) or out.dtype != complex:
+            raise ValueError(f"out must be complex128 of shape {(len(test), 2, TABLE)}, got {out.dtype} {out.shape}")
         remainder_order = None
         for a, b in zip(np.concatenate([[0], bounds]), np.concatenate([bounds, [len(test)]])):
             sel = order[a:b]

@@ -19,7 +19,7 @@ from wavebrdf.solver.bem3d.aim.flat_circulant import SETUP_BYTES_PER_POINT, kern
 from wavebrdf.solver.bem3d.aim.flat_patch import TOEPLITZ_SETUP_BYTES_PER_POINT, toeplitz_torus_side
 from wavebrdf.solver.bem3d.aim.green import grid_media
 from wavebrdf.solver.bem3d.aim.grid import build_grid
-from wavebrdf.solver.bem3d.aim.near_assembly import RepeatingTables
+from wavebrdf.solver.bem3d.aim.near_tables import RepeatingTables
 from wavebrdf.solver.bem3d.aim.nearfield import NearPattern
 from wavebrdf.solver.bem3d.aim.options import AIMOptions
 from wavebrdf.solver.bem3d.aim.preconditioner import (LOCAL_OVERLAP, PRECONDITIONER_OVERLAP, SUPERLU_BYTES,

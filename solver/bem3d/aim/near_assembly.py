@@ -3,12 +3,14 @@
 Per strip of rows (one chunk of y lines):
 
 1. A: the exact entries from the part-1 element integrals (assembly.basis_pair_entries, the
-   static singular tables cached per geometry; element pairs of repeating geometry, e.g.
-   flat or 1-D periodic patches, are computed once, :class:`RepeatingTables`);
-2. B: the grid approximation of the same pairs with exactly the sampled kernel of the FFT path
-   (kernels/aim_near.cl: grid potentials of each row's stencil on a window, then the column's
-   stencil sum), subtracted in double precision for every grid medium; NumPy twin
-   :func:`near_base_numpy` (explicit S × S double sum).
+   static singular tables cached per geometry); each unordered element pair is computed once
+   (its other order is the transposed table), and element pairs of repeating geometry, e.g.
+   flat or 1-D periodic patches, once for all of them (near_tables.py);
+2. B: the grid approximation of the same pairs with exactly the sampled kernel of the FFT path:
+   the grid potentials of each row's stencil on a window (one BLAS product per chunk of rows:
+   their weights times the window's kernel matrices, :func:`window_kernels`), then the column's
+   stencil sum (kernels/aim_near.cl), subtracted in double precision for every grid medium;
+   NumPy twin :func:`near_base_numpy` (explicit S × S double sum).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import numpy as np
 
 from wavebrdf.solver.bem3d.aim.convolution import int4_arg
 from wavebrdf.solver.bem3d.aim.green import lattice_green
+from wavebrdf.solver.bem3d.aim.near_tables import RepeatingTables, TransposedTables
 from wavebrdf.solver.bem3d.aim.nearfield import BLOCKS, STORAGE, NearMatrix, NearPattern
 from wavebrdf.solver.bem3d.aim.projection import Projection
 from wavebrdf.solver.bem3d.assembly import basis_pair_entries
@@ -31,76 +34,10 @@ from wavebrdf.solver.precision import Precision
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["RepeatingTables", "assemble_near", "near_base_numpy"]
+__all__ = ["assemble_near", "near_base_numpy", "stencil_product", "window_kernels"]
 
 PAIRS_PER_CHUNK = 600_000  # stored pairs per assembly chunk (element tables ≈ 1 KB per element pair)
 POTENTIAL_BUDGET = 256 * 2**20  # bytes of grid potentials per launch
-
-
-# ---------------------------------------------------------------------------------------------
-# Element tables of repeating geometry
-
-
-class RepeatingTables:
-    """Drop-in for ElementIntegrals.indexed_tables that computes each geometrically distinct pair
-    once.
-
-    Two element pairs are identical when the index offset, the shapes (z10, z01, z11) of both
-    elements and the height offset Δz00 are equal bit for bit (flat, tilted or 1-D periodic
-    patches). Tables are cached across calls, so strips of a large patch share them; a call
-    returns the whole cache and each pair's row in it (nothing is copied per pair).
-    """
-
-    def __init__(self, integrals: ElementIntegrals):
-        self.integrals = integrals
-        mesh = integrals.mesh
-        _, self.shape_ids = np.unique(mesh.geometry[:, 3:6], axis=0, return_inverse=True)
-        self.shape_ids = self.shape_ids.ravel().astype(np.int64)
-        self.n_shapes = int(self.shape_ids.max()) + 1
-        self.z00 = mesh.geometry[:, 2].copy()
-        self.st = mesh.element_st
-        self.cells = mesh.cells
-        self._keys: dict = {}
-        self._store = np.zeros((0, 2, 33), dtype=complex)
-
-    @staticmethod
-    def worthwhile(mesh: BEMMesh, fraction: float = 0.25) -> bool:
-        return len(np.unique(mesh.geometry[:, 3:6], axis=0)) <= max(1, fraction * mesh.n_elements)
-
-    def _distinct(self, test, source):
-        """(keys of the distinct pairs, first pair of each, inverse) — one int64 sort key for the
-        offset and shapes, Δz00 compared bit for bit."""
-        d = self.st[source] - self.st[test]
-        span = 2 * self.cells + 1
-        columns = [d[:, 0] + self.cells, d[:, 1] + self.cells, self.shape_ids[test], self.shape_ids[source]]
-        if span * span * self.n_shapes**2 < 2**62:  # one int64 key for all but Δz00
-            key = ((columns[0] * span + columns[1]) * self.n_shapes + columns[2]) * self.n_shapes + columns[3]
-            columns = [key]
-        columns.append((self.z00[source] - self.z00[test]).view(np.int64))
-        order = np.lexsort(columns[::-1])
-        new = np.zeros(len(order), dtype=bool)
-        new[:1] = True
-        for c in columns:
-            sorted_c = c[order]
-            new[1:] |= sorted_c[1:] != sorted_c[:-1]
-        first = order[new]
-        inverse = np.empty(len(order), dtype=np.int64)
-        inverse[order] = np.cumsum(new) - 1
-        return list(zip(*(c[first].tolist() for c in columns))), first, inverse
-
-    def indexed_tables(self, test, source, wavenumbers, *, scratch: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        """As ElementIntegrals.indexed_tables (the cache is returned, so ``scratch`` changes nothing)."""
-        test = np.asarray(test, dtype=np.int64)
-        source = np.asarray(source, dtype=np.int64)
-        keys, first, inverse = self._distinct(test, source)
-        index = np.array([self._keys.get(key, -1) for key in keys], dtype=np.int64)
-        missing = np.flatnonzero(index < 0)
-        if len(missing):
-            fresh, order = self.integrals.indexed_tables(test[first[missing]], source[first[missing]], wavenumbers)
-            index[missing] = len(self._store) + order
-            self._store = np.concatenate([self._store, fresh])
-            self._keys.update(zip((keys[u] for u in missing), index[missing].tolist()))
-        return self._store, index[inverse]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -171,29 +108,55 @@ def _kernel_table(k, grid, wbase, wdim):
     return lo, dims, g.ravel(), np.moveaxis(grad, -1, 0).reshape(3, -1)
 
 
+def window_kernels(k, grid, wbase, wdim) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(g, ∂x g, ∂y g, ∂z g), each complex (S, n_W): the kernel from stencil slot b of a rooftop
+    with origin o to window point w (o + wbase + w, window points in C order over ``wdim``, slots
+    in C order over the stencil), the same for every rooftop: its grid potentials on the window
+    are its weights (n, S) times these matrices."""
+    lo, dims, green, gradient = _kernel_table(k, grid, wbase, wdim)
+    slot = np.stack(np.meshgrid(*(np.arange(n) for n in grid.stencil), indexing="ij"), axis=-1).reshape(-1, 3)
+    point = np.stack(np.meshgrid(*(np.arange(n) for n in wdim), indexing="ij"), axis=-1).reshape(-1, 3)
+    d = (np.asarray(wbase) - lo)[None, None, :] + point[None, :, :] - slot[:, None, :]  # (S, n_W, 3)
+    index = (d[..., 0] * dims[1] + d[..., 1]) * dims[2] + d[..., 2]
+    return green[index], gradient[0][index], gradient[1][index], gradient[2][index]
+
+
+def stencil_product(weights: np.ndarray, kernel: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """out (n, m) complex128 = weights (n, S) @ kernel (S, m) complex128 by one BLAS product
+    (real weights act on the kernel's real and imaginary parts as one real matrix)."""
+    if np.iscomplexobj(weights):
+        return np.matmul(weights.astype(np.complex128, copy=False), kernel, out=out)
+    np.matmul(weights.astype(np.float64, copy=False), kernel.view(np.float64), out=out.view(np.float64))
+    return out
+
+
 class _NearBaseOpenCL:
-    """Device state of the B subtraction: weights of each projection, origins, and the grid
-    potentials' buffer (kept across launches and strips: fresh buffers of this size cost a page
-    fault per page every launch)."""
+    """Device state of the B subtraction: weights of each projection, origins, and the host array
+    of the grid potentials (kept across chunks and strips: fresh arrays of this size cost a page
+    fault per page every chunk)."""
 
     def __init__(self, ctx, projections):
         self.ctx = ctx
         self.origins = ctx.to_device(projections[0].grid.origins, np.int32)
         self.weights = {id(p): ctx.to_device(p.weights, np.result_type(p.weights, np.float64)) for p in projections}
-        self._potentials = None
+        self._potentials = np.zeros(0, dtype=np.complex128)
 
-    def _potential_buffer(self, nbytes: int):
-        import pyopencl as cl
+    def _potential_array(self, size: int) -> np.ndarray:
+        if len(self._potentials) < size:
+            self._potentials = np.zeros(0, dtype=np.complex128)
+            self._potentials = np.empty(size, dtype=np.complex128)
+        return self._potentials[:size]
 
-        if self._potentials is None or self._potentials.size < nbytes:
-            self._potentials = None
-            self._potentials = cl.Buffer(self.ctx.context, cl.mem_flags.READ_WRITE, nbytes)
-        return self._potentials
-
-    def subtract(self, projection, k, coef, pattern, blocks, rows, staged, window, n_horizontal):
+    def subtract(self, projection, k, coef, pattern, blocks, rows, staged, window):
         """Subtract B (one medium) from ``staged[block]`` (n_offsets, len(rows), 3) complex128 in
-        place for each of ``blocks``, which share the row orientation and ``rows``: the grid
-        potentials of the rows' stencils are computed once and tested by every block's columns."""
+        place for each of ``blocks``, which share the row orientation and ``rows``.
+
+        The grid potentials of the rows' stencils on the window are computed once (host BLAS,
+        double precision: the rows' weights times :func:`window_kernels`) and tested by every
+        block's columns (``aim_near_correct``). Per row, 7 planes of n_W points: the tangential
+        weight times (g, ∂₁g, ∂₂g) with (∂₁, ∂₂) = (∂y, ∂z) for horizontal rows, (∂z, ∂x) for
+        vertical ones; the normal weight times (g, ∂x g, ∂y g); the divergence weight times g.
+        """
         import pyopencl as cl
 
         ctx, queue = self.ctx, self.ctx.queue
@@ -202,27 +165,28 @@ class _NearBaseOpenCL:
         if any(BLOCKS[b][0] != orow for b in blocks):
             raise ValueError(f"blocks {blocks} do not share the row orientation")
         wbase, wdim = window
-        lo, dims, green, gradient = _kernel_table(k, grid, wbase, wdim)
+        g, gx, gy, gz = window_kernels(k, grid, wbase, wdim)
+        tangential = np.concatenate([g, gy, gz] if orow == 0 else [g, gz, gx], axis=1)
+        normal = np.concatenate([g, gx, gy], axis=1)
         defines = ctx.defines(Precision.DOUBLE, AIM_COMPLEX_W=int(np.iscomplexobj(projection.weights)))
-        pot_knl = ctx.kernel("aim_near.cl", "aim_near_potentials", defines)
         cor_knl = ctx.kernel("aim_near.cl", "aim_near_correct", defines)
-        tables = [ctx.to_device(a, np.complex128) for a in (green, gradient)]
         offset_bufs = {b: (ctx.to_device(pattern.offsets(b)), len(pattern.offsets(b))) for b in blocks}
         coef_buf = ctx.to_device(coef, np.complex128)
         nW = int(np.prod(wdim))
-        sources = (near_first(orow, pattern.cells) + np.asarray(rows)).astype(np.int32)
-        step = max(1, POTENTIAL_BUDGET // (6 * nW * 16))
+        sources = near_first(orow, pattern.cells) + np.asarray(rows)
+        step = max(1, POTENTIAL_BUDGET // (7 * nW * 16))
         weights = self.weights[id(projection)]
         sx, sy, sz = grid.stencil
         for s0 in range(0, len(rows), step):
             s1 = min(len(rows), s0 + step)
             n = s1 - s0
-            src_buf = ctx.to_device(sources[s0:s1])
+            W = projection.weights[:, sources[s0:s1]]  # (3, n, S)
+            flat = self._potential_array(n * 7 * nW)
+            stencil_product(W[0], tangential, flat[: 3 * n * nW].reshape(n, 3 * nW))
+            stencil_product(W[1], normal, flat[3 * n * nW : 6 * n * nW].reshape(n, 3 * nW))
+            stencil_product(W[2], g, flat[6 * n * nW :].reshape(n, nW))
+            pot = ctx.host_buffer(flat)
             row_buf = ctx.to_device(rows[s0:s1], np.int32)
-            pot = self._potential_buffer(n * 6 * nW * 16)
-            pot_knl(queue, (n * nW,), None, src_buf, np.int32(n), self.origins, np.int32(2 * pattern.rows),
-                    np.int32(n_horizontal), weights, np.int32(sx), np.int32(sy), np.int32(sz), int4_arg(wdim),
-                    int4_arg(wbase), int4_arg(lo), int4_arg(dims), *tables, pot)
             whole = n == len(rows)  # each block's staged array is the chunk: no staging copy
             for b in blocks:
                 off_buf, n_off = offset_bufs[b]
@@ -232,9 +196,10 @@ class _NearBaseOpenCL:
                         off_buf, np.int32(n_off), row_buf, np.int32(n), self.origins, np.int32(2 * pattern.rows),
                         weights, np.int32(sx), np.int32(sy), np.int32(sz), int4_arg(wdim), int4_arg(wbase), pot,
                         coef_buf, val_buf)
-                cl.enqueue_copy(queue, chunk, val_buf)
+                cl.enqueue_copy(queue, chunk, val_buf)  # blocking: the potentials are free again after it
                 if not whole:
                     staged[b][:, s0:s1] = chunk
+            del pot
         queue.finish()
 
 
@@ -263,7 +228,7 @@ def assemble_near(ctx, mesh: BEMMesh, media: Media, pattern: NearPattern, groups
         raise ValueError(f"aim near_storage must be one of {tuple(STORAGE)}, got {storage!r}")
     t_start = time.perf_counter()
     integrals = integrals or ElementIntegrals(mesh, ctx=ctx)
-    tables = RepeatingTables(integrals) if RepeatingTables.worthwhile(mesh) else integrals
+    tables = RepeatingTables(integrals) if RepeatingTables.worthwhile(mesh) else TransposedTables(integrals)
     coef_all = media.pmchwt_coefficients()
     nrows = pattern.rows
     near = NearMatrix(pattern, NearMatrix.zeros(pattern, storage))
@@ -302,7 +267,7 @@ def assemble_near(ctx, mesh: BEMMesh, media: Media, pattern: NearPattern, groups
                         blocks = [b for b in BLOCKS if BLOCKS[b][0] == o and len(pairs[b][0])]
                         if blocks:
                             device.subtract(projection, k, coef + [ETA0], pattern, blocks, rows_by_block[blocks[0]],
-                                            staged, windows[o], mesh.n_horizontal)
+                                            staged, windows[o])
                     continue
                 for b, (row_id, col_id, j, pos) in pairs.items():
                     if len(row_id):
@@ -321,6 +286,7 @@ def assemble_near(ctx, mesh: BEMMesh, media: Media, pattern: NearPattern, groups
         logger.debug("near strip %d/%d: %d pairs, exact %.2f s, base %.2f s", i_strip + 1, len(strips),
                      len(all_rows), t1 - t0, t2 - t1)
     integrals.release_scratch()  # one strip's tables (~1 KB per element pair) go before the solve
+    del tables  # and the kept ones
     timings["total_s"] = time.perf_counter() - t_start
     timings.update({f"element_{k}": v for k, v in integrals.timings.items()})
     near.timings, near.exact, near.exact_offsets = timings, exact, exact_offsets
