@@ -214,12 +214,19 @@ def _launch_chunks(n_pairs: int, bytes_per_pair: int):
         yield slice(start, min(n_pairs, start + step))
 
 
+def _geometry_buffer(ctx, geometry):
+    """The device buffer of the element geometry: ``geometry`` itself when it is one already (the
+    caller uploaded it once for many launches), else a copy of the array."""
+    return ctx.to_device(geometry, np.float64) if isinstance(geometry, np.ndarray) else geometry
+
+
 def regular_pairs_opencl(ctx, geometry, h, test, source, order, wavenumbers, out=None):
     """OpenCL twin of :func:`regular_pairs_numpy` (kernel ``bem_regular_pairs``); written into
-    ``out`` (C-contiguous (P, 2, 33) complex128) when given."""
+    ``out`` (C-contiguous (P, 2, 33) complex128) when given. ``geometry``: the (E, 8) element
+    geometry or its device buffer."""
     knl = ctx.kernel("bem_elements.cl", "bem_regular_pairs",
                      ctx.defines(Precision.DOUBLE, lanes=ctx.vector_lanes(Precision.DOUBLE)))
-    geom = ctx.to_device(geometry, np.float64)
+    geom = _geometry_buffer(ctx, geometry)
     x, w = np.polynomial.legendre.leggauss(int(order))
     nodes, weights = ctx.to_device(x), ctx.to_device(w)
     test = np.ascontiguousarray(test, np.int32)
@@ -246,7 +253,7 @@ def singular_pairs_opencl(ctx, geometry, h, test, source, code_test, code_source
     knl = ctx.kernel("bem_elements.cl", "bem_singular_pairs",
                      ctx.defines(Precision.DOUBLE, lanes=ctx.vector_lanes(Precision.DOUBLE), BEM_KIND=int(kind),
                                  BEM_MEDIUM=-1 if medium is None else int(medium)))
-    geom = ctx.to_device(geometry, np.float64)
+    geom = _geometry_buffer(ctx, geometry)
     rule_buf = ctx.to_device(rule, np.float64)
     arrays = [np.ascontiguousarray(a, np.int32) for a in (test, source, code_test, code_source)]
     static = kind == KIND_STATIC
@@ -323,20 +330,29 @@ class ElementIntegrals:
         served = static is not None and static.serves(mesh, self.options.static_order)
         self.static = static if served else None  # made at the first touching pair otherwise
         self._scratch = None  # reused table buffer of indexed_tables(scratch=True)
+        self._device_geometry = None  # the geometry's device buffer, uploaded at the first launch
         self.timings = {"static_s": 0.0, "singular_s": 0.0, "regular_s": 0.0}
         self._remainder_orders: dict = {}  # wavenumbers → [order per medium]
         self.counts = {"static": 0, "singular": 0, "regular": 0, "regular_points": 0}
 
     # -- backends ---------------------------------------------------------------------------
+    def _geometry(self):
+        """The element geometry for the kernels: its device buffer (uploaded once), or the array."""
+        if self.ctx is None:
+            return self.mesh.geometry
+        if self._device_geometry is None:
+            self._device_geometry = self.ctx.to_device(self.mesh.geometry, np.float64)
+        return self._device_geometry
+
     def _regular(self, test, source, order, wavenumbers, out):
-        g, h = self.mesh.geometry, self.mesh.half
+        g, h = self._geometry(), self.mesh.half
         if self.ctx is None:
             out[...] = regular_pairs_numpy(g, h, test, source, order, wavenumbers)
         else:
             regular_pairs_opencl(self.ctx, g, h, test, source, order, wavenumbers, out=out)
 
     def _singular(self, test, source, ct, cs, rule, wavenumbers, kind, out, medium=None):
-        g, h = self.mesh.geometry, self.mesh.half
+        g, h = self._geometry(), self.mesh.half
         if self.ctx is not None:
             singular_pairs_opencl(self.ctx, g, h, test, source, ct, cs, rule, wavenumbers, kind, out=out,
                                   medium=medium)

@@ -11,6 +11,7 @@ Modules:
 * convolution    B = Λᵀ G Λ applied by FFT convolution (OpenCL scatter / Fourier / gather, NumPy twins)
 * nearfield      the near pattern, the lattice diagonal storage of C = A − B and its SpMV
 * near_assembly  the entries of C: exact element integrals minus the grid's
+* near_tables    element-pair tables computed once where pairs share them (repeating geometry, transposes)
 * preconditioner the near-field LU (whole or tiled) and the local inverses of the Krylov solve
 * flat_circulant the damped flat interface's inverse by 2-D FFTs on a torus (``preconditioner = "flat"``)
 * flat_patch     the flat patch's operator by FFTs, solved by inner GMRES steps (``"flat-patch"``; FGMRES)

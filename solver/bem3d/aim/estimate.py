@@ -145,9 +145,9 @@ def _flat_patch_cost(media: Media, cells: int, spacing_um: float, unknowns: int,
 
 
 # Products of a warm-started solve over a cold one, by preconditioner (docs/aim.md, warm starts);
-# not measured with the flat interface's preconditioners: no gain counted
+# not measured with the flat interface's circulant alone: no gain counted
 WARM_PRODUCTS = {"local": COST["warm_products_local"], "near": COST["warm_products_near"],
-                 "none": COST["warm_products_none"], "flat": 1.0, "flat-patch": 1.0}
+                 "none": COST["warm_products_none"], "flat": 1.0, "flat-patch": COST["warm_products_flat_patch"]}
 
 # Memory the stages need besides their arrays (what each is: solver/data/aim_cost.csv)
 RUNTIME_BYTES = COST["runtime_bytes"]  # interpreter, NumPy/SciPy, OpenCL runtime and built kernels

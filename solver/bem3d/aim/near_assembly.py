@@ -157,7 +157,6 @@ class _NearBaseOpenCL:
         weight times (g, ∂₁g, ∂₂g) with (∂₁, ∂₂) = (∂y, ∂z) for horizontal rows, (∂z, ∂x) for
         vertical ones; the normal weight times (g, ∂x g, ∂y g); the divergence weight times g.
         """
-        import pyopencl as cl
 
         ctx, queue = self.ctx, self.ctx.queue
         grid = projection.grid
@@ -191,12 +190,12 @@ class _NearBaseOpenCL:
             for b in blocks:
                 off_buf, n_off = offset_bufs[b]
                 chunk = staged[b] if whole else np.ascontiguousarray(staged[b][:, s0:s1])
-                val_buf = ctx.to_device(chunk, writable=True)
+                val_buf = ctx.host_buffer(chunk, "read_write")
                 cor_knl(queue, (n_off * n,), None, np.int32(orow), np.int32(BLOCKS[b][1]), np.int32(pattern.cells),
                         off_buf, np.int32(n_off), row_buf, np.int32(n), self.origins, np.int32(2 * pattern.rows),
                         weights, np.int32(sx), np.int32(sy), np.int32(sz), int4_arg(wdim), int4_arg(wbase), pot,
                         coef_buf, val_buf)
-                cl.enqueue_copy(queue, chunk, val_buf)  # blocking: the potentials are free again after it
+                ctx.read_into(chunk, val_buf)  # waits: the potentials are free again after it
                 if not whole:
                     staged[b][:, s0:s1] = chunk
             del pot

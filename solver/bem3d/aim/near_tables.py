@@ -104,8 +104,9 @@ class TransposedTables:
 
     Kept: the tables of each call whose pair has an element on or beyond the call's last test
     line (where a later call's test elements lie), dropped once a call's first test line has
-    passed both elements' lines. The store holds the kept tables and the call's fresh ones; it
-    is compacted (the kept tables moved to its front) when a call's fresh tables do not fit.
+    passed both elements' lines. The store is one array (one device buffer for the gather): a
+    ring of kept blocks, each computed into its place, then the scratch rows of the call's other
+    fresh tables. Nothing is copied except when the store grows.
     """
 
     def __init__(self, integrals: ElementIntegrals):
@@ -114,40 +115,54 @@ class TransposedTables:
         self.n_elements = mesh.n_elements
         self.line = mesh.element_st[:, 1].astype(np.int64)
         self._store = np.zeros((0, 2, TABLE), dtype=complex)
-        self._used = 0
-        self._kept: list[list] = []  # [sorted keys, their rows in the store, last line of their elements]
-        self.counts = {"requested": 0, "computed": 0, "compactions": 0}
+        self._ring = 0  # rows of the ring of kept blocks; the scratch rows follow
+        self._head = 0  # where the ring's next block starts
+        # kept blocks: [sorted keys, their rows, first row of the block's region, its rows, last line of the elements]
+        self._kept: list[list] = []
+        self.counts = {"requested": 0, "computed": 0, "growths": 0, "wraps": 0}
 
-    def _lookup(self, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(which kept block holds each key, -1 if none; its position there)."""
-        block = np.full(len(keys), -1, dtype=np.int64)
-        position = np.zeros(len(keys), dtype=np.int64)
-        for i, (kept_keys, _, _) in enumerate(self._kept):
+    def _lookup(self, keys: np.ndarray) -> np.ndarray:
+        """The store row of each key's kept table, −1 if none."""
+        rows = np.full(len(keys), -1, dtype=np.int64)
+        for kept_keys, kept_rows, *_ in self._kept:
             pos = np.minimum(np.searchsorted(kept_keys, keys), len(kept_keys) - 1)
-            hit = (block < 0) & (kept_keys[pos] == keys)
-            block[hit], position[hit] = i, pos[hit]
-        return block, position
+            hit = (rows < 0) & (kept_keys[pos] == keys)
+            rows[hit] = kept_rows[pos[hit]]
+        return rows
 
-    def _reserve(self, n: int) -> None:
-        """Room for n fresh rows after the used ones: the kept rows compacted to the front (into a
-        larger store when they and n do not fit)."""
-        if self._used + n <= len(self._store):
-            return
-        self.counts["compactions"] += 1
-        rows = [kept[1] for kept in self._kept]
-        kept_rows = np.concatenate(rows) if rows else np.zeros(0, dtype=np.int64)
-        need = len(kept_rows) + n
-        if need > len(self._store):
-            store = np.empty((need + need // 2, 2, TABLE), dtype=complex)
-            store[: len(kept_rows)] = self._store[kept_rows]
-            self._store = store
-        else:
-            self._store[: len(kept_rows)] = self._store[kept_rows]  # the fancy read is a copy first
-        start = 0
-        for kept in self._kept:
-            kept[1] = np.arange(start, start + len(kept[1]))
-            start += len(kept[1])
-        self._used = start
+    def _place(self, kept: int, scratch: int) -> int:
+        """First row of ``kept`` consecutive ring rows clear of the live blocks, with ``scratch``
+        scratch rows (the store grows when they do not fit)."""
+        start = self._head if self._head + kept <= self._ring else 0
+
+        def clear(start):
+            return start + kept <= self._ring and all(start + kept <= b[2] or b[2] + b[3] <= start
+                                                      for b in self._kept)
+
+        if not clear(start) or scratch > len(self._store) - self._ring:
+            self._grow(kept, scratch)
+            start = self._head
+        elif start < self._head:
+            self.counts["wraps"] += 1
+        self._head = start + kept
+        return start
+
+    def _grow(self, kept: int, scratch: int) -> None:
+        """A larger store: the live blocks moved to the front of a ring with room for them, the new
+        block and half as much again, then the scratch rows."""
+        self.counts["growths"] += 1
+        live = sum(b[3] for b in self._kept)
+        ring = max(self._ring, (live + kept) * 3 // 2)
+        scratch = max(len(self._store) - self._ring, scratch + scratch // 4)
+        store = np.empty((ring + scratch, 2, TABLE), dtype=complex)
+        row = 0
+        for block in self._kept:
+            first, n = block[2], block[3]
+            store[row : row + n] = self._store[first : first + n]
+            block[1] += row - first
+            block[2] = row
+            row += n
+        self._store, self._ring, self._head = store, ring, row
 
     def indexed_tables(self, test, source, wavenumbers, *, scratch: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """As ElementIntegrals.indexed_tables with the index codes above; the store is reused by
@@ -159,30 +174,28 @@ class TransposedTables:
             return np.empty((0, 2, TABLE), dtype=complex), np.empty(0, dtype=np.int64)
         ne, line = self.n_elements, self.line
         first_line, last_line = int(line[test].min()), int(line[test].max())
-        self._kept = [kept for kept in self._kept if kept[2] >= first_line]
+        self._kept = [block for block in self._kept if block[4] >= first_line]
         low, high = np.minimum(test, source), np.maximum(test, source)
         keys = low * ne + high
-        block, position = self._lookup(keys)
-        missing = np.flatnonzero(block < 0)
+        rows = self._lookup(keys)
+        missing = np.flatnonzero(rows < 0)
         unique_keys, first, inverse = np.unique(keys[missing], return_index=True, return_inverse=True)
         pairs = missing[first]
-        self._reserve(len(pairs))
-        rows = np.empty(n, dtype=np.int64)
-        for i, (_, kept_rows, _) in enumerate(self._kept):
-            hit = block == i
-            rows[hit] = kept_rows[position[hit]]
-        if len(pairs):
-            start = self._used
-            fresh = self._store[start : start + len(pairs)]
-            _, index = self.integrals.indexed_tables(low[pairs], high[pairs], wavenumbers, out=fresh)
-            self._used += len(pairs)
-            fresh_rows = start + index  # of the unique pairs
-            rows[missing] = fresh_rows[inverse]
-            # kept for later calls: pairs with an element on or beyond this call's last test line
-            reach = line[high[pairs]].clip(min=line[low[pairs]])
-            later = np.flatnonzero(reach >= last_line)
-            if len(later):
-                self._kept.append([unique_keys[later], fresh_rows[later], int(reach[later].max())])
+        # kept for later calls: pairs with an element on or beyond this call's last test line
+        reach = line[high[pairs]].clip(min=line[low[pairs]])
+        later = reach >= last_line
+        kept, other = np.flatnonzero(later), np.flatnonzero(~later)
+        start = self._place(len(kept), len(other))
+        fresh_rows = np.empty(len(pairs), dtype=np.int64)
+        for chosen, at in ((kept, start), (other, self._ring)):
+            if len(chosen):
+                out = self._store[at : at + len(chosen)]
+                _, index = self.integrals.indexed_tables(low[pairs[chosen]], high[pairs[chosen]], wavenumbers, out=out)
+                fresh_rows[chosen] = at + index
+        if len(kept):
+            self._kept.append([unique_keys[kept], fresh_rows[kept], start, len(kept), int(reach[kept].max())])
+        rows[missing] = fresh_rows[inverse]
         self.counts["computed"] += len(pairs)
         self.counts["requested"] += n
-        return self._store[: self._used], np.where(test > source, -1 - rows, rows)
+        used = max(self._ring + len(other), 1)
+        return self._store[:used], np.where(test > source, -1 - rows, rows)

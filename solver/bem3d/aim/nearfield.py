@@ -229,11 +229,25 @@ class NearMatrix:
         return v[j, t, :, 0, r, x] + 1j * v[j, t, :, 1, r, x]
 
     def store(self, block: str, rows, staged: np.ndarray):
-        """Write complex ``staged`` (n_offsets, len(rows), 3) as the entries of block-local ``rows``."""
+        """Write complex ``staged`` (n_offsets, len(rows), 3) as the entries of block-local ``rows``:
+        each run of consecutive sites on one lattice row (whole rows of a strip) by one slice."""
+        if len(rows) == 0:
+            return
         t, r, x = self._place(block, rows)
         v = self.values[block]
-        v[:, t, :, 0, r, x] = staged.real.transpose(1, 0, 2)
-        v[:, t, :, 1, r, x] = staged.imag.transpose(1, 0, 2)
+        line = t * TILE_ROWS + r
+        order = np.lexsort((x, line))
+        line, x = line[order], x[order]
+        # runs: same lattice row and consecutive sites
+        starts = np.flatnonzero(np.concatenate([[True], (np.diff(line) != 0) | (np.diff(x) != 1)]))
+        ends = np.append(starts[1:], len(order))
+        identity = np.array_equal(order, np.arange(len(order)))
+        for a, b in zip(starts.tolist(), ends.tolist()):
+            part = staged[:, a:b] if identity else staged[:, order[a:b]]  # (n_offsets, run, 3)
+            tile, row = divmod(int(line[a]), TILE_ROWS)
+            sites = slice(int(x[a]), int(x[a]) + b - a)
+            v[:, tile, :, 0, row, sites] = part.real.transpose(0, 2, 1)
+            v[:, tile, :, 1, row, sites] = part.imag.transpose(0, 2, 1)
 
     @property
     def n_bases(self) -> int:
