@@ -371,8 +371,9 @@ def basis_pair_entries(ctx, mesh: BEMMesh, media: Media, rows, cols,
     pair_map = np.full((len(test_elems), len(source_elems)), -1, dtype=np.int32)
     pair_map[row_elem[inv_r][:, :, None], col_elem[inv_c][:, None, :]] = 0
     pairs = np.flatnonzero(pair_map.ravel() == 0)
+    held = getattr(integrals, "held_rows", 0)  # tables its store holds beyond this call's (TransposedTables)
     if ctx is not None and len(rows) > 1 and \
-            max(len(pairs) * 2 * TABLE * 16, pair_map.nbytes) > ctx.info.max_alloc_gib * 2**30:
+            max((len(pairs) + held) * 2 * TABLE * 16, pair_map.nbytes) > ctx.info.max_alloc_gib * 2**30:
         # the tables or the pair map would exceed the device's largest buffer: the pairs in two halves
         half = len(rows) // 2
         parts = [basis_pair_entries(ctx, mesh, media, rows[sl], cols[sl], integrals)
