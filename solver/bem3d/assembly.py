@@ -371,9 +371,14 @@ def basis_pair_entries(ctx, mesh: BEMMesh, media: Media, rows, cols,
     pair_map = np.full((len(test_elems), len(source_elems)), -1, dtype=np.int32)
     pair_map[row_elem[inv_r][:, :, None], col_elem[inv_c][:, None, :]] = 0
     pairs = np.flatnonzero(pair_map.ravel() == 0)
-    held = getattr(integrals, "held_rows", 0)  # tables its store holds beyond this call's (TransposedTables)
+    # rows of the table store this call hands the gather (TransposedTables keeps tables for later calls)
+    table_rows, held = integrals.store_rows(len(pairs)) if hasattr(integrals, "store_rows") else (len(pairs), 0)
+    if ctx is not None and held * 2 * TABLE * 16 > ctx.info.max_alloc_gib * 2**30:
+        raise MemoryError(f"the element tables kept for later strips ({held} tables, {held * 2 * TABLE * 16 / 2**30:.2f} "
+                          f"GiB) exceed the device's largest buffer ({ctx.info.max_alloc_gib:.2f} GiB): assemble in "
+                          "smaller strips")
     if ctx is not None and len(rows) > 1 and \
-            max((len(pairs) + held) * 2 * TABLE * 16, pair_map.nbytes) > ctx.info.max_alloc_gib * 2**30:
+            max(table_rows * 2 * TABLE * 16, pair_map.nbytes) > ctx.info.max_alloc_gib * 2**30:
         # the tables or the pair map would exceed the device's largest buffer: the pairs in two halves
         half = len(rows) // 2
         parts = [basis_pair_entries(ctx, mesh, media, rows[sl], cols[sl], integrals)

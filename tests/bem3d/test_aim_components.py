@@ -522,8 +522,8 @@ def test_a_swapped_element_pair_has_the_transposed_table(cl_ctx, rough_mesh):
         case, _, _ = integrals.classify(test, source)
         assert np.count_nonzero(case != CASE_REGULAR) > 100
         scale = np.abs(forward).max(axis=-1)
-        assert np.max(np.abs(forward - backward).max(axis=-1) / scale) < 1e-12
-        assert np.max(np.abs(forward[..., 16] - backward[..., 16]) / scale) < 1e-12
+        assert np.max(np.abs(forward - backward).max(axis=-1) / scale) < 5e-12  # 5e-13 measured on PoCL
+        assert np.max(np.abs(forward[..., 16] - backward[..., 16]) / scale) < 5e-12
 
 
 def test_transposed_tables_over_strips_are_the_fresh_tables_of_each_pair(cl_ctx, rng):
@@ -550,7 +550,7 @@ def test_transposed_tables_over_strips_are_the_fresh_tables_of_each_pair(cl_ctx,
         got = store[np.where(index < 0, -1 - index, index)]
         got[index < 0] = got[index < 0][:, :, TRANSPOSE]
         reference = fresh.tables(test, source, ks)
-        assert np.max(np.abs(got - reference)) < 1e-12 * np.max(np.abs(reference))
+        assert np.max(np.abs(got - reference)) < 5e-12 * np.max(np.abs(reference))
         unordered |= set(zip(np.minimum(test, source).tolist(), np.maximum(test, source).tolist()))
     assert transposed.counts["computed"] == len(unordered)
     assert transposed.counts["requested"] > 1.7 * len(unordered)
@@ -574,14 +574,36 @@ def test_transposed_tables_stay_right_when_the_store_grows_under_kept_blocks(cl_
                                                        indexing="ij"))
         keep = np.abs(st[test] - st[source]).max(axis=1) <= reach
         test, source = test[keep], source[keep]
-        starts = {id(block): block[2] for block in transposed._kept}
+        before = [(block, block[2]) for block in transposed._kept]
+        keys = np.minimum(test, source) * rough_mesh.n_elements + np.maximum(test, source)
         store, index = transposed.indexed_tables(test, source, ks)
-        moved += sum(block[2] != starts[id(block)] for block in transposed._kept if id(block) in starts)
+        # blocks that moved in this call and served some of its pairs
+        moved += sum(any(block is kept for kept in transposed._kept) and block[2] != start
+                     and bool(np.isin(keys, block[0]).any()) for block, start in before)
         got = store[np.where(index < 0, -1 - index, index)]
         got[index < 0] = got[index < 0][:, :, TRANSPOSE]
         reference = fresh.tables(test, source, ks)
-        assert np.max(np.abs(got - reference)) < 1e-12 * np.max(np.abs(reference))
-    assert moved > 0  # a live block moved while the call read from it
+        assert np.max(np.abs(got - reference)) < 5e-12 * np.max(np.abs(reference))
+    assert moved > 0  # a live block moved in a call that read tables from it
+
+
+def test_kept_tables_beyond_the_device_buffer_are_refused_by_name(cl_ctx, rough_mesh):
+    """A store whose kept tables alone exceed the device's largest buffer: a MemoryError that says
+    so, not a split that cannot shrink them."""
+    from types import SimpleNamespace
+
+    from wavebrdf.solver.bem3d.aim.near_tables import TransposedTables
+    from wavebrdf.solver.bem3d.elements import ElementIntegrals
+
+    media = Media(LAMBDA, 0.49 - 4.86j)
+    transposed = TransposedTables(ElementIntegrals(rough_mesh, ctx=cl_ctx))
+    st = rough_mesh.element_st
+    line0, line1 = np.flatnonzero(st[:, 1] == 0), np.flatnonzero(st[:, 1] == 1)
+    transposed.indexed_tables(line0, line1, media.wavenumbers)  # pairs reaching line 1: kept for later calls
+    assert transposed.store_rows(0)[1] > 0
+    tiny = SimpleNamespace(info=SimpleNamespace(max_alloc_gib=1e-9))
+    with pytest.raises(MemoryError, match="kept for later strips"):
+        basis_pair_entries(tiny, rough_mesh, media, np.arange(4), np.arange(4) + 1, integrals=transposed)
 
 
 def test_plane_wave_phases_of_repeating_and_scattered_positions(rng):
