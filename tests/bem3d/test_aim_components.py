@@ -574,12 +574,12 @@ def test_transposed_tables_stay_right_when_the_store_grows_under_kept_blocks(cl_
                                                        indexing="ij"))
         keep = np.abs(st[test] - st[source]).max(axis=1) <= reach
         test, source = test[keep], source[keep]
-        before = [(block, block[2]) for block in transposed._kept]
+        before = [(block, block.start) for block in transposed._kept]
         keys = np.minimum(test, source) * rough_mesh.n_elements + np.maximum(test, source)
         store, index = transposed.indexed_tables(test, source, ks)
         # blocks that moved in this call and served some of its pairs
-        moved += sum(any(block is kept for kept in transposed._kept) and block[2] != start
-                     and bool(np.isin(keys, block[0]).any()) for block, start in before)
+        moved += sum(any(block is kept for kept in transposed._kept) and block.start != start
+                     and bool(np.isin(keys, block.keys).any()) for block, start in before)
         got = store[np.where(index < 0, -1 - index, index)]
         got[index < 0] = got[index < 0][:, :, TRANSPOSE]
         reference = fresh.tables(test, source, ks)

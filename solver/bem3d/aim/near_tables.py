@@ -19,6 +19,8 @@ transforms; regular pairs to 1e-15); taken from one order, Z is exactly symmetri
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from wavebrdf.solver.bem3d.elements import TABLE, ElementIntegrals
@@ -29,7 +31,6 @@ __all__ = ["TRANSPOSE", "RepeatingTables", "TransposedTables"]
 # the table of (B, A) from that of (A, B): slots (a, b) → (b, a) of L_vec (0–15) and K (17–32)
 _SLOTS = np.arange(16).reshape(4, 4).T.ravel()
 TRANSPOSE = np.concatenate([_SLOTS, [16], 17 + _SLOTS])
-
 
 
 class RepeatingTables:
@@ -52,7 +53,7 @@ class RepeatingTables:
         self.st = mesh.element_st
         self.cells = mesh.cells
         self._keys: dict = {}
-        self._store = np.zeros((0, 2, 33), dtype=complex)
+        self._store = np.zeros((0, 2, TABLE), dtype=complex)
 
     @staticmethod
     def worthwhile(mesh: BEMMesh, fraction: float = 0.25) -> bool:
@@ -94,6 +95,19 @@ class RepeatingTables:
         return self._store, index[inverse]
 
 
+@dataclass
+class _KeptBlock:
+    """Tables one call kept for later calls: their pairs' sorted keys, their store rows (within
+    the ``count`` rows of the ring from ``start``), and the last line of their elements."""
+
+    keys: np.ndarray
+    rows: np.ndarray
+    start: int
+    last_line: int
+
+    @property
+    def count(self) -> int:
+        return len(self.keys)
 
 
 class TransposedTables:
@@ -118,15 +132,14 @@ class TransposedTables:
         self._store = np.zeros((0, 2, TABLE), dtype=complex)
         self._ring = 0  # rows of the ring of kept blocks; the scratch rows follow
         self._head = 0  # where the ring's next block starts
-        # kept blocks: [sorted keys, their rows, first row of the block's region, its rows, last line of the elements]
-        self._kept: list[list] = []
+        self._kept: list[_KeptBlock] = []
         self.counts = {"requested": 0, "computed": 0, "growths": 0, "wraps": 0}
 
     def store_rows(self, pairs: int) -> tuple[int, int]:
         """(rows the store a call with ``pairs`` element pairs returns may have at most, of which
         those the kept blocks hold before it): the ring, grown for the pairs if they do not fit,
         and the pairs' scratch rows."""
-        live = sum(block[3] for block in self._kept)
+        live = sum(block.count for block in self._kept)
         return max(self._ring, (live + pairs) * 3 // 2) + pairs, live
 
     def _lookup(self, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -134,9 +147,9 @@ class TransposedTables:
         stay valid when the store grows (the blocks move, their order and contents do not)."""
         block = np.full(len(keys), -1, dtype=np.int64)
         position = np.zeros(len(keys), dtype=np.int64)
-        for i, (kept_keys, *_) in enumerate(self._kept):
-            pos = np.minimum(np.searchsorted(kept_keys, keys), len(kept_keys) - 1)
-            hit = (block < 0) & (kept_keys[pos] == keys)
+        for i, kept in enumerate(self._kept):
+            pos = np.minimum(np.searchsorted(kept.keys, keys), kept.count - 1)
+            hit = (block < 0) & (kept.keys[pos] == keys)
             block[hit], position[hit] = i, pos[hit]
         return block, position
 
@@ -146,7 +159,7 @@ class TransposedTables:
         start = self._head if self._head + kept <= self._ring else 0
 
         def clear(start):
-            return start + kept <= self._ring and all(start + kept <= b[2] or b[2] + b[3] <= start
+            return start + kept <= self._ring and all(start + kept <= b.start or b.start + b.count <= start
                                                       for b in self._kept)
 
         if not clear(start) or scratch > len(self._store) - self._ring:
@@ -161,16 +174,16 @@ class TransposedTables:
         """A larger store: the live blocks moved to the front of a ring with room for them, the new
         block and half as much again, then the scratch rows."""
         self.counts["growths"] += 1
-        live = sum(b[3] for b in self._kept)
+        live = sum(b.count for b in self._kept)
         ring = max(self._ring, (live + kept) * 3 // 2)
         scratch = max(len(self._store) - self._ring, scratch + scratch // 4)
         store = np.empty((ring + scratch, 2, TABLE), dtype=complex)
         row = 0
         for block in self._kept:
-            first, n = block[2], block[3]
-            store[row : row + n] = self._store[first : first + n]
-            block[1] += row - first
-            block[2] = row
+            n = block.count
+            store[row : row + n] = self._store[block.start : block.start + n]
+            block.rows += row - block.start
+            block.start = row
             row += n
         self._store, self._ring, self._head = store, ring, row
 
@@ -184,7 +197,7 @@ class TransposedTables:
             return np.empty((0, 2, TABLE), dtype=complex), np.empty(0, dtype=np.int64)
         ne, line = self.n_elements, self.line
         first_line, last_line = int(line[test].min()), int(line[test].max())
-        self._kept = [block for block in self._kept if block[4] >= first_line]
+        self._kept = [block for block in self._kept if block.last_line >= first_line]
         low, high = np.minimum(test, source), np.maximum(test, source)
         keys = low * ne + high
         block, position = self._lookup(keys)
@@ -197,9 +210,9 @@ class TransposedTables:
         kept, other = np.flatnonzero(later), np.flatnonzero(~later)
         start = self._place(len(kept), len(other))  # may move the kept blocks: their rows are read after it
         rows = np.empty(n, dtype=np.int64)
-        for i, (_, kept_rows, *_) in enumerate(self._kept):
+        for i, kept_block in enumerate(self._kept):
             hit = block == i
-            rows[hit] = kept_rows[position[hit]]
+            rows[hit] = kept_block.rows[position[hit]]
         fresh_rows = np.empty(len(pairs), dtype=np.int64)
         for chosen, at in ((kept, start), (other, self._ring)):
             if len(chosen):
@@ -207,7 +220,7 @@ class TransposedTables:
                 _, index = self.integrals.indexed_tables(low[pairs[chosen]], high[pairs[chosen]], wavenumbers, out=out)
                 fresh_rows[chosen] = at + index
         if len(kept):
-            self._kept.append([unique_keys[kept], fresh_rows[kept], start, len(kept), int(reach[kept].max())])
+            self._kept.append(_KeptBlock(unique_keys[kept], fresh_rows[kept], start, int(reach[kept].max())))
         rows[missing] = fresh_rows[inverse]
         self.counts["computed"] += len(pairs)
         self.counts["requested"] += n
