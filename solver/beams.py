@@ -514,7 +514,7 @@ def _lattice_sum_applies(n_points: int, distinct: tuple) -> bool:
 
 
 def _series_terms(reach: float) -> int:
-    """Jacobi–Anger terms for |k_z h| ≤ ``reach``: up to the first n > reach with |J_n| < SERIES_TAIL."""
+    """Jacobi–Anger terms for |(k_z − k̄) h| ≤ ``reach``: up to the first n > reach with |J_n| < SERIES_TAIL."""
     from scipy.special import jv
 
     terms = 1
@@ -529,8 +529,10 @@ def _lattice_sum(pw: dict, amps: np.ndarray, offsets: np.ndarray, distinct: tupl
     (κx, κy) lattice of ``pw`` (``lattice``, ``kx_axis``, ``ky_axis``), with real k_z.
 
     The phase factorizes, e^{−jκx x} e^{−jκy y} e^{−jk_z z}, and over the points' height range
-    z = c + h t (|t| ≤ 1) the last factor is the Jacobi–Anger series
-    e^{−jk_z c} Σ_n ε_n (−j)^n J_n(k_z h) T_n(t) (ε_0 = 1, else 2), cut where J_n(max k_z h) <
+    z = c + h t (|t| ≤ 1) the last factor is e^{−jk_z c} e^{−jk̄ h t} times the Jacobi–Anger series
+    Σ_n ε_n (−j)^n J_n((k_z − k̄) h) T_n(t) (ε_0 = 1, else 2), k̄ the middle of the waves' k_z (the
+    point factor e^{−jk̄ h t} leaves the series only the spread of k_z: 9 terms instead of 27 for a
+    2.5 µm waist at λ = 0.4 µm on 0.6 µm of relief), cut where J_n(max |k_z − k̄| h) <
     SERIES_TAIL (one term for points in a plane). Each term's sum over the wave lattice is two
     matrix products on the points' distinct x and y, instead of one complex exponential per
     point and wave; the distinct y are taken in passes that keep the partial sums within 4
@@ -543,14 +545,16 @@ def _lattice_sum(pw: dict, amps: np.ndarray, offsets: np.ndarray, distinct: tupl
     ux, inv_x, uy, inv_y = distinct
     z0, z1 = float(offsets[:, 2].min()), float(offsets[:, 2].max())
     c, h = 0.5 * (z0 + z1), 0.5 * (z1 - z0)
-    terms = _series_terms(float(np.max(np.abs(kz))) * h)
+    k_mid = 0.5 * (float(np.max(kz)) + float(np.min(kz)))
+    spread = kz - k_mid
+    terms = _series_terms(float(np.max(np.abs(spread))) * h)
     width = 12 * terms
     # distinct y per pass: the partial sums (nx, y's, 12·T) within 4 LATTICE_SUM_BYTES
     y_step = 4 * LATTICE_SUM_BYTES // (len(kx) * width * 16)
     if terms >= len(kz) or y_step < 1:
         return None
     n = np.arange(terms)
-    series = np.where(n == 0, 1.0, 2.0) * (-1j) ** n * jv(n[None, :], h * kz[:, None])  # (M, T)
+    series = np.where(n == 0, 1.0, 2.0) * (-1j) ** n * jv(n[None, :], h * spread[:, None])  # (M, T)
     lattice = np.zeros((len(kx), len(ky), 12, terms), dtype=complex)
     lattice[ix, iy] = (amps * np.exp(-1j * kz * c)[:, None])[:, :, None] * series[:, None, :]
     by_ky = lattice.transpose(1, 0, 2, 3).reshape(len(ky), -1)  # (ny, nx·12·T)
@@ -577,6 +581,7 @@ def _lattice_sum(pw: dict, amps: np.ndarray, offsets: np.ndarray, distinct: tupl
             block = (ex[x0:x1] @ by_y).reshape(x1 - x0, y1 - y0, 12, terms)
             chebyshev = np.cos(np.arccos(np.clip(t[rows], -1.0, 1.0))[:, None] * n[None, :])  # T_n(t)
             out[rows] = np.einsum("pct,pt->pc", block[inv_x[rows] - x0, inv_y[rows] - y0], chebyshev)
+            out[rows] *= np.exp(-1j * k_mid * h * t[rows])[:, None]
     return out
 
 

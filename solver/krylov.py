@@ -47,6 +47,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.linalg.blas
 
 from wavebrdf.solver.progress import RateLimit
 
@@ -140,13 +141,17 @@ def _arnoldi(A: _Counter, V, H, idx, rows, j, passes: int = 1, operand=None):
     and H[idx, : j + 2, j] by modified Gram–Schmidt of A ``operand`` (default V[idx, j]; FGMRES:
     the preconditioned vector), ``passes`` times (2: reorthogonalized, for a basis carried across
     restarts); returns ‖w‖ per row (0: breakdown)."""
-    w = A(V[idx, j] if operand is None else operand, rows)
+    w = np.ascontiguousarray(A(V[idx, j] if operand is None else operand, rows), dtype=V.dtype)
     H[idx, : j + 1, j] = 0.0
+    axpy = scipy.linalg.blas.get_blas_funcs("axpy", (w,))
     for _ in range(passes):
         for i in range(j + 1):
-            h = np.sum(np.conj(V[idx, i]) * w, axis=1)
-            H[idx, i, j] += h
-            w -= h[:, None] * V[idx, i]
+            for a, p in enumerate(idx):  # BLAS on the rows in place: no copies of V's vectors
+                h = np.vdot(V[p, i], w[a])
+                H[p, i, j] += h
+                row = axpy(V[p, i], w[a], a=-h)
+                if row.ctypes.data != w[a].ctypes.data:  # updated in place unless BLAS had to copy
+                    w[a] = row
     hn = _norms(w)
     H[idx, j + 1, j] = hn
     V[idx, j + 1] = w / np.where(hn > 0, hn, 1.0)[:, None]

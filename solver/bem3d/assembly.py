@@ -98,7 +98,8 @@ def basis_entries_opencl(ctx, tables, pair_map, row_elem, row_slot, col_elem, co
     buf = ctx.to_device
     n_source = pair_map.shape[1]
     args = [
-        ctx.host_buffer(np.ascontiguousarray(tables, np.complex128)), buf(pair_map, np.int32), np.int32(n_source),
+        ctx.host_buffer(np.ascontiguousarray(tables, np.complex128)),
+        ctx.host_buffer(np.ascontiguousarray(pair_map, np.int32)), np.int32(n_source),
         buf(row_elem, np.int32), buf(row_slot, np.int32), buf(col_elem, np.int32), buf(col_slot, np.int32),
     ]
     coef_buf = buf(coef, np.complex128)
@@ -262,6 +263,14 @@ def dense_layout(mesh: BEMMesh, reuse: bool) -> DenseLayout:
     return DenseLayout(tuple(chunks), np.concatenate([[0], np.cumsum(sizes)]), mesh.n_bases)
 
 
+def _distinct(values: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """np.unique(values, return_inverse=True) of integers in [0, ``size``) by marking them: no
+    sort, linear in len(values) + size (a strip's hundreds of thousands of basis indices)."""
+    mark = np.zeros(size, dtype=bool)
+    mark[values] = True
+    return np.flatnonzero(mark), (np.cumsum(mark, dtype=np.int64) - 1)[values]
+
+
 def _local(elements_loaded: np.ndarray, ne: int) -> np.ndarray:
     lookup = np.full(ne, -1, dtype=np.int64)
     lookup[elements_loaded] = np.arange(len(elements_loaded))
@@ -361,35 +370,43 @@ def basis_pair_entries(ctx, mesh: BEMMesh, media: Media, rows, cols,
     cols = np.asarray(cols, dtype=np.int64)
     integrals = integrals or ElementIntegrals(mesh, ctx=ctx)
     ne = mesh.n_elements
-    ub_r, inv_r = np.unique(rows, return_inverse=True)
-    ub_c, inv_c = np.unique(cols, return_inverse=True)
-    test_elems = np.unique(mesh.basis_elements[ub_r])
-    source_elems = np.unique(mesh.basis_elements[ub_c])
+    ub_r, inv_r = _distinct(rows, mesh.n_bases)
+    ub_c, inv_c = _distinct(cols, mesh.n_bases)
+    test_elems = _distinct(mesh.basis_elements[ub_r].ravel(), ne)[0]
+    source_elems = _distinct(mesh.basis_elements[ub_c].ravel(), ne)[0]
     lt, ls = _local(test_elems, ne), _local(source_elems, ne)
     row_elem, col_elem = lt[mesh.basis_elements[ub_r]], ls[mesh.basis_elements[ub_c]]
-    # the element pairs actually needed: marked on the dense local map (cheaper than a sort or hash)
-    pair_map = np.full((len(test_elems), len(source_elems)), -1, dtype=np.int32)
+    # the element pairs actually needed: marked on the dense local map (cheaper than a sort or hash),
+    # the integrals' kept one where they have it (all −1; the marked entries are reset on the way out)
+    scratch = getattr(integrals, "scratch_pair_map", None)
+    shape = (len(test_elems), len(source_elems))
+    pair_map = scratch(*shape) if scratch is not None else np.full(shape, -1, dtype=np.int32)
     pair_map[row_elem[inv_r][:, :, None], col_elem[inv_c][:, None, :]] = 0
     pairs = np.flatnonzero(pair_map.ravel() == 0)
-    # rows of the table store this call hands the gather (TransposedTables keeps tables for later calls)
-    table_rows, held = integrals.store_rows(len(pairs)) if hasattr(integrals, "store_rows") else (len(pairs), 0)
-    if ctx is not None and held * 2 * TABLE * 16 > ctx.info.max_alloc_gib * 2**30:
-        raise MemoryError(f"the element tables kept for later strips ({held} tables, {held * 2 * TABLE * 16 / 2**30:.2f} "
-                          f"GiB) exceed the device's largest buffer ({ctx.info.max_alloc_gib:.2f} GiB): assemble in "
-                          "smaller strips")
-    if ctx is not None and len(rows) > 1 and \
-            max(table_rows * 2 * TABLE * 16, pair_map.nbytes) > ctx.info.max_alloc_gib * 2**30:
-        # the tables or the pair map would exceed the device's largest buffer: the pairs in two halves
-        half = len(rows) // 2
-        parts = [basis_pair_entries(ctx, mesh, media, rows[sl], cols[sl], integrals)
-                 for sl in (slice(0, half), slice(half, None))]
-        return tuple(np.concatenate(arrays) for arrays in zip(*parts))
-    lt_idx, ls_idx = np.divmod(pairs, len(source_elems))
-    tables, index = integrals.indexed_tables(test_elems[lt_idx], source_elems[ls_idx], media.wavenumbers, scratch=True)
-    pair_map.ravel()[pairs] = index
-    coef = _coefficients(media)
-    row_slot, col_slot = mesh.basis_slots[ub_r], mesh.basis_slots[ub_c]
-    if ctx is None:
-        return basis_entries_numpy(tables, pair_map, row_elem, row_slot, col_elem, col_slot, inv_r, inv_c, coef)
-    return basis_entries_opencl(ctx, tables, pair_map, row_elem, row_slot, col_elem, col_slot, coef,
-                                rows=inv_r, cols=inv_c)
+    try:
+        # rows of the table store this call hands the gather (TransposedTables keeps tables for later calls)
+        table_rows, held = integrals.store_rows(len(pairs)) if hasattr(integrals, "store_rows") else (len(pairs), 0)
+        if ctx is not None and held * 2 * TABLE * 16 > ctx.info.max_alloc_gib * 2**30:
+            raise MemoryError(f"the element tables kept for later strips ({held} tables, "
+                              f"{held * 2 * TABLE * 16 / 2**30:.2f} GiB) exceed the device's largest buffer "
+                              f"({ctx.info.max_alloc_gib:.2f} GiB): assemble in smaller strips")
+        split = ctx is not None and len(rows) > 1 and \
+            max(table_rows * 2 * TABLE * 16, pair_map.nbytes) > ctx.info.max_alloc_gib * 2**30
+        if not split:
+            lt_idx, ls_idx = np.divmod(pairs, len(source_elems))
+            tables, index = integrals.indexed_tables(test_elems[lt_idx], source_elems[ls_idx], media.wavenumbers,
+                                                     scratch=True)
+            pair_map.ravel()[pairs] = index
+            coef = _coefficients(media)
+            row_slot, col_slot = mesh.basis_slots[ub_r], mesh.basis_slots[ub_c]
+            if ctx is None:
+                return basis_entries_numpy(tables, pair_map, row_elem, row_slot, col_elem, col_slot, inv_r, inv_c, coef)
+            return basis_entries_opencl(ctx, tables, pair_map, row_elem, row_slot, col_elem, col_slot, coef,
+                                        rows=inv_r, cols=inv_c)
+    finally:
+        pair_map.ravel()[pairs] = -1
+    # the tables or the pair map would exceed the device's largest buffer: the pairs in two halves
+    half = len(rows) // 2
+    parts = [basis_pair_entries(ctx, mesh, media, rows[sl], cols[sl], integrals)
+             for sl in (slice(0, half), slice(half, None))]
+    return tuple(np.concatenate(arrays) for arrays in zip(*parts))

@@ -330,6 +330,7 @@ class ElementIntegrals:
         served = static is not None and static.serves(mesh, self.options.static_order)
         self.static = static if served else None  # made at the first touching pair otherwise
         self._scratch = None  # reused table buffer of indexed_tables(scratch=True)
+        self._pair_map = np.zeros(0, dtype=np.int32)  # reused element-pair map (scratch_pair_map), all −1
         self._device_geometry = None  # the geometry's device buffer, uploaded at the first launch
         self.timings = {"static_s": 0.0, "singular_s": 0.0, "regular_s": 0.0}
         self._remainder_orders: dict = {}  # wavenumbers → [order per medium]
@@ -471,8 +472,19 @@ class ElementIntegrals:
         return cache.values[slot]
 
     def release_scratch(self) -> None:
-        """Free the scratch table buffer (the next scratch call allocates a new one)."""
+        """Free the scratch table buffer and pair map (the next scratch call allocates new ones)."""
         self._scratch = None
+        self._pair_map = np.zeros(0, dtype=np.int32)
+
+    def scratch_pair_map(self, n_test: int, n_source: int) -> np.ndarray:
+        """An int32 (n_test, n_source) map of −1 over a kept buffer (grown by a quarter when short):
+        assembly.basis_pair_entries' element-pair map, strip after strip without fresh pages. The
+        caller sets the entries it wrote back to −1 before the next call."""
+        n = n_test * n_source
+        if len(self._pair_map) < n:
+            self._pair_map = np.zeros(0, dtype=np.int32)
+            self._pair_map = np.full(n + n // 4, -1, dtype=np.int32)
+        return self._pair_map[:n].reshape(n_test, n_source)
 
     def _scratch_tables(self, n: int) -> np.ndarray:
         """The first n rows of the scratch table buffer (grown by a quarter when short)."""

@@ -164,6 +164,32 @@ def test_basis_pair_list_equals_dense_entries(cl_ctx, rough_setup, rng):
     assert np.abs(em - Z[nb + rows, cols]).max() < 1e-12 * scale
 
 
+def test_basis_pair_lists_share_one_pair_map_call_after_call(cl_ctx, rough_setup, rng):
+    """Calls on one ElementIntegrals reuse its pair map: each call's entries are the dense matrix's
+    (none sees a pair marked by the one before) and the map is all −1 after each."""
+    mesh, media, Z, _ = rough_setup
+    nb = mesh.n_bases
+    integrals = el.ElementIntegrals(mesh, ctx=cl_ctx)
+    scale = np.abs(Z).max()
+    for size in (80, 30, 120):
+        rows, cols = rng.integers(0, nb, size), rng.integers(0, nb, size)
+        ee, mm, em = basis_pair_entries(cl_ctx, mesh, media, rows, cols, integrals=integrals)
+        assert np.abs(ee - Z[rows, cols]).max() < 1e-12 * scale
+        assert np.abs(mm - Z[nb + rows, nb + cols]).max() < 1e-12 * scale
+        assert np.abs(em - Z[rows, nb + cols]).max() < 1e-12 * scale
+        assert len(integrals._pair_map) and np.all(integrals._pair_map == -1)
+
+
+def test_distinct_indices_by_marking_are_numpys_unique(rng):
+    """The pair list's distinct bases and elements (marked, not sorted) are np.unique's, inverse
+    included, for unsorted input with repeats and for values at both ends of the range."""
+    values = np.concatenate([rng.integers(0, 1000, 5000), [0, 999, 999]])
+    distinct, inverse = assembly._distinct(values, 1000)
+    expected, expected_inverse = np.unique(values, return_inverse=True)
+    assert np.array_equal(distinct, expected) and np.array_equal(inverse, expected_inverse)
+    assert np.array_equal(distinct[inverse], values)
+
+
 def test_basis_pairs_whose_tables_exceed_the_devices_largest_buffer_are_split(cl_ctx, rough_setup, rng, monkeypatch):
     """A device whose largest allocation (8 MiB here: above the quadrature rules' 6.6 MB at order
     12, below the 8 000 pairs' tables; PoCL reports 1 GiB when the host's free memory is low, GPUs a

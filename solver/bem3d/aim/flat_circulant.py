@@ -126,10 +126,12 @@ def flat_kernel(ctx, media: Media, spacing_um: float, radius_cells: int, torus: 
 class TorusPlacement:
     """The patch's rooftops placed in a torus of (Mx, My) lattice sites: the four fields [J_h, J_v,
     M̃_h, M̃_v] of a block of vectors (P, 2N_b) as (P, 4, Mx, My) complex64 (zero off the patch)
-    and back. Two indices per unknown."""
+    and back. Two indices per unknown. The torus fields live in a buffer kept between calls (a
+    solve's many products touch no fresh pages) until :meth:`release`."""
 
     def __init__(self, mesh: BEMMesh, torus: tuple[int, int]):
         self.torus = tuple(int(m) for m in torus)
+        self._fields = None
         if min(self.torus) < mesh.cells:
             raise ValueError(f"a torus of {self.torus} sites cannot hold a patch of {mesh.cells} cells")
         n_b, My = mesh.n_bases, self.torus[1]
@@ -142,10 +144,19 @@ class TorusPlacement:
     def bytes(self) -> int:
         return int(sum(u.nbytes + s.nbytes for u, s in self.fields))
 
+    def release(self) -> None:
+        """Free the kept torus fields."""
+        self._fields = None
+
     def scatter(self, X: np.ndarray) -> np.ndarray:
-        """(P, 4, Mx, My) complex64 of X (P, 2N_b)."""
+        """(P, 4, Mx, My) complex64 of X (P, 2N_b), in the kept buffer (the next scatter overwrites it)."""
         P, (Mx, My) = len(X), self.torus
-        fields = np.zeros((P, 4, Mx * My), dtype=np.complex64)
+        if self._fields is None or len(self._fields) != P:
+            self._fields = None
+            self._fields = np.zeros((P, 4, Mx * My), dtype=np.complex64)
+        else:
+            self._fields.fill(0)
+        fields = self._fields
         for f, (unknowns, sites) in enumerate(self.fields):
             fields[:, f, sites] = X[:, unknowns]
         return fields.reshape(P, 4, Mx, My)
@@ -163,9 +174,11 @@ class TorusPlacement:
 class BlockSpectrum:
     """The nonzero 4 × 4 field blocks of a block-circulant operator's spectrum (4, 4, Mx, My), kept
     in complex64: ``pairs`` [(i, j)] and ``values`` (len(pairs), Mx, My). On a flat lattice the
-    J–M̃ coupling of coplanar rooftops vanishes (exactly, and so in the inverse): half the blocks."""
+    J–M̃ coupling of coplanar rooftops vanishes (exactly, and so in the inverse): half the blocks.
+    The product's work arrays are kept between calls until :meth:`release`."""
 
     def __init__(self, spectrum: np.ndarray):
+        self._work = None
         self.pairs = [(i, j) for i in range(4) for j in range(4) if np.any(spectrum[i, j])]
         self.values = np.empty((len(self.pairs),) + spectrum.shape[2:], dtype=np.complex64)
         for k, (i, j) in enumerate(self.pairs):
@@ -175,15 +188,28 @@ class BlockSpectrum:
     def nbytes(self) -> int:
         return int(self.values.nbytes)
 
+    def release(self) -> None:
+        """Free the kept work arrays."""
+        self._work = None
+
     def convolve(self, fields: np.ndarray) -> np.ndarray:
         """The block-circulant product on the torus, F⁻¹ (spectrum(ξ) F fields), for ``fields`` (P,
-        4, Mx, My) complex64 (overwritten)."""
+        4, Mx, My) complex64 (overwritten); the result may live in a work array the next call reuses."""
         spectra = scipy.fft.fft2(fields, axes=(2, 3), workers=fft_workers(), overwrite_x=True)
-        out = np.zeros_like(spectra)
-        scratch = np.empty_like(spectra[:, 0])
+        if self._work is None or self._work[0].shape != spectra.shape:
+            self._work = None
+            self._work = (np.empty_like(spectra), np.empty_like(spectra[:, 0]))
+        out, scratch = self._work
+        written = set()
         for (i, j), block in zip(self.pairs, self.values):
-            np.multiply(block, spectra[:, j], out=scratch)
-            out[:, i] += scratch
+            if i in written:
+                np.multiply(block, spectra[:, j], out=scratch)
+                out[:, i] += scratch
+            else:
+                np.multiply(block, spectra[:, j], out=out[:, i])
+                written.add(i)
+        for i in set(range(out.shape[1])) - written:
+            out[:, i] = 0
         return scipy.fft.ifft2(out, axes=(2, 3), workers=fft_workers(), overwrite_x=True)
 
 
@@ -229,3 +255,8 @@ class FlatCirculantPreconditioner:
         Y = self.placement.gather(self.inverse.convolve(self.placement.scatter(X)), X.dtype)
         self.apply_s += time.perf_counter() - t0
         return Y[0] if single else Y
+
+    def release(self) -> None:
+        """Free the work arrays kept between applications."""
+        self.placement.release()
+        self.inverse.release()

@@ -69,6 +69,11 @@ class FlatPatchOperator:
     def bytes(self) -> int:
         return int(self.spectrum.nbytes + self.placement.bytes())
 
+    def release(self) -> None:
+        """Free the work arrays kept between products."""
+        self.placement.release()
+        self.spectrum.release()
+
     def __call__(self, X: np.ndarray) -> np.ndarray:
         X = np.atleast_2d(X)
         self.products += len(X)
@@ -113,6 +118,8 @@ class FlatPatchPreconditioner:
         single = np.ndim(X) == 1
         X = np.atleast_2d(X)
         Y = gmres_steps(self.operator, X.astype(np.complex64), self.steps, preconditioner=self.circulant)
+        self.operator.release()  # the inner steps' work arrays: held within one application only
+        self.circulant.release()
         self.apply_s += time.perf_counter() - t0
         Y = Y.astype(np.result_type(X, np.complex64), copy=False)
         return Y[0] if single else Y

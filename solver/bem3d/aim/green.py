@@ -38,6 +38,7 @@ __all__ = [
     "padded_offsets",
 ]
 
+SPECTRA_SLAB_POINTS = 2**18  # grid points sampled at once by kernel_spectra (~40 MB of temporaries)
 DECAY_TOLERANCE = 1e-4  # dropped interior entries ≤ 1e-4·d/r_near of the near ones, decaying as e^{−|Im k₂|R}
 
 
@@ -85,18 +86,31 @@ class KernelSpectra:
 
 def kernel_spectra(grid: AIMGrid, media: Media, grid_medium_indices, dtype=np.complex128,
                    workers: int | None = None) -> KernelSpectra:
-    """Sample g_i, ∇g_i on the padded grid and FFT them (once per wavelength)."""
-    axes = [padded_offsets(n, p) for n, p in zip(grid.shape, grid.padded)]
-    ox, oy, oz = np.meshgrid(*(a[0] for a in axes), indexing="ij")
-    valid = axes[0][1][:, None, None] & axes[1][1][None, :, None] & axes[2][1][None, None, :]
-    offsets = np.stack([ox, oy, oz], axis=-1)
+    """Sample g_i, ∇g_i on the padded grid and FFT them (once per wavelength): sampled in slabs of
+    x planes into one array of the four fields, each transformed in place."""
+    (ox, vx), (oy, vy), (oz, vz) = (padded_offsets(n, p) for n, p in zip(grid.shape, grid.padded))
+    padded = tuple(int(p) for p in grid.padded)
+    yz = np.stack(np.meshgrid(oy, oz, indexing="ij"), axis=-1)  # (Py, Pz, 2)
+    valid_yz = vy[:, None] & vz[None, :]
+    slab = max(1, SPECTRA_SLAB_POINTS // (padded[1] * padded[2]))
     green, gradient = [], []
     for i in grid_medium_indices:
         k = media.wavenumbers[i]
-        g, grad = lattice_green(k, grid.spacing, offsets)
-        g = np.where(valid, g, 0.0)
-        grad = np.where(valid[..., None], grad, 0.0)
-        green.append(scipy.fft.fftn(g, workers=workers).astype(dtype))
-        gradient.append(np.stack([scipy.fft.fftn(grad[..., a], workers=workers) for a in range(3)]).astype(dtype))
+        fields = np.empty((4,) + padded, dtype=np.complex128)  # g, ∂x g, ∂y g, ∂z g
+        for x0 in range(0, padded[0], slab):
+            xs = slice(x0, min(padded[0], x0 + slab))
+            offsets = np.empty((xs.stop - x0,) + yz.shape[:2] + (3,))
+            offsets[..., 0] = ox[xs, None, None]
+            offsets[..., 1:] = yz[None]
+            g, grad = lattice_green(k, grid.spacing, offsets)
+            valid = vx[xs, None, None] & valid_yz[None]
+            fields[0, xs] = np.where(valid, g, 0.0)
+            fields[1:, xs] = np.where(valid[None], np.moveaxis(grad, -1, 0), 0.0)
+        green.append(scipy.fft.fftn(fields[0], workers=workers, overwrite_x=True).astype(dtype, copy=False))
+        spectrum = np.empty((3,) + padded, dtype=dtype)
+        for a in range(3):
+            spectrum[a] = scipy.fft.fftn(fields[1 + a], workers=workers, overwrite_x=True)
+        gradient.append(spectrum)
+        del fields
     logger.debug("kernel spectra of media %s on %s", tuple(grid_medium_indices), grid.padded)
     return KernelSpectra(tuple(grid_medium_indices), green, gradient)

@@ -81,20 +81,22 @@ def near_base_numpy(projection: Projection, k: complex, coefficients: np.ndarray
 # Assembly
 
 
-def _windows(grid, pattern: NearPattern, rows_by_block: dict):
-    """Window base and size (grid units) covering the columns' stencils of each source orientation."""
+def _windows(grid, pairs: dict):
+    """Window base and size (grid units) covering the columns' stencils of each source orientation,
+    from each block's pairs (NearPattern.pairs: row and column ids first)."""
     out = {}
     for o in (0, 1):
-        rel = []
-        for block, (orow, ocol, _) in BLOCKS.items():
-            if orow != o or len(rows_by_block[block]) == 0:
+        lo = hi = None
+        for block, (orow, _, _) in BLOCKS.items():
+            row_id, col_id = pairs[block][:2]
+            if orow != o or len(row_id) == 0:
                 continue
-            row_id, col_id, _, _ = pattern.pairs(block, rows_by_block[block])
-            rel.append(grid.origins[col_id] - grid.origins[row_id])
-        if rel:
-            rel = np.concatenate(rel)
-            lo = rel.min(axis=0)
-            out[o] = (lo, rel.max(axis=0) - lo + np.asarray(grid.stencil))
+            rel = grid.origins[col_id] - grid.origins[row_id]
+            low, high = rel.min(axis=0), rel.max(axis=0)
+            lo = low if lo is None else np.minimum(lo, low)
+            hi = high if hi is None else np.maximum(hi, high)
+        if lo is not None:
+            out[o] = (lo, hi - lo + np.asarray(grid.stencil))
     return out
 
 
@@ -256,7 +258,7 @@ def assemble_near(ctx, mesh: BEMMesh, media: Media, pattern: NearPattern, groups
             if exact is not None:
                 exact[b][:, rows_by_block[b]] = s[exact_offsets[b]]
         t1 = time.perf_counter()
-        windows = _windows(groups[0][0].grid, pattern, rows_by_block) if device is not None else None
+        windows = _windows(groups[0][0].grid, pairs) if device is not None else None
         for projection, medium_indices in groups:
             for i in medium_indices:
                 k = media.wavenumbers[i]
