@@ -381,9 +381,10 @@ def basis_pair_entries(ctx, mesh: BEMMesh, media: Media, rows, cols,
     scratch = getattr(integrals, "scratch_pair_map", None)
     shape = (len(test_elems), len(source_elems))
     pair_map = scratch(*shape) if scratch is not None else np.full(shape, -1, dtype=np.int32)
-    pair_map[row_elem[inv_r][:, :, None], col_elem[inv_c][:, None, :]] = 0
-    pairs = np.flatnonzero(pair_map.ravel() == 0)
+    pairs = np.zeros(0, dtype=np.int64)
     try:
+        pair_map[row_elem[inv_r][:, :, None], col_elem[inv_c][:, None, :]] = 0
+        pairs = np.flatnonzero(pair_map.ravel() == 0)
         # rows of the table store this call hands the gather (TransposedTables keeps tables for later calls)
         table_rows, held = integrals.store_rows(len(pairs)) if hasattr(integrals, "store_rows") else (len(pairs), 0)
         if ctx is not None and held * 2 * TABLE * 16 > ctx.info.max_alloc_gib * 2**30:
@@ -404,7 +405,9 @@ def basis_pair_entries(ctx, mesh: BEMMesh, media: Media, rows, cols,
             return basis_entries_opencl(ctx, tables, pair_map, row_elem, row_slot, col_elem, col_slot, coef,
                                         rows=inv_r, cols=inv_c)
     finally:
-        pair_map.ravel()[pairs] = -1
+        if scratch is not None:
+            pair_map.ravel()[pairs] = -1
+            integrals.release_pair_map()
     # the tables or the pair map would exceed the device's largest buffer: the pairs in two halves
     half = len(rows) // 2
     parts = [basis_pair_entries(ctx, mesh, media, rows[sl], cols[sl], integrals)

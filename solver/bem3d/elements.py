@@ -331,6 +331,7 @@ class ElementIntegrals:
         self.static = static if served else None  # made at the first touching pair otherwise
         self._scratch = None  # reused table buffer of indexed_tables(scratch=True)
         self._pair_map = np.zeros(0, dtype=np.int32)  # reused element-pair map (scratch_pair_map), all −1
+        self._pair_map_held = False
         self._device_geometry = None  # the geometry's device buffer, uploaded at the first launch
         self.timings = {"static_s": 0.0, "singular_s": 0.0, "regular_s": 0.0}
         self._remainder_orders: dict = {}  # wavenumbers → [order per medium]
@@ -479,12 +480,20 @@ class ElementIntegrals:
     def scratch_pair_map(self, n_test: int, n_source: int) -> np.ndarray:
         """An int32 (n_test, n_source) map of −1 over a kept buffer (grown by a quarter when short):
         assembly.basis_pair_entries' element-pair map, strip after strip without fresh pages. The
-        caller sets the entries it wrote back to −1 before the next call."""
+        caller sets the entries it wrote back to −1 and calls :meth:`release_pair_map`; a second
+        caller before that is refused (the map is one buffer)."""
+        if self._pair_map_held:
+            raise RuntimeError("the element-pair map is in use by another basis_pair_entries call")
         n = n_test * n_source
         if len(self._pair_map) < n:
             self._pair_map = np.zeros(0, dtype=np.int32)
             self._pair_map = np.full(n + n // 4, -1, dtype=np.int32)
+        self._pair_map_held = True
         return self._pair_map[:n].reshape(n_test, n_source)
+
+    def release_pair_map(self) -> None:
+        """The caller of :meth:`scratch_pair_map` is done (its entries are −1 again)."""
+        self._pair_map_held = False
 
     def _scratch_tables(self, n: int) -> np.ndarray:
         """The first n rows of the scratch table buffer (grown by a quarter when short)."""

@@ -166,7 +166,8 @@ def test_basis_pair_list_equals_dense_entries(cl_ctx, rough_setup, rng):
 
 def test_basis_pair_lists_share_one_pair_map_call_after_call(cl_ctx, rough_setup, rng):
     """Calls on one ElementIntegrals reuse its pair map: each call's entries are the dense matrix's
-    (none sees a pair marked by the one before) and the map is all −1 after each."""
+    (none sees a pair marked by the one before), the map is all −1 after each, and a call while
+    the map is held is refused."""
     mesh, media, Z, _ = rough_setup
     nb = mesh.n_bases
     integrals = el.ElementIntegrals(mesh, ctx=cl_ctx)
@@ -178,6 +179,10 @@ def test_basis_pair_lists_share_one_pair_map_call_after_call(cl_ctx, rough_setup
         assert np.abs(mm - Z[nb + rows, nb + cols]).max() < 1e-12 * scale
         assert np.abs(em - Z[rows, nb + cols]).max() < 1e-12 * scale
         assert len(integrals._pair_map) and np.all(integrals._pair_map == -1)
+    integrals.scratch_pair_map(3, 4)  # a caller holds the map: a second one is refused, not served stale
+    with pytest.raises(RuntimeError, match="in use"):
+        basis_pair_entries(cl_ctx, mesh, media, rows, cols, integrals=integrals)
+    integrals.release_pair_map()
 
 
 def test_distinct_indices_by_marking_are_numpys_unique(rng):

@@ -194,7 +194,8 @@ class BlockSpectrum:
 
     def convolve(self, fields: np.ndarray) -> np.ndarray:
         """The block-circulant product on the torus, F⁻¹ (spectrum(ξ) F fields), for ``fields`` (P,
-        4, Mx, My) complex64 (overwritten); the result may live in a work array the next call reuses."""
+        4, Mx, My) complex64 (overwritten); the result may live in a work array the next call reuses
+        (read it before the next call; never pass it back in)."""
         spectra = scipy.fft.fft2(fields, axes=(2, 3), workers=fft_workers(), overwrite_x=True)
         if self._work is None or self._work[0].shape != spectra.shape:
             self._work = None

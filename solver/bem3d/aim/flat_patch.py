@@ -104,6 +104,11 @@ class FlatPatchPreconditioner:
         logger.info("flat-patch preconditioner: %d inner steps, Toeplitz torus %s, circulant torus %s, %.1f MB, %.1f s",
                     self.steps, self.operator.torus, self.circulant.torus, self.bytes() / 2**20, self.seconds)
 
+    def release(self) -> None:
+        """Free the work arrays of T and the circulant."""
+        self.operator.release()
+        self.circulant.release()
+
     @property
     def inner_products(self) -> int:
         """Products with T so far, per right-hand side summed."""
@@ -117,9 +122,10 @@ class FlatPatchPreconditioner:
         t0 = time.perf_counter()
         single = np.ndim(X) == 1
         X = np.atleast_2d(X)
-        Y = gmres_steps(self.operator, X.astype(np.complex64), self.steps, preconditioner=self.circulant)
-        self.operator.release()  # the inner steps' work arrays: held within one application only
-        self.circulant.release()
+        try:
+            Y = gmres_steps(self.operator, X.astype(np.complex64), self.steps, preconditioner=self.circulant)
+        finally:
+            self.release()  # the inner steps' work arrays: held within one application only
         self.apply_s += time.perf_counter() - t0
         Y = Y.astype(np.result_type(X, np.complex64), copy=False)
         return Y[0] if single else Y

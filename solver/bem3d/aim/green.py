@@ -106,11 +106,17 @@ def kernel_spectra(grid: AIMGrid, media: Media, grid_medium_indices, dtype=np.co
             valid = vx[xs, None, None] & valid_yz[None]
             fields[0, xs] = np.where(valid, g, 0.0)
             fields[1:, xs] = np.where(valid[None], np.moveaxis(grad, -1, 0), 0.0)
-        green.append(scipy.fft.fftn(fields[0], workers=workers, overwrite_x=True).astype(dtype, copy=False))
-        spectrum = np.empty((3,) + padded, dtype=dtype)
-        for a in range(3):
-            spectrum[a] = scipy.fft.fftn(fields[1 + a], workers=workers, overwrite_x=True)
-        gradient.append(spectrum)
+        for c in range(4):  # in place (a copy back where the FFT did not write into its input)
+            spectrum = scipy.fft.fftn(fields[c], workers=workers, overwrite_x=True)
+            if not np.shares_memory(spectrum, fields[c]):
+                fields[c] = spectrum
+            del spectrum
+        if np.dtype(dtype) == fields.dtype:  # views of the one array: no copies
+            green.append(fields[0])
+            gradient.append(fields[1:])
+        else:
+            green.append(fields[0].astype(dtype))
+            gradient.append(fields[1:].astype(dtype))
         del fields
     logger.debug("kernel spectra of media %s on %s", tuple(grid_medium_indices), grid.padded)
     return KernelSpectra(tuple(grid_medium_indices), green, gradient)

@@ -45,7 +45,7 @@ class RepeatingTables:
 
     def __init__(self, integrals: ElementIntegrals):
         self.integrals = integrals
-        self.scratch_pair_map = integrals.scratch_pair_map
+        self.scratch_pair_map, self.release_pair_map = integrals.scratch_pair_map, integrals.release_pair_map
         mesh = integrals.mesh
         _, self.shape_ids = np.unique(mesh.geometry[:, 3:6], axis=0, return_inverse=True)
         self.shape_ids = self.shape_ids.ravel().astype(np.int64)
@@ -127,7 +127,7 @@ class TransposedTables:
 
     def __init__(self, integrals: ElementIntegrals):
         self.integrals = integrals
-        self.scratch_pair_map = integrals.scratch_pair_map
+        self.scratch_pair_map, self.release_pair_map = integrals.scratch_pair_map, integrals.release_pair_map
         mesh = integrals.mesh
         self.n_elements = mesh.n_elements
         self.line = mesh.element_st[:, 1].astype(np.int64)

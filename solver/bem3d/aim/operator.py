@@ -215,6 +215,8 @@ class AIMOperator:
                 result.x = s * result.x
         finally:
             self.base.release_work()  # the products' arrays: the far field and the next set-up need the memory
+            if hasattr(pc, "release"):  # and the preconditioner's work arrays (flat, flat-patch)
+                pc.release()
         if diagnostics is not None:
             diagnostics.update(result.diagnostics(), matvec_timings=dict(self.base.timings))
             if pc is not None:
