@@ -372,10 +372,10 @@ def basis_pair_entries(ctx, mesh: BEMMesh, media: Media, rows, cols,
     ne = mesh.n_elements
     ub_r, inv_r = _distinct(rows, mesh.n_bases)
     ub_c, inv_c = _distinct(cols, mesh.n_bases)
-    test_elems = _distinct(mesh.basis_elements[ub_r].ravel(), ne)[0]
-    source_elems = _distinct(mesh.basis_elements[ub_c].ravel(), ne)[0]
-    lt, ls = _local(test_elems, ne), _local(source_elems, ne)
-    row_elem, col_elem = lt[mesh.basis_elements[ub_r]], ls[mesh.basis_elements[ub_c]]
+    # the elements of those bases, and each basis half's index among them
+    test_elems, row_elem = _distinct(mesh.basis_elements[ub_r].ravel(), ne)
+    source_elems, col_elem = _distinct(mesh.basis_elements[ub_c].ravel(), ne)
+    row_elem, col_elem = row_elem.reshape(-1, 2), col_elem.reshape(-1, 2)
     # the element pairs actually needed: marked on the dense local map (cheaper than a sort or hash),
     # the integrals' kept one where they have it (all −1; the marked entries are reset on the way out)
     scratch = getattr(integrals, "scratch_pair_map", None)
