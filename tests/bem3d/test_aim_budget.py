@@ -13,7 +13,7 @@ import pytest
 
 from wavebrdf.jobs.config import load_config
 from wavebrdf.jobs.plan import PlanError, check_memory, plan_study
-from wavebrdf.solver.bem3d.aim.budget import FITTED_KEYS, candidate_options, fit_to_budget
+from wavebrdf.solver.bem3d.aim.budget import FITTED_KEYS, SPEED_MARGIN, candidate_options, fit_to_budget
 from wavebrdf.solver.bem3d.aim.estimate import estimate_aim, memory_breakdown
 from wavebrdf.solver.bem3d.aim.options import AIMOptions
 from wavebrdf.solver.bem3d.media import Media
@@ -33,12 +33,34 @@ def _estimates(surface, options):
     return [(o, estimate_aim(surface, 0.4, AL, aim=o)) for o in candidate_options(options, surface.cells, media, surface.spacing_um)]
 
 
-def test_settings_that_fit_are_kept(surface):
+def _fastest_within(table, budget, precision):
+    """The least predicted seconds of the candidates within ``budget`` at ``precision``."""
+    return min(e["seconds"] for o, e in table if e["bytes"] <= budget and o.precision == precision)
+
+
+def test_settings_that_fit_give_way_only_to_much_faster_ones_at_their_precision(surface):
+    """With memory to spare the fit still takes the fastest settings, but only at the precision
+    given (single precision is taken for memory only) and only when they are predicted
+    SPEED_MARGIN faster than those given, which it keeps otherwise."""
     given = AIMOptions()
-    need = estimate_aim(surface, 0.4, AL, aim=given)["bytes"]
-    fit = fit_to_budget(surface, 0.4, AL, given, 2 * need)
-    assert fit.fits and fit.options == given and not fit.changed
-    assert "as given" in fit.summary()
+    table = _estimates(surface, given)
+    need = table[0][1]["bytes"]
+    for budget in (2 * need, float("inf")):
+        fit = fit_to_budget(surface, 0.4, AL, given, budget)
+        assert fit.fits and fit.options.precision == given.precision
+        fastest = _fastest_within(table, budget, given.precision)
+        assert fastest < (1 - SPEED_MARGIN) * table[0][1]["seconds"]  # this surface: much faster settings exist
+        assert fit.estimate["seconds"] == pytest.approx(fastest) and fit.changed
+        assert "faster than given" in fit.summary() and all(k in fit.summary() for k in fit.changed)
+    # given those fastest settings, nothing is faster by the margin: they are kept as given
+    again = fit_to_budget(surface, 0.4, AL, fit.options, float("inf"))
+    assert again.options == fit.options and not again.changed and "as given" in again.summary()
+    # a small patch whose LU is about as fast as anything: kept
+    small = generate("gaussian", cells=32, size_um=1.0, seed=1, rms_height_um=0.05, correlation_um=0.5)
+    small_table = _estimates(small, given)
+    kept = fit_to_budget(small, 0.4, AL, given, float("inf"))
+    assert _fastest_within(small_table, float("inf"), given.precision) > (1 - SPEED_MARGIN) * small_table[0][1]["seconds"]
+    assert kept.options == given and not kept.changed
 
 
 def test_a_tight_budget_gets_the_fastest_settings_that_fit(surface):
@@ -51,9 +73,16 @@ def test_a_tight_budget_gets_the_fastest_settings_that_fit(surface):
     fit = fit_to_budget(surface, 0.4, AL, given, budget)
     assert fit.fits and fit.estimate["bytes"] <= budget
     assert fit.changed and set(fit.changed) <= set(FITTED_KEYS)
-    fastest = min(e["seconds"] for _, e in table if e["bytes"] <= budget)
-    assert fit.estimate["seconds"] == pytest.approx(fastest)
+    assert fit.estimate["seconds"] == pytest.approx(_fastest_within(table, budget, given.precision))
     assert all(k in fit.summary() for k in fit.changed)
+    # a budget only single precision fits: the fastest of those
+    double_need = min(e["bytes"] for o, e in table if o.precision == given.precision)
+    single = [e for o, e in table if o.precision != given.precision and e["bytes"] < double_need]
+    assert single
+    budget = 0.5 * (double_need + min(e["bytes"] for e in single))
+    fit = fit_to_budget(surface, 0.4, AL, given, budget)
+    assert fit.fits and fit.options.precision != given.precision
+    assert fit.estimate["seconds"] == pytest.approx(min(e["seconds"] for e in single if e["bytes"] <= budget))
 
 
 def test_nothing_fits_gives_the_smallest_need_and_fit_memory_false_keeps_the_settings(surface):
@@ -121,7 +150,7 @@ def test_the_local_inverses_are_a_candidate_between_the_lu_and_none(surface):
     local = min((e["bytes"], e["seconds"]) for o, e in table if o.preconditioner == "local")
     lu = min(e["bytes"] for o, e in table if o.preconditioner == "near")
     fit = fit_to_budget(surface, 0.4, AL, AIMOptions(), 0.5 * (local[0] + lu))
-    fastest = min(e["seconds"] for _, e in table if e["bytes"] <= 0.5 * (local[0] + lu))
+    fastest = _fastest_within(table, 0.5 * (local[0] + lu), AIMOptions().precision)
     assert fit.fits and fit.estimate["seconds"] == pytest.approx(fastest)
     if fastest == local[1]:
         assert fit.options.preconditioner == "local" and "restart" in fit.summary()
@@ -157,8 +186,7 @@ def test_the_static_tables_kept_between_wavelengths_are_counted_and_dropped_when
     assert all(replace(o, reuse_setup=False) in [p for p, _ in table] for o, _ in table)
     budget = 0.5 * (kept["bytes"] + dropped["bytes"])
     fit = fit_to_budget(surface, 0.4, AL, AIMOptions(), budget)
-    assert fit.fits and fit.estimate["seconds"] == pytest.approx(min(e["seconds"] for _, e in table
-                                                                     if e["bytes"] <= budget))
+    assert fit.fits and fit.estimate["seconds"] == pytest.approx(_fastest_within(table, budget, AIMOptions().precision))
     assert fit.estimate["seconds"] <= kept["seconds"] * (1 + 1e-12)
     # from the fastest settings, a budget they fit only without the tables: the same, without them
     fastest = replace(fit.options, reuse_setup=True)

@@ -14,8 +14,12 @@ interior field is still on the grid, the near radius at which it decays within t
 projections for a larger near field), each also without the static tables a worker keeps for a
 patch's next wavelength (``reuse_setup``, 2.3 KB per element) — and keeps the one with the shortest
 predicted time among those that fit (a cold task's time, ``estimate_aim`` ``seconds``; of equal
-times, the first listed: with the tables kept). It says what it changed and what that costs
-(:meth:`BudgetFit.summary`). When nothing fits it returns the settings of the smallest need
+times, the first listed: with the tables kept). The given precision is kept whenever some settings
+at that precision fit: single precision is an accuracy trade, taken for memory only. The given
+settings stay unless another is predicted at least ``SPEED_MARGIN`` faster (the time model's own
+error, docs/aim.md, is ~5–25 %): so with memory to spare a rough 12 µm sub-area in double
+precision gets the flat patch (predicted ~270 s, ~8 GiB), not the whole near LU it was given
+(~1 340 s, ~33 GiB). It says what it changed and what that costs (:meth:`BudgetFit.summary`). When nothing fits it returns the settings of the smallest need
 (``fits`` false), which the batch layer's memory check then refuses (jobs/plan.py
 ``check_memory``), naming that need. ``[model.aim] fit_memory = false`` keeps the settings as
 given (refused there if they do not fit).
@@ -33,13 +37,14 @@ from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.precision import Precision
 from wavebrdf.solver.surface import HeightField
 
-__all__ = ["BudgetFit", "FITTED_KEYS", "candidate_options", "fit_to_budget", "interior_leaves_grid_cells"]
+__all__ = ["BudgetFit", "FITTED_KEYS", "SPEED_MARGIN", "candidate_options", "fit_to_budget", "interior_leaves_grid_cells"]
 
 FITTED_KEYS = ("precision", "near_cells", "preconditioner", "preconditioner_tile_cells", "solver", "restart",
                "deflate", "flat_inner_steps", "reuse_setup")
 LOCAL_RESTART = 30  # GMRES restart with the local inverses: products as with 60, half the vectors (docs/aim.md);
 # FGMRES's with the flat patch too (it needs ~10 products: the restart only bounds the vectors)
 MIN_TILE_CELLS = 24  # smaller LU tiles barely cut the products (docs/aim.md)
+SPEED_MARGIN = 0.25  # the given settings give way for speed alone to settings predicted this much faster
 
 
 @dataclass(frozen=True)
@@ -71,7 +76,8 @@ class BudgetFit:
         if not self.changed:
             return f"aim settings as given fit {self.budget_bytes / gib:.1f} GiB: {chosen}"
         what = ", ".join(f"{k} {a!r} -> {b!r}" for k, (a, b) in self.changed.items())
-        return (f"aim settings fitted to {self.budget_bytes / gib:.1f} GiB: {what} ({chosen}; as given "
+        why = ("faster than given, within" if g["bytes"] <= self.budget_bytes else "fitted to")
+        return (f"aim settings {why} {self.budget_bytes / gib:.1f} GiB: {what} ({chosen}; as given "
                 f"{g['bytes'] / gib:.2f} GiB, {g['seconds']:.0f} s)")
 
 
@@ -140,9 +146,10 @@ def candidate_options(options: AIMOptions, cells: int, media: Media | None = Non
 def fit_to_budget(surface: HeightField, wavelength_um: float, index: complex, options: AIMOptions,
                   budget_bytes: float, *, exterior_index: float = 1.0, waist_um: float | None = None,
                   directions: int = 1, resolution: int = 512) -> BudgetFit:
-    """The fastest predicted settings whose estimated memory fits ``budget_bytes`` (bytes); when
-    none fits, those of the smallest need (``fits`` false). With ``options.fit_memory`` false
-    only ``options`` is considered."""
+    """The fastest predicted settings whose estimated memory fits ``budget_bytes`` (bytes; may be
+    ``inf``), at the given precision when any fits there, the given ones unless another is
+    ``SPEED_MARGIN`` faster; when none fits, those of the smallest need (``fits`` false). With
+    ``options.fit_memory`` false only ``options`` is considered."""
     cache: dict = {}
 
     def estimate(o):
@@ -150,8 +157,6 @@ def fit_to_budget(surface: HeightField, wavelength_um: float, index: complex, op
                             directions=directions, waist_um=waist_um, resolution=resolution, cache=cache)
 
     given_estimate = estimate(options)
-    if given_estimate["bytes"] <= budget_bytes:
-        return BudgetFit(options, given_estimate, options, given_estimate, budget_bytes)
     tried = [(options, given_estimate)]
     if options.fit_memory:
         media = Media(wavelength_um, index, exterior_index)
@@ -160,5 +165,8 @@ def fit_to_budget(surface: HeightField, wavelength_um: float, index: complex, op
     if not fitting:
         smallest, e = min(tried, key=lambda oe: oe[1]["bytes"])
         return BudgetFit(smallest, e, options, given_estimate, budget_bytes, fits=False)
-    best, e = min(fitting, key=lambda oe: oe[1]["seconds"])
+    same_precision = [(o, e) for o, e in fitting if o.precision == options.precision]
+    best, e = min(same_precision or fitting, key=lambda oe: oe[1]["seconds"])
+    if given_estimate["bytes"] <= budget_bytes and e["seconds"] > (1.0 - SPEED_MARGIN) * given_estimate["seconds"]:
+        best, e = options, given_estimate
     return BudgetFit(best, e, options, given_estimate, budget_bytes)
