@@ -83,8 +83,8 @@ def spot_check_summary(plan, estimates) -> str | None:
     return (f"auto spot checks: {len(checks)} task(s) [{where}] run the full wave and the cheaper rungs (≈ {spent:.3g} s "
             f"as planned here); their full wave is {checked / max(all_full, 1e-9):.1%} of the all-full-wave estimate "
             f"{all_full:.3g} s ({all_full / 3600:.3g} CPU-h at the full wave's settings fitted to [run] memory_gb, or "
-            "without it at its default settings with no memory limit: the same on every machine, and not the plan of "
-            f"the study all-full-wave, whose tasks plan fits to the worker's memory); {len(decided)} "
+            "without it the fastest at the given precision with no memory limit: the same on every machine, and "
+            f"not the plan of the study all-full-wave, whose tasks plan fits to the worker's memory); {len(decided)} "
             "task(s) take the cheapest rung measured within tolerance there (the rung per task above is what the "
             "checks are expected to measure: the rule's fit without its margin; where they measure no rung within "
             "the tolerance the tasks run the full wave, up to the all-full-wave figure)")

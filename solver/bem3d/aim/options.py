@@ -90,8 +90,9 @@ class AIMOptions:
                         border in one plane)
     fit_memory          true: the planner may change precision, near_cells, preconditioner, its
                         tiles and the solver so that the solve fits the memory a task may use
-                        ([run] memory_gb or the node, over the tasks at once; budget.py), and
-                        says what it chose; false: refuse settings that do not fit
+                        ([run] memory_gb or the node, over the tasks at once; budget.py), or,
+                        at the given precision, for settings predicted 25 % faster, and says
+                        what it chose; false: keep them as given, refused if they do not fit
     """
 
     near_cells: float = option(6.0, low=0, low_open=True)
