@@ -105,7 +105,8 @@ def main():
     surface = generate("gaussian", cells=args.cells, size_um=args.cells * d, seed=args.seed, rms_height_um=0.1,
                        correlation_um=1.0)
     waist = surface.size_um / 4.8
-    aim = AIMOptions.from_mapping(json.loads(args.aim))
+    given = json.loads(args.aim)  # settings given here are fitted to the memory only, not swapped for speed
+    aim = AIMOptions.from_mapping({"fit_speed": not given, **given})
     if args.memory_gb:
         from wavebrdf.solver.bem3d.aim.budget import fit_to_budget
 

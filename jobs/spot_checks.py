@@ -32,7 +32,7 @@ def add_spot_checks(plan) -> None:
             continue
         model = study.model.build()
         # chosen from the config alone (the same on every machine, so run, shards and merge agree):
-        # [run] memory_gb for the whole node, else the full wave's default settings
+        # [run] memory_gb for the whole node, else no memory limit (the budget fit's choice there)
         budget = study.run.memory_gb * 2**30 if study.run.memory_gb else float("inf")
         units = [model.check_unit(t.id, _series(t), replace(plan.scene(t), memory_budget_bytes=budget))
                  for t in decided]
@@ -83,7 +83,7 @@ def spot_check_summary(plan, estimates) -> str | None:
     return (f"auto spot checks: {len(checks)} task(s) [{where}] run the full wave and the cheaper rungs (≈ {spent:.3g} s "
             f"as planned here); their full wave is {checked / max(all_full, 1e-9):.1%} of the all-full-wave estimate "
             f"{all_full:.3g} s ({all_full / 3600:.3g} CPU-h at the full wave's settings fitted to [run] memory_gb, or "
-            "without it the fastest at the given precision with no memory limit: the same on every machine, and "
+            "without it as the budget fit chooses with no memory limit: the same on every machine, and "
             f"not the plan of the study all-full-wave, whose tasks plan fits to the worker's memory); {len(decided)} "
             "task(s) take the cheapest rung measured within tolerance there (the rung per task above is what the "
             "checks are expected to measure: the rule's fit without its margin; where they measure no rung within "

@@ -19,6 +19,7 @@ patch on one worker, to make both the common case.
 from __future__ import annotations
 
 import hashlib
+import logging
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -33,6 +34,8 @@ from wavebrdf.solver.precision import Precision
 from wavebrdf.solver.progress import silent
 
 __all__ = ["BEMModel", "BEMOptions"]
+
+logger = logging.getLogger(__name__)
 
 LU_FLOPS_PER_SECOND = 1.5e10  # complex LU throughput measured on the 2-core machine (scipy/OpenBLAS)
 ASSEMBLY_SECONDS_PER_ENTRY = 2e-7  # dense assembly on PoCL, per complex matrix entry
@@ -102,6 +105,8 @@ class BEMModel(Model):
             self._fits[key] = fit_to_budget(scene.surface, scene.wavelength_um, scene.index, aim, budget,
                                             exterior_index=scene.exterior_index, waist_um=scene.waist_um,
                                             resolution=scene.grid.resolution)
+            if self._fits[key].changed or not self._fits[key].fits:
+                logger.info("%s", self._fits[key].summary())
         return self._fits[key]
 
     def _key(self, ctx, scene: SurfaceScene) -> tuple:
@@ -160,8 +165,9 @@ class BEMModel(Model):
             fit = self.budget_fit(scene)
             est = fit.estimate
             chosen = "; " + ", ".join(f"{k} = {b!r}" for k, (a, b) in fit.changed.items()) if fit.changed else ""
+            beyond = f" ({est['outside_fit']})" if est["outside_fit"] else ""
             return Estimate(est["bytes"], est["seconds"],
-                            f"aim {est['unknowns']} unknowns, ~{est['iterations_guess']} products{chosen}; "
+                            f"aim {est['unknowns']} unknowns, ~{est['iterations_guess']} products{beyond}{chosen}; "
                             f"{memory_breakdown(est)}", following_seconds=est["following_seconds"])
         from wavebrdf.solver.bem3d.dense import estimate_dense
 

@@ -478,9 +478,10 @@ def test_flat_surface_has_no_vertical_projection():
 def test_repeating_tables_are_the_fresh_tables_of_each_pair(cl_ctx, rng):
     """A tilted plane with dyadic heights (bit-identical element shapes): the tables cached per
     distinct pair geometry, over two calls sharing pairs, equal fresh tables per pair (to
-    rounding: the same geometry at other positions)."""
+    rounding: the same geometry at other positions); a cache bounded between one call's tables
+    and two calls' keeps only the tables each call uses, and gives the same tables."""
     from wavebrdf.solver.bem3d.aim.near_tables import RepeatingTables
-    from wavebrdf.solver.bem3d.elements import ElementIntegrals
+    from wavebrdf.solver.bem3d.elements import TABLE, ElementIntegrals
 
     i, j = np.meshgrid(np.arange(13), np.arange(13), indexing="ij")
     mesh = BEMMesh(HeightField((3 * i - j) / 256.0, 0.3), z_reference=0.0)
@@ -489,15 +490,27 @@ def test_repeating_tables_are_the_fresh_tables_of_each_pair(cl_ctx, rng):
     repeating = RepeatingTables(ElementIntegrals(mesh, ctx=cl_ctx))
     columns = RepeatingTables(ElementIntegrals(mesh, ctx=cl_ctx))
     columns.n_shapes = 2**31  # the key no longer fits one int64: the column-wise comparison
+    bounded = RepeatingTables(ElementIntegrals(mesh, ctx=cl_ctx))
     fresh = ElementIntegrals(mesh, ctx=cl_ctx)
+    calls = []
     for _ in range(2):
         test = rng.integers(0, mesh.n_elements, 300)
-        source = np.clip(test + rng.integers(-30, 31, 300), 0, mesh.n_elements - 1)
+        calls.append((test, np.clip(test + rng.integers(-30, 31, 300), 0, mesh.n_elements - 1)))
+    calls.append(calls[0])  # the first call's pairs again, after the bounded cache has dropped some
+    distinct = [set(bounded._distinct(t, s)[0]) for t, s in calls[:2]]
+    union = len(distinct[0] | distinct[1])
+    assert max(map(len, distinct)) < union
+    row_bytes = np.dtype(complex).itemsize * 2 * TABLE
+    bounded.max_bytes = row_bytes * (max(map(len, distinct)) + union) // 2  # holds one call's tables, not two
+    for call, (test, source) in enumerate(calls):
         reference = fresh.tables(test, source, ks)
-        for cache in (repeating, columns):
+        for cache in (repeating, columns, bounded):
             store, index = cache.indexed_tables(test, source, ks)
             assert np.max(np.abs(store[index] - reference)) < 1e-13 * np.max(np.abs(reference))
-            assert len(store) < 300  # computed once per distinct geometry
+            assert len(store) < 300 * (call + 1)  # computed once per distinct geometry
+            assert sorted(cache._keys.values()) == list(range(len(store)))  # each cached geometry its own row
+        if call == 1:  # the unbounded caches hold both calls' geometries, the bounded one the second's
+            assert len(bounded._store) == len(distinct[1]) < len(repeating._store) == union
 
 
 def test_a_swapped_element_pair_has_the_transposed_table(cl_ctx, rough_mesh):

@@ -15,6 +15,7 @@ import pytest
 
 from wavebrdf.jobs.cli import main
 from wavebrdf.jobs.config import ConfigError, load_config
+from wavebrdf.jobs.plan import plan_study
 
 STUDY = """
 [study]
@@ -53,10 +54,18 @@ def write(tmp_path, name, method, aim=""):
     return path
 
 
-def test_aim_study_matches_the_dense_study(tmp_path):
+@pytest.mark.parametrize("aim_table", ["", "[model.aim]\nfit_speed = false\n"],
+                         ids=["planner_choice", "near_lu_as_given"])
+def test_aim_study_matches_the_dense_study(tmp_path, aim_table):
+    """Through the config, with the settings the planner picks (the flat patch here) and with the
+    defaults kept as given (the near LU)."""
     results = {}
     for method in ("dense", "aim"):
-        cfg = write(tmp_path, method, method)
+        cfg = write(tmp_path, method, method, aim_table if method == "aim" else "")
+        if method == "aim":
+            plan = plan_study(load_config(cfg))
+            chosen = plan.model_spec(plan.tasks[0]).build().aim_options(plan.scene(plan.tasks[0]))
+            assert chosen.preconditioner == ("near" if aim_table else "flat-patch")
         assert main(["run", str(cfg), "-q", "--no-render"]) == 0
         with h5py.File(tmp_path / f"{method}.h5", "r") as h5:
             results[method] = (np.nan_to_num(h5["brdf"][()].astype(float)), h5["albedo"][()])  # NaN: u²+v² > 1
@@ -72,7 +81,7 @@ def test_aim_study_matches_the_dense_study(tmp_path):
 
 
 def test_unconverged_aim_solve_is_a_failed_task(tmp_path):
-    aim = "[model.aim]\nmax_iterations = 3\npreconditioner = \"none\"\n[run]\nretries = 0\n"
+    aim = "[model.aim]\nmax_iterations = 3\npreconditioner = \"none\"\nfit_speed = false\n[run]\nretries = 0\n"
     assert main(["run", str(write(tmp_path, "stuck", "aim", aim)), "-q", "--no-render"]) == 1
     with h5py.File(tmp_path / "stuck.h5", "r") as h5:
         status = h5["tasks/status"][()].astype(str)

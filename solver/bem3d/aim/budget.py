@@ -15,12 +15,14 @@ projections for a larger near field), each also without the static tables a work
 patch's next wavelength (``reuse_setup``, 2.3 KB per element) — and keeps the one with the shortest
 predicted time among those that fit (a cold task's time, ``estimate_aim`` ``seconds``; of equal
 times, the first listed: with the tables kept). The given precision is kept whenever some settings
-at that precision fit: single precision is an accuracy trade, taken for memory only. The given
-settings stay unless another is predicted at least ``SPEED_MARGIN`` faster (the time model's own
-error, docs/aim.md, is ~5–25 %): so with memory to spare a rough 12 µm sub-area in double
-precision gets the flat patch (predicted ~270 s, ~8 GiB), not the whole near LU it was given
-(~1 340 s, ~33 GiB). It says what it changed and what that costs (:meth:`BudgetFit.summary`). When nothing fits it returns the settings of the smallest need
-(``fits`` false), which the batch layer's memory check then refuses (jobs/plan.py
+at that precision fit: single precision is an accuracy trade, taken for memory only. Settings that
+fit (the given ones, or else the given ones without the kept tables) stay unless another is
+predicted at least ``SPEED_MARGIN`` faster (the time model's error on the runs measured is
+4–25 %, docs/aim.md); ``fit_speed = false`` keeps them whenever they fit. So with memory to spare
+the benchmark's rough 12 µm sub-area in double precision gets the flat patch (predicted 266 s,
+8.9 GiB), not the whole near LU it is given (1 490 s, 34 GiB). It says what it changed and what
+that costs (:meth:`BudgetFit.summary`). When nothing fits it returns the settings of the smallest
+need (``fits`` false), which the batch layer's memory check then refuses (jobs/plan.py
 ``check_memory``), naming that need. ``[model.aim] fit_memory = false`` keeps the settings as
 given (refused there if they do not fit).
 """
@@ -37,7 +39,8 @@ from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.precision import Precision
 from wavebrdf.solver.surface import HeightField
 
-__all__ = ["BudgetFit", "FITTED_KEYS", "SPEED_MARGIN", "candidate_options", "fit_to_budget", "interior_leaves_grid_cells"]
+__all__ = ["BudgetFit", "FITTED_KEYS", "SPEED_MARGIN", "candidate_options", "fit_to_budget",
+           "interior_leaves_grid_cells"]
 
 FITTED_KEYS = ("precision", "near_cells", "preconditioner", "preconditioner_tile_cells", "solver", "restart",
                "deflate", "flat_inner_steps", "reuse_setup")
@@ -68,17 +71,19 @@ class BudgetFit:
         """One line: what was chosen, its memory and time, and the given settings' need."""
         gib = 2**30
         e, g = self.estimate, self.given_estimate
+        within = ("with no memory limit" if self.budget_bytes == float("inf")
+                  else f"within {self.budget_bytes / gib:.1f} GiB")
         chosen = (f"{e['bytes'] / gib:.2f} GiB, {e['seconds']:.0f} s, ~{e['iterations_guess']} products per "
                   f"polarization")
         if not self.fits:
             return (f"no aim settings fit {self.budget_bytes / gib:.1f} GiB; the smallest need: "
                     f"{', '.join(f'{k} = {getattr(self.options, k)!r}' for k in FITTED_KEYS)} ({chosen})")
         if not self.changed:
-            return f"aim settings as given fit {self.budget_bytes / gib:.1f} GiB: {chosen}"
+            return f"aim settings as given, {within}: {chosen}"
         what = ", ".join(f"{k} {a!r} -> {b!r}" for k, (a, b) in self.changed.items())
-        why = ("faster than given, within" if g["bytes"] <= self.budget_bytes else "fitted to")
-        return (f"aim settings {why} {self.budget_bytes / gib:.1f} GiB: {what} ({chosen}; as given "
-                f"{g['bytes'] / gib:.2f} GiB, {g['seconds']:.0f} s)")
+        why = "faster than given" if g["bytes"] <= self.budget_bytes else "fitted to the memory"
+        return (f"aim settings {why}, {within}: {what} ({chosen}; as given {g['bytes'] / gib:.2f} GiB, "
+                f"{g['seconds']:.0f} s)")
 
 
 def _tile_sizes(cells: int) -> list[int]:
@@ -147,9 +152,10 @@ def fit_to_budget(surface: HeightField, wavelength_um: float, index: complex, op
                   budget_bytes: float, *, exterior_index: float = 1.0, waist_um: float | None = None,
                   directions: int = 1, resolution: int = 512) -> BudgetFit:
     """The fastest predicted settings whose estimated memory fits ``budget_bytes`` (bytes; may be
-    ``inf``), at the given precision when any fits there, the given ones unless another is
-    ``SPEED_MARGIN`` faster; when none fits, those of the smallest need (``fits`` false). With
-    ``options.fit_memory`` false only ``options`` is considered."""
+    ``inf``), at the given precision when any fits there; the given ones (or else the given ones
+    without the kept tables) when they fit and nothing is ``SPEED_MARGIN`` faster, or whenever
+    they fit with ``options.fit_speed`` false; when none fits, those of the smallest need
+    (``fits`` false). With ``options.fit_memory`` false only ``options`` is considered."""
     cache: dict = {}
 
     def estimate(o):
@@ -167,6 +173,10 @@ def fit_to_budget(surface: HeightField, wavelength_um: float, index: complex, op
         return BudgetFit(smallest, e, options, given_estimate, budget_bytes, fits=False)
     same_precision = [(o, e) for o, e in fitting if o.precision == options.precision]
     best, e = min(same_precision or fitting, key=lambda oe: oe[1]["seconds"])
-    if given_estimate["bytes"] <= budget_bytes and e["seconds"] > (1.0 - SPEED_MARGIN) * given_estimate["seconds"]:
-        best, e = options, given_estimate
+    as_given = [(o, e2) for o, e2 in fitting if o in (options, replace(options, reuse_setup=False))]
+    if as_given:
+        kept, kept_estimate = as_given[0]
+        margin = SPEED_MARGIN if options.fit_speed else 1.0
+        if e["seconds"] > (1.0 - margin) * kept_estimate["seconds"]:
+            best, e = kept, kept_estimate
     return BudgetFit(best, e, options, given_estimate, budget_bytes)

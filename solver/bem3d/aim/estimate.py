@@ -19,7 +19,7 @@ from wavebrdf.solver.bem3d.aim.flat_circulant import SETUP_BYTES_PER_POINT, kern
 from wavebrdf.solver.bem3d.aim.flat_patch import TOEPLITZ_SETUP_BYTES_PER_POINT, toeplitz_torus_side
 from wavebrdf.solver.bem3d.aim.green import grid_media
 from wavebrdf.solver.bem3d.aim.grid import build_grid
-from wavebrdf.solver.bem3d.aim.near_tables import RepeatingTables
+from wavebrdf.solver.bem3d.aim.near_tables import REPEATING_STORE_BYTES, RepeatingTables
 from wavebrdf.solver.bem3d.aim.nearfield import NearPattern
 from wavebrdf.solver.bem3d.aim.options import AIMOptions
 from wavebrdf.solver.bem3d.aim.preconditioner import (LOCAL_OVERLAP, PRECONDITIONER_OVERLAP, SUPERLU_BYTES,
@@ -172,7 +172,8 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     ``following_seconds`` (the same solve right after its patch's previous wavelength in one worker:
     without the static tables with ``reuse_setup``, ``warm_products_*`` of the products with
     ``warm_start``),
-    ``iterations_guess`` (products per polarization) and the grid sizes. With ``edge = "flat"`` it
+    ``iterations_guess`` (products per polarization), ``outside_fit`` (what of the surface lies
+    beyond the product count's fitted range, "" if nothing) and the grid sizes. With ``edge = "flat"`` it
     adds the continuation: the ring operator and the extended mesh, whose size follows from
     ``waist_um`` (default L/2.5, a border at 1.25 w). ``resolution``: the output image side.
     ``cache``: a dict kept between estimates of the same surface (its mesh and rms slope; the grids are cached
@@ -236,7 +237,8 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
         # the kernels' spectra in complex128 while sampled and transformed, one medium at a time
         # (the near-field assembly also copies the projections in double for its grid subtraction)
         "set-up": max(16 * padded * 6 + cplx * padded * (len(gm) + 3 * groups),
-                      ASSEMBLY_BYTES + groups * 3 * S * n_b * 16),
+                      ASSEMBLY_BYTES + groups * 3 * S * n_b * 16
+                      + (REPEATING_STORE_BYTES if cache["repeating"] and not flat else 0)),
         "excitation": BLOCK_BYTES + EXCITATION_BYTES_PER_UNKNOWN * n,
         # host FFTs in slabs: the kept array A (8P, p_x, n_y, n_z), the kept slab and scipy.fft's
         # work arrays for the strided transforms (bounded by the compact-grid term)
@@ -281,6 +283,9 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
     if key not in cache:
         cache[key] = surface.rms_slope_below(exterior_wavelength)
     iterations = _products(options, size_waves, complex(media.index) / exterior_index, cache[key])
+    beyond = options.preconditioner != "near" and cache[key] > COST["products_fine_slope_max"]
+    outside_fit = (f"rms slope finer than λ {cache[key]:.2f} beyond the product count's fitted "
+                   f"{COST['products_fine_slope_max']:.2f}: the count is held there and likely low" if beyond else "")
     setup_s = (_near_assembly_s(stored_pairs, flat, len(gm)) + _grid_setup_s(n, flat, len(gm)) + preconditioner_s
                + continuation_s)
     krylov_s = directions * iterations * product_s * COST["product_overhead"]
@@ -305,6 +310,7 @@ def estimate_aim(surface: HeightField, wavelength_um: float, index: complex, *, 
         "setup_s": float(setup_s),
         "product_s": float(product_s),
         "iterations_guess": int(iterations),
+        "outside_fit": outside_fit,
         "grid": grid.shape,
         "fft": grid.padded,
         "grid_media": gm,

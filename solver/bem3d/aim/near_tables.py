@@ -26,7 +26,12 @@ import numpy as np
 from wavebrdf.solver.bem3d.elements import TABLE, ElementIntegrals
 from wavebrdf.solver.bem3d.mesh import BEMMesh
 
-__all__ = ["TRANSPOSE", "RepeatingTables", "TransposedTables"]
+__all__ = ["REPEATING_STORE_BYTES", "TRANSPOSE", "RepeatingTables", "TransposedTables"]
+
+# bound on RepeatingTables' kept tables (past it a call keeps only the tables it uses): on faceted
+# relief Δz00 differs across the facets' edges, so few pairs repeat and an unbounded cache grows
+# with the patch (docs/aim.md, "Faceted relief")
+REPEATING_STORE_BYTES = 256 * 2**20
 
 # the table of (B, A) from that of (A, B): slots (a, b) → (b, a) of L_vec (0–15) and K (17–32)
 _SLOTS = np.arange(16).reshape(4, 4).T.ravel()
@@ -39,12 +44,14 @@ class RepeatingTables:
 
     Two element pairs are identical when the index offset, the shapes (z10, z01, z11) of both
     elements and the height offset Δz00 are equal bit for bit (flat, tilted or 1-D periodic
-    patches). Tables are cached across calls, so strips of a large patch share them; a call
-    returns the whole cache and each pair's row in it (nothing is copied per pair).
+    patches). Tables are cached across calls, so strips of a large patch share them, up to
+    ``max_bytes`` (beyond it a call keeps only the tables it uses); a call returns the whole
+    cache and each pair's row in it (nothing is copied per pair).
     """
 
-    def __init__(self, integrals: ElementIntegrals):
+    def __init__(self, integrals: ElementIntegrals, max_bytes: int = REPEATING_STORE_BYTES):
         self.integrals = integrals
+        self.max_bytes = max_bytes
         self.scratch_pair_map, self.release_pair_map = integrals.scratch_pair_map, integrals.release_pair_map
         mesh = integrals.mesh
         _, self.shape_ids = np.unique(mesh.geometry[:, 3:6], axis=0, return_inverse=True)
@@ -81,6 +88,17 @@ class RepeatingTables:
         inverse[order] = np.cumsum(new) - 1
         return list(zip(*(c[first].tolist() for c in columns))), first, inverse
 
+    def _keep_only(self, keys: list, index: np.ndarray) -> None:
+        """Shrink the cache to the rows ``index`` (of ``keys``; −1: not cached) uses, renumbering
+        ``index`` in place."""
+        cached = index >= 0
+        used = np.unique(index[cached])
+        renumber = np.full(len(self._store), -1, dtype=np.int64)
+        renumber[used] = np.arange(len(used))
+        self._store = self._store[used]
+        index[cached] = renumber[index[cached]]
+        self._keys = {key: int(row) for key, row in zip(keys, index.tolist()) if row >= 0}
+
     def indexed_tables(self, test, source, wavenumbers, *, scratch: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """As ElementIntegrals.indexed_tables (the cache is returned, so ``scratch`` changes nothing)."""
         test = np.asarray(test, dtype=np.int64)
@@ -88,10 +106,13 @@ class RepeatingTables:
         keys, first, inverse = self._distinct(test, source)
         index = np.array([self._keys.get(key, -1) for key in keys], dtype=np.int64)
         missing = np.flatnonzero(index < 0)
+        row_bytes = 2 * TABLE * np.dtype(complex).itemsize
+        if len(missing) and (len(self._store) + len(missing)) * row_bytes > self.max_bytes:
+            self._keep_only(keys, index)
         if len(missing):
             fresh, order = self.integrals.indexed_tables(test[first[missing]], source[first[missing]], wavenumbers)
             index[missing] = len(self._store) + order
-            self._store = np.concatenate([self._store, fresh])
+            self._store = np.concatenate([self._store, fresh]) if len(self._store) else fresh
             self._keys.update(zip((keys[u] for u in missing), index[missing].tolist()))
         return self._store, index[inverse]
 

@@ -90,9 +90,11 @@ class AIMOptions:
                         border in one plane)
     fit_memory          true: the planner may change precision, near_cells, preconditioner, its
                         tiles and the solver so that the solve fits the memory a task may use
-                        ([run] memory_gb or the node, over the tasks at once; budget.py), or,
-                        at the given precision, for settings predicted 25 % faster, and says
-                        what it chose; false: keep them as given, refused if they do not fit
+                        ([run] memory_gb or the node, over the tasks at once; budget.py), and
+                        says what it chose; false: keep them as given, refused if they do not fit
+    fit_speed           true (with fit_memory): settings that fit still give way to ones the
+                        planner predicts 25 % faster at the same precision (budget.py
+                        SPEED_MARGIN); false: changed only to fit the memory
     """
 
     near_cells: float = option(6.0, low=0, low_open=True)
@@ -129,6 +131,7 @@ class AIMOptions:
     farfield_regularization: float = option(1e-5, low=0, low_open=True, high=1, high_open=True)
     edge: str = option("pinned", choices=EDGES)
     fit_memory: bool = option(True)
+    fit_speed: bool = option(True)
 
     def __post_init__(self):
         if self.edge not in EDGES:
