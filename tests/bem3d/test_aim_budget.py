@@ -261,7 +261,8 @@ def test_the_budget_fit_keeps_deflation_within_each_candidates_solver():
 def test_a_surface_steeper_than_the_product_counts_fit_is_named_in_the_estimate_and_the_plan(surface):
     """Corner cubes (faces at slope √2) lie beyond the fitted rms slope finer than λ: the estimate
     says so (its count held at the fitted edge) for the preconditioners whose count follows the
-    slope, not for the near LU's; the gentle fixture lies within."""
+    slope, not for the near LU's, and the budget fit does not act on it for speed alone; the
+    gentle fixture lies within."""
     from wavebrdf.solver.bem3d.aim.estimate import COST
 
     cubes = generate("corner-cubes", cells=40, size_um=2.0, period_um=1.0, shape="full")
@@ -277,3 +278,11 @@ def test_a_surface_steeper_than_the_product_counts_fit_is_named_in_the_estimate_
                                                                 "restart": 30, "deflate": 0}}}
     plan = plan_study(load_config(config))
     assert "beyond the product count's fitted" in plan.estimate(plan.tasks[0]).detail
+    # such an estimate does not swap settings that fit for speed: the LU given stays, though the
+    # flat patch's held count predicts it more than the margin faster
+    larger = generate("corner-cubes", cells=80, size_um=4.0, period_um=1.0, shape="full")
+    lu = estimate_aim(larger, 0.5, AL, aim=AIMOptions())
+    patch = estimate_aim(larger, 0.5, AL, aim=flat_patch)
+    assert patch["outside_fit"] and patch["seconds"] < (1 - SPEED_MARGIN) * lu["seconds"]
+    kept = fit_to_budget(larger, 0.5, AL, AIMOptions(), float("inf"))
+    assert kept.options == AIMOptions() and not kept.changed

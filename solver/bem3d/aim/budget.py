@@ -18,7 +18,9 @@ times, the first listed: with the tables kept). The given precision is kept when
 at that precision fit: single precision is an accuracy trade, taken for memory only. Settings that
 fit (the given ones, or else the given ones without the kept tables) stay unless another is
 predicted at least ``SPEED_MARGIN`` faster (the time model's error on the runs measured is
-4–25 %, docs/aim.md); ``fit_speed = false`` keeps them whenever they fit. So with memory to spare
+4–25 %, docs/aim.md) by an estimate within its fit (``outside_fit`` empty: on relief steeper than
+the product count was fitted on, the flat patch's count is likely low); ``fit_speed = false``
+keeps them whenever they fit. So with memory to spare
 the benchmark's rough 12 µm sub-area in double precision gets the flat patch (predicted 266 s,
 8.9 GiB), not the whole near LU it is given (1 490 s, 34 GiB). It says what it changed and what
 that costs (:meth:`BudgetFit.summary`). When nothing fits it returns the settings of the smallest
@@ -172,11 +174,15 @@ def fit_to_budget(surface: HeightField, wavelength_um: float, index: complex, op
         smallest, e = min(tried, key=lambda oe: oe[1]["bytes"])
         return BudgetFit(smallest, e, options, given_estimate, budget_bytes, fits=False)
     same_precision = [(o, e) for o, e in fitting if o.precision == options.precision]
-    best, e = min(same_precision or fitting, key=lambda oe: oe[1]["seconds"])
-    as_given = [(o, e2) for o, e2 in fitting if o in (options, replace(options, reuse_setup=False))]
-    if as_given:
-        kept, kept_estimate = as_given[0]
-        margin = SPEED_MARGIN if options.fit_speed else 1.0
-        if e["seconds"] > (1.0 - margin) * kept_estimate["seconds"]:
-            best, e = kept, kept_estimate
+    as_given = [(o, e) for o, e in fitting if o in (options, replace(options, reuse_setup=False))]
+    if not as_given:  # for the memory: the fastest that fits
+        best, e = min(same_precision or fitting, key=lambda oe: oe[1]["seconds"])
+        return BudgetFit(best, e, options, given_estimate, budget_bytes)
+    # for speed alone: only on estimates within their fit (a count held at its fitted edge is likely low)
+    kept, kept_estimate = as_given[0]
+    trusted = [(o, e) for o, e in same_precision if not e["outside_fit"]] or [(kept, kept_estimate)]
+    best, e = min(trusted, key=lambda oe: oe[1]["seconds"])
+    margin = SPEED_MARGIN if options.fit_speed else 1.0
+    if e["seconds"] > (1.0 - margin) * kept_estimate["seconds"]:
+        best, e = kept, kept_estimate
     return BudgetFit(best, e, options, given_estimate, budget_bytes)
