@@ -218,7 +218,8 @@ class Model(ABC):
     output pixels, a realization against its ensemble). Every subclass's :meth:`run` and
     :meth:`check` go through :meth:`validity` on surface scenes: a refusal is a ValueError, each
     warning a :class:`~wavebrdf.solver.validity.ValidityWarning` (which the batch layer records in
-    the task table's warnings).
+    the task table's warnings), unless ``run_warns_itself``: the model's solver raises those
+    warnings itself (each once, in its own category), and the seam applies only the refusals.
     """
 
     name: ClassVar[str]
@@ -226,13 +227,14 @@ class Model(ABC):
     capabilities: ClassVar[Capabilities]
     Options: ClassVar[type] = NoOptions
     sampling: ClassVar[frozenset[str]] = frozenset()
+    run_warns_itself: ClassVar[bool] = False
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
         for method in ("run", "check"):
             own = cls.__dict__.get(method)
             if own is not None and not getattr(own, "_sampling_checked", False):
-                setattr(cls, method, _through_validity(own, method == "run"))
+                setattr(cls, method, _through_validity(own, method == "run" and not cls.run_warns_itself))
 
     def __init__(self, options=None):
         self.options = parse_options(self.Options, options, f"model.{self.name}")

@@ -18,8 +18,8 @@ import warnings
 import numpy as np
 
 
-__all__ = ["EVANESCENT_LOSS", "SPREAD_ERROR", "SPREAD_COEFFICIENT", "ValidityWarning", "check_evanescent_loss",
-           "check_waist"]
+__all__ = ["EVANESCENT_LOSS", "SPREAD_ERROR", "SPREAD_COEFFICIENT", "ValidityWarning", "cells_fix",
+           "check_evanescent_loss", "check_waist"]
 
 EVANESCENT_LOSS = 0.01  # OHS: warn when this share of the reflected spectrum is dropped
 SPREAD_COEFFICIENT = 0.3  # albedo error ≈ this × (λ₁/(πw))²/μ_i² (fitted on flat aluminium, see above)
@@ -130,7 +130,8 @@ def _where(scene) -> str:
             f"{np.rad2deg(scene.theta_i):.4g}°, waist {scene.waist_um:g} µm")
 
 
-def _cells_fix(surface, spacing_um: float) -> str:
+def cells_fix(surface, spacing_um: float) -> str:
+    """The config fix that brings ``surface``'s spacing to ``spacing_um`` (µm) or below."""
     cells = int(np.ceil(surface.size_um / spacing_um * (1 + 1e-9)))
     key = "surface.cells" if surface.parameters is not None else "a height file resampled to"
     return f"{key} ≥ {cells} (spacing ≤ {spacing_um:.4g} µm)"
@@ -149,12 +150,12 @@ def _check_lattice(model: str, scene, figures: dict) -> list[str]:
         raise ValueError(f"{head}: the node sum repeats the specular lobe every λ₁/d in direction cosines, so a "
                          f"false lobe appears at u = −sin θ_i + λ₁/d = {lambda1 / d - np.sin(scene.theta_i):.3g} "
                          f"inside the hemisphere (alias-free below λ₁/(1 + sin θ_i + 5λ₁/(2πw)) = {limit:.4g} µm); "
-                         f"use {_cells_fix(surface, limit)}")
+                         f"use {cells_fix(surface, limit)}")
     rough = alias_free_spacing(scene, figures["rms_slope"])
     if figures["rms_slope"] > 0 and d > rough:
         return [f"{head}: the diffuse lobe of rms slope {figures['rms_slope']:.3g} reaches its replica at λ₁/d "
                 f"(alias-free below {rough:.4g} µm = λ₁/(1 + sin θ_i + 5σ_w + 5(1 + μ_i)·slope/√2)), so part "
-                f"of it folds back into the hemisphere; use {_cells_fix(surface, rough)}"]
+                f"of it folds back into the hemisphere; use {cells_fix(surface, rough)}"]
     return []
 
 

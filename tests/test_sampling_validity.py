@@ -8,6 +8,7 @@ whole sweep under ``-m slow``."""
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import logging
 import warnings
@@ -67,6 +68,31 @@ def test_check_refuses_before_running():
     with pytest.raises(ValueError, match="surface.cells ≥"):
         get_model("kirchhoff").check(scene)
     assert get_model("gs").validity(scene) == []  # rays do not alias
+
+
+def test_a_coarse_full_wave_mesh_is_named_by_plan_and_warned_once_by_the_run(cl_ctx):
+    """The BEM's own sampling: n₂ = 0.96 − 6.69j at λ 0.5 µm on a 2.1 µm patch of 21 cells,
+    d = 0.1 µm: above λ/6 = 0.0833 µm (the fix: ≥ 26 cells) and |k₂| d = 2π·6.76·0.1/0.5 ≈ 8.5
+    above 4 (≥ 45 cells). ``validity`` (what ``plan`` prints) names both with their fixes; the run
+    raises each once, as the solver's ResolutionWarning, not again through the model seam."""
+    from wavebrdf.solver.bem3d import ResolutionWarning
+
+    scene = SurfaceScene(generate("gaussian", cells=21, size_um=2.1, seed=3, rms_height_um=0.02, correlation_um=0.5),
+                         0.5, ALUMINIUM, 0.0, 0.0, 0.4, HemisphereGrid(32))
+    k2 = 2 * np.pi * abs(ALUMINIUM) / 0.5
+    found = get_model("bem", {"method": "dense"}).validity(scene)
+    assert len(found) == 2, found
+    assert "λ₁/6" in found[0] and f"surface.cells ≥ {int(np.ceil(2.1 / (0.5 / 6)))}" in found[0], found
+    assert "|k₂| d" in found[1] and f"surface.cells ≥ {int(np.ceil(2.1 * k2 / 4))}" in found[1], found
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        get_model("bem", {"method": "dense"}).run(cl_ctx, scene)
+    about_d = [w for w in caught if "too coarse" in str(w.message) or "under-resolved" in str(w.message)]
+    assert sorted(w.category.__name__ for w in about_d) == ["ResolutionWarning"] * 2, about_d
+    assert all(issubclass(w.category, ResolutionWarning) for w in about_d)
+    fine = dataclasses.replace(scene, surface=generate("gaussian", cells=45, size_um=2.1, seed=3, rms_height_um=0.02,
+                                                       correlation_um=0.5))
+    assert get_model("bem", {"method": "dense"}).validity(fine) == []
 
 
 # --- item 2: lobes narrower than a pixel ---------------------------------------------------------

@@ -13,6 +13,7 @@ import numpy as np
 
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.footprint import FootprintWarning
+from wavebrdf.solver.validity import cells_fix
 
 __all__ = [
     "BEMWarning",
@@ -27,6 +28,7 @@ __all__ = [
     "check_resolution",
     "check_surface_plasmons",
     "emit",
+    "resolution_messages",
 ]
 
 OUTSIDE_FRACTION = 1e-3  # incident power falling outside the patch above which we warn
@@ -167,22 +169,26 @@ def check_surface_plasmons(media: Media, patch_um: float, diagnostics=None):
         )
 
 
-def check_resolution(media: Media, spacing_um: float, diagnostics=None):
-    """Warn when d exceeds λ₁/6 or |k₂| d exceeds INTERIOR_KD."""
+def resolution_messages(media: Media, surface) -> list[str]:
+    """What :func:`check_resolution` says of ``surface``'s mesh size d (µm), each with its fix:
+    d above λ₁/EXTERIOR_CELLS_PER_WAVELENGTH, |k₂| d above INTERIOR_KD. ``wavebrdf plan`` shows
+    them (BEMModel.validity) before the solve raises them."""
+    d = surface.spacing_um
+    messages = []
     lam1 = media.wavelength_um / media.exterior_index
-    if spacing_um > lam1 / EXTERIOR_CELLS_PER_WAVELENGTH * (1 + 1e-9):
-        emit(
-            diagnostics,
-            ResolutionWarning,
-            f"mesh size d = {spacing_um:g} µm exceeds λ₁/{EXTERIOR_CELLS_PER_WAVELENGTH:g} = "
-            f"{lam1 / EXTERIOR_CELLS_PER_WAVELENGTH:.4g} µm: the currents are under-resolved",
-        )
+    exterior = lam1 / EXTERIOR_CELLS_PER_WAVELENGTH
+    if d > exterior * (1 + 1e-9):
+        messages.append(f"mesh size d = {d:g} µm exceeds λ₁/{EXTERIOR_CELLS_PER_WAVELENGTH:g} = {exterior:.4g} µm: "
+                        f"the currents are under-resolved; use {cells_fix(surface, exterior)}")
     k2 = abs(media.wavenumbers[1])
-    if k2 * spacing_um > INTERIOR_KD:
-        emit(
-            diagnostics,
-            ResolutionWarning,
-            f"d is too coarse for the interior field: |k₂| d = {k2 * spacing_um:.3g} > {INTERIOR_KD:g} "
-            f"(interior wavelength λ/|n₂| = {media.wavelength_um / abs(media.index):.3g} µm, d = {spacing_um:g} µm); "
-            f"use d ≤ {INTERIOR_KD / k2:.3g} µm",
-        )
+    if k2 * d > INTERIOR_KD:
+        messages.append(f"d is too coarse for the interior field: |k₂| d = {k2 * d:.3g} > {INTERIOR_KD:g} "
+                        f"(interior wavelength λ/|n₂| = {media.wavelength_um / abs(media.index):.3g} µm, d = {d:g} µm); "
+                        f"use {cells_fix(surface, INTERIOR_KD / k2)}")
+    return messages
+
+
+def check_resolution(media: Media, surface, diagnostics=None):
+    """Warn (ResolutionWarning) when d exceeds λ₁/6 or |k₂| d exceeds INTERIOR_KD."""
+    for message in resolution_messages(media, surface):
+        emit(diagnostics, ResolutionWarning, message)

@@ -115,7 +115,7 @@ class BEMSolver:
         self.diagnostics: dict = {"model": "bem", "method": method, "warnings": []}
         self.clock = StageClock()  # set-up stages here, per-direction stages added by farfield()
         check_material(self.media, surface.size_um, self.diagnostics)
-        check_resolution(self.media, surface.spacing_um, self.diagnostics)
+        check_resolution(self.media, surface, self.diagnostics)
         if method == "dense":
             self.operator = DenseOperator(ctx, self.mesh, self.media, quadrature, residual=residual,
                                           memory_limit_bytes=memory_limit_bytes, progress=self.progress)

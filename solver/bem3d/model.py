@@ -69,6 +69,7 @@ class BEMModel(Model):
     Options = BEMOptions
     capabilities = Capabilities(takes="height_field", returns="fields", polarized=True, steerable=True,
                                 reciprocal=True, conserves_energy=True, rung=9, vector_fields=True)
+    run_warns_itself = True  # the solver raises its ResolutionWarnings (validity below)
 
     def __init__(self, options=None):
         super().__init__(options)
@@ -139,6 +140,18 @@ class BEMModel(Model):
         self._kept = None
         self._static = None
         self.warm_starts.clear()
+
+    def validity(self, scene) -> list[str]:
+        """The mesh's resolution against λ₁ and the interior wavelength (solver/bem3d/checks.py), as
+        ``wavebrdf plan`` shows it; the solve raises the same as ResolutionWarnings."""
+        found = super().validity(scene)
+        if isinstance(scene, SurfaceScene):
+            from wavebrdf.solver.bem3d.checks import resolution_messages
+            from wavebrdf.solver.bem3d.media import Media
+
+            media = Media(scene.wavelength_um, scene.index, scene.exterior_index)
+            found += [f"bem: {message}" for message in resolution_messages(media, scene.surface)]
+        return found
 
     def check(self, scene: SurfaceScene) -> None:
         """Refuse, before anything runs, what the flat edge continuation cannot do."""
