@@ -234,7 +234,7 @@ class Model(ABC):
         for method in ("run", "check"):
             own = cls.__dict__.get(method)
             if own is not None and not getattr(own, "_sampling_checked", False):
-                setattr(cls, method, _through_validity(own, method == "run" and not cls.run_warns_itself))
+                setattr(cls, method, _through_validity(own, method == "run"))
 
     def __init__(self, options=None):
         self.options = parse_options(self.Options, options, f"model.{self.name}")
@@ -271,13 +271,13 @@ class Model(ABC):
 
 def _through_validity(method, warn: bool):
     """``method`` (a subclass's run or check) preceded by :meth:`Model.validity`; ``warn``: issue
-    its warnings (run) rather than only its refusals (check)."""
+    its warnings (run, unless the model's ``run_warns_itself``) rather than only its refusals (check)."""
 
     @functools.wraps(method)
     def checked(self, *args, **kwargs):
         scene = args[-1] if args else kwargs.get("scene")
         for message in self.validity(scene):
-            if warn:
+            if warn and not self.run_warns_itself:
                 warnings.warn(message, ValidityWarning, stacklevel=2)
         return method(self, *args, **kwargs)
 

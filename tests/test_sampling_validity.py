@@ -95,6 +95,26 @@ def test_a_coarse_full_wave_mesh_is_named_by_plan_and_warned_once_by_the_run(cl_
     assert get_model("bem", {"method": "dense"}).validity(fine) == []
 
 
+def test_a_coarse_fiber_mesh_is_named_by_plan_and_warned_once_by_the_run(cl_ctx):
+    """A 1 µm circle of 60 elements (0.105 µm each) at λ 0.4 µm, m = 1.55: 0.258/0.105 = 2.5 elements
+    per interior wavelength, below fiber.md's 10; the fix is 10 per λ/|m| over the perimeter 2π µm:
+    ⌈10·2π·1.55/0.4⌉ = 244 segments. ``validity`` names it; the run warns once (FiberMeshWarning)."""
+    from wavebrdf.solver.fiber.bem import FiberMeshWarning
+    from wavebrdf.solver.fiber.shapes import circle
+    from wavebrdf.solver.models import FiberScene
+
+    scene = FiberScene(circle(1.0, 60), 0.4, complex(1.55), 0.0, (0.0,), 1, 36, radius_um=1.0, shape="circle")
+    found = get_model("fiber-bem").validity(scene)
+    assert len(found) == 1 and "2.5 elements per interior wavelength" in found[0], found
+    assert f"segments ≥ {int(np.ceil(10 * 2 * np.pi * 1.55 / 0.4))}" in found[0], found
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        get_model("fiber-bem").run(cl_ctx, scene)
+    about_mesh = [w.category for w in caught if "fiber mesh is coarse" in str(w.message)]
+    assert about_mesh == [FiberMeshWarning], about_mesh
+    assert get_model("fiber-bem").validity(dataclasses.replace(scene, cross_section=circle(1.0, 244))) == []
+
+
 # --- item 2: lobes narrower than a pixel ---------------------------------------------------------
 
 def test_point_sampled_narrow_lobe_is_warned(cl_ctx):

@@ -36,11 +36,11 @@ from wavebrdf.solver.fiber.farfield import (
 )
 from wavebrdf.solver.fiber.incidence import FiberMedia, fiber_media, rhs_vectors
 from wavebrdf.solver.fiber.results import ScatteringResult
-from wavebrdf.solver.fiber.shapes import CrossSection
+from wavebrdf.solver.fiber.shapes import CrossSection, recommended_segments
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["FiberBEM", "FiberMeshWarning", "FiberSolution", "solve_fiber"]
+__all__ = ["FiberBEM", "FiberMeshWarning", "FiberSolution", "mesh_messages", "solve_fiber"]
 
 MIN_ELEMENTS_PER_WAVELENGTH = 9.5  # fiber.md §4 asks for about 10 per interior wavelength
 POWER_BALANCE_WARNING = 1e-2  # |C_ext - C_sca - C_abs|/C_ext above this: mesh too coarse
@@ -157,14 +157,23 @@ class FiberBEM:
         return self.solve(wavelength_um, index, theta_i, phi_i).scattering(phi_r, bins)
 
     def _check_resolution(self, media: FiberMedia) -> None:
-        """Warn below 10 elements per interior wavelength (fiber.md §4)."""
-        interior_wavelength = media.wavelength_um / abs(media.index)
-        per_wavelength = interior_wavelength / self.shape.lengths.max()
-        if per_wavelength < MIN_ELEMENTS_PER_WAVELENGTH:
-            warnings.warn(
-                f"fiber mesh is coarse: {per_wavelength:.1f} elements per interior wavelength (λ/|m| = "
-                f"{interior_wavelength:.3g} µm, longest element {self.shape.lengths.max():.3g} µm); use at least 10",
-                FiberMeshWarning, stacklevel=3)
+        """Warn (FiberMeshWarning) below MIN_ELEMENTS_PER_WAVELENGTH (:func:`mesh_messages`)."""
+        for message in mesh_messages(self.shape, media.wavelength_um, media.index):
+            warnings.warn(message, FiberMeshWarning, stacklevel=3)
+
+
+def mesh_messages(shape: CrossSection, wavelength_um: float, index: complex) -> list[str]:
+    """What the solve says of a cross section's mesh below about 10 elements per interior
+    wavelength λ/|m| (fiber.md §4), with the element count that would do (µm); ``wavebrdf plan``
+    shows it (FiberBEMModel.validity)."""
+    interior_wavelength = wavelength_um / abs(index)
+    longest = float(shape.lengths.max())
+    per_wavelength = interior_wavelength / longest
+    if per_wavelength >= MIN_ELEMENTS_PER_WAVELENGTH:
+        return []
+    return [f"fiber mesh is coarse: {per_wavelength:.1f} elements per interior wavelength (λ/|m| = "
+            f"{interior_wavelength:.3g} µm, longest element {longest:.3g} µm); use at least 10: [fiber] segments ≥ "
+            f"{recommended_segments(shape, wavelength_um, index, per_wavelength=10.0)} (now {shape.segments})"]
 
 
 def solve_fiber(ctx, shape: CrossSection, wavelength_um: float, index: complex, theta_i: float,

@@ -64,6 +64,7 @@ class FiberBEMModel(_FiberModel):
 
     name = "fiber-bem"
     summary = "full-wave 2.5D boundary elements for a fiber of any cross section at oblique incidence (BCSDF tables)"
+    run_warns_itself = True  # the solver raises its FiberMeshWarning (validity below)
 
     def __init__(self, options=None):
         super().__init__(options)
@@ -80,6 +81,16 @@ class FiberBEMModel(_FiberModel):
 
     def release(self) -> None:
         self._kept = None
+
+    def validity(self, scene) -> list[str]:
+        """The mesh against the interior wavelength (solver/fiber/bem.py ``mesh_messages``), as
+        ``wavebrdf plan`` shows it; the solve raises the same as a FiberMeshWarning."""
+        found = super().validity(scene)
+        if isinstance(scene, FiberScene) and scene.meshed:
+            from wavebrdf.solver.fiber.bem import mesh_messages
+
+            found += [f"{self.name}: {m}" for m in mesh_messages(scene.cross_section, scene.wavelength_um, scene.index)]
+        return found
 
     def check(self, scene: FiberScene) -> None:
         """Boundary elements need a mesh: ``[fiber] segments`` for the smooth shapes."""
