@@ -493,6 +493,7 @@ class AutoModel(Model):
                                 reciprocal=False, conserves_energy=False, spot_checks=True, picks_rung=True,
                                 vector_fields=True)
     Options = AutoOptions
+    run_warns_itself = True  # the rung that runs raises its own validity warnings (after any escalation)
 
     def __init__(self, options=None):
         super().__init__(options)

@@ -218,8 +218,9 @@ class Model(ABC):
     output pixels, a realization against its ensemble). Every subclass's :meth:`run` and
     :meth:`check` go through :meth:`validity` on surface scenes: a refusal is a ValueError, each
     warning a :class:`~wavebrdf.solver.validity.ValidityWarning` (which the batch layer records in
-    the task table's warnings), unless ``run_warns_itself``: the model's solver raises those
-    warnings itself (each once, in its own category), and the seam applies only the refusals.
+    the task table's warnings), unless ``run_warns_itself``: every warning of :meth:`validity` is
+    raised by the model's run itself (the full wave's solver, in its own category; ``auto``'s rung),
+    and the seam applies only the refusals.
     """
 
     name: ClassVar[str]

@@ -132,7 +132,7 @@ def _where(scene) -> str:
 
 def cells_fix(surface, spacing_um: float) -> str:
     """The config fix that brings ``surface``'s spacing to ``spacing_um`` (µm) or below."""
-    cells = int(np.ceil(surface.size_um / spacing_um * (1 + 1e-9)))
+    cells = int(np.ceil(surface.size_um / spacing_um * (1 - 1e-9)))  # a whole number of spacings is enough
     key = "surface.cells" if surface.parameters is not None else "a height file resampled to"
     return f"{key} ≥ {cells} (spacing ≤ {spacing_um:.4g} µm)"
 

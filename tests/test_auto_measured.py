@@ -210,6 +210,9 @@ def test_a_tolerance_nothing_within_the_budget_can_meet_is_said(tmp_path):
     run(tmp_path, "run", roomy, "-q")
     rows = task_table(tmp_path / "roomy.h5")
     assert rows["model"][0] == REFERENCE and "ToleranceWarning" not in rows["warnings"][0]
+    # the mesh warning once, from the full wave that ran, not again through auto's seam
+    assert "ResolutionWarning: d is too coarse" in rows["warnings"][0]
+    assert "ValidityWarning: bem:" not in rows["warnings"][0], rows["warnings"][0]
 
 
 def test_a_steered_auto_study_checks_sub_areas_among_coherent_rungs(tmp_path):

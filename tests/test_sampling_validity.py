@@ -70,26 +70,30 @@ def test_check_refuses_before_running():
     assert get_model("gs").validity(scene) == []  # rays do not alias
 
 
-def test_a_coarse_full_wave_mesh_is_named_by_plan_and_warned_once_by_the_run(cl_ctx):
+def test_a_coarse_full_wave_mesh_is_named_by_plan_and_warned_by_every_run(cl_ctx):
     """The BEM's own sampling: n₂ = 0.96 − 6.69j at λ 0.5 µm on a 2.1 µm patch of 21 cells,
-    d = 0.1 µm: above λ/6 = 0.0833 µm (the fix: ≥ 26 cells) and |k₂| d = 2π·6.76·0.1/0.5 ≈ 8.5
-    above 4 (≥ 45 cells). ``validity`` (what ``plan`` prints) names both with their fixes; the run
-    raises each once, as the solver's ResolutionWarning, not again through the model seam."""
-    from wavebrdf.solver.bem3d import ResolutionWarning
-
+    d = 0.1 µm: above λ₁/6 = 0.0833 µm (the fix: ≥ 26 cells) and |k₂| d = 2π·6.76·0.1/0.5 ≈ 8.5
+    above 4 (≥ 45 cells). ``validity`` (what ``plan`` prints) names both with their fixes; each run
+    raises each once, as the solver's ResolutionWarning (not again through the model seam), the
+    second run on the kept operator too. In a medium of index 1.5, λ₁/6 = 0.0556 µm (≥ 38 cells)."""
     scene = SurfaceScene(generate("gaussian", cells=21, size_um=2.1, seed=3, rms_height_um=0.02, correlation_um=0.5),
                          0.5, ALUMINIUM, 0.0, 0.0, 0.4, HemisphereGrid(32))
     k2 = 2 * np.pi * abs(ALUMINIUM) / 0.5
-    found = get_model("bem", {"method": "dense"}).validity(scene)
+    model = get_model("bem", {"method": "dense"})
+    found = model.validity(scene)
     assert len(found) == 2, found
     assert "λ₁/6" in found[0] and f"surface.cells ≥ {int(np.ceil(2.1 / (0.5 / 6)))}" in found[0], found
     assert "|k₂| d" in found[1] and f"surface.cells ≥ {int(np.ceil(2.1 * k2 / 4))}" in found[1], found
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        get_model("bem", {"method": "dense"}).run(cl_ctx, scene)
-    about_d = [w for w in caught if "too coarse" in str(w.message) or "under-resolved" in str(w.message)]
-    assert sorted(w.category.__name__ for w in about_d) == ["ResolutionWarning"] * 2, about_d
-    assert all(issubclass(w.category, ResolutionWarning) for w in about_d)
+    for _ in range(2):  # the second run reuses the operator of the first
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            model.run(cl_ctx, scene)
+        about_d = sorted((w.category.__name__, str(w.message)) for w in caught
+                         if "too coarse" in str(w.message) or "under-resolved" in str(w.message))
+        assert [c for c, _ in about_d] == ["ResolutionWarning"] * 2, about_d
+        assert sorted(f"bem: {m}" for _, m in about_d) == sorted(found), (about_d, found)
+    immersed = dataclasses.replace(scene, exterior_index=1.5)
+    assert f"surface.cells ≥ {int(np.ceil(2.1 / (0.5 / 1.5 / 6)))}" in model.validity(immersed)[0]
     fine = dataclasses.replace(scene, surface=generate("gaussian", cells=45, size_um=2.1, seed=3, rms_height_um=0.02,
                                                        correlation_um=0.5))
     assert get_model("bem", {"method": "dense"}).validity(fine) == []

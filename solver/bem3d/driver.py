@@ -135,6 +135,20 @@ class BEMSolver:
             quadrature=self.quadrature.__dict__.copy(), device=None if ctx is None else ctx.describe(),
             index=complex(self.media.index),
         )
+        self._solves = 0
+
+    def _warn_set_up_again(self) -> None:
+        """Raise the set-up's checks (material, mesh resolution, surface plasmons) again, without
+        recording them twice: every solve after the first on this operator carries them too (a
+        worker keeps the operator for the next task of the same surface and wavelength)."""
+        self._solves += 1
+        if self._solves == 1:
+            return
+        surface = self.mesh.surface
+        check_material(self.media, surface.size_um)
+        check_resolution(self.media, surface)
+        if self.continuation is not None and np.ptp(self.mesh.heights) > 0:
+            check_surface_plasmons(self.media, surface.size_um)
 
     # ------------------------------------------------------------------------------------------
     def farfield(self, theta_i: float, phi_i: float, grid: HemisphereGrid, *, waist_um: float | None,
@@ -145,6 +159,7 @@ class BEMSolver:
         AIM solve misses its tolerance: such a result is never returned.
         """
         t0 = time.perf_counter()
+        self._warn_set_up_again()
         diag = {k: v for k, v in self.diagnostics.items() if k != "warnings"}
         diag["warnings"] = list(self.diagnostics["warnings"])
         solution = self._solve(theta_i, phi_i, waist_um=waist_um, beam=beam, focus_um=focus_um, diagnostics=diag)
@@ -177,6 +192,7 @@ class BEMSolver:
         """BRDF (sr⁻¹) per polarization (s, p) at arbitrary outgoing unit ``directions`` (M, 3), by
         the direct quadrature sum (plus the continued currents' closed form when the patch is
         continued)."""
+        self._warn_set_up_again()
         solution = self._solve(theta_i, phi_i, waist_um=waist_um, beam=beam, focus_um=focus_um)
         directions = np.atleast_2d(np.asarray(directions, dtype=float))
         rule = SurfaceRule.build(self.mesh, self.quadrature.farfield_order)

@@ -164,16 +164,20 @@ class FiberBEM:
 
 def mesh_messages(shape: CrossSection, wavelength_um: float, index: complex) -> list[str]:
     """What the solve says of a cross section's mesh below about 10 elements per interior
-    wavelength λ/|m| (fiber.md §4), with the element count that would do (µm); ``wavebrdf plan``
-    shows it (FiberBEMModel.validity)."""
+    wavelength λ/|m| (λ in µm; fiber.md §4), with the element count that would do; ``wavebrdf
+    plan`` shows it (FiberBEMModel.validity)."""
     interior_wavelength = wavelength_um / abs(index)
     longest = float(shape.lengths.max())
     per_wavelength = interior_wavelength / longest
     if per_wavelength >= MIN_ELEMENTS_PER_WAVELENGTH:
         return []
+    elements = len(shape.lengths)
+    # 10 per λ/|m| over the perimeter, or the longest element shrunk to λ/(10|m|) where it is longer
+    needed = max(recommended_segments(shape, wavelength_um, index, per_wavelength=10.0),
+                 int(np.ceil(elements * 10.0 / per_wavelength)))
     return [f"fiber mesh is coarse: {per_wavelength:.1f} elements per interior wavelength (λ/|m| = "
             f"{interior_wavelength:.3g} µm, longest element {longest:.3g} µm); use at least 10: [fiber] segments ≥ "
-            f"{recommended_segments(shape, wavelength_um, index, per_wavelength=10.0)} (now {shape.segments})"]
+            f"{needed} (this mesh has {elements} elements)"]
 
 
 def solve_fiber(ctx, shape: CrossSection, wavelength_um: float, index: complex, theta_i: float,
