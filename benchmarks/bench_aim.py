@@ -415,14 +415,13 @@ def cmd_subarea(args, ctx):
     for ``--memory-gb`` (solver/bem3d/aim/budget.py); those ``--aim`` gives are changed only
     where they do not fit it (``fit_speed`` false).
     Prints the plan's memory and time, then the measured stage breakdown."""
-    from wavebrdf.solver.bem3d.aim.budget import fit_to_budget
+    from wavebrdf.solver.bem3d.aim.budget import fit_to_budget, given_options
 
     print(load())
     surface = subarea_surface(args.cells)
     waist = surface.size_um / 4.8
     print(f"surface: {surface.cells} cells, {surface.size_um:g} µm, {surface.statistics()}")
-    given = json.loads(args.aim)  # settings given here are fitted to the memory only, not swapped for speed
-    aim = AIMOptions.from_mapping({"fit_speed": not given, **given})
+    aim = given_options(json.loads(args.aim))
     if args.memory_gb:
         fit = fit_to_budget(surface, 0.4, AL_400, aim, args.memory_gb * 2**30, waist_um=waist,
                             resolution=args.resolution)

@@ -36,6 +36,7 @@ import numpy as np
 
 from wavebrdf.solver.bem3d import BEMSolver, BEMWarning
 from wavebrdf.solver.bem3d.aim import AIMOptions
+from wavebrdf.solver.bem3d.aim.budget import fit_to_budget, given_options
 from wavebrdf.solver.bem3d.warm_start import WarmStarts
 from wavebrdf.solver.farfield import HemisphereGrid, albedo
 from wavebrdf.solver.metrics import relative_l2
@@ -105,11 +106,8 @@ def main():
     surface = generate("gaussian", cells=args.cells, size_um=args.cells * d, seed=args.seed, rms_height_um=0.1,
                        correlation_um=1.0)
     waist = surface.size_um / 4.8
-    given = json.loads(args.aim)  # settings given here are fitted to the memory only, not swapped for speed
-    aim = AIMOptions.from_mapping({"fit_speed": not given, **given})
+    aim = given_options(json.loads(args.aim))
     if args.memory_gb:
-        from wavebrdf.solver.bem3d.aim.budget import fit_to_budget
-
         fit = fit_to_budget(surface, rows[0][0], rows[0][1], aim, args.memory_gb * 2**30, waist_um=waist,
                             resolution=args.resolution)
         print("planner:", fit.summary(), flush=True)

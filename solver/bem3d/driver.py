@@ -26,6 +26,7 @@ set-up skips the static singular tables (``[model.aim] reuse_setup``).
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import replace
 from functools import partial
@@ -114,8 +115,10 @@ class BEMSolver:
         self.progress = progress or (lambda stage, fraction=None, **figures: None)
         self.diagnostics: dict = {"model": "bem", "method": method, "warnings": []}
         self.clock = StageClock()  # set-up stages here, per-direction stages added by farfield()
-        check_material(self.media, surface.size_um, self.diagnostics)
-        check_resolution(self.media, surface, self.diagnostics)
+        self._set_up_warnings: list[tuple[type[Warning], str]] = []  # raised again by later solves
+        self._solves = 0
+        self._set_up_check(check_material, self.media, surface.size_um)
+        self._set_up_check(check_resolution, self.media, surface)
         if method == "dense":
             self.operator = DenseOperator(ctx, self.mesh, self.media, quadrature, residual=residual,
                                           memory_limit_bytes=memory_limit_bytes, progress=self.progress)
@@ -129,26 +132,31 @@ class BEMSolver:
                 self.continuation = FlatContinuation(ctx, self.mesh, self.media, self.aim, quadrature=quadrature)
             setup["setup_s"] += self.continuation.setup_s
             if np.ptp(self.mesh.heights) > 0:
-                check_surface_plasmons(self.media, surface.size_um, self.diagnostics)
+                self._set_up_check(check_surface_plasmons, self.media, surface.size_um)
         self.diagnostics.update(
             unknowns=self.mesh.n_unknowns, cells=self.mesh.cells, spacing_um=self.mesh.spacing_um, **setup,
             quadrature=self.quadrature.__dict__.copy(), device=None if ctx is None else ctx.describe(),
             index=complex(self.media.index),
         )
-        self._solves = 0
+
+    def _set_up_check(self, check, *args) -> None:
+        """Run a set-up check (solver/bem3d/checks.py: it warns and records in the diagnostics) and
+        keep what it raised for :meth:`_warn_set_up_again`."""
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            check(*args, self.diagnostics)
+        for w in caught:
+            self._set_up_warnings.append((w.category, str(w.message)))
+            warnings.warn(str(w.message), w.category, stacklevel=3)
 
     def _warn_set_up_again(self) -> None:
-        """Raise the set-up's checks (material, mesh resolution, surface plasmons) again, without
-        recording them twice: every solve after the first on this operator carries them too (a
-        worker keeps the operator for the next task of the same surface and wavelength)."""
+        """Raise the set-up's warnings again (recorded once): every solve after the first on this
+        operator carries them too (a worker keeps the operator for the next task of the same
+        surface and wavelength)."""
         self._solves += 1
-        if self._solves == 1:
-            return
-        surface = self.mesh.surface
-        check_material(self.media, surface.size_um)
-        check_resolution(self.media, surface)
-        if self.continuation is not None and np.ptp(self.mesh.heights) > 0:
-            check_surface_plasmons(self.media, surface.size_um)
+        if self._solves > 1:
+            for category, message in self._set_up_warnings:
+                warnings.warn(message, category, stacklevel=3)
 
     # ------------------------------------------------------------------------------------------
     def farfield(self, theta_i: float, phi_i: float, grid: HemisphereGrid, *, waist_um: float | None,

@@ -13,7 +13,8 @@ import pytest
 
 from wavebrdf.jobs.config import load_config
 from wavebrdf.jobs.plan import PlanError, check_memory, plan_study
-from wavebrdf.solver.bem3d.aim.budget import FITTED_KEYS, SPEED_MARGIN, candidate_options, fit_to_budget
+from wavebrdf.solver.bem3d.aim.budget import (FITTED_KEYS, SPEED_MARGIN, candidate_options, fit_to_budget,
+                                              given_options)
 from wavebrdf.solver.bem3d.aim.estimate import estimate_aim, memory_breakdown
 from wavebrdf.solver.bem3d.aim.options import AIMOptions
 from wavebrdf.solver.bem3d.media import Media
@@ -286,3 +287,11 @@ def test_a_surface_steeper_than_the_product_counts_fit_is_named_in_the_estimate_
     assert patch["outside_fit"] and patch["seconds"] < (1 - SPEED_MARGIN) * lu["seconds"]
     kept = fit_to_budget(larger, 0.5, AL, AIMOptions(), float("inf"))
     assert kept.options == AIMOptions() and not kept.changed
+
+
+def test_settings_a_user_gives_are_fitted_to_the_memory_only():
+    """A benchmark's --aim: nothing given keeps the fit's choice for speed; anything given turns it
+    off (fit_speed false) and keeps what was given, fit_speed itself included when given."""
+    assert given_options({}) == AIMOptions()
+    assert given_options({"precision": "single"}) == AIMOptions(precision="single", fit_speed=False)
+    assert given_options({"near_cells": 5.0, "fit_speed": True}).fit_speed is True

@@ -42,7 +42,7 @@ from wavebrdf.solver.precision import Precision
 from wavebrdf.solver.surface import HeightField
 
 __all__ = ["BudgetFit", "FITTED_KEYS", "SPEED_MARGIN", "candidate_options", "fit_to_budget",
-           "interior_leaves_grid_cells"]
+           "given_options", "interior_leaves_grid_cells"]
 
 FITTED_KEYS = ("precision", "near_cells", "preconditioner", "preconditioner_tile_cells", "solver", "restart",
                "deflate", "flat_inner_steps", "reuse_setup")
@@ -148,6 +148,12 @@ def candidate_options(options: AIMOptions, cells: int, media: Media | None = Non
         if o not in unique:
             unique.append(o)
     return unique
+
+
+def given_options(mapping: dict) -> AIMOptions:
+    """AIMOptions from settings a user gave (a benchmark's ``--aim``): when any are given, the fit
+    changes them only where they do not fit the memory (``fit_speed`` false), not for speed."""
+    return AIMOptions.from_mapping({"fit_speed": not mapping, **mapping})
 
 
 def fit_to_budget(surface: HeightField, wavelength_um: float, index: complex, options: AIMOptions,
