@@ -15,7 +15,10 @@ simulator's) on 9 µm patches, all at d = 0.05 µm (λ/10 at 0.5 µm; |k₂|d �
 Each scene's comparison is written to ``out/trade/<study>_compare.*`` (``wavebrdf compare``'s
 files) as soon as it finishes, and each convergence solve (with the coarse reference it is
 measured against) to ``out/trade/<study>_converged.h5``, so an interrupted regeneration loses at
-most the solve it was on. The errors of the table are recomputed from the stored BRDFs
+most the solve it was on. A ``--finer-pair`` keeps each of its two solves the moment it is made
+(``out/trade/<study>_bem_<surface>_<scene>.h5``, :func:`keep_solve`): a fine solve that dies
+does not take the coarse one along, and a config moved to the pair's spacing with the same BEM
+options takes that solve as its reference instead of solving again. The errors of the table are recomputed from the stored BRDFs
 (unpolarized and per incident polarization, raw and speckle-averaged), so every column comes from
 one definition (``jobs.compare.comparison_metrics``).
 
@@ -166,9 +169,24 @@ def compare_suite(configs: list[Path], force: bool, log, record: Record | None =
         elif not force and record is not None and record.kept_rows(path) is not None:
             continue
         t0 = time.perf_counter()
-        comparison = compare_config(load_config(path), progress=lambda what: log(f"  {what}"))
+        measured = {} if force else _stored_references(path, log)
+        comparison = compare_config(load_config(path), progress=lambda what: log(f"  {what}"), measured=measured)
         comparison.write(_stem(path))
         log(f"{path.relative_to(ROOT)}: {time.perf_counter() - t0:.0f} s")
+
+
+def _stored_references(path: Path, log) -> dict:
+    """(scene, "bem") → the stored solve (:func:`stored_solve`) of each scene of ``path`` that BEM was
+    solved on with the options its comparison runs BEM with (the study's ``[model]``; none where a
+    ``[compare.bem]`` table sets others)."""
+    from wavebrdf.jobs.config import load_config
+    from wavebrdf.solver.auto import REFERENCE
+
+    case = load_config(path).cases[0]
+    if case.model.name != REFERENCE or REFERENCE in _rungs_with_compare_options(path):
+        return {}
+    return {(label, REFERENCE): m for label, scene in _scenes(path)
+            if (m := stored_solve(case.name, label, scene.surface, case.model.options, log)) is not None}
 
 
 def reference_measurement(path: Path, label: str, log):
@@ -285,9 +303,10 @@ def convergence(path: Path, force: bool, log, run: bool = True, record: Record |
                 coarse = stored_measurements(_stored(path))[label, REFERENCE]
             elif pair is not None:
                 coarse = pair[1]
-            else:
+            elif (coarse := stored_solve(case.name, label, scene.surface, options, log)) is None:
                 log(f"{label}: BEM at {cells}² cells (the comparison is not stored)")
                 coarse = process.measure(REFERENCE, options, scene, label)
+                keep_solve(case.name, label, scene.surface, options, coarse)
             if pair is not None:
                 m, _, settings = pair
                 log(f"{label}: BEM at {fine_cells}² cells from {case.name}_pair_{cells}_{fine_cells}.h5")
@@ -305,7 +324,8 @@ def finer_pair(path: Path, cells: int, log, preconditioner: str | None = None, s
     """One refinement beyond the table's: the config's hardest scene at ``cells`` per side against
     BEM on a finer mesh, by default the scene rebuilt at ``REFINEMENT`` × ``cells`` (stored in ``out/trade/<study>_pair_<cells>_<fine>.h5`` and listed
     under the convergence table). The solve at ``cells`` is taken from the config's converged store
-    where that holds it (the table's own fine solve), else run. ``preconditioner`` ("local" | "flat-patch"):
+    where that holds it (the table's own fine solve), else from a solve kept before with the same
+    options (:func:`stored_solve`), else run; each solve run here is kept as it finishes. ``preconditioner`` ("local" | "flat-patch"):
     the solves run here with the local inverses and GMRES(``restart``), or the flat patch's inner
     solve and FGMRES(``restart``), even where the near LU would fit (it factors slowly there); they
     converge to the same discrete solution as the LU's, to the solver's tolerance.
@@ -340,16 +360,21 @@ def finer_pair(path: Path, cells: int, log, preconditioner: str | None = None, s
                 if preconditioner is None and str(attrs.get("settings", "")).startswith("local"):
                     preconditioner = "local"
         fine_options, settings = fine_solve_options(options, np.nan, 1.0, f"{cells}²", preconditioner, restart)
+        coarse_surface = refined(scene.surface, cells)
+        if coarse is None:
+            coarse = stored_solve(case.name, label, coarse_surface, fine_options, log)
         if coarse is None:
             log(f"{label}: BEM at {cells}² cells, {settings}")
-            at_cells = dataclasses.replace(scene, surface=refined(scene.surface, cells))
-            coarse = process.measure(REFERENCE, fine_options, at_cells, label)
+            coarse = process.measure(REFERENCE, fine_options, dataclasses.replace(scene, surface=coarse_surface), label)
+            keep_solve(case.name, label, coarse_surface, fine_options, coarse, settings)
         fine_options, settings = fine_solve_options(options, coarse.peak_mb, (fine_cells / cells) ** 2, f"{cells}²",
                                                     preconditioner, restart)
-        log(f"{label}: BEM at {fine_cells}² cells ({kind}), {settings}")
-        coarse_surface = refined(scene.surface, cells)
         fine_surface = subdivided(coarse_surface, subdivide) if subdivide else refined(scene.surface, fine_cells)
-        m = process.measure(REFERENCE, fine_options, dataclasses.replace(scene, surface=fine_surface), label)
+        m = stored_solve(case.name, label, fine_surface, fine_options, log)
+        if m is None:
+            log(f"{label}: BEM at {fine_cells}² cells ({kind}), {settings}")
+            m = process.measure(REFERENCE, fine_options, dataclasses.replace(scene, surface=fine_surface), label)
+            keep_solve(case.name, label, fine_surface, fine_options, m, settings)
     WORK.mkdir(parents=True, exist_ok=True)
     _write_refinement(out, label, fine_cells, m, coarse, settings, suite=path.parent.name, coarse_cells=cells,
                       size_um=scene.surface.size_um, surface_digest=surface_digest(coarse_surface), refinement=kind)
@@ -362,6 +387,62 @@ def surface_digest(surface) -> str:
 
     z = np.ascontiguousarray(surface.z, dtype=np.float64)
     return hashlib.sha256(z.tobytes() + repr(float(surface.size_um)).encode()).hexdigest()[:16]
+
+
+def options_digest(options) -> str:
+    """A model's options as 12 hex digits: which settings a stored solve ran with."""
+    return hashlib.sha256(json.dumps(dataclasses.asdict(options), sort_keys=True, default=str).encode()).hexdigest()[:12]
+
+
+def _solve_path(study: str, label: str, surface) -> Path:
+    return WORK / f"{study}_bem_{surface_digest(surface)}_{hashlib.sha256(label.encode()).hexdigest()[:8]}.h5"
+
+
+def keep_solve(study: str, label: str, surface, options, m, settings: str = "") -> Path | None:
+    """Store BEM Measurement ``m`` of scene ``label`` on ``surface`` with ``options`` as soon as it
+    is made (``out/trade/<study>_bem_<surface>_<scene>.h5``, written whole or not at all), so a
+    later solve that dies does not take it along and a comparison with the same options on the same
+    scene takes it instead of solving again (:func:`stored_solve`). A failed solve is not kept."""
+    import h5py
+
+    if m.failure is not None or m.brdf is None:
+        return None
+    path = _solve_path(study, label, surface)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(f".{path.name}.tmp")
+    with h5py.File(partial, "w") as h5:
+        h5.attrs.update(scene=label, cells=surface.cells, surface_digest=surface_digest(surface),
+                        options_digest=options_digest(options), wall_s=m.wall_s, cpu_s=m.cpu_s, peak_mb=m.peak_mb,
+                        settings=settings)
+        h5["brdf"] = m.brdf
+    partial.replace(path)
+    return path
+
+
+def stored_solve(study: str, label: str, surface, options, log=None):
+    """The BEM Measurement :func:`keep_solve` stored of scene ``label`` on ``surface`` with these
+    ``options`` (digests compared), else None (``log`` says when a stored one ran other options)."""
+    import h5py
+
+    from wavebrdf.jobs.compare import Measurement
+    from wavebrdf.solver.auto import REFERENCE
+
+    path = _solve_path(study, label, surface)
+    if not path.is_file():
+        return None
+    with h5py.File(path) as h5:
+        a = dict(h5.attrs)
+        if str(a["scene"]) != label or str(a["surface_digest"]) != surface_digest(surface):
+            return None
+        if str(a["options_digest"]) != options_digest(options):
+            if log is not None:
+                log(f"{label}: {path.name} was solved with other options ({a['settings'] or 'other settings'}): "
+                    "not used")
+            return None
+        brdf = h5["brdf"][()]
+    if log is not None:
+        log(f"{label}: BEM at {surface.cells}² cells from {path.name} ({float(a['cpu_s']):.0f} CPU-s)")
+    return Measurement(REFERENCE, label, float(a["wall_s"]), float(a["cpu_s"]), float(a["peak_mb"]), brdf)
 
 
 def _stored_pair(study: str, label: str, surface, fine_cells: int, log=None):

@@ -427,11 +427,13 @@ def comparison_metrics(m: Measurement, ref: Measurement, grid: HemisphereGrid, s
 
 def compare_scenes(scenes: list[tuple[str, object]], models: list[str], options: dict | None = None,
                    reference: str | None = None, memory_budget_bytes: float | None = None,
-                   progress=None) -> Comparison:
+                   progress=None, measured: dict | None = None) -> Comparison:
     """Run ``models`` (and the reference) on every (label, SurfaceScene) of ``scenes``.
 
     ``options``: model name → Options mapping; ``reference``: a model name, or None to choose
     (:func:`choose_reference`) per scene within ``memory_budget_bytes`` (default: available RAM).
+    ``measured``: (label, model name) → a :class:`Measurement` of that model with the same options
+    on that scene, made before (a stored solve): taken as it is instead of running the model again.
     """
     from wavebrdf.solver.resources import meminfo_bytes
 
@@ -442,11 +444,13 @@ def compare_scenes(scenes: list[tuple[str, object]], models: list[str], options:
     grid = scenes[0][1].grid
     with MeasuringProcess() as process:
         for label, scene in scenes:
-            rows += _compare_one(process, label, scene, models, options, reference, budget, kept, grid, progress)
+            rows += _compare_one(process, label, scene, models, options, reference, budget, kept, grid, progress,
+                                 measured or {})
     return Comparison(rows, kept, grid)
 
 
-def _compare_one(process, label, scene, models, options, reference, budget, kept, grid, progress) -> list[dict]:
+def _compare_one(process, label, scene, models, options, reference, budget, kept, grid, progress,
+                 measured) -> list[dict]:
     """The rows of one scene: the reference and every model measured, then the metrics."""
     rows = []
     if reference is None:
@@ -457,8 +461,8 @@ def _compare_one(process, label, scene, models, options, reference, budget, kept
     runs = {}
     for name in [ref_name] + [n for n in models if n != ref_name]:
         if progress:
-            progress(f"{label}: {name}")
-        runs[name] = process.measure(name, options.get(name), scene, label)
+            progress(f"{label}: {name}{' (measured before)' if (label, name) in measured else ''}")
+        runs[name] = measured.get((label, name)) or process.measure(name, options.get(name), scene, label)
         kept.append(runs[name])
         logger.info("%s: %s %.3g s wall, %.3g s CPU, %.0f MB%s", label, name, runs[name].wall_s,
                     runs[name].cpu_s, runs[name].peak_mb, f" — {runs[name].failure}" if runs[name].failure else "")
@@ -483,12 +487,14 @@ def surface_models(plan) -> list[str]:
 
 
 def compare_config(config, models: list[str] | None = None, reference: str | None = None,
-                   memory_gb: float | None = None, progress=None, before_run=None) -> Comparison:
+                   memory_gb: float | None = None, progress=None, before_run=None,
+                   measured: dict | None = None) -> Comparison:
     """Every (case, wavelength, incident direction) of a surface study config through ``models``
     (default: ``[compare] models``, else :func:`surface_models`) against ``reference`` (default:
     ``[compare] reference``, else chosen per scene). Options: ``[model]`` for the study's model,
     ``[compare.<name>]`` tables for the others. Every model is checked against the study before
-    anything runs (a ConfigError naming the flag); ``before_run()`` is called once they pass."""
+    anything runs (a ConfigError naming the flag); ``before_run()`` is called once they pass.
+    ``measured``: as :func:`compare_scenes`'s."""
     from wavebrdf.jobs.config import ConfigError
     from wavebrdf.jobs.plan import plan_study
     from wavebrdf.solver.options import parse_options
@@ -535,7 +541,7 @@ def compare_config(config, models: list[str] | None = None, reference: str | Non
     scenes = plan_scenes(plan)
     if before_run is not None:
         before_run()
-    return compare_scenes(scenes, models, options, reference, budget, progress)
+    return compare_scenes(scenes, models, options, reference, budget, progress, measured)
 
 
 def _check_runnable(plan, names: list[str], given: str) -> None:
