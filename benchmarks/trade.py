@@ -16,9 +16,11 @@ Each scene's comparison is written to ``out/trade/<study>_compare.*`` (``wavebrd
 files) as soon as it finishes, and each convergence solve (with the coarse reference it is
 measured against) to ``out/trade/<study>_converged.h5``, so an interrupted regeneration loses at
 most the solve it was on. A ``--finer-pair`` keeps each of its two solves the moment it is made
-(``out/trade/<study>_bem_<surface>_<scene>.h5``, :func:`keep_solve`): a fine solve that dies
-does not take the coarse one along, and a config moved to the pair's spacing with the same BEM
-options takes that solve as its reference instead of solving again. The errors of the table are recomputed from the stored BRDFs
+(``out/trade/<study>_bem_<digest>.h5``, :func:`keep_solve`: the digest covers the scene, its
+surface and the BEM options): a fine solve that dies does not take the coarse one along, and a
+config moved to the pair's spacing with the same fixed BEM options (``fit_memory = false``) takes
+that solve as its reference instead of solving again; its time and memory are then the pair's
+process's (``--force`` solves again; deleting the file forgets it). The errors of the table are recomputed from the stored BRDFs
 (unpolarized and per incident polarization, raw and speckle-averaged), so every column comes from
 one definition (``jobs.compare.comparison_metrics``).
 
@@ -60,9 +62,11 @@ SUITES = {  # folder → the regime, as the tables print it
     "al_waist0.6": "aluminium, waist 0.6 µm (≈ λ), 4 µm patch, 80² cells (the steep hemispheres 120², d = λ/15: at "
                    "λ/10 their reference did not converge to ⅓ of 0.05), λ 0.5 & 0.7 µm, θ_i 0° & 60°",
     "al_waist2.5": "aluminium, waist 2.5 µm (5 λ at 0.5 µm: the reference simulator's), 9 µm patch, 180² cells (the spherical "
-                   "pits 270², d = λ/15: at λ/10 their reference did not converge to ⅓ of 0.05), λ 0.5 µm "
-                   "(the bumpy surface: 0.4 & 0.7 µm, 6.25 λ & 3.6 λ), θ_i 0° & 30° (the steep hemispheres: "
-                   "0° only, one solve being ≈ 3,000 CPU-s)",
+                   "pits 270², d = λ/15, and the steep hemispheres 360², d = λ/20 = 0.025 µm, the reference "
+                   "simulator's spacing: at λ/10 their references did not converge to ⅓ of 0.05 — the hemispheres' "
+                   "0.027 against the scene rebuilt at 270², 0.0475 against its own surface subdivided to 360²), "
+                   "λ 0.5 µm (the bumpy surface: 0.4 & 0.7 µm, 6.25 λ & 3.6 λ), θ_i 0° & 30° (the steep "
+                   "hemispheres: 0° only, one solve being ≈ 2,000 CPU-s)",
     "glass_waist0.6": "glass (n = 1.5), waist 0.6 µm (≈ λ), 4 µm patch, 80² cells (the corner cubes 120², d = λ/15: "
                       "at λ/10 their reference did not converge to ⅓ of 0.05), λ 0.5 & 0.7 µm, θ_i 0° & 60° "
                       "(the dielectric: the seven scene kinds at waist ≈ λ only)",
@@ -152,7 +156,8 @@ class Record:
 
 def compare_suite(configs: list[Path], force: bool, log, record: Record | None = None) -> None:
     """Run ``wavebrdf compare`` on each config whose comparison is neither stored in ``out/trade``
-    nor kept in ``record`` (or on every one)."""
+    nor kept in ``record`` (or, ``force``, on every one), its BEM reference taken from a kept solve
+    of the same scene and options where there is one (:func:`stored_solve`; not with ``force``)."""
     from wavebrdf.jobs.compare import compare_config
     from wavebrdf.jobs.config import load_config
 
@@ -186,7 +191,7 @@ def _stored_references(path: Path, log) -> dict:
     if case.model.name != REFERENCE or REFERENCE in _rungs_with_compare_options(path):
         return {}
     return {(label, REFERENCE): m for label, scene in _scenes(path)
-            if (m := stored_solve(case.name, label, scene.surface, case.model.options, log)) is not None}
+            if (m := stored_solve(case.name, label, scene, case.model.options, log)) is not None}
 
 
 def reference_measurement(path: Path, label: str, log):
@@ -196,7 +201,7 @@ def reference_measurement(path: Path, label: str, log):
 
     if not _stored(path).is_file():
         log(f"{path.relative_to(ROOT)}: its BRDFs are not in out/trade; comparing it again")
-        compare_suite([path], True, log)
+        compare_suite([path], False, log)
     return stored_measurements(_stored(path))[label, REFERENCE]
 
 
@@ -264,7 +269,8 @@ def convergence(path: Path, force: bool, log, run: bool = True, record: Record |
     (:func:`wavebrdf.solver.surface.refined`), on its hardest scene: the relative L2 of the coarse
     reference with the fine one as truth (both stored in ``out/trade/<study>_converged.h5``; the
     coarse one from the comparison, or solved alone where the comparison is not stored; the fine
-    one from a stored :func:`finer_pair` at the same cells where there is one, else solved). Not
+    one from a stored :func:`finer_pair` at the same cells where there is one, else solved; a coarse
+    one solved here is kept, :func:`keep_solve`, and taken again unless ``force``). Not
     stored: the row ``record`` keeps for the config; none, and ``run`` false: "not measured"."""
     import h5py
 
@@ -303,10 +309,10 @@ def convergence(path: Path, force: bool, log, run: bool = True, record: Record |
                 coarse = stored_measurements(_stored(path))[label, REFERENCE]
             elif pair is not None:
                 coarse = pair[1]
-            elif (coarse := stored_solve(case.name, label, scene.surface, options, log)) is None:
+            elif force or (coarse := stored_solve(case.name, label, scene, options, log)) is None:
                 log(f"{label}: BEM at {cells}² cells (the comparison is not stored)")
                 coarse = process.measure(REFERENCE, options, scene, label)
-                keep_solve(case.name, label, scene.surface, options, coarse)
+                keep_solve(case.name, label, scene, options, coarse)
             if pair is not None:
                 m, _, settings = pair
                 log(f"{label}: BEM at {fine_cells}² cells from {case.name}_pair_{cells}_{fine_cells}.h5")
@@ -325,7 +331,8 @@ def finer_pair(path: Path, cells: int, log, preconditioner: str | None = None, s
     BEM on a finer mesh, by default the scene rebuilt at ``REFINEMENT`` × ``cells`` (stored in ``out/trade/<study>_pair_<cells>_<fine>.h5`` and listed
     under the convergence table). The solve at ``cells`` is taken from the config's converged store
     where that holds it (the table's own fine solve), else from a solve kept before with the same
-    options (:func:`stored_solve`), else run; each solve run here is kept as it finishes. ``preconditioner`` ("local" | "flat-patch"):
+    options (:func:`stored_solve`), else run; so is the fine one; each solve run here is kept as it
+    finishes (delete its file to solve it again). ``preconditioner`` ("local" | "flat-patch"):
     the solves run here with the local inverses and GMRES(``restart``), or the flat patch's inner
     solve and FGMRES(``restart``), even where the near LU would fit (it factors slowly there); they
     converge to the same discrete solution as the LU's, to the solver's tolerance.
@@ -361,20 +368,21 @@ def finer_pair(path: Path, cells: int, log, preconditioner: str | None = None, s
                     preconditioner = "local"
         fine_options, settings = fine_solve_options(options, np.nan, 1.0, f"{cells}²", preconditioner, restart)
         coarse_surface = refined(scene.surface, cells)
+        at_cells = dataclasses.replace(scene, surface=coarse_surface)
         if coarse is None:
-            coarse = stored_solve(case.name, label, coarse_surface, fine_options, log)
+            coarse = stored_solve(case.name, label, at_cells, fine_options, log)
         if coarse is None:
             log(f"{label}: BEM at {cells}² cells, {settings}")
-            coarse = process.measure(REFERENCE, fine_options, dataclasses.replace(scene, surface=coarse_surface), label)
-            keep_solve(case.name, label, coarse_surface, fine_options, coarse, settings)
+            coarse = process.measure(REFERENCE, fine_options, at_cells, label)
+            keep_solve(case.name, label, at_cells, fine_options, coarse, settings)
         fine_options, settings = fine_solve_options(options, coarse.peak_mb, (fine_cells / cells) ** 2, f"{cells}²",
                                                     preconditioner, restart)
         fine_surface = subdivided(coarse_surface, subdivide) if subdivide else refined(scene.surface, fine_cells)
-        m = stored_solve(case.name, label, fine_surface, fine_options, log)
-        if m is None:
+        at_fine = dataclasses.replace(scene, surface=fine_surface)
+        if (m := stored_solve(case.name, label, at_fine, fine_options, log)) is None:
             log(f"{label}: BEM at {fine_cells}² cells ({kind}), {settings}")
-            m = process.measure(REFERENCE, fine_options, dataclasses.replace(scene, surface=fine_surface), label)
-            keep_solve(case.name, label, fine_surface, fine_options, m, settings)
+            m = process.measure(REFERENCE, fine_options, at_fine, label)
+            keep_solve(case.name, label, at_fine, fine_options, m, settings)
     WORK.mkdir(parents=True, exist_ok=True)
     _write_refinement(out, label, fine_cells, m, coarse, settings, suite=path.parent.name, coarse_cells=cells,
                       size_um=scene.surface.size_um, surface_digest=surface_digest(coarse_surface), refinement=kind)
@@ -389,60 +397,64 @@ def surface_digest(surface) -> str:
     return hashlib.sha256(z.tobytes() + repr(float(surface.size_um)).encode()).hexdigest()[:16]
 
 
-def options_digest(options) -> str:
-    """A model's options as 12 hex digits: which settings a stored solve ran with."""
-    return hashlib.sha256(json.dumps(dataclasses.asdict(options), sort_keys=True, default=str).encode()).hexdigest()[:12]
+def solve_digest(scene, options) -> str | None:
+    """What a full-wave solve computes, as 16 hex digits: the scene's physics and output grid (its
+    surface's nodes included, the memory budget left out) and the solver's options; None where the
+    options let the solver fit its settings to the memory at hand (``[model.aim] fit_memory``), so
+    that the options do not say what ran."""
+    aim = getattr(options, "aim", None)
+    if aim is not None and getattr(options, "method", "aim") == "aim" and aim.fit_memory:
+        return None
+    fields = {f.name: getattr(scene, f.name) for f in dataclasses.fields(scene)
+              if f.name not in ("surface", "memory_budget_bytes", "index", "grid")}
+    fields.update(surface=surface_digest(scene.surface), index=[scene.index.real, scene.index.imag],
+                  grid=scene.grid.resolution, options=dataclasses.asdict(options))
+    return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def _solve_path(study: str, label: str, surface) -> Path:
-    return WORK / f"{study}_bem_{surface_digest(surface)}_{hashlib.sha256(label.encode()).hexdigest()[:8]}.h5"
-
-
-def keep_solve(study: str, label: str, surface, options, m, settings: str = "") -> Path | None:
-    """Store BEM Measurement ``m`` of scene ``label`` on ``surface`` with ``options`` as soon as it
-    is made (``out/trade/<study>_bem_<surface>_<scene>.h5``, written whole or not at all), so a
-    later solve that dies does not take it along and a comparison with the same options on the same
-    scene takes it instead of solving again (:func:`stored_solve`). A failed solve is not kept."""
+def keep_solve(study: str, label: str, scene, options, m, settings: str = "") -> Path | None:
+    """Store BEM Measurement ``m`` of ``scene`` (labelled ``label``) with ``options`` as soon as it
+    is made (``out/trade/<study>_bem_<solve digest>.h5``, :func:`solve_digest`; written whole or
+    not at all), so a later solve that dies does not take it along and a comparison of the same
+    scene with the same options takes it instead of solving again (:func:`stored_solve`). Not kept:
+    a failed solve, and one whose options fit to the memory at hand."""
     import h5py
 
-    if m.failure is not None or m.brdf is None:
+    digest = solve_digest(scene, options)
+    if digest is None or m.failure is not None or m.brdf is None:
         return None
-    path = _solve_path(study, label, surface)
+    path = WORK / f"{study}_bem_{digest}.h5"
     path.parent.mkdir(parents=True, exist_ok=True)
     partial = path.with_name(f".{path.name}.tmp")
     with h5py.File(partial, "w") as h5:
-        h5.attrs.update(scene=label, cells=surface.cells, surface_digest=surface_digest(surface),
-                        options_digest=options_digest(options), wall_s=m.wall_s, cpu_s=m.cpu_s, peak_mb=m.peak_mb,
-                        settings=settings)
+        h5.attrs.update(scene=label, cells=scene.surface.cells, wall_s=m.wall_s, cpu_s=m.cpu_s, peak_mb=m.peak_mb,
+                        settings=settings, diagnostics=json.dumps(m.diagnostics, sort_keys=True, default=str))
         h5["brdf"] = m.brdf
     partial.replace(path)
     return path
 
 
-def stored_solve(study: str, label: str, surface, options, log=None):
-    """The BEM Measurement :func:`keep_solve` stored of scene ``label`` on ``surface`` with these
-    ``options`` (digests compared), else None (``log`` says when a stored one ran other options)."""
+def stored_solve(study: str, label: str, scene, options, log=None):
+    """The BEM Measurement :func:`keep_solve` stored of ``scene`` with these ``options`` (its
+    diagnostics name the file: ``measured_before``), else None."""
     import h5py
 
     from wavebrdf.jobs.compare import Measurement
     from wavebrdf.solver.auto import REFERENCE
 
-    path = _solve_path(study, label, surface)
-    if not path.is_file():
+    digest = solve_digest(scene, options)
+    path = WORK / f"{study}_bem_{digest}.h5"
+    if digest is None or not path.is_file():
         return None
     with h5py.File(path) as h5:
         a = dict(h5.attrs)
-        if str(a["scene"]) != label or str(a["surface_digest"]) != surface_digest(surface):
-            return None
-        if str(a["options_digest"]) != options_digest(options):
-            if log is not None:
-                log(f"{label}: {path.name} was solved with other options ({a['settings'] or 'other settings'}): "
-                    "not used")
-            return None
         brdf = h5["brdf"][()]
     if log is not None:
-        log(f"{label}: BEM at {surface.cells}² cells from {path.name} ({float(a['cpu_s']):.0f} CPU-s)")
-    return Measurement(REFERENCE, label, float(a["wall_s"]), float(a["cpu_s"]), float(a["peak_mb"]), brdf)
+        log(f"{label}: BEM at {scene.surface.cells}² cells from {path.name} ({float(a['cpu_s']):.0f} CPU-s, "
+            f"{a['settings'] or 'the options given'})")
+    diagnostics = {**json.loads(a["diagnostics"]), "measured_before": path.name}
+    return Measurement(REFERENCE, str(a["scene"]), float(a["wall_s"]), float(a["cpu_s"]), float(a["peak_mb"]), brdf,
+                       diagnostics)
 
 
 def _stored_pair(study: str, label: str, surface, fine_cells: int, log=None):
@@ -524,6 +536,10 @@ def finer_pairs(configs: list[Path], record: Record | None = None) -> list[dict]
             fine, coarse, a = _read_refinement(stored, label)
             refinement = str(a.get("refinement", "refined"))
             coarse_cells = int(a["coarse_cells"])
+            if coarse_cells < scene.surface.cells:
+                logging.getLogger("trade").info(f"{stored.name} is coarser than {path.name}'s {scene.surface.cells}² "
+                                                "cells: not listed")
+                continue
             if str(a["scene"]) != label or str(a.get("surface_digest", "")) != surface_digest(
                     refined(scene.surface, coarse_cells)):
                 logging.getLogger("trade").info(f"{stored.name} is of another scene or surface than {path.name}'s: "
@@ -825,8 +841,8 @@ def _convergence_line(r: dict) -> str:
     return (f"| {r['suite']} | {r['scene']} | {r['spacing_um']:.4g} | {r['fine_spacing_um']:.4g} | "
             f"{_cell(r.get('rel_l2_smooth'))} | {_cell(r.get('rel_l2_smooth_s'))} | "
             f"{_cell(r.get('rel_l2_smooth_p'))} | {_cell(r.get('rel_l2'))} | {_cell(serves)} | "
-            f"{_cell(r['cpu_s'])} | {_cell(r['fine_cpu_s'])} | {r.get('fine_settings') or ''} |"
-            + (f" {r['failure']}" if r["failure"] else ""))
+            f"{_cell(r['cpu_s'])} | {_cell(r['fine_cpu_s'])} | "
+            f"{'; '.join(x for x in (r.get('fine_settings'), r['failure']) if x)} |")
 
 
 def markdown(table: list[dict], converged: list[dict], auto_rows: list[dict], tolerance: float, sweep: dict,
@@ -960,14 +976,15 @@ Every rung on seven scene kinds (smooth random, rough random, brushed, shallow g
 hemispheres, corner cubes, spherical pits; at the reference simulator's waist also a bumpy random
 surface of its steering surfaces' roughness) in the regimes listed below (one suite each:
 configs/compare/trade/<suite>/*.toml), with the same footprint, output grid and normalization,
-against the full-wave reference (AIM BEM) at d = 0.05 µm (where that did not converge to ⅓ of 0.05: 0.0333 µm, listed
+against the full-wave reference (AIM BEM) at d = 0.05 µm (where that did not converge to ⅓ of 0.05: 0.0333 or 0.025 µm, listed
 below); each reference checked against BEM at
 {refinement:g}× the cells where that solve was run (below). Errors are the relative L2 over the lobe of the BRDF against BEM: raw, and
 speckle-averaged (both blurred by the footprint's own angular spread λ/(πw): the figure `auto`'s
 tolerance applies to), unpolarized and per incident polarization (s, p). Times are CPU seconds
 of each model run alone in `compare`'s measuring process on the 2-core development VM, shared
-with other work while measured: compare ratios, not absolute times. The ray rungs ran with 2²⁰
-rays. Regenerate (resumes where it stopped):
+with other work while measured: compare ratios, not absolute times (where a config's BEM solve
+is a `--finer-pair`'s at the same spacing and settings, its time is that run's: the steep
+hemispheres at waist 2.5 µm). The ray rungs ran with 2²⁰ rays. Regenerate (resumes where it stopped):
 
     .venv/bin/python benchmarks/trade.py            # --force to recompute every scene
 

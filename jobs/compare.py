@@ -451,7 +451,8 @@ def compare_scenes(scenes: list[tuple[str, object]], models: list[str], options:
 
 def _compare_one(process, label, scene, models, options, reference, budget, kept, grid, progress,
                  measured) -> list[dict]:
-    """The rows of one scene: the reference and every model measured, then the metrics."""
+    """The rows of one scene: the reference and every model measured (or taken from ``measured``),
+    then the metrics."""
     rows = []
     if reference is None:
         ref_name, why = choose_reference(models, scene, budget)
@@ -462,7 +463,8 @@ def _compare_one(process, label, scene, models, options, reference, budget, kept
     for name in [ref_name] + [n for n in models if n != ref_name]:
         if progress:
             progress(f"{label}: {name}{' (measured before)' if (label, name) in measured else ''}")
-        runs[name] = measured.get((label, name)) or process.measure(name, options.get(name), scene, label)
+        before = (label, name) in measured
+        runs[name] = measured[label, name] if before else process.measure(name, options.get(name), scene, label)
         kept.append(runs[name])
         logger.info("%s: %s %.3g s wall, %.3g s CPU, %.0f MB%s", label, name, runs[name].wall_s,
                     runs[name].cpu_s, runs[name].peak_mb, f" — {runs[name].failure}" if runs[name].failure else "")

@@ -1,6 +1,6 @@
-"""The trade benchmark's stored solves (benchmarks/trade.py ``keep_solve`` / ``stored_solve``): a
-full-wave solve is kept the moment it is made and taken again only for the same scene, surface and
-options."""
+"""The trade benchmark's kept solves (benchmarks/trade.py ``keep_solve`` / ``stored_solve``): a
+full-wave solve is kept the moment it is made and taken again only for the same scene (surface,
+wavelength, direction, material, grid, precision) and the same fixed solver options."""
 
 from __future__ import annotations
 
@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from wavebrdf.jobs.compare import Measurement
-from wavebrdf.solver.models import model_class
+from wavebrdf.solver.farfield import HemisphereGrid
+from wavebrdf.solver.models import SurfaceScene, model_class
 from wavebrdf.solver.options import parse_options
 from wavebrdf.solver.surface import generate
 
@@ -30,33 +31,50 @@ def trade(tmp_path, monkeypatch):
     return module
 
 
-def test_a_kept_solve_is_taken_only_for_its_scene_surface_and_options(trade, tmp_path):
-    label = "hemispheres λ=0.5 µm θi=0°"
-    surface = generate("hemispheres", cells=40, size_um=2.0, radius_um=0.3, fill=0.3, placement="random", seed=1)
-    other_surface = generate("hemispheres", cells=40, size_um=2.0, radius_um=0.3, fill=0.3, placement="random", seed=2)
-    options = parse_options(model_class("bem").Options, {"method": "aim", "aim": {"preconditioner": "flat-patch"}},
-                            "model.bem")
-    other_options = dataclasses.replace(options, aim=dataclasses.replace(options.aim, restart=30))
-    brdf = np.random.default_rng(0).random((2, 8, 8))
-    solved = Measurement("bem", label, wall_s=12.5, cpu_s=20.25, peak_mb=700.0, brdf=brdf)
+def _bem_options(**aim):
+    return parse_options(model_class("bem").Options, {"method": "aim", "aim": aim}, "model.bem")
 
-    assert trade.keep_solve("study", label, surface, options, solved, "flat patch") is not None
+
+@pytest.fixture
+def scene():
+    surface = generate("hemispheres", cells=40, size_um=2.0, radius_um=0.3, fill=0.3, placement="random", seed=1)
+    return SurfaceScene(surface, 0.5, 0.96 - 6.69j, 0.0, 0.0, 1.0, HemisphereGrid(8))
+
+
+def test_a_kept_solve_is_taken_only_for_its_scene_and_options(trade, tmp_path, scene):
+    label = "hemispheres λ=0.5 µm θi=0°"
+    options = _bem_options(preconditioner="flat-patch", fit_memory=False)
+    brdf = np.random.default_rng(0).random((2, 8, 8))
+    solved = Measurement("bem", label, wall_s=12.5, cpu_s=20.25, peak_mb=700.0, brdf=brdf,
+                         diagnostics={"products": 42})
+
+    assert trade.keep_solve("study", label, scene, options, solved, "flat patch") is not None
     logged = []
-    again = trade.stored_solve("study", label, surface, options, logged.append)
+    again = trade.stored_solve("study", label, scene, options, logged.append)
     assert (again.wall_s, again.cpu_s, again.peak_mb, again.model, again.scene) == (12.5, 20.25, 700.0, "bem", label)
     np.testing.assert_array_equal(again.brdf, brdf)
-    assert trade.stored_solve("study", label, surface, other_options, logged.append) is None
-    assert "other options (flat patch): not used" in logged[-1]
-    assert trade.stored_solve("study", label, other_surface, options) is None  # another realization: another file
-    assert trade.stored_solve("study", "hemispheres λ=0.7 µm θi=0°", surface, options) is None
-    assert trade.stored_solve("other_study", label, surface, options) is None
+    assert again.diagnostics["products"] == 42 and again.diagnostics["measured_before"].startswith("study_bem_")
+    assert "flat patch" in logged[-1]
+    other_surface = generate("hemispheres", cells=40, size_um=2.0, radius_um=0.3, fill=0.3, placement="random", seed=2)
+    for other in (dataclasses.replace(scene, surface=other_surface), dataclasses.replace(scene, wavelength_um=0.7),
+                  dataclasses.replace(scene, index=1.5 + 0j), dataclasses.replace(scene, phi_i=np.pi / 2),
+                  dataclasses.replace(scene, waist_um=2.5), dataclasses.replace(scene, grid=HemisphereGrid(16)),
+                  dataclasses.replace(scene, precision="single")):
+        assert trade.stored_solve("study", label, other, options) is None
+    assert trade.stored_solve("study", label, scene, _bem_options(preconditioner="flat-patch", fit_memory=False,
+                                                                   restart=30)) is None
+    assert trade.stored_solve("other_study", label, scene, options) is None
+    # the memory budget the solve was given does not change what fixed options compute
+    assert trade.stored_solve("study", label, dataclasses.replace(scene, memory_budget_bytes=2**33), options)
     assert not list(tmp_path.glob(".*.tmp"))  # written whole
 
 
-def test_a_failed_solve_is_not_kept(trade, tmp_path):
-    surface = generate("flat", cells=20, size_um=1.0)
-    options = parse_options(model_class("bem").Options, {"method": "aim"}, "model.bem")
-    failed = Measurement("bem", "flat", wall_s=1.0, cpu_s=1.0, peak_mb=1.0, failure="did not converge")
-    assert trade.keep_solve("study", "flat", surface, options, failed) is None
-    assert trade.stored_solve("study", "flat", surface, options) is None
+def test_a_failed_solve_or_one_fitted_to_the_memory_at_hand_is_not_kept(trade, tmp_path, scene):
+    fixed = _bem_options(fit_memory=False)
+    failed = Measurement("bem", "s", wall_s=1.0, cpu_s=1.0, peak_mb=1.0, failure="did not converge")
+    assert trade.keep_solve("study", "s", scene, fixed, failed) is None
+    fitted = _bem_options()  # fit_memory: the settings that ran depend on the machine's memory
+    solved = Measurement("bem", "s", wall_s=1.0, cpu_s=1.0, peak_mb=1.0, brdf=np.ones((2, 8, 8)))
+    assert trade.keep_solve("study", "s", scene, fitted, solved) is None
+    assert trade.stored_solve("study", "s", scene, fitted) is None
     assert not list(tmp_path.iterdir())
