@@ -420,19 +420,17 @@ def keep_solve(study: str, label: str, scene, options, m, settings: str = "") ->
     not at all), so a later solve that dies does not take it along and a comparison of the same
     scene with the same options takes it instead of solving again (:func:`stored_solve`). Not kept:
     a failed solve, and one whose options fit to the memory at hand."""
-    import h5py
+    from wavebrdf.jobs.store import atomic_h5
 
     digest = solve_digest(scene, options)
     if digest is None or m.failure is not None or m.brdf is None:
         return None
     path = WORK / f"{study}_bem_{digest}.h5"
     path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(f".{path.name}.tmp")
-    with h5py.File(partial, "w") as h5:
+    with atomic_h5(path) as h5:
         h5.attrs.update(scene=label, cells=scene.surface.cells, wall_s=m.wall_s, cpu_s=m.cpu_s, peak_mb=m.peak_mb,
                         settings=settings, diagnostics=json.dumps(m.diagnostics, sort_keys=True, default=str))
         h5["brdf"] = m.brdf
-    partial.replace(path)
     return path
 
 

@@ -461,9 +461,9 @@ def _compare_one(process, label, scene, models, options, reference, budget, kept
     logger.info("%s: reference %s (%s)", label, ref_name, why)
     runs = {}
     for name in [ref_name] + [n for n in models if n != ref_name]:
-        if progress:
-            progress(f"{label}: {name}{' (measured before)' if (label, name) in measured else ''}")
         before = (label, name) in measured
+        if progress:
+            progress(f"{label}: {name}{' (measured before)' if before else ''}")
         runs[name] = measured[label, name] if before else process.measure(name, options.get(name), scene, label)
         kept.append(runs[name])
         logger.info("%s: %s %.3g s wall, %.3g s CPU, %.0f MB%s", label, name, runs[name].wall_s,
