@@ -78,3 +78,89 @@ def test_a_failed_solve_or_one_fitted_to_the_memory_at_hand_is_not_kept(trade, t
     assert trade.keep_solve("study", "s", scene, fitted, solved) is None
     assert trade.stored_solve("study", "s", scene, fitted) is None
     assert not list(tmp_path.iterdir())
+
+
+TINY_SCENE = """
+[study]
+name = "tiny_hemispheres"
+output = "{out}"
+
+[surface]
+size_um = 1.6
+cells = 16
+generator = "hemispheres"
+radius_um = 0.25
+fill = 0.3
+placement = "random"
+seed = 3
+
+[material]
+n = 1.5
+
+[illumination]
+wavelengths_um = [0.5]
+directions_deg = [[0, 0]]
+waist_um = 0.5
+
+[model]
+name = "bem"
+method = "aim"
+
+[model.aim]
+preconditioner = "flat-patch"
+solver = "gmres"
+restart = 30
+deflate = 0
+fit_memory = false
+
+[output]
+resolution = 16
+
+[compare]
+models = ["kirchhoff"]
+reference = "bem"
+"""
+
+
+def test_a_pairs_solves_are_kept_and_taken_by_the_pair_its_convergence_row_and_the_comparison(trade, tmp_path,
+                                                                                            monkeypatch):
+    """The wiring of the kept solves through the benchmark: a ``finer_pair`` at the config's cells
+    with the config's own settings solves twice; run again, it solves nothing; the convergence row
+    takes its fine solve, and the comparison its coarse one as BEM's (only the other rung runs)."""
+    from wavebrdf.jobs.compare import MeasuringProcess
+
+    monkeypatch.setattr(trade, "ROOT", tmp_path)
+    monkeypatch.setattr(trade, "WORK", tmp_path / "work")
+    config = tmp_path / "suite" / "tiny.toml"
+    config.parent.mkdir()
+    config.write_text(TINY_SCENE.format(out=tmp_path / "tiny.h5"))
+    ran = []
+    measure = MeasuringProcess.measure
+    monkeypatch.setattr(MeasuringProcess, "measure",
+                        lambda self, name, *a: ran.append((name, a[-2].surface.cells)) or measure(self, name, *a))
+    log = []
+
+    pair = trade.finer_pair(config, 16, log.append, "flat-patch")
+    assert ran == [("bem", 16), ("bem", 24)]
+    fine, coarse, settings = trade._stored_pair("tiny_hemispheres", trade.hardest_scene(config)[0],
+                                                trade.hardest_scene(config)[1].surface, 24)
+    assert not fine.failure and not coarse.failure and settings.startswith("the flat patch")
+
+    ran.clear()
+    assert trade.finer_pair(config, 16, log.append, "flat-patch") == pair
+    assert ran == []
+    again, _, _ = trade._stored_pair("tiny_hemispheres", trade.hardest_scene(config)[0],
+                                     trade.hardest_scene(config)[1].surface, 24)
+    np.testing.assert_array_equal(again.brdf, fine.brdf)
+
+    row = trade.convergence(config, False, log.append, run=False)
+    assert ran == [] and row["cells"] == 16 and row["fine_cells"] == 24 and not row["failure"]
+    assert (row["cpu_s"], row["fine_cpu_s"]) == (coarse.cpu_s, fine.cpu_s)
+
+    trade.compare_suite([config], False, log.append)
+    assert ran == [("kirchhoff", 16)]
+    label = trade.hardest_scene(config)[0]
+    bem = trade.stored_measurements(trade._stored(config))[label, "bem"]
+    np.testing.assert_array_equal(bem.brdf, coarse.brdf.astype(np.float32))  # comparison files keep float32
+    assert bem.cpu_s == coarse.cpu_s
+    assert trade.stored_measurements(trade._stored(config))[label, "kirchhoff"].brdf is not None
