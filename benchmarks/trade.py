@@ -3,7 +3,7 @@ through every rung that fits it, against the full-wave reference (AIM BEM), each
 converged in the mesh, aggregated into ``docs/trade.md``, ``docs/images/trade_<suite>.png``,
 ``solver/data/trade.csv`` (the data ``model = "auto"`` fits its rule to),
 ``solver/data/trade_convergence.csv`` and ``solver/data/trade_finer_pairs.csv`` (the refinements
-beyond the table's spacing, ``--finer-pair``).
+beside the table's spacing, finer or coarser, ``--finer-pair``).
 
     .venv/bin/python benchmarks/trade.py              # resumes: scenes already compared are reused
     .venv/bin/python benchmarks/trade.py --force      # recompute every scene
@@ -62,11 +62,12 @@ SUITES = {  # folder → the regime, as the tables print it
     "al_waist0.6": "aluminium, waist 0.6 µm (≈ λ), 4 µm patch, 80² cells (the steep hemispheres 120², d = λ/15: at "
                    "λ/10 their reference did not converge to ⅓ of 0.05), λ 0.5 & 0.7 µm, θ_i 0° & 60°",
     "al_waist2.5": "aluminium, waist 2.5 µm (5 λ at 0.5 µm: the reference simulator's), 9 µm patch, 180² cells (the spherical "
-                   "pits 270², d = λ/15, and the steep hemispheres 360², d = λ/20 = 0.025 µm, the reference "
-                   "simulator's spacing: at λ/10 their references did not converge to ⅓ of 0.05 — the hemispheres' "
-                   "0.027 against the scene rebuilt at 270², 0.0475 against its own surface subdivided to 360²; the "
-                   "360² reference's own check against 540² is not measured yet: that solve, 1.16·10⁶ unknowns, "
-                   "converges slowly, docs/aim.md), "
+                   "pits 270², d = λ/15; the corner cubes and the steep hemispheres 360², d = λ/20 = 0.025 µm, the "
+                   "reference simulator's spacing: at λ/10 their references did not converge to ⅓ of 0.05 — 0.0303 "
+                   "and 0.027 against the scene rebuilt at 270²; the hemispheres' rebuilt scene does not converge by "
+                   "refinement within reach: 240² against 360² differ by 0.0277, as 180² against 270², and the 360² "
+                   "reference's own check against 540², 1.16·10⁶ unknowns, converges too slowly to run here (docs/aim.md), "
+                   "so that reference serves tolerances ≥ ≈ 0.08, while every cheaper rung is ≥ 0.25 off it), "
                    "λ 0.5 µm (the bumpy surface: 0.4 & 0.7 µm, 6.25 λ & 3.6 λ), θ_i 0° & 30° (the steep "
                    "hemispheres: 0° only, one solve being ≈ 2,000 CPU-s)",
     "glass_waist0.6": "glass (n = 1.5), waist 0.6 µm (≈ λ), 4 µm patch, 80² cells (the corner cubes 120², d = λ/15: "
@@ -322,14 +323,16 @@ def convergence(path: Path, force: bool, log, run: bool = True, record: Record |
                 fine_options, settings = fine_solve_options(options, coarse.peak_mb, (fine_cells / cells) ** 2)
                 log(f"{label}: BEM at {fine_cells}² cells (d = {fine.surface.spacing_um:.4g} µm), {settings}")
                 m = process.measure(REFERENCE, fine_options, fine, label)
-        _write_refinement(store, label, fine_cells, m, coarse, settings)
+        _write_refinement(store, label, fine_cells, m, coarse, settings,
+                          fine_surface_digest=surface_digest(fine.surface))
         log(f"{label}: converged reference {m.cpu_s:.0f} s CPU{' — ' + m.failure if m.failure else ''}")
     return {**cells_row, **_refinement_row(*_read_refinement(store, label), scene)}
 
 
 def finer_pair(path: Path, cells: int, log, preconditioner: str | None = None, subdivide: int | None = None,
                restart: int = 30) -> Path:
-    """One refinement beyond the table's: the config's hardest scene at ``cells`` per side against
+    """One refinement beside the table's: the config's hardest scene at ``cells`` per side (below the
+    config's own cells only where its surface can be rebuilt there, :func:`surface_at`) against
     BEM on a finer mesh, by default the scene rebuilt at ``REFINEMENT`` × ``cells`` (stored in ``out/trade/<study>_pair_<cells>_<fine>.h5`` and listed
     under the convergence table). The solve at ``cells`` is taken from the config's converged store
     where that holds it (the table's own fine solve), else from a solve kept before with the same
@@ -345,7 +348,7 @@ def finer_pair(path: Path, cells: int, log, preconditioner: str | None = None, s
     from wavebrdf.jobs.compare import MeasuringProcess
     from wavebrdf.jobs.config import load_config
     from wavebrdf.solver.auto import REFERENCE
-    from wavebrdf.solver.surface import refined, subdivided
+    from wavebrdf.solver.surface import subdivided
 
     if subdivide is not None and (int(subdivide) != subdivide or subdivide < 2):
         raise ValueError(f"--subdivide must be an integer >= 2, got {subdivide!r}")
@@ -356,6 +359,8 @@ def finer_pair(path: Path, cells: int, log, preconditioner: str | None = None, s
     out = WORK / f"{case.name}_pair_{cells}_{fine_cells}{'_subdivided' if subdivide else ''}.h5"
     store = WORK / f"{case.name}_converged.h5"
     options = case.model.options
+    coarse_surface = surface_at(scene.surface, cells)  # refused here, before any solve, where it cannot be built
+    fine_surface = subdivided(coarse_surface, subdivide) if subdivide else surface_at(scene.surface, fine_cells)
     WORK.mkdir(parents=True, exist_ok=True)
     progress = out.with_suffix(".progress")
     log(f"{label}: the solves' progress is appended to {progress.relative_to(ROOT)}")
@@ -363,13 +368,13 @@ def finer_pair(path: Path, cells: int, log, preconditioner: str | None = None, s
         coarse = None
         if store.is_file():
             stored, _, attrs = _read_refinement(store, label)
-            if int(attrs["cells"]) == cells and stored.brdf is not None:
+            if (int(attrs["cells"]) == cells and stored.brdf is not None
+                    and str(attrs.get("fine_surface_digest", "")) == surface_digest(coarse_surface)):
                 coarse = stored
                 # a peak without the LU says nothing of what the LU needs: stay without it
                 if preconditioner is None and str(attrs.get("settings", "")).startswith("local"):
                     preconditioner = "local"
         fine_options, settings = fine_solve_options(options, np.nan, 1.0, f"{cells}²", preconditioner, restart)
-        coarse_surface = refined(scene.surface, cells)
         at_cells = dataclasses.replace(scene, surface=coarse_surface)
         if coarse is None:
             coarse = stored_solve(case.name, label, at_cells, fine_options, log)
@@ -379,7 +384,6 @@ def finer_pair(path: Path, cells: int, log, preconditioner: str | None = None, s
             keep_solve(case.name, label, at_cells, fine_options, coarse, settings)
         fine_options, settings = fine_solve_options(options, coarse.peak_mb, (fine_cells / cells) ** 2, f"{cells}²",
                                                     preconditioner, restart)
-        fine_surface = subdivided(coarse_surface, subdivide) if subdivide else refined(scene.surface, fine_cells)
         at_fine = dataclasses.replace(scene, surface=fine_surface)
         if (m := stored_solve(case.name, label, at_fine, fine_options, log)) is None:
             log(f"{label}: BEM at {fine_cells}² cells ({kind}), {settings}")
@@ -389,6 +393,17 @@ def finer_pair(path: Path, cells: int, log, preconditioner: str | None = None, s
     _write_refinement(out, label, fine_cells, m, coarse, settings, suite=path.parent.name, coarse_cells=cells,
                       size_um=scene.surface.size_um, surface_digest=surface_digest(coarse_surface), refinement=kind)
     return out
+
+
+def surface_at(surface, cells: int):
+    """The config's ``surface`` at ``cells`` cells a side: refined (:func:`~wavebrdf.solver.surface.refined`)
+    to at least its own cells, rebuilt (:func:`~wavebrdf.solver.surface.rebuilt`) below them, which
+    only a generator independent of the grid allows (SurfaceError otherwise)."""
+    from wavebrdf.solver.surface import rebuilt, refined
+
+    if cells == surface.cells:
+        return surface  # refined would interpolate a random realization anew: same heights to rounding only
+    return refined(surface, cells) if cells > surface.cells else rebuilt(surface, cells)
 
 
 def surface_digest(surface) -> str:
@@ -523,11 +538,11 @@ def _pair_key(row: dict) -> tuple:
 
 
 def finer_pairs(configs: list[Path], record: Record | None = None) -> list[dict]:
-    """The rows of every stored :func:`finer_pair` of ``configs`` beyond the table's own spacing
-    (the convergence table's columns), and those ``record`` keeps of a config whose pair is no
-    longer in ``out/trade`` (while the config is unchanged)."""
+    """The rows of every stored :func:`finer_pair` of ``configs`` beside the table's own check, finer
+    or coarser (the convergence table's columns), and those ``record`` keeps of a config whose pair
+    is no longer in ``out/trade`` (while the config is unchanged); sorted by kind and cells."""
     from wavebrdf.jobs.config import load_config
-    from wavebrdf.solver.surface import refined
+    from wavebrdf.solver.surface import SurfaceError
 
     rows = []
     for path in configs:
@@ -536,12 +551,12 @@ def finer_pairs(configs: list[Path], record: Record | None = None) -> list[dict]
             fine, coarse, a = _read_refinement(stored, label)
             refinement = str(a.get("refinement", "refined"))
             coarse_cells = int(a["coarse_cells"])
-            if coarse_cells < scene.surface.cells:
-                logging.getLogger("trade").info(f"{stored.name} is coarser than {path.name}'s {scene.surface.cells}² "
-                                                "cells: not listed")
+            try:
+                coarse_surface = surface_at(scene.surface, coarse_cells)
+            except SurfaceError as e:
+                logging.getLogger("trade").info(f"{stored.name}: not listed ({e})")
                 continue
-            if str(a["scene"]) != label or str(a.get("surface_digest", "")) != surface_digest(
-                    refined(scene.surface, coarse_cells)):
+            if str(a["scene"]) != label or str(a.get("surface_digest", "")) != surface_digest(coarse_surface):
                 logging.getLogger("trade").info(f"{stored.name} is of another scene or surface than {path.name}'s: "
                                                 "not listed")
                 continue
@@ -554,7 +569,7 @@ def finer_pairs(configs: list[Path], record: Record | None = None) -> list[dict]
     measured = {_pair_key(r) for r in rows}
     digests = {config_digest(path) for path in configs}
     rows += [r for r in (record.pairs if record else []) if r["config_digest"] in digests and _pair_key(r) not in measured]
-    return rows
+    return sorted(rows, key=lambda r: (r["suite"], r["scene"], _pair_key(r)[2:]))
 
 
 FINE_PRECONDITIONERS = {  # the finer solve's preconditioner where the near LU is not used → what the table says
@@ -737,12 +752,13 @@ def main(argv=None) -> int:
     parser.add_argument("--measured-tolerances", nargs="*", type=float, default=[0.05, 0.01],
                         help="tolerances at which auto is run on every scene, end to end (0.05 0.01)")
     parser.add_argument("--finer-pair", nargs=2, metavar=("CONFIG", "CELLS"),
-                        help="only solve one refinement beyond the table's: CONFIG's hardest scene at CELLS per side "
-                             f"and at {REFINEMENT:g}× CELLS (listed under the convergence table at the next run)")
+                        help="only solve one refinement beside the table's: CONFIG's hardest scene at CELLS per side "
+                             f"and at {REFINEMENT:g}× CELLS (listed under the convergence table at the next run); "
+                             "CELLS below the config's only for a surface its generator can rebuild there")
     parser.add_argument("--subdivide", type=int, metavar="FACTOR",
                         help="with --finer-pair: the fine mesh is the surface at CELLS with every cell split into "
                              "FACTOR² (the same bilinear geometry: the solver's convergence alone), not the scene "
-                             f"rebuilt at {REFINEMENT:g}× CELLS")
+                             f"refined to {REFINEMENT:g}× CELLS")
     preconditioners = parser.add_mutually_exclusive_group()
     preconditioners.add_argument("--local-inverses", dest="preconditioner", action="store_const", const="local",
                         help="with --finer-pair: both solves with local inverses and GMRES(--restart) even where "
@@ -871,9 +887,11 @@ def markdown(table: list[dict], converged: list[dict], auto_rows: list[dict], to
             "CPU (s) | fine CPU (s) | fine solve |", "|" + "---|" * 12]
     further = [r for r in pairs if (r.get("refinement") or "refined") == "refined"]
     if further:
-        lines += ["", "Beyond the table's spacing (`benchmarks/trade.py --finer-pair CONFIG CELLS`): the same scene one "
-                  f"refinement further, at {REFINEMENT:g}× CELLS against CELLS, where the table's reference misses ⅓ of "
-                  "0.05: how fast it converges, and what a finer table would serve.", ""] + head
+        lines += ["", "Beside the table's spacing (`benchmarks/trade.py --finer-pair CONFIG CELLS`): the same scene at "
+                  f"CELLS against it refined to {REFINEMENT:g}× CELLS (as in the table above) — finer than the table's where its reference "
+                  "misses ⅓ of 0.05 (how fast it converges, what a finer table would serve), coarser where the "
+                  "table's own check is out of reach (how the references converge toward the table's spacing).",
+                  ""] + head
         lines += [_convergence_line(r) for r in further]
     fixed = [r for r in pairs if r.get("refinement") == "subdivided"]
     if fixed:
@@ -984,7 +1002,7 @@ tolerance applies to), unpolarized and per incident polarization (s, p). Times a
 of each model run alone in `compare`'s measuring process on the 2-core development VM, shared
 with other work while measured: compare ratios, not absolute times (where a config's BEM solve
 is a `--finer-pair`'s at the same spacing and settings, its time is that run's: the steep
-hemispheres at waist 2.5 µm). The ray rungs ran with 2²⁰ rays. Regenerate (resumes where it stopped):
+hemispheres and the corner cubes' θ_i 30° at waist 2.5 µm). The ray rungs ran with 2²⁰ rays. Regenerate (resumes where it stopped):
 
     .venv/bin/python benchmarks/trade.py            # --force to recompute every scene
 

@@ -42,6 +42,7 @@ __all__ = [
     "generate",
     "generator",
     "load_heights",
+    "rebuilt",
     "refined",
     "subdivided",
 ]
@@ -923,12 +924,9 @@ def refined(field: HeightField, cells: int) -> HeightField:
     if int(cells) != cells or cells < field.cells:
         raise SurfaceError(f"refined: cells must be an integer >= the field's {field.cells}, got {cells!r}")
     cells = int(cells)
-    params = dict(field.parameters or {})
-    chosen = GENERATORS.get(params.pop("generator", None))
+    chosen = GENERATORS.get((field.parameters or {}).get("generator"))
     if chosen is not None and not chosen.cell_dependent:
-        kept = {k: v for k, v in params.items() if k in chosen.keys}
-        out = generate(chosen.name, cells=cells, size_um=field.size_um, seed=params.get("seed", 0), **kept)
-        return HeightField(out.z, field.size_um, field.origin_um, out.ensemble, out.parameters)
+        return rebuilt(field, cells)
     if chosen is not None and chosen.cell_dependent and all(field.periodic):
         z = _periodic_nodes(_fourier_interpolated(field.z[:-1, :-1], cells))
     else:
@@ -938,6 +936,26 @@ def refined(field: HeightField, cells: int) -> HeightField:
         z = RectBivariateSpline(coarse, coarse, field.z, kx=3, ky=3)(fine, fine)
     recorded = None if field.parameters is None else {**field.parameters, "refined_from_cells": field.cells}
     return HeightField(z, field.size_um, field.origin_um, field.ensemble, recorded)
+
+
+def rebuilt(field: HeightField, cells: int) -> HeightField:
+    """The same deterministic surface generated anew at ``cells`` cells a side, finer or coarser:
+    a generator whose geometry does not depend on the grid (its :attr:`Generator.cell_dependent`
+    false: gratings, cubes, "hemispheres"), from the parameters ``field`` records. A random
+    realization drawn on the grid has no version at other cells: refused (:func:`refined` refines it)."""
+    if int(cells) != cells or cells < MIN_NODES - 1:
+        raise SurfaceError(f"rebuilt: cells must be an integer >= {MIN_NODES - 1}, got {cells!r}")
+    params = dict(field.parameters or {})
+    chosen = GENERATORS.get(params.pop("generator", None))
+    if chosen is None:
+        raise SurfaceError("rebuilt: the surface records no generator (a file, a cut patch or a subdivided "
+                           "surface): it cannot be generated at other cells")
+    if chosen.cell_dependent:
+        raise SurfaceError(f"rebuilt: a {chosen.name!r} realization is drawn on its grid and has no version at "
+                           "other cells (refined interpolates it to finer ones)")
+    kept = {k: v for k, v in params.items() if k in chosen.keys}
+    out = generate(chosen.name, cells=int(cells), size_um=field.size_um, seed=params.get("seed", 0), **kept)
+    return HeightField(out.z, field.size_um, field.origin_um, out.ensemble, out.parameters)
 
 
 def subdivided(field: HeightField, factor: int) -> HeightField:

@@ -126,7 +126,8 @@ def test_a_pairs_solves_are_kept_and_taken_by_the_pair_its_convergence_row_and_t
                                                                                             monkeypatch):
     """The wiring of the kept solves through the benchmark: a ``finer_pair`` at the config's cells
     with the config's own settings solves twice; run again, it solves nothing; the convergence row
-    takes its fine solve, and the comparison its coarse one as BEM's (only the other rung runs)."""
+    takes its fine solve, and the comparison its coarse one as BEM's (only the other rung runs); a
+    pair below the config's cells is listed with the pairs beside the table's spacing."""
     from wavebrdf.jobs.compare import MeasuringProcess
 
     monkeypatch.setattr(trade, "ROOT", tmp_path)
@@ -164,3 +165,33 @@ def test_a_pairs_solves_are_kept_and_taken_by_the_pair_its_convergence_row_and_t
     np.testing.assert_array_equal(bem.brdf, coarse.brdf.astype(np.float32))  # comparison files keep float32
     assert bem.cpu_s == coarse.cpu_s
     assert trade.stored_measurements(trade._stored(config))[label, "kirchhoff"].brdf is not None
+
+    # a pair below the config's cells (its surface rebuilt there) is listed beside the table's own check
+    ran.clear()
+    trade.finer_pair(config, 12, log.append, "flat-patch")
+    assert ran == [("bem", 12), ("bem", 18)]
+    rows = trade.finer_pairs([config])
+    assert [(r["cells"], r["fine_cells"], r["refinement"]) for r in rows] == [(12, 18, "refined")]
+
+
+def test_a_random_realization_keeps_its_digest_at_its_own_cells_and_is_refused_below_them(trade, tmp_path,
+                                                                                          monkeypatch):
+    """A pair at a random config's own cells is of the config's own surface (its kept solve is then
+    the comparison's); below them the realization does not exist, and the pair is refused before
+    anything is solved."""
+    from wavebrdf.jobs.compare import MeasuringProcess
+    from wavebrdf.solver.surface import SurfaceError
+
+    rough = generate("gaussian", cells=24, size_um=2.0, rms_height_um=0.05, correlation_um=0.5, seed=4)
+    assert trade.surface_at(rough, 24) is rough
+    assert trade.surface_digest(trade.surface_at(rough, 36)) != trade.surface_digest(rough)
+    monkeypatch.setattr(trade, "ROOT", tmp_path)
+    monkeypatch.setattr(trade, "WORK", tmp_path / "work")
+    config = tmp_path / "suite" / "rough.toml"
+    config.parent.mkdir()
+    config.write_text(TINY_SCENE.format(out=tmp_path / "rough.h5").replace(
+        'generator = "hemispheres"\nradius_um = 0.25\nfill = 0.3\nplacement = "random"',
+        'generator = "gaussian"\nrms_height_um = 0.03\ncorrelation_um = 0.4'))
+    monkeypatch.setattr(MeasuringProcess, "measure", lambda *a: pytest.fail("nothing may be solved"))
+    with pytest.raises(SurfaceError, match="'gaussian' realization is drawn on its grid"):
+        trade.finer_pair(config, 12, lambda line: None, "flat-patch")

@@ -463,6 +463,28 @@ def test_refined_realization_is_the_band_limited_surface_through_every_coarse_no
         refined(grating, 10)
 
 
+def test_a_grid_independent_surface_rebuilt_at_fewer_cells_has_the_nodes_it_shares_with_the_finer_one():
+    """A deterministic surface generated anew on a coarser grid (a convergence pair below a table's
+    spacing) is the same geometry: at every node the coarse and fine grids share (every k-th fine
+    node) the heights agree, for a grating, corner cubes and the random-placed hemispheres (their
+    disk centres are drawn independently of the grid); a realization drawn on the grid is refused."""
+    from wavebrdf.solver.surface import rebuilt, subdivided
+
+    fields = [generate("sinusoid", cells=60, size_um=4.0, amplitude_um=0.04, period_um=1.0),
+              generate("corner-cubes", cells=36, size_um=1.8, period_um=0.6, seed=3),
+              generate("hemispheres", cells=48, size_um=2.4, radius_um=0.3, fill=0.3, placement="random", seed=7)]
+    for fine in fields:
+        for k in (2, 3):
+            coarse = rebuilt(fine, fine.cells // k)
+            assert coarse.cells == fine.cells // k and coarse.size_um == fine.size_um
+            assert np.allclose(coarse.z, fine.z[::k, ::k], atol=1e-13, rtol=0)
+        assert np.array_equal(rebuilt(fine, fine.cells).z, fine.z)
+    with pytest.raises(SurfaceError, match="'gaussian' realization is drawn on its grid"):
+        rebuilt(generate("gaussian", cells=24, size_um=2.0, rms_height_um=0.05, correlation_um=0.5), 12)
+    with pytest.raises(SurfaceError, match="records no generator"):
+        rebuilt(subdivided(fields[1], 2), 36)
+
+
 def test_subdivided_surface_is_the_same_bilinear_surface_on_a_finer_mesh():
     """A solver-convergence study on a fixed geometry: every element of the subdivided surface's
     BEM mesh lies on the coarse surface's bilinear patches (scipy's linear interpolation on the
