@@ -65,7 +65,7 @@ SUITES = {  # folder → the regime, as the tables print it
                    "pits 270², d = λ/15; the corner cubes and the steep hemispheres 360², d = λ/20 = 0.025 µm, the "
                    "reference simulator's spacing: at λ/10 their references did not converge to ⅓ of 0.05 — 0.0303 "
                    "and 0.027 against the scene rebuilt at 270²; the hemispheres' rebuilt scene does not converge by "
-                   "refinement within reach: 240² against 360² differ by 0.0277, as 180² against 270², and the 360² "
+                   "refinement within reach: 240² against 360² differ by 0.0277, as 180² against 270², and their 360² "
                    "reference's own check against 540², 1.16·10⁶ unknowns, converges too slowly to run here (docs/aim.md), "
                    "so that reference serves tolerances ≥ ≈ 0.08, while every cheaper rung is ≥ 0.25 off it), "
                    "λ 0.5 µm (the bumpy surface: 0.4 & 0.7 µm, 6.25 λ & 3.6 λ), θ_i 0° & 30° (the steep "
@@ -280,7 +280,6 @@ def convergence(path: Path, force: bool, log, run: bool = True, record: Record |
     from wavebrdf.jobs.compare import MeasuringProcess
     from wavebrdf.jobs.config import load_config
     from wavebrdf.solver.auto import REFERENCE
-    from wavebrdf.solver.surface import refined
 
     label, scene = hardest_scene(path)
     cells = scene.surface.cells
@@ -291,12 +290,18 @@ def convergence(path: Path, force: bool, log, run: bool = True, record: Record |
                  "config_digest": config_digest(path), "scene": label, "spacing_um": scene.surface.spacing_um,
                  "fine_spacing_um": scene.surface.size_um / fine_cells, "cells": cells, "fine_cells": fine_cells}
     kept = None if record is None else record.convergence.get(config_digest(path))
+    fine = dataclasses.replace(scene, surface=surface_at(scene.surface, fine_cells))
     if store.is_file():
         with h5py.File(store) as h5:
             stored_cells = int(h5.attrs.get("cells", -1))
+            stored_surface = str(h5.attrs.get("fine_surface_digest", ""))
         if stored_cells != fine_cells:  # solved for another version of the config: not this one's
             stale = store.with_name(f"{store.stem}_{stored_cells}cells.h5")
             log(f"{label}: {store.name} holds a {stored_cells}² solve, not {fine_cells}²: moved to {stale.name}")
+            store.rename(stale)
+        elif stored_surface and stored_surface != surface_digest(fine.surface):  # stores before the digest: kept
+            stale = store.with_name(f"{store.stem}_surface_{stored_surface}.h5")
+            log(f"{label}: {store.name} holds a solve of another surface: moved to {stale.name}")
             store.rename(stale)
     pair = None if force else _stored_pair(case.name, label, scene.surface, fine_cells, log)
     if not force and not store.is_file() and kept is not None:
@@ -305,7 +310,6 @@ def convergence(path: Path, force: bool, log, run: bool = True, record: Record |
         return {**cells_row, "cpu_s": np.nan, "fine_cpu_s": np.nan, "failure": "not measured"}
     if force or not store.is_file():
         WORK.mkdir(parents=True, exist_ok=True)
-        fine = dataclasses.replace(scene, surface=refined(scene.surface, fine_cells))
         options = case.model.options
         with MeasuringProcess() as process:
             if _stored(path).is_file():
@@ -335,7 +339,8 @@ def finer_pair(path: Path, cells: int, log, preconditioner: str | None = None, s
     config's own cells only where its surface can be rebuilt there, :func:`surface_at`) against
     BEM on a finer mesh, by default the scene rebuilt at ``REFINEMENT`` × ``cells`` (stored in ``out/trade/<study>_pair_<cells>_<fine>.h5`` and listed
     under the convergence table). The solve at ``cells`` is taken from the config's converged store
-    where that holds it (the table's own fine solve), else from a solve kept before with the same
+    where that holds it of the same surface (the table's own fine solve; the store records its fine
+    surface as ``fine_surface_digest``, a pair file its coarse one as ``surface_digest``), else from a solve kept before with the same
     options (:func:`stored_solve`), else run; so is the fine one; each solve run here is kept as it
     finishes (delete its file to solve it again). ``preconditioner`` ("local" | "flat-patch"):
     the solves run here with the local inverses and GMRES(``restart``), or the flat patch's inner
@@ -368,8 +373,11 @@ def finer_pair(path: Path, cells: int, log, preconditioner: str | None = None, s
         coarse = None
         if store.is_file():
             stored, _, attrs = _read_refinement(store, label)
-            if (int(attrs["cells"]) == cells and stored.brdf is not None
-                    and str(attrs.get("fine_surface_digest", "")) == surface_digest(coarse_surface)):
+            same_surface = str(attrs.get("fine_surface_digest", "")) == surface_digest(coarse_surface)
+            if int(attrs["cells"]) == cells and stored.brdf is not None and not same_surface:
+                log(f"{label}: {store.name}'s {cells}² solve is not known to be of this surface (another surface, "
+                    "or stored before surfaces were recorded): not taken")
+            elif int(attrs["cells"]) == cells and stored.brdf is not None:
                 coarse = stored
                 # a peak without the LU says nothing of what the LU needs: stay without it
                 if preconditioner is None and str(attrs.get("settings", "")).startswith("local"):
@@ -540,7 +548,8 @@ def _pair_key(row: dict) -> tuple:
 def finer_pairs(configs: list[Path], record: Record | None = None) -> list[dict]:
     """The rows of every stored :func:`finer_pair` of ``configs`` beside the table's own check, finer
     or coarser (the convergence table's columns), and those ``record`` keeps of a config whose pair
-    is no longer in ``out/trade`` (while the config is unchanged); sorted by kind and cells."""
+    is no longer in ``out/trade`` (while the config is unchanged); sorted by suite, scene, kind and
+    cells."""
     from wavebrdf.jobs.config import load_config
     from wavebrdf.solver.surface import SurfaceError
 

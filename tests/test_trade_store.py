@@ -158,6 +158,20 @@ def test_a_pairs_solves_are_kept_and_taken_by_the_pair_its_convergence_row_and_t
     assert ran == [] and row["cells"] == 16 and row["fine_cells"] == 24 and not row["failure"]
     assert (row["cpu_s"], row["fine_cpu_s"]) == (coarse.cpu_s, fine.cpu_s)
 
+    # the convergence store's fine solve is the next pair's coarse one, for the same surface only
+    # (other settings than the kept solves': only the store can supply the 24² solve)
+    trade.finer_pair(config, 24, log.append, "flat-patch", restart=20)
+    assert ran == [("bem", 36)]
+    import h5py
+
+    with h5py.File(trade.WORK / "tiny_hemispheres_converged.h5", "a") as h5:
+        h5.attrs["fine_surface_digest"] = "another surface"
+    ran.clear()
+    trade.finer_pair(config, 24, log.append, "flat-patch", restart=20)
+    assert ran == [("bem", 24)] and any("converged.h5's 24² solve is not known to be of this surface" in line
+                                        for line in log)
+    ran.clear()
+
     trade.compare_suite([config], False, log.append)
     assert ran == [("kirchhoff", 16)]
     label = trade.hardest_scene(config)[0]
@@ -171,20 +185,20 @@ def test_a_pairs_solves_are_kept_and_taken_by_the_pair_its_convergence_row_and_t
     trade.finer_pair(config, 12, log.append, "flat-patch")
     assert ran == [("bem", 12), ("bem", 18)]
     rows = trade.finer_pairs([config])
-    assert [(r["cells"], r["fine_cells"], r["refinement"]) for r in rows] == [(12, 18, "refined")]
+    assert [(r["cells"], r["fine_cells"], r["refinement"]) for r in rows] == [(12, 18, "refined"), (24, 36, "refined")]
 
 
 def test_a_random_realization_keeps_its_digest_at_its_own_cells_and_is_refused_below_them(trade, tmp_path,
                                                                                           monkeypatch):
     """A pair at a random config's own cells is of the config's own surface (its kept solve is then
     the comparison's); below them the realization does not exist, and the pair is refused before
-    anything is solved."""
+    anything is solved or written."""
     from wavebrdf.jobs.compare import MeasuringProcess
     from wavebrdf.solver.surface import SurfaceError
 
     rough = generate("gaussian", cells=24, size_um=2.0, rms_height_um=0.05, correlation_um=0.5, seed=4)
     assert trade.surface_at(rough, 24) is rough
-    assert trade.surface_digest(trade.surface_at(rough, 36)) != trade.surface_digest(rough)
+    assert np.allclose(trade.surface_at(rough, 48).z[::2, ::2], rough.z, atol=1e-13, rtol=0)  # refined: same nodes
     monkeypatch.setattr(trade, "ROOT", tmp_path)
     monkeypatch.setattr(trade, "WORK", tmp_path / "work")
     config = tmp_path / "suite" / "rough.toml"
@@ -192,6 +206,18 @@ def test_a_random_realization_keeps_its_digest_at_its_own_cells_and_is_refused_b
     config.write_text(TINY_SCENE.format(out=tmp_path / "rough.h5").replace(
         'generator = "hemispheres"\nradius_um = 0.25\nfill = 0.3\nplacement = "random"',
         'generator = "gaussian"\nrms_height_um = 0.03\ncorrelation_um = 0.4'))
+    measure = MeasuringProcess.measure
     monkeypatch.setattr(MeasuringProcess, "measure", lambda *a: pytest.fail("nothing may be solved"))
     with pytest.raises(SurfaceError, match="'gaussian' realization is drawn on its grid"):
         trade.finer_pair(config, 12, lambda line: None, "flat-patch")
+    assert not (tmp_path / "work").exists()
+
+    # at its own cells the pair's coarse solve is the config's own surface: the comparison takes it
+    ran = []
+    monkeypatch.setattr(MeasuringProcess, "measure",
+                        lambda self, name, *a: ran.append((name, a[-2].surface.cells)) or measure(self, name, *a))
+    trade.finer_pair(config, 16, lambda line: None, "flat-patch")
+    assert ran == [("bem", 16), ("bem", 24)]
+    ran.clear()
+    trade.compare_suite([config], False, lambda line: None)
+    assert ran == [("kirchhoff", 16)]
