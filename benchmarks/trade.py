@@ -373,15 +373,15 @@ def finer_pair(path: Path, cells: int, log, preconditioner: str | None = None, s
         coarse = None
         if store.is_file():
             stored, _, attrs = _read_refinement(store, label)
-            same_surface = str(attrs.get("fine_surface_digest", "")) == surface_digest(coarse_surface)
-            if int(attrs["cells"]) == cells and stored.brdf is not None and not same_surface:
-                log(f"{label}: {store.name}'s {cells}² solve is not known to be of this surface (another surface, "
-                    "or stored before surfaces were recorded): not taken")
-            elif int(attrs["cells"]) == cells and stored.brdf is not None:
-                coarse = stored
-                # a peak without the LU says nothing of what the LU needs: stay without it
-                if preconditioner is None and str(attrs.get("settings", "")).startswith("local"):
-                    preconditioner = "local"
+            if int(attrs["cells"]) == cells and stored.brdf is not None:
+                if str(attrs.get("fine_surface_digest", "")) == surface_digest(coarse_surface):
+                    coarse = stored
+                    # a peak without the LU says nothing of what the LU needs: stay without it
+                    if preconditioner is None and str(attrs.get("settings", "")).startswith("local"):
+                        preconditioner = "local"
+                else:
+                    log(f"{label}: {store.name}'s {cells}² solve is not known to be of this surface (another "
+                        "surface, or stored before surfaces were recorded): not taken")
         fine_options, settings = fine_solve_options(options, np.nan, 1.0, f"{cells}²", preconditioner, restart)
         at_cells = dataclasses.replace(scene, surface=coarse_surface)
         if coarse is None:

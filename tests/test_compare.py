@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from references import fresnel_reflectance
-from wavebrdf.jobs.compare import Measurement, MeasuringProcess, choose_reference, compare_scenes
+from wavebrdf.jobs.compare import Measurement, choose_reference, compare_scenes
 from wavebrdf.jobs.store import StoreError, read_comparison
 from wavebrdf.solver.farfield import HemisphereGrid
 from wavebrdf.solver.models import SurfaceScene, rung_order
@@ -57,7 +57,7 @@ def write_small_h5(path):
     return path
 
 
-def test_a_measurement_made_before_is_taken_instead_of_running_the_model_again(flat_scene, monkeypatch):
+def test_a_measurement_made_before_is_taken_instead_of_running_the_model_again(flat_scene, models_run):
     """``measured``: the stored solve is the scene's reference (its times in the row, the other
     models' errors against its BRDF) and the model is not run: kirchhoff's BRDF scaled by 2 puts
     po's relative L2 near 1/2, not at po's small error against kirchhoff itself."""
@@ -65,16 +65,13 @@ def test_a_measurement_made_before_is_taken_instead_of_running_the_model_again(f
     first = compare_scenes([(label, flat_scene)], ["kirchhoff", "po"], reference="kirchhoff")
     kirchhoff, po = first.measurements
     before = Measurement("kirchhoff", label, wall_s=1234.0, cpu_s=2345.0, peak_mb=3456.0, brdf=2 * kirchhoff.brdf)
-    ran = []
-    measure = MeasuringProcess.measure
-    monkeypatch.setattr(MeasuringProcess, "measure", lambda self, name, *a, **k: ran.append(name) or measure(self, name,
-                                                                                                            *a, **k))
+    models_run.clear()
     again = compare_scenes([(label, flat_scene)], ["kirchhoff", "po"], reference="kirchhoff",
                            measured={(label, "kirchhoff"): before})
     rows = {r["model"]: r for r in again.rows}
     assert (rows["kirchhoff"]["wall_s"], rows["kirchhoff"]["cpu_s"], rows["kirchhoff"]["peak_mb"]) == (1234.0, 2345.0,
                                                                                                         3456.0)
-    assert again.measurements[0] is before and ran == ["po"]
+    assert again.measurements[0] is before and [name for name, _ in models_run] == ["po"]
     e = {r["model"]: r for r in first.rows}["po"]["rel_l2"]  # po against kirchhoff: P = K + δ, |δ| = e |K|
     assert e < 0.05
     assert abs(rows["po"]["rel_l2"] - 0.5) <= e / 2 + 1e-12  # |K − δ| / |2K| lies in 1/2 ± e/2 in any norm

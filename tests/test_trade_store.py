@@ -123,22 +123,17 @@ reference = "bem"
 
 
 def test_a_pairs_solves_are_kept_and_taken_by_the_pair_its_convergence_row_and_the_comparison(trade, tmp_path,
-                                                                                            monkeypatch):
+                                                                                            monkeypatch, models_run):
     """The wiring of the kept solves through the benchmark: a ``finer_pair`` at the config's cells
     with the config's own settings solves twice; run again, it solves nothing; the convergence row
     takes its fine solve, and the comparison its coarse one as BEM's (only the other rung runs); a
     pair below the config's cells is listed with the pairs beside the table's spacing."""
-    from wavebrdf.jobs.compare import MeasuringProcess
-
     monkeypatch.setattr(trade, "ROOT", tmp_path)
     monkeypatch.setattr(trade, "WORK", tmp_path / "work")
     config = tmp_path / "suite" / "tiny.toml"
     config.parent.mkdir()
     config.write_text(TINY_SCENE.format(out=tmp_path / "tiny.h5"))
-    ran = []
-    measure = MeasuringProcess.measure
-    monkeypatch.setattr(MeasuringProcess, "measure",
-                        lambda self, name, *a: ran.append((name, a[-2].surface.cells)) or measure(self, name, *a))
+    ran = models_run
     log = []
 
     pair = trade.finer_pair(config, 16, log.append, "flat-patch")
@@ -189,11 +184,10 @@ def test_a_pairs_solves_are_kept_and_taken_by_the_pair_its_convergence_row_and_t
 
 
 def test_a_random_realization_keeps_its_digest_at_its_own_cells_and_is_refused_below_them(trade, tmp_path,
-                                                                                          monkeypatch):
+                                                                                          monkeypatch, models_run):
     """A pair at a random config's own cells is of the config's own surface (its kept solve is then
     the comparison's); below them the realization does not exist, and the pair is refused before
     anything is solved or written."""
-    from wavebrdf.jobs.compare import MeasuringProcess
     from wavebrdf.solver.surface import SurfaceError
 
     rough = generate("gaussian", cells=24, size_um=2.0, rms_height_um=0.05, correlation_um=0.5, seed=4)
@@ -206,16 +200,12 @@ def test_a_random_realization_keeps_its_digest_at_its_own_cells_and_is_refused_b
     config.write_text(TINY_SCENE.format(out=tmp_path / "rough.h5").replace(
         'generator = "hemispheres"\nradius_um = 0.25\nfill = 0.3\nplacement = "random"',
         'generator = "gaussian"\nrms_height_um = 0.03\ncorrelation_um = 0.4'))
-    measure = MeasuringProcess.measure
-    monkeypatch.setattr(MeasuringProcess, "measure", lambda *a: pytest.fail("nothing may be solved"))
+    ran = models_run
     with pytest.raises(SurfaceError, match="'gaussian' realization is drawn on its grid"):
         trade.finer_pair(config, 12, lambda line: None, "flat-patch")
-    assert not (tmp_path / "work").exists()
+    assert ran == [] and not (tmp_path / "work").exists()  # nothing solved or written
 
     # at its own cells the pair's coarse solve is the config's own surface: the comparison takes it
-    ran = []
-    monkeypatch.setattr(MeasuringProcess, "measure",
-                        lambda self, name, *a: ran.append((name, a[-2].surface.cells)) or measure(self, name, *a))
     trade.finer_pair(config, 16, lambda line: None, "flat-patch")
     assert ran == [("bem", 16), ("bem", 24)]
     ran.clear()
