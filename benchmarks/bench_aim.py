@@ -282,6 +282,12 @@ PLANNER_SURFACES = {  # name → (λ µm, material, generator and parameters): n
     "brushed-al-450-60deg": (0.45, "aluminium", dict(generator="brushed", rms_height_um=0.06,
                                                      correlation_um=[1.2, 0.4], angle_deg=60.0, seed=72)),
     "rough-glass-500": (0.5, "glass", dict(generator="gaussian", rms_height_um=0.08, correlation_um=0.6, seed=73)),
+    # round 6, chosen before it ran on the fit of rounds 1–4 (round 5 still a check)
+    "rough-silver-550": (0.55, "silver", dict(generator="gaussian", rms_height_um=0.06, correlation_um=0.7, seed=81)),
+    "sinusoid-al-500-30deg": (0.5, "aluminium", dict(generator="sinusoid", amplitude_um=0.05, period_um=0.9,
+                                                     angle_deg=30.0)),
+    "brushed-glass-450-70deg": (0.45, "glass", dict(generator="brushed", rms_height_um=0.07, correlation_um=[1.0, 0.3],
+                                                    angle_deg=70.0, seed=83)),
 }
 
 
