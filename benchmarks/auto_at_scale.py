@@ -4,15 +4,17 @@ with ``wavebrdf run`` in a child process, CPU measured from the children's resou
 
     .venv/bin/python benchmarks/auto_at_scale.py bumpy        # rough Al bumps, rms slope ~0.14: auto simplifies
     .venv/bin/python benchmarks/auto_at_scale.py pits         # spherical pits at λ scale: auto must choose BEM
+    .venv/bin/python benchmarks/auto_at_scale.py brushed      # brushed Al, rms slope 0.13, anisotropic: a second low slope
     .venv/bin/python benchmarks/auto_at_scale.py bumpy --tolerance 0.05 0.01 --keep out/auto_at_scale
     .venv/bin/python benchmarks/auto_at_scale.py single       # one-task studies at waist 5λ: rule vs measured
     .venv/bin/python benchmarks/auto_at_scale.py single --rule-only   # the rule's predictions alone
 
-Regime (both surfaces): 2 × 2 sub-areas of 5.4 µm at d = 0.03 µm (≤ λ/16 at λ ≥ 0.48 µm; 129 600
+Regime (every surface): 2 × 2 sub-areas of 5.4 µm at d = 0.03 µm (≤ λ/16 at λ ≥ 0.48 µm; 129 600
 cells, ~130 000 unknowns each), shifted by the waist 1.5 µm (≥ 2.5 λ), the reference's aluminium
 ``wvl.txt``, exact beams, normal incidence plus the reference's four neighbouring ``wi.txt``
 directions (one basic direction), 256² output. ``bumpy``: 3 wavelengths (0.5, 0.55, 0.6 µm): 12
-patch solves. ``pits``: 1 wavelength (0.5 µm): 4 patch solves.
+patch solves. ``brushed``: 3 wavelengths (0.5, 0.58, 0.66 µm): 12 patch solves. ``pits``: 1 wavelength
+(0.5 µm): 4 patch solves.
 
 ``single``: three one-task scenes not in the trade table (smooth, bumpy, steep), aluminium at
 λ = 0.5 µm, waist 2.5 µm (5 λ), θ_i = 20°, 9 µm patches at d = 0.05 µm (λ/10; |k₂|d = 3.9 ≤ 4), 256²
@@ -43,6 +45,9 @@ ROOT = Path(__file__).resolve().parents[1]
 SURFACES = {
     "bumpy": ('generator = "gaussian"\nrms_height_um = 0.1\ncorrelation_um = 1.0\nseed = 7', [0.5, 0.55, 0.6]),
     "pits": ('generator = "spherical-pits"\nradius_um = 0.45\ndepth_um = 0.3\nperiod_um = 1.15', [0.5]),
+    # a second low-slope surface, anisotropic (rms slope 0.13: the 230² realization's statistics()), other wavelengths
+    "brushed": ('generator = "brushed"\nrms_height_um = 0.06\ncorrelation_um = [2.0, 0.8]\nangle_deg = 30.0\nseed = 9',
+                [0.5, 0.58, 0.66]),
 }
 
 STUDY = """[study]

@@ -124,6 +124,20 @@ def pair_split(path: Path, cells: int, fine_cells: int | None = None) -> dict:
             "rest_power": float(c[lobe & ~cone].sum() / f[lobe & ~cone].sum())}
 
 
+def small_surface(surface, size_um: float, cells: int):
+    """``surface``'s generator, seed and own parameters at ``cells`` on a ``size_um`` patch (what it
+    records of its realization, e.g. a realized fill or count, left out)."""
+    from wavebrdf.solver.surface import GENERATORS, generate
+
+    params = dict(surface.parameters or {})
+    chosen = GENERATORS.get(params.get("generator"))
+    if chosen is None:
+        raise SystemExit("mesh: the config's surface records no generator (a file or a cut patch): nothing to "
+                         "generate on a small patch")
+    return generate(chosen.name, cells=cells, size_um=size_um, seed=params.get("seed", 0),
+                    **{k: v for k, v in params.items() if k in chosen.keys})
+
+
 def mesh_pairs(path: Path, size_um: float, cells: int, waist_um: float, tight: bool = True) -> dict:
     """The config's surface generator at ``cells`` on a ``size_um`` patch, its hardest scene's
     wavelength, material and incidence at ``waist_um``: the BRDF dense (the Galerkin matrix, LU)
@@ -136,13 +150,10 @@ def mesh_pairs(path: Path, size_um: float, cells: int, waist_um: float, tight: b
     from wavebrdf.solver.bem3d.driver import bem_farfield
     from wavebrdf.solver.metrics import relative_l2
     from wavebrdf.solver.opencl import create_context
-    from wavebrdf.solver.surface import generate, subdivided
+    from wavebrdf.solver.surface import subdivided
 
     _, scene = trade.hardest_scene(path)
-    params = {k: v for k, v in (scene.surface.parameters or {}).items()
-              if k not in ("generator", "seed", "periodic", "hemispheres", "fill_realized")}
-    coarse = generate(scene.surface.parameters["generator"], cells=cells, size_um=size_um,
-                      seed=scene.surface.parameters.get("seed", 0), **params)
+    coarse = small_surface(scene.surface, size_um, cells)
     small = dataclasses.replace(scene, surface=coarse, waist_um=waist_um)
     ctx = create_context()
     brdf, cpu = {}, {}

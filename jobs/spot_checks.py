@@ -3,7 +3,8 @@
 A model whose capabilities say ``spot_checks`` measures its own choice: :func:`add_spot_checks`
 describes every task it decides — direct tasks, or the patch tasks of a steered case — to the
 model (``check_unit``), which picks a few to check (``plan_spot_checks``: extremes of λ and θ_i,
-the steepest sub-areas, within its share of the all-full-wave estimate). Each pick becomes a
+the steepest sub-areas, within its share of the all-full-wave estimate, but both ends of the
+spectrum whatever the share). Each pick becomes a
 "check" task with the indices of the task it copies (same scene); every decided task depends on
 the checks that represent it and reads their measurements when it runs (jobs/tasks.py).
 """
@@ -11,6 +12,8 @@ the checks that represent it and reads their measurements when it runs (jobs/tas
 from __future__ import annotations
 
 from dataclasses import replace
+
+import numpy as np
 
 __all__ = ["add_spot_checks", "expectation_scene", "spot_check_summary", "twin_of"]
 
@@ -76,15 +79,19 @@ def spot_check_summary(plan, estimates) -> str | None:
     if not checks:
         return None
     decided = [t for t in plan.tasks if t.checks]
-    all_full = sum(u.full_wave_seconds for units, _ in plan.spot_check_units.values() for u in units if u.full_wave_fits)
+    all_full = sum(u.full_wave_seconds for units, _ in plan.spot_check_units.values() for u in units
+                   if u.full_wave_fits and np.isfinite(u.full_wave_seconds))
     checked = sum(u.full_wave_seconds for _, picked in plan.spot_check_units.values() for u in picked)
     spent = sum(e.seconds for _, e in checks)
     where = ", ".join(f"#{t.id} ({t.label})" for t, _ in checks[:8]) + (" ..." if len(checks) > 8 else "")
+    shares = {plan.config.cases[case].model.options.spot_check_share for case in plan.spot_check_units}
+    above = (f" (above [model] spot_check_share = {max(shares):g}: the hardest task at each end of the spectrum is "
+             "checked whatever the share)" if checked > max(shares) * all_full * (1 + 1e-9) else "")
     return (f"auto spot checks: {len(checks)} task(s) [{where}] run the full wave and the cheaper rungs (≈ {spent:.3g} s "
             f"as planned here); their full wave is {checked / max(all_full, 1e-9):.1%} of the all-full-wave estimate "
             f"{all_full:.3g} s ({all_full / 3600:.3g} CPU-h at the full wave's settings fitted to [run] memory_gb, or "
             "without it as the budget fit chooses with no memory limit: the same on every machine, and "
-            f"not the plan of the study all-full-wave, whose tasks plan fits to the worker's memory); {len(decided)} "
+            f"not the plan of the study all-full-wave, whose tasks plan fits to the worker's memory){above}; {len(decided)} "
             "task(s) take the cheapest rung measured within tolerance there (the rung per task above is what the "
             "checks are expected to measure: the rule's fit without its margin; where they measure no rung within "
             "the tolerance the tasks run the full wave, up to the all-full-wave figure)")

@@ -412,7 +412,9 @@ class AutoOptions:
                                    "next rung up on sentinel directions")
     spot_check_share: float = option(0.1, low=0.0, high=1.0,
                                      doc="share of the all-full-wave estimate a study of several tasks spends on "
-                                         "spot checks (full wave and candidate rungs on sampled tasks; 0: the rule alone)")
+                                         "spot checks (full wave and candidate rungs on sampled tasks; the hardest "
+                                         "task at each end of the spectrum is checked whatever the share; 0: the "
+                                         "rule alone)")
     margin: float = option(1.25, low=1.0, high=10.0,
                            doc="a rung is taken where its worst measured error times this is within the tolerance")
     mix_wavelengths: bool = option(False, doc="let a direction's (or sub-area's) rung change across wavelengths, each "
@@ -440,11 +442,14 @@ def select_spot_checks(units: list[CheckUnit], share: float, mix_wavelengths: bo
 
     Candidates, hardest first: θ_i largest, smallest, median × λ shortest, longest, each the steepest
     unit there (rms slope: the steepest sub-area), then the median-slope sub-area at (largest θ_i,
-    shortest λ). They are taken in that order while their full-wave estimates add up to at most
-    ``share`` of the all-full-wave estimate of the units where it fits (the first always, when
-    ``share`` > 0 and there are two units or more). A unit is represented by the checks at the nearest θ_i at or above its own and,
-    among those, the nearest rms slope at or above its own (the tangent-plane rungs' errors grow
-    with both), at every checked λ — or, with ``mix_wavelengths``, only the nearest checked λ."""
+    shortest λ). The hardest unit at the shortest and at the longest λ (largest θ_i there, then
+    the steepest) are taken whatever the share (when ``share`` > 0 and there are two units or more);
+    the others in that order while all the checks' full-wave estimates add up to at most ``share``
+    of the all-full-wave estimate of the units where it fits. A unit is represented by the checks at the nearest θ_i at or above its own and, among
+    those, the nearest rms slope at or above its own (the tangent-plane rungs' errors grow with
+    both), at every checked λ — or, with ``mix_wavelengths``, only the nearest checked λ. Along λ an
+    error may grow either way (with λ/ℓ where a rung's curvature limit binds, with h/λ where its
+    phase does), so both ends of the spectrum are measured."""
     eligible = [u for u in units if u.full_wave_fits and np.isfinite(u.full_wave_seconds)]
     if len(units) < 2 or share <= 0 or not eligible:
         return [], {}
@@ -460,12 +465,17 @@ def select_spot_checks(units: list[CheckUnit], share: float, mix_wavelengths: bo
                      key=lambda u: (u.rms_slope, u.task))
     if len({u.rms_slope for u in hardest}) > 2 and hardest[len(hardest) // 2] not in picked:
         picked.append(hardest[len(hardest) // 2])
+    # each end of the spectrum: its hardest unit (largest θ_i, then steepest), whatever the share
+    always = [max((u for u in eligible if u.wavelength_um == lam), key=lambda u: (u.theta_i, u.rms_slope, -u.task))
+              for lam in sorted({lams[0], lams[-1]})]
+    order = picked + [u for u in always if u not in picked]
     budget = share * sum(u.full_wave_seconds for u in eligible)
-    checks, spent = [], 0.0
+    chosen, spent = list(always), sum(u.full_wave_seconds for u in always)
     for unit in picked:
-        if not checks or spent + unit.full_wave_seconds <= budget:
-            checks.append(unit)
+        if unit not in chosen and spent + unit.full_wave_seconds <= budget:
+            chosen.append(unit)
             spent += unit.full_wave_seconds
+    checks = [u for u in order if u in chosen]
     return checks, {u.task: _representatives(u, checks, mix_wavelengths) for u in units}
 
 

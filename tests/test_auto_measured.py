@@ -50,9 +50,11 @@ def test_spot_checks_span_the_study_within_their_share():
     for share in (0.01, 0.2, 0.5, 1.0):
         checks, represented = select_spot_checks(study, share)
         spent = sum(c.full_wave_seconds for c in checks)
-        assert checks and (len(checks) == 1 or spent <= share * total + 1e-9), (share, len(checks))
+        forced = sum(c.full_wave_seconds for c in checks[:2])  # the hardest at each end of the spectrum
+        assert spent <= max(share * total, forced) + 1e-9, (share, len(checks))
         assert checks[0].theta_i == 1.0 and checks[0].wavelength_um == 0.4  # the hardest first
-        assert {c.wavelength_um for c in checks} <= {0.4, 0.6}  # λ extremes only
+        assert {c.wavelength_um for c in checks} == {0.4, 0.6}  # both ends of the spectrum, whatever the share
+        assert all(c.theta_i == 1.0 for c in checks[:2])
         for u in study:
             reps = [checks[i] for i in represented[u.task]]
             assert reps and all(c.theta_i >= u.theta_i for c in reps)  # never represented by an easier check
@@ -70,6 +72,32 @@ def test_spot_checks_span_the_study_within_their_share():
     assert select_spot_checks(study[:1], 1.0) == ([], {})
     assert select_spot_checks(study, 0.0) == ([], {})
     assert select_spot_checks([dataclasses.replace(u, full_wave_fits=False) for u in study], 1.0) == ([], {})
+    # one wavelength: one check where the share allows no more
+    checks, _ = select_spot_checks(units(thetas=(0.0, 0.5), lams=(0.5,)), 0.01)
+    assert [(c.theta_i, c.wavelength_um) for c in checks] == [(0.5, 0.5)]
+
+
+def test_an_end_of_the_spectrum_without_the_listed_angles_is_still_checked_and_the_share_counts_it():
+    # the longest λ only at a middle θ_i (not the largest, smallest or median of the study's)
+    study = units(thetas=(0.0, 0.3, 0.6), lams=(0.4, 0.5)) + [CheckUnit(6, (0.15, 0.1), 0.7, 0.15, 0.1, 10.0, True)]
+    total = sum(u.full_wave_seconds for u in study)
+    checks, represented = select_spot_checks(study, 0.25)  # 17.5 s: the two forced checks only (20 s)
+    assert [(c.theta_i, c.wavelength_um) for c in checks] == [(0.6, 0.4), (0.15, 0.7)]
+    assert [checks[i].task for i in represented[6]] == [6]  # its own scene: the nearest θ_i at or above
+    # the forced checks are charged first: one more fits 31.5 s (20 + 10), not 28 s
+    assert len(select_spot_checks(study, 0.4)[0]) == 2
+    checks, _ = select_spot_checks(study, 0.45)
+    assert len(checks) == 3 and sum(c.full_wave_seconds for c in checks) <= 0.45 * total
+
+
+def test_a_study_of_few_tasks_is_checked_at_both_ends_of_its_spectrum():
+    # 4 sub-areas x 3 wavelengths, one direction: one check is 1/12 of the all-full-wave estimate, so a
+    # share of 0.1 pays for one; the longest wavelength is checked too, and represents its tasks
+    study = units(thetas=(0.0,), lams=(0.5, 0.58, 0.66), slopes=(0.10, 0.12, 0.13, 0.14))
+    checks, represented = select_spot_checks(study, 0.1)
+    assert [(c.wavelength_um, c.rms_slope) for c in checks] == [(0.5, 0.14), (0.66, 0.14)]
+    for u in study:
+        assert {checks[i].wavelength_um for i in represented[u.task]} == {0.5, 0.66}
 
 
 def test_spot_checks_of_sub_areas_take_the_steepest_and_represent_by_slope():
@@ -131,10 +159,14 @@ def test_auto_measures_on_spot_checks_and_stays_within_tolerance_of_the_full_wav
     """A smooth aluminium patch at 2 λ × 2 θ_i: auto checks the hardest corner(s), takes the
     cheapest rung measured within the tolerance, and every task is within it of an all-BEM run."""
     tolerance = 0.05
-    # two checks (both λ at the largest θ_i) are half the all-full-wave estimate: a share just above it
+    # two checks (both λ at the largest θ_i, taken at any share) and no more: a share below the next one's
     auto = write_study(tmp_path, "auto", "auto", options=f"tolerance = {tolerance}\nspot_check_share = 0.55")
     plan = run(tmp_path, "plan", auto)
     assert "auto spot checks: 2 task(s)" in plan and "of the all-full-wave estimate" in plan
+    assert "above [model] spot_check_share" not in plan
+    small_share = run(tmp_path, "plan", auto, "--set", "model.spot_check_share=0.1")
+    assert "auto spot checks: 2 task(s)" in small_share  # both ends of the spectrum, and said so
+    assert "above [model] spot_check_share = 0.1: the hardest task at each end of the spectrum" in small_share
     run(tmp_path, "run", auto, "-q")
     run(tmp_path, "run", write_study(tmp_path, "bem", "bem", options='method = "aim"'), "-q")
     rows = task_table(tmp_path / "auto.h5")
