@@ -71,6 +71,22 @@ def twin_of(plan, task):
     return None
 
 
+def _full_wave_seconds(units) -> float:
+    """The full-wave estimates of the units where the full wave fits (their all-full-wave cost)."""
+    return sum(u.full_wave_seconds for u in units if u.full_wave_fits and np.isfinite(u.full_wave_seconds))
+
+
+def _shares_exceeded(plan) -> list[float]:
+    """The ``spot_check_share`` of every case whose checks cost more than it of that case's
+    all-full-wave estimate (both ends of the spectrum are checked whatever the share)."""
+    out = set()
+    for case, (units, picked) in plan.spot_check_units.items():
+        share = plan.config.cases[case].model.options.spot_check_share
+        if sum(u.full_wave_seconds for u in picked) > share * _full_wave_seconds(units) * (1 + 1e-9):
+            out.add(share)
+    return sorted(out)
+
+
 def spot_check_summary(plan, estimates) -> str | None:
     """``plan``'s lines on the spot checks: which tasks, their share of the all-full-wave estimate
     (an estimate, from the models' own cost models, at the selection's budget), and how many tasks
@@ -79,14 +95,13 @@ def spot_check_summary(plan, estimates) -> str | None:
     if not checks:
         return None
     decided = [t for t in plan.tasks if t.checks]
-    all_full = sum(u.full_wave_seconds for units, _ in plan.spot_check_units.values() for u in units
-                   if u.full_wave_fits and np.isfinite(u.full_wave_seconds))
+    all_full = sum(_full_wave_seconds(units) for units, _ in plan.spot_check_units.values())
     checked = sum(u.full_wave_seconds for _, picked in plan.spot_check_units.values() for u in picked)
     spent = sum(e.seconds for _, e in checks)
     where = ", ".join(f"#{t.id} ({t.label})" for t, _ in checks[:8]) + (" ..." if len(checks) > 8 else "")
-    shares = {plan.config.cases[case].model.options.spot_check_share for case in plan.spot_check_units}
-    above = (f" (above [model] spot_check_share = {max(shares):g}: the hardest task at each end of the spectrum is "
-             "checked whatever the share)" if checked > max(shares) * all_full * (1 + 1e-9) else "")
+    exceeded = _shares_exceeded(plan)
+    above = (f" (above [model] spot_check_share = {' / '.join(f'{a:g}' for a in exceeded)}: the hardest task at "
+             "each end of the spectrum is checked whatever the share)" if exceeded else "")
     return (f"auto spot checks: {len(checks)} task(s) [{where}] run the full wave and the cheaper rungs (≈ {spent:.3g} s "
             f"as planned here); their full wave is {checked / max(all_full, 1e-9):.1%} of the all-full-wave estimate "
             f"{all_full:.3g} s ({all_full / 3600:.3g} CPU-h at the full wave's settings fitted to [run] memory_gb, or "

@@ -22,7 +22,8 @@ Modelling only what a scene requires, in three steps (docs/auto.md):
 
 In a study of many tasks the rule only chooses what to measure: the batch layer (jobs/spot_checks.py)
 adds **spot checks**, tasks chosen by :func:`select_spot_checks` to span the study (extremes of λ
-and θ_i, the steepest sub-areas) within a stated share of the all-full-wave cost, each running the
+and θ_i, the steepest sub-areas) within a stated share of the all-full-wave cost (both ends of the
+spectrum whatever the share), each running the
 full wave and every cheaper candidate rung on its scene (:meth:`AutoModel.spot_check`). Every other
 task then runs the cheapest rung whose *measured* error on the checks that represent it, times a
 margin, is within the tolerance (:meth:`AutoModel.run_checked`); one rung per (case, direction or
@@ -440,14 +441,19 @@ def select_spot_checks(units: list[CheckUnit], share: float, mix_wavelengths: bo
     """The units to spot-check and, per unit, the indices (into that list) of the checks that
     represent it.
 
-    Candidates, hardest first: θ_i largest, smallest, median × λ shortest, longest, each the steepest
-    unit there (rms slope: the steepest sub-area), then the median-slope sub-area at (largest θ_i,
-    shortest λ). The hardest unit at the shortest and at the longest λ (largest θ_i there, then
-    the steepest) are taken whatever the share (when ``share`` > 0 and there are two units or more);
-    the others in that order while all the checks' full-wave estimates add up to at most ``share``
-    of the all-full-wave estimate of the units where it fits. A unit is represented by the checks at the nearest θ_i at or above its own and, among
-    those, the nearest rms slope at or above its own (the tangent-plane rungs' errors grow with
-    both), at every checked λ — or, with ``mix_wavelengths``, only the nearest checked λ. Along λ an
+    Only units whose full wave fits are candidates ("the shortest λ" is the shortest of theirs).
+    Candidates, hardest first: the hardest unit of the study (largest θ_i, then steepest), then θ_i
+    largest, smallest, median × λ shortest, longest, each the steepest unit there (rms slope: the
+    steepest sub-area), then the median-slope sub-area at (largest θ_i, shortest λ). The hardest
+    unit at the shortest and at the longest λ (largest θ_i there, then the steepest) are taken
+    whatever the share (when ``share`` > 0 and there are two units or more) and come first; the
+    others follow in that order while all the checks' full-wave estimates add up to at most
+    ``share`` of the all-full-wave estimate of the units where it fits.
+
+    A unit is represented by the checks at the nearest θ_i at or above its own and, among those, the
+    nearest rms slope at or above its own (the tangent-plane rungs' errors grow with both), at every
+    checked λ — or, with ``mix_wavelengths``, only the nearest checked λ; a unit harder than every
+    check (its own full wave does not fit) by the most oblique, then steepest, checks. Along λ an
     error may grow either way (with λ/ℓ where a rung's curvature limit binds, with h/λ where its
     phase does), so both ends of the spectrum are measured."""
     eligible = [u for u in units if u.full_wave_fits and np.isfinite(u.full_wave_seconds)]
@@ -456,7 +462,7 @@ def select_spot_checks(units: list[CheckUnit], share: float, mix_wavelengths: bo
     lams = sorted({u.wavelength_um for u in eligible})
     thetas = sorted({u.theta_i for u in eligible})
     wanted = [(t, l) for t in (thetas[-1], thetas[0], thetas[len(thetas) // 2]) for l in (lams[0], lams[-1])]
-    picked: list[CheckUnit] = []
+    picked: list[CheckUnit] = [max(eligible, key=lambda u: (u.theta_i, u.rms_slope, -u.wavelength_um, -u.task))]
     for theta, lam in wanted:
         at = [u for u in eligible if u.theta_i == theta and u.wavelength_um == lam]
         if at and (steepest := max(at, key=lambda u: (u.rms_slope, -u.task))) not in picked:
@@ -468,14 +474,13 @@ def select_spot_checks(units: list[CheckUnit], share: float, mix_wavelengths: bo
     # each end of the spectrum: its hardest unit (largest θ_i, then steepest), whatever the share
     always = [max((u for u in eligible if u.wavelength_um == lam), key=lambda u: (u.theta_i, u.rms_slope, -u.task))
               for lam in sorted({lams[0], lams[-1]})]
-    order = picked + [u for u in always if u not in picked]
+    order = always + [u for u in picked if u not in always]
     budget = share * sum(u.full_wave_seconds for u in eligible)
-    chosen, spent = list(always), sum(u.full_wave_seconds for u in always)
-    for unit in picked:
-        if unit not in chosen and spent + unit.full_wave_seconds <= budget:
-            chosen.append(unit)
+    checks, spent = list(always), sum(u.full_wave_seconds for u in always)
+    for unit in order[len(always):]:
+        if spent + unit.full_wave_seconds <= budget:
+            checks.append(unit)
             spent += unit.full_wave_seconds
-    checks = [u for u in order if u in chosen]
     return checks, {u.task: _representatives(u, checks, mix_wavelengths) for u in units}
 
 
@@ -483,7 +488,11 @@ def _representatives(unit: CheckUnit, checks: list[CheckUnit], mix_wavelengths: 
     """Indices of the checks that represent ``unit`` (select_spot_checks)."""
     tiny = 1e-12
     pool = [i for i, c in enumerate(checks) if c.theta_i >= unit.theta_i - tiny and c.rms_slope >= unit.rms_slope - tiny]
-    pool = pool or list(range(len(checks)))  # harder than every check: all of them (the task's reason lists them)
+    if not pool:  # harder than every check (its full wave does not fit): the most oblique, then steepest, checks
+        top = max(c.theta_i for c in checks)
+        pool = [i for i, c in enumerate(checks) if c.theta_i >= top - tiny]
+        top = max(checks[i].rms_slope for i in pool)
+        pool = [i for i in pool if checks[i].rms_slope >= top - tiny]
     for key in (lambda c: c.theta_i, lambda c: c.rms_slope) + (
             (lambda c: abs(c.wavelength_um - unit.wavelength_um),) if mix_wavelengths else ()):
         nearest = min(key(checks[i]) for i in pool)

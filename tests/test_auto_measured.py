@@ -1,8 +1,9 @@
 """``auto`` that measures (solver/auto.py, jobs/spot_checks.py, docs/auto.md).
 
 * The spot-check selection spans the study (extremes of θ_i and λ, the steepest sub-area) within
-  its share of the all-full-wave estimate, and represents every task by checks at least as oblique
-  and as steep as itself.
+  its share of the all-full-wave estimate (both ends of the spectrum whatever the share), and
+  represents every task by checks at least as oblique and as steep as itself (the most oblique and
+  steepest where none is).
 * End to end, against an all-BEM run of the same study (the independent reference): every task of
   an ``auto`` study is within the tolerance, the dataset stores the checks' measured errors and the
   rung per task, and ``inspect`` prints them.
@@ -88,6 +89,19 @@ def test_an_end_of_the_spectrum_without_the_listed_angles_is_still_checked_and_t
     assert len(select_spot_checks(study, 0.4)[0]) == 2
     checks, _ = select_spot_checks(study, 0.45)
     assert len(checks) == 3 and sum(c.full_wave_seconds for c in checks) <= 0.45 * total
+
+
+def test_the_most_oblique_task_is_checked_first_and_represents_tasks_harder_than_every_check():
+    # the largest θ_i only at a middle wavelength: it is still the first candidate
+    study = units(thetas=(0.0, 0.3), lams=(0.4, 0.7)) + [CheckUnit(4, (0.6, 0.1), 0.5, 0.6, 0.1, 10.0, True)]
+    checks, represented = select_spot_checks(study, 1.0)
+    assert (checks[0].theta_i, checks[0].wavelength_um) in {(0.3, 0.4), (0.3, 0.7)}  # the forced ends first
+    assert any(c.theta_i == 0.6 for c in checks)
+    assert {checks[i].theta_i for i in represented[4]} == {0.6}
+    # a task whose full wave fits nowhere, more oblique than every check: the most oblique checks
+    beyond = CheckUnit(5, (0.9, 0.1), 0.4, 0.9, 0.1, 10.0, False)
+    checks, represented = select_spot_checks(study + [beyond], 1.0)
+    assert {checks[i].theta_i for i in represented[5]} == {0.6}
 
 
 def test_a_study_of_few_tasks_is_checked_at_both_ends_of_its_spectrum():
