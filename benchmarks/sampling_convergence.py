@@ -43,21 +43,20 @@ def _speckle_averaged(brdf_sp: np.ndarray, scene) -> np.ndarray:
 
 
 def _specular_cone(scene, lobe: np.ndarray) -> np.ndarray:
-    """Lobe pixels within CONE_SIGMAS blur widths of the scene's mirror direction."""
+    """Lobe pixels within CONE_SIGMAS blur widths of the scene's mirror direction (−u of ω_i)."""
+    from wavebrdf.solver.metrics import direction_to_u
+
     U, V = scene.grid.uv
-    s = np.sin(scene.theta_i)
-    return lobe & (np.hypot(U + s * np.cos(scene.phi_i), V + s * np.sin(scene.phi_i))
-                   <= CONE_SIGMAS * trade._speckle_sigma(scene))
+    mirror = -direction_to_u(scene.theta_i, scene.phi_i)
+    return lobe & (np.hypot(U - mirror[0], V - mirror[1]) <= CONE_SIGMAS * trade._speckle_sigma(scene))
 
 
 def _rung_options(path: Path, model: str):
-    """The config's [compare.<model>] table parsed, or None (the model's defaults)."""
+    """The config's options of ``model`` as a comparison takes them, or None (the model's defaults)."""
+    from wavebrdf.jobs.compare import compare_options
     from wavebrdf.jobs.config import load_config
-    from wavebrdf.solver.models import model_class
-    from wavebrdf.solver.options import parse_options
 
-    table = load_config(path).cases[0].sections["compare"]["options"].get(model)
-    return parse_options(model_class(model).Options, table, f"compare.{model}") if isinstance(table, dict) else None
+    return compare_options(load_config(path).cases[0]).get(model)
 
 
 def rung_convergence(path: Path, model: str, cells: list[int]) -> list[dict]:
@@ -103,7 +102,7 @@ def pair_split(path: Path, cells: int, fine_cells: int | None = None) -> dict:
     label, scene = trade.hardest_scene(path)
     fine_cells = fine_cells or int(round(trade.REFINEMENT * cells))
     study = load_config(path).cases[0].name
-    stored = trade.WORK / f"{study}_pair_{cells}_{fine_cells}.h5"
+    stored = trade.pair_path(study, cells, fine_cells)
     if not stored.is_file() and cells == scene.surface.cells:
         stored = trade.WORK / f"{study}_converged.h5"
     if not stored.is_file():
@@ -125,17 +124,14 @@ def pair_split(path: Path, cells: int, fine_cells: int | None = None) -> dict:
 
 
 def small_surface(surface, size_um: float, cells: int):
-    """``surface``'s generator, seed and own parameters at ``cells`` on a ``size_um`` patch (what it
-    records of its realization, e.g. a realized fill or count, left out)."""
-    from wavebrdf.solver.surface import GENERATORS, generate
+    """``surface``'s generator, seed and own parameters at ``cells`` on a ``size_um`` patch
+    (:func:`~wavebrdf.solver.surface.generate_like`)."""
+    from wavebrdf.solver.surface import SurfaceError, generate_like
 
-    params = dict(surface.parameters or {})
-    chosen = GENERATORS.get(params.get("generator"))
-    if chosen is None:
-        raise SystemExit("mesh: the config's surface records no generator (a file or a cut patch): nothing to "
-                         "generate on a small patch")
-    return generate(chosen.name, cells=cells, size_um=size_um, seed=params.get("seed", 0),
-                    **{k: v for k, v in params.items() if k in chosen.keys})
+    try:
+        return generate_like(surface, cells, size_um)
+    except SurfaceError as exc:  # no generator, or a period the small patch does not hold
+        raise SystemExit(f"mesh: {exc} (the small patch is the config's surface generated at --size and --cells)") from None
 
 
 def mesh_pairs(path: Path, size_um: float, cells: int, waist_um: float, tight: bool = True) -> dict:

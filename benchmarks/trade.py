@@ -324,7 +324,7 @@ def convergence(path: Path, force: bool, log, run: bool = True, record: Record |
                 keep_solve(case.name, label, scene, options, coarse)
             if pair is not None:
                 m, _, settings = pair
-                log(f"{label}: BEM at {fine_cells}² cells from {case.name}_pair_{cells}_{fine_cells}.h5")
+                log(f"{label}: BEM at {fine_cells}² cells from {pair_path(case.name, cells, fine_cells).name}")
             else:
                 fine_options, settings = fine_solve_options(options, coarse.peak_mb, (fine_cells / cells) ** 2)
                 log(f"{label}: BEM at {fine_cells}² cells (d = {fine.surface.spacing_um:.4g} µm), {settings}")
@@ -363,7 +363,7 @@ def finer_pair(path: Path, cells: int, log, preconditioner: str | None = None, s
     case = load_config(path).cases[0]
     fine_cells = cells * subdivide if subdivide else int(round(REFINEMENT * cells))
     kind = "subdivided" if subdivide else "refined"
-    out = WORK / f"{case.name}_pair_{cells}_{fine_cells}{'_subdivided' if subdivide else ''}.h5"
+    out = pair_path(case.name, cells, fine_cells, bool(subdivide))
     store = WORK / f"{case.name}_converged.h5"
     options = case.model.options
     coarse_surface = surface_at(scene.surface, cells)  # refused here, before any solve, where it cannot be built
@@ -403,6 +403,11 @@ def finer_pair(path: Path, cells: int, log, preconditioner: str | None = None, s
     _write_refinement(out, label, fine_cells, m, coarse, settings, suite=path.parent.name, coarse_cells=cells,
                       size_um=scene.surface.size_um, surface_digest=surface_digest(coarse_surface), refinement=kind)
     return out
+
+
+def pair_path(study: str, cells: int, fine_cells: int, subdivided: bool = False) -> Path:
+    """Where :func:`finer_pair` keeps the pair of ``study`` at ``cells`` against ``fine_cells``."""
+    return WORK / f"{study}_pair_{cells}_{fine_cells}{'_subdivided' if subdivided else ''}.h5"
 
 
 def surface_at(surface, cells: int):
@@ -487,7 +492,7 @@ def _stored_pair(study: str, label: str, surface, fine_cells: int, log=None):
     :func:`finer_pair` of ``study`` whose coarse solve was of this ``surface`` (its cells) in the
     scene ``label``, refined to ``fine_cells``, and did not fail; else None (a pair of another
     surface — a random realization drawn anew at other cells — is not used, and ``log`` says so)."""
-    path = WORK / f"{study}_pair_{surface.cells}_{fine_cells}.h5"
+    path = pair_path(study, surface.cells, fine_cells)
     if not path.is_file():
         return None
     fine, coarse, a = _read_refinement(path, label)

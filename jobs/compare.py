@@ -49,8 +49,8 @@ from wavebrdf.solver.models import get_model, model_class, model_names, rung_ord
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Comparison", "Measurement", "choose_reference", "compare_scenes", "comparison_metrics", "measure",
-           "speckle_sigma_u"]
+__all__ = ["Comparison", "Measurement", "choose_reference", "compare_options", "compare_scenes", "comparison_metrics",
+           "measure", "speckle_sigma_u"]
 
 RETRO_CONE_DEG = 5.0
 COLUMNS = ("scene", "model", "reference", "wall_s", "cpu_s", "peak_mb", "albedo", "albedo_diff", "rel_l2",
@@ -488,6 +488,25 @@ def surface_models(plan) -> list[str]:
     return sorted(names, key=rung_order)
 
 
+def compare_options(study) -> dict:
+    """Model name → its options for a comparison of ``study`` (one case of a config): ``[model]``
+    for the study's model, the ``[compare.<name>]`` tables for the others (ConfigError naming the
+    table where one is not a registered model or does not parse)."""
+    from wavebrdf.jobs.config import ConfigError
+    from wavebrdf.solver.options import parse_options
+
+    options = {study.model.name: study.model.options}
+    for name, table in study.sections["compare"]["options"].items():
+        if isinstance(table, dict):
+            if name not in model_names():
+                raise ConfigError(f"[compare.{name}]: not a registered model (available: {', '.join(model_names())})")
+            try:
+                options[name] = parse_options(model_class(name).Options, table, f"compare.{name}")
+            except ValueError as exc:
+                raise ConfigError(str(exc)) from None
+    return options
+
+
 def compare_config(config, models: list[str] | None = None, reference: str | None = None,
                    memory_gb: float | None = None, progress=None, before_run=None,
                    measured: dict | None = None) -> Comparison:
@@ -499,23 +518,14 @@ def compare_config(config, models: list[str] | None = None, reference: str | Non
     ``measured``: as :func:`compare_scenes`'s."""
     from wavebrdf.jobs.config import ConfigError
     from wavebrdf.jobs.plan import plan_study
-    from wavebrdf.solver.options import parse_options
 
     study = config.cases[0]
     if not study.kind.comparable:
         raise ConfigError("wavebrdf compare: a surface study is needed (fiber models have no rungs to compare)")
     if study.steering is not None:
         raise ConfigError("[steering]: wavebrdf compare runs whole-surface scenes; remove [steering]")
-    section = study.sections["compare"]  # validated (jobs/sections.py); "options": the [compare.<name>] tables
-    options = {study.model.name: study.model.options}
-    for name, table in section["options"].items():
-        if isinstance(table, dict):
-            if name not in model_names():
-                raise ConfigError(f"[compare.{name}]: not a registered model (available: {', '.join(model_names())})")
-            try:
-                options[name] = parse_options(model_class(name).Options, table, f"compare.{name}")
-            except ValueError as exc:
-                raise ConfigError(str(exc)) from None
+    section = study.sections["compare"]  # validated (jobs/sections.py)
+    options = compare_options(study)
     plan = plan_study(config)
     if models is not None and not models:
         raise ConfigError("--models: no model named (an empty list would run none); give comma-separated names, e.g. "

@@ -40,6 +40,7 @@ __all__ = [
     "SurfaceError",
     "checked_heights",
     "generate",
+    "generate_like",
     "generator",
     "load_heights",
     "rebuilt",
@@ -945,17 +946,30 @@ def rebuilt(field: HeightField, cells: int) -> HeightField:
     realization drawn on the grid has no version at other cells: refused (:func:`refined` refines it)."""
     if int(cells) != cells or cells < MIN_NODES - 1:
         raise SurfaceError(f"rebuilt: cells must be an integer >= {MIN_NODES - 1}, got {cells!r}")
-    params = dict(field.parameters or {})
-    chosen = GENERATORS.get(params.pop("generator", None))
+    chosen = GENERATORS.get((field.parameters or {}).get("generator"))
     if chosen is None:
         raise SurfaceError("rebuilt: the surface records no generator (a file, a cut patch or a subdivided "
                            "surface): it cannot be generated at other cells")
     if chosen.cell_dependent:
         raise SurfaceError(f"rebuilt: a {chosen.name!r} realization is drawn on its grid and has no version at "
                            "other cells (refined interpolates it to finer ones)")
-    kept = {k: v for k, v in params.items() if k in chosen.keys}
-    out = generate(chosen.name, cells=int(cells), size_um=field.size_um, seed=params.get("seed", 0), **kept)
+    out = generate_like(field, cells)
     return HeightField(out.z, field.size_um, field.origin_um, out.ensemble, out.parameters)
+
+
+def generate_like(field: HeightField, cells: int, size_um: float | None = None) -> HeightField:
+    """``field``'s generator with its seed and its own parameters (not what it records of its
+    realization, e.g. a realized fill or count) at ``cells`` cells a side on a ``size_um`` patch
+    (default the field's): the same surface where the generator does not depend on the grid and the
+    size is kept (:func:`rebuilt`), a new draw of the same statistics otherwise."""
+    params = dict(field.parameters or {})
+    chosen = GENERATORS.get(params.pop("generator", None))
+    if chosen is None:
+        raise SurfaceError("the surface records no generator (a file, a cut patch or a subdivided surface): it "
+                           "cannot be generated anew")
+    kept = {k: v for k, v in params.items() if k in chosen.keys}
+    return generate(chosen.name, cells=int(cells), size_um=field.size_um if size_um is None else size_um,
+                    seed=params.get("seed", 0), **kept)
 
 
 def subdivided(field: HeightField, factor: int) -> HeightField:
