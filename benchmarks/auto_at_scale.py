@@ -5,6 +5,10 @@ with ``wavebrdf run`` in a child process, CPU measured from the children's resou
     .venv/bin/python benchmarks/auto_at_scale.py bumpy        # rough Al bumps, rms slope ~0.14: auto simplifies
     .venv/bin/python benchmarks/auto_at_scale.py pits         # spherical pits at λ scale: auto must choose BEM
     .venv/bin/python benchmarks/auto_at_scale.py brushed      # brushed Al, rms slope 0.13, anisotropic: a second low slope
+    .venv/bin/python benchmarks/auto_at_scale.py glass-oblique    # rough glass at θ_i 40°, two azimuths
+    .venv/bin/python benchmarks/auto_at_scale.py brushed-oblique --tolerance 0.1    # brushed Al, along and across its grooves
+    .venv/bin/python benchmarks/auto_at_scale.py brushed-oblique-50 --tolerance 0.07
+    .venv/bin/python benchmarks/auto_at_scale.py brushed-direct --tolerance 0.1     # the same, one patch, no steering
     .venv/bin/python benchmarks/auto_at_scale.py bumpy --tolerance 0.05 0.01 --keep out/auto_at_scale
     .venv/bin/python benchmarks/auto_at_scale.py single       # one-task studies at waist 5λ: rule vs measured
     .venv/bin/python benchmarks/auto_at_scale.py single --rule-only   # the rule's predictions alone
@@ -14,7 +18,12 @@ cells, ~130 000 unknowns each), shifted by the waist 1.5 µm (≥ 2.5 λ), the r
 ``wvl.txt``, exact beams, normal incidence plus the reference's four neighbouring ``wi.txt``
 directions (one basic direction), 256² output. ``bumpy``: 3 wavelengths (0.5, 0.55, 0.6 µm): 12
 patch solves. ``brushed``: 3 wavelengths (0.5, 0.58, 0.66 µm): 12 patch solves. ``pits``: 1 wavelength
-(0.5 µm): 4 patch solves.
+(0.5 µm): 4 patch solves. ``glass-oblique``: glass (the catalogue's), θ_i 40° at φ_i 0° and 60°
+instead of the reference's directions, 3 wavelengths (0.45, 0.55, 0.65 µm): 24 patch solves.
+``brushed-oblique``: grooves along x lit at θ_i 40° along them (φ_i 0°) and across them (90°), 2
+wavelengths (0.5, 0.6 µm): 16 patch solves; ``brushed-oblique-50``: the same at 50° along them.
+``brushed-direct``: no steering, the 5.4 µm surface of 180² cells (one sub-area's size) lit
+directly at θ_i 40° along and across its grooves, 2 wavelengths: 4 tasks.
 
 ``single``: three one-task scenes not in the trade table (smooth, bumpy, steep), aluminium at
 λ = 0.5 µm, waist 2.5 µm (5 λ), θ_i = 20°, 9 µm patches at d = 0.05 µm (λ/10; |k₂|d = 3.9 ≤ 4), 256²
@@ -42,12 +51,35 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
+ALUMINIUM = 'file = "{root}/configs/data/aluminium_wvl.txt"'
+REFERENCE_DIRECTIONS = 'directions_file = "{root}/configs/data/reference_subareas_wi.txt"\nangles = "rad"'
+
+# the surface's extent and [steering] table
+STEERED = ("size_um = 6.9\ncells = 230", "[steering]\npatches = [2, 2]\npatch_size_um = 5.4\nshift_um = 1.5\n")
+DIRECT = ("size_um = 5.4\ncells = 180", "")  # one sub-area of the steered studies, lit directly
+
+BRUSHED_ACROSS = ('generator = "brushed"\nrms_height_um = 0.035\ncorrelation_um = [2.5, 0.45]\nangle_deg = 0.0\n'
+                  'seed = 31')  # grooves along x
+
+# name: (surface table, wavelengths (µm), material table, directions[, (extent, steering): STEERED if left out])
 SURFACES = {
-    "bumpy": ('generator = "gaussian"\nrms_height_um = 0.1\ncorrelation_um = 1.0\nseed = 7', [0.5, 0.55, 0.6]),
-    "pits": ('generator = "spherical-pits"\nradius_um = 0.45\ndepth_um = 0.3\nperiod_um = 1.15', [0.5]),
+    "bumpy": ('generator = "gaussian"\nrms_height_um = 0.1\ncorrelation_um = 1.0\nseed = 7', [0.5, 0.55, 0.6],
+              ALUMINIUM, REFERENCE_DIRECTIONS),
+    "pits": ('generator = "spherical-pits"\nradius_um = 0.45\ndepth_um = 0.3\nperiod_um = 1.15', [0.5],
+             ALUMINIUM, REFERENCE_DIRECTIONS),
     # a second low-slope surface, anisotropic (rms slope 0.13: the 230² realization's statistics()), other wavelengths
     "brushed": ('generator = "brushed"\nrms_height_um = 0.06\ncorrelation_um = [2.0, 0.8]\nangle_deg = 30.0\nseed = 9',
-                [0.5, 0.58, 0.66]),
+                [0.5, 0.58, 0.66], ALUMINIUM, REFERENCE_DIRECTIONS),
+    # a dielectric lit obliquely: glass, θ_i 40° at two azimuths, other wavelengths
+    "glass-oblique": ('generator = "gaussian"\nrms_height_um = 0.08\ncorrelation_um = 0.9\nseed = 23', [0.45, 0.55, 0.65],
+                      'name = "glass"', "directions_deg = [[40, 0], [40, 60]]"),
+    # an anisotropic surface lit obliquely along its grooves (listed first) and across them: the
+    # tangent-plane rungs' error depends on the azimuth (rms slope 0.11, 0.16 across the grooves)
+    "brushed-oblique": (BRUSHED_ACROSS, [0.5, 0.6], ALUMINIUM, "directions_deg = [[40, 0], [40, 90]]"),
+    # the same, more oblique along the grooves than across them
+    "brushed-oblique-50": (BRUSHED_ACROSS, [0.5, 0.6], ALUMINIUM, "directions_deg = [[50, 0], [40, 90]]"),
+    # one sub-area's size lit directly (no steering) at θ_i 40° along its grooves (listed first) and across them
+    "brushed-direct": (BRUSHED_ACROSS, [0.5, 0.6], ALUMINIUM, "directions_deg = [[40, 0], [40, 90]]", DIRECT),
 }
 
 STUDY = """[study]
@@ -55,14 +87,12 @@ name = "{name}"
 output = "{name}.h5"
 [surface]
 {surface}
-size_um = 6.9
-cells = 230
+{extent}
 [material]
-file = "{root}/configs/data/aluminium_wvl.txt"
+{material}
 [illumination]
 wavelengths_um = {wavelengths}
-directions_file = "{root}/configs/data/reference_subareas_wi.txt"
-angles = "rad"
+{directions}
 waist_um = 1.5
 beam = "exact"
 [model]
@@ -70,17 +100,18 @@ beam = "exact"
 [output]
 resolution = 256
 per_polarization = true
-[steering]
-patches = [2, 2]
-patch_size_um = 5.4
-shift_um = 1.5
-"""
+{steering}"""
 
 
-def run_study(folder: Path, name: str, surface: str, wavelengths: list[float], model: str) -> dict:
-    """``wavebrdf run`` of one study in a child process: its CPU seconds (user + system), wall time."""
+def run_study(folder: Path, name: str, study: tuple, model: str) -> dict:
+    """``wavebrdf run`` of one study (a ``SURFACES`` entry) in a child process: its CPU seconds (user +
+    system), wall time."""
+    surface, wavelengths, material, directions, *layout = study
+    extent, steering = layout[0] if layout else STEERED
     config = folder / f"{name}.toml"
-    config.write_text(STUDY.format(name=name, surface=surface, wavelengths=wavelengths, model=model, root=ROOT))
+    config.write_text(STUDY.format(name=name, surface=surface, wavelengths=wavelengths, model=model, root=ROOT,
+                                   material=material.format(root=ROOT), directions=directions.format(root=ROOT),
+                                   extent=extent, steering=steering))
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     done = subprocess.run([sys.executable, "-m", "wavebrdf", "run", str(config), "--no-render", "-q"],
@@ -116,7 +147,7 @@ def rungs(path: Path) -> dict[str, int]:
         models = [m.decode() for m in h5["tasks/model"][()]]
     out = {}
     for kind, model in zip(kinds, models):
-        if kind in ("patch", "check"):
+        if kind in ("patch", "direct", "check"):
             out[f"{kind}:{model}"] = out.get(f"{kind}:{model}", 0) + 1
     return out
 
@@ -195,13 +226,13 @@ def main(argv=None) -> int:
         return single_task_studies(args.tolerance, args.rule_only)
     folder = args.keep / args.surface
     folder.mkdir(parents=True, exist_ok=True)
-    surface, wavelengths = SURFACES[args.surface]
-    bem = run_study(folder, "bem", surface, wavelengths, 'name = "bem"\nmethod = "aim"')
+    study = SURFACES[args.surface]
+    bem = run_study(folder, "bem", study, 'name = "bem"\nmethod = "aim"')
     print(f"all-BEM: {bem['cpu_s']:.0f} CPU-s, {bem['wall_s']:.0f} s wall; {rungs(bem['path'])}", flush=True)
     summary = {"surface": args.surface, "bem_cpu_s": bem["cpu_s"], "bem_wall_s": bem["wall_s"], "auto": []}
     for tolerance in args.tolerance:
         name = f"auto_{tolerance:g}"
-        auto = run_study(folder, name, surface, wavelengths, f'name = "auto"\ntolerance = {tolerance}')
+        auto = run_study(folder, name, study, f'name = "auto"\ntolerance = {tolerance}')
         rows = compare(auto["path"], bem["path"])
         worst = max(max(r["s"], r["p"], r["unpolarized"]) for r in rows)
         print(f"\nauto, tolerance {tolerance:g}: {auto['cpu_s']:.0f} CPU-s, {auto['wall_s']:.0f} s wall; all-BEM / auto CPU "

@@ -78,7 +78,7 @@ def _full_wave_seconds(units) -> float:
 
 def _shares_exceeded(plan) -> list[float]:
     """The ``spot_check_share`` of every case whose checks cost more than it of that case's
-    all-full-wave estimate (both ends of the spectrum are checked whatever the share)."""
+    all-full-wave estimate (the hardest tasks at both ends of the spectrum are checked whatever the share)."""
     out = set()
     for case, (units, picked) in plan.spot_check_units.items():
         share = plan.config.cases[case].model.options.spot_check_share
@@ -101,7 +101,8 @@ def spot_check_summary(plan, estimates) -> str | None:
     where = ", ".join(f"#{t.id} ({t.label})" for t, _ in checks[:8]) + (" ..." if len(checks) > 8 else "")
     exceeded = _shares_exceeded(plan)
     above = (f" (above [model] spot_check_share = {' / '.join(f'{a:g}' for a in exceeded)}: the hardest task at "
-             "each end of the spectrum is checked whatever the share)" if exceeded else "")
+             "each end of the spectrum, and any less oblique but steeper one, is checked whatever the share)"
+             if exceeded else "")
     return (f"auto spot checks: {len(checks)} task(s) [{where}] run the full wave and the cheaper rungs (≈ {spent:.3g} s "
             f"as planned here); their full wave is {checked / max(all_full, 1e-9):.1%} of the all-full-wave estimate "
             f"{all_full:.3g} s ({all_full / 3600:.3g} CPU-h at the full wave's settings fitted to [run] memory_gb, or "

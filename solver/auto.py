@@ -22,8 +22,8 @@ Modelling only what a scene requires, in three steps (docs/auto.md):
 
 In a study of many tasks the rule only chooses what to measure: the batch layer (jobs/spot_checks.py)
 adds **spot checks**, tasks chosen by :func:`select_spot_checks` to span the study (extremes of λ
-and θ_i, the steepest sub-areas) within a stated share of the all-full-wave cost (both ends of the
-spectrum whatever the share), each running the
+and θ_i, the steepest sub-areas) within a stated share of the all-full-wave cost (at both ends of
+the spectrum, checks as oblique and as steep as every task whatever the share), each running the
 full wave and every cheaper candidate rung on its scene (:meth:`AutoModel.spot_check`). Every other
 task then runs the cheapest rung whose *measured* error on the checks that represent it, times a
 margin, is within the tolerance (:meth:`AutoModel.run_checked`); one rung per (case, direction or
@@ -55,8 +55,8 @@ from wavebrdf.solver.models import (Capabilities, Estimate, Model, ModelsWith, S
 from wavebrdf.solver.options import option
 from wavebrdf.solver.precision import Precision
 
-__all__ = ["AutoModel", "CheckUnit", "Choice", "Rule", "SceneFeatures", "ToleranceWarning", "choose", "measure_scene",
-           "select_spot_checks", "TRADE_TABLE"]
+__all__ = ["AutoModel", "CheckUnit", "Choice", "Rule", "SceneFeatures", "ToleranceWarning", "check_slope", "choose",
+           "measure_scene", "select_spot_checks", "TRADE_TABLE"]
 
 TRADE_TABLE = Path(__file__).parent / "data" / "trade.csv"
 ERROR_COLUMN = "rel_l2_smooth"
@@ -414,8 +414,8 @@ class AutoOptions:
     spot_check_share: float = option(0.1, low=0.0, high=1.0,
                                      doc="share of the all-full-wave estimate a study of several tasks spends on "
                                          "spot checks (full wave and candidate rungs on sampled tasks; the hardest "
-                                         "task at each end of the spectrum is checked whatever the share; 0: the "
-                                         "rule alone)")
+                                         "task at each end of the spectrum, and any less oblique but steeper one, is "
+                                         "checked whatever the share; 0: the rule alone)")
     margin: float = option(1.25, low=1.0, high=10.0,
                            doc="a rung is taken where its worst measured error times this is within the tolerance")
     mix_wavelengths: bool = option(False, doc="let a direction's (or sub-area's) rung change across wavelengths, each "
@@ -431,9 +431,22 @@ class CheckUnit:
     series: tuple
     wavelength_um: float
     theta_i: float
-    rms_slope: float
+    slope: float  # :func:`check_slope`
     full_wave_seconds: float
     full_wave_fits: bool
+
+
+def check_slope(surface, theta_i: float, phi_i: float) -> float:
+    """How steep a task's sub-area is as the spot-check selection ranks it (dimensionless): its rms
+    slope, or at oblique incidence √2 × its rms slope along the plane of incidence where that is
+    larger. An isotropic surface's in-plane rms slope is its rms slope / √2, so there the two agree;
+    an anisotropic one lit across its grooves is harder than its rms slope says (shadowing and the
+    spread of local incidence angles grow with the in-plane slope: a brushed aluminium sub-area at
+    θ_i 40°, docs/auto.md, measured kirchhoff 0.078 lit along its grooves and 0.19 across)."""
+    total = surface.rms_slope()
+    if theta_i <= 0.0:
+        return total
+    return max(total, np.sqrt(2.0) * surface.rms_slope_along(phi_i))
 
 
 def select_spot_checks(units: list[CheckUnit], share: float, mix_wavelengths: bool = False
@@ -443,15 +456,18 @@ def select_spot_checks(units: list[CheckUnit], share: float, mix_wavelengths: bo
 
     Only units whose full wave fits are candidates ("the shortest λ" is the shortest of theirs).
     Candidates, hardest first: the hardest unit of the study (largest θ_i, then steepest), then θ_i
-    largest, smallest, median × λ shortest, longest, each the steepest unit there (rms slope: the
-    steepest sub-area), then the median-slope sub-area at (largest θ_i, shortest λ). The hardest
-    unit at the shortest and at the longest λ (largest θ_i there, then the steepest) are taken
-    whatever the share (when ``share`` > 0 and there are two units or more) and come first; the
-    others follow in that order while all the checks' full-wave estimates add up to at most
-    ``share`` of the all-full-wave estimate of the units where it fits.
+    largest, smallest, median × λ shortest, longest, each the steepest unit there (steepest by
+    :func:`check_slope`: the sub-area's rms slope, or its slope in the plane of incidence, so that
+    of several azimuths the one across an anisotropic surface's grooves counts), then the
+    median-slope sub-area at (largest θ_i, shortest λ). At the shortest and at the longest λ the
+    hardest unit (largest θ_i there, then the steepest) — and, where a less oblique one is steeper,
+    the hardest of those, and so on, until every unit at that λ has a check as oblique and as steep
+    as itself — are taken whatever the share (when ``share`` > 0 and there are two units or more)
+    and come first; the others follow in that order while all the checks' full-wave estimates add
+    up to at most ``share`` of the all-full-wave estimate of the units where it fits.
 
     A unit is represented by the checks at the nearest θ_i at or above its own and, among those, the
-    nearest rms slope at or above its own (the tangent-plane rungs' errors grow with both), at every
+    nearest slope at or above its own (the tangent-plane rungs' errors grow with both), at every
     checked λ — or, with ``mix_wavelengths``, only the nearest checked λ; a unit harder than every
     check (its own full wave does not fit) by the most oblique, then steepest, checks. Along λ an
     error may grow either way (with λ/ℓ where a rung's curvature limit binds, with h/λ where its
@@ -462,18 +478,17 @@ def select_spot_checks(units: list[CheckUnit], share: float, mix_wavelengths: bo
     lams = sorted({u.wavelength_um for u in eligible})
     thetas = sorted({u.theta_i for u in eligible})
     wanted = [(t, l) for t in (thetas[-1], thetas[0], thetas[len(thetas) // 2]) for l in (lams[0], lams[-1])]
-    picked: list[CheckUnit] = [max(eligible, key=lambda u: (u.theta_i, u.rms_slope, -u.wavelength_um, -u.task))]
+    picked: list[CheckUnit] = [max(eligible, key=lambda u: (u.theta_i, u.slope, -u.wavelength_um, -u.task))]
     for theta, lam in wanted:
         at = [u for u in eligible if u.theta_i == theta and u.wavelength_um == lam]
-        if at and (steepest := max(at, key=lambda u: (u.rms_slope, -u.task))) not in picked:
+        if at and (steepest := max(at, key=lambda u: (u.slope, -u.task))) not in picked:
             picked.append(steepest)
     hardest = sorted((u for u in eligible if u.theta_i == thetas[-1] and u.wavelength_um == lams[0]),
-                     key=lambda u: (u.rms_slope, u.task))
-    if len({u.rms_slope for u in hardest}) > 2 and hardest[len(hardest) // 2] not in picked:
+                     key=lambda u: (u.slope, u.task))
+    if len({u.slope for u in hardest}) > 2 and hardest[len(hardest) // 2] not in picked:
         picked.append(hardest[len(hardest) // 2])
-    # each end of the spectrum: its hardest unit (largest θ_i, then steepest), whatever the share
-    always = [max((u for u in eligible if u.wavelength_um == lam), key=lambda u: (u.theta_i, u.rms_slope, -u.task))
-              for lam in sorted({lams[0], lams[-1]})]
+    always = [u for lam in sorted({lams[0], lams[-1]})
+              for u in _staircase([u for u in eligible if u.wavelength_um == lam])]
     order = always + [u for u in picked if u not in always]
     budget = share * sum(u.full_wave_seconds for u in eligible)
     checks, spent = list(always), sum(u.full_wave_seconds for u in always)
@@ -484,16 +499,28 @@ def select_spot_checks(units: list[CheckUnit], share: float, mix_wavelengths: bo
     return checks, {u.task: _representatives(u, checks, mix_wavelengths) for u in units}
 
 
+def _staircase(units: list[CheckUnit]) -> list[CheckUnit]:
+    """The units that together are at least as oblique and as steep as every one of ``units``: the
+    hardest (largest θ_i, then steepest), then the hardest of those steeper than it, and so on."""
+    tiny = 1e-12
+    out = []
+    while units:
+        top = max(units, key=lambda u: (u.theta_i, u.slope, -u.task))
+        out.append(top)
+        units = [u for u in units if u.slope > top.slope + tiny]
+    return out
+
+
 def _representatives(unit: CheckUnit, checks: list[CheckUnit], mix_wavelengths: bool) -> tuple[int, ...]:
     """Indices of the checks that represent ``unit`` (select_spot_checks)."""
     tiny = 1e-12
-    pool = [i for i, c in enumerate(checks) if c.theta_i >= unit.theta_i - tiny and c.rms_slope >= unit.rms_slope - tiny]
+    pool = [i for i, c in enumerate(checks) if c.theta_i >= unit.theta_i - tiny and c.slope >= unit.slope - tiny]
     if not pool:  # harder than every check (its full wave does not fit): the most oblique, then steepest, checks
         top = max(c.theta_i for c in checks)
         pool = [i for i, c in enumerate(checks) if c.theta_i >= top - tiny]
-        top = max(checks[i].rms_slope for i in pool)
-        pool = [i for i in pool if checks[i].rms_slope >= top - tiny]
-    for key in (lambda c: c.theta_i, lambda c: c.rms_slope) + (
+        top = max(checks[i].slope for i in pool)
+        pool = [i for i in pool if checks[i].slope >= top - tiny]
+    for key in (lambda c: c.theta_i, lambda c: c.slope) + (
             (lambda c: abs(c.wavelength_um - unit.wavelength_um),) if mix_wavelengths else ()):
         nearest = min(key(checks[i]) for i in pool)
         pool = [i for i in pool if key(checks[i]) <= nearest + tiny]
@@ -603,7 +630,8 @@ class AutoModel(Model):
         """What :func:`select_spot_checks` needs of one task's scene."""
         full = self.full_wave_estimate(scene)
         fits = full is not None and full.memory_bytes <= memory_budget_bytes(scene)
-        return CheckUnit(task, series, scene.wavelength_um, scene.theta_i, scene.surface.rms_slope(),
+        return CheckUnit(task, series, scene.wavelength_um, scene.theta_i,
+                         check_slope(scene.surface, scene.theta_i, scene.phi_i),
                          full.seconds if full is not None else float("inf"), fits)
 
     def full_wave_estimate(self, scene: SurfaceScene) -> Estimate | None:

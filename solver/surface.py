@@ -262,17 +262,27 @@ class HeightField:
             "correlation_length_y_um": length_y,
         }
 
-    def slopes(self) -> np.ndarray:
-        """|∇z| of the bilinear surface at the cell centres, shape (N, N) (dimensionless)."""
+    def gradient(self) -> tuple[np.ndarray, np.ndarray]:
+        """(∂z/∂x, ∂z/∂y) of the bilinear surface at the cell centres, each (N, N) (dimensionless)."""
         z = self.z
         d = self.spacing_um
         zx = 0.5 * (z[1:, 1:] + z[1:, :-1] - z[:-1, 1:] - z[:-1, :-1]) / d
         zy = 0.5 * (z[1:, 1:] - z[1:, :-1] + z[:-1, 1:] - z[:-1, :-1]) / d
-        return np.hypot(zx, zy)
+        return zx, zy
+
+    def slopes(self) -> np.ndarray:
+        """|∇z| of the bilinear surface at the cell centres, shape (N, N) (dimensionless)."""
+        return np.hypot(*self.gradient())
 
     def rms_slope(self) -> float:
         """rms of :meth:`slopes` (dimensionless)."""
         return float(np.sqrt(np.mean(self.slopes() ** 2)))
+
+    def rms_slope_along(self, phi: float) -> float:
+        """rms of the slope along the azimuth ``phi`` (radians from x toward y), ∂z/∂x cos φ + ∂z/∂y sin φ
+        at the cell centres (dimensionless; an isotropic surface's is its :meth:`rms_slope` / √2)."""
+        zx, zy = self.gradient()
+        return float(np.sqrt(np.mean((zx * np.cos(phi) + zy * np.sin(phi)) ** 2)))
 
     def rms_slope_below(self, scale_um: float) -> float:
         """rms slope of the relief finer than ``scale_um`` (µm): of z minus z smoothed by a

@@ -26,7 +26,7 @@ import pytest
 
 from wavebrdf.jobs.config import load_config
 from wavebrdf.jobs.plan import plan_study
-from wavebrdf.solver.auto import REFERENCE, CheckUnit, choose, select_spot_checks
+from wavebrdf.solver.auto import REFERENCE, CheckUnit, check_slope, choose, select_spot_checks
 from wavebrdf.solver.farfield import HemisphereGrid
 from wavebrdf.solver.materials import Material
 from wavebrdf.solver.metrics import speckle_errors, speckle_sigma_u
@@ -109,7 +109,7 @@ def test_a_study_of_few_tasks_is_checked_at_both_ends_of_its_spectrum():
     # share of 0.1 pays for one; the longest wavelength is checked too, and represents its tasks
     study = units(thetas=(0.0,), lams=(0.5, 0.58, 0.66), slopes=(0.10, 0.12, 0.13, 0.14))
     checks, represented = select_spot_checks(study, 0.1)
-    assert [(c.wavelength_um, c.rms_slope) for c in checks] == [(0.5, 0.14), (0.66, 0.14)]
+    assert [(c.wavelength_um, c.slope) for c in checks] == [(0.5, 0.14), (0.66, 0.14)]
     for u in study:
         assert {checks[i].wavelength_um for i in represented[u.task]} == {0.5, 0.66}
 
@@ -117,13 +117,90 @@ def test_a_study_of_few_tasks_is_checked_at_both_ends_of_its_spectrum():
 def test_spot_checks_of_sub_areas_take_the_steepest_and_represent_by_slope():
     study = units(thetas=(0.0, 0.3), lams=(0.4, 0.7), slopes=(0.05, 0.1, 0.2, 0.4))
     checks, represented = select_spot_checks(study, 1.0)
-    assert all(c.rms_slope == 0.4 for c in checks[:4])  # the steepest sub-area at every (θ_i, λ) corner
-    assert any(c.rms_slope == 0.2 for c in checks)  # and the median one at the hardest corner
+    assert all(c.slope == 0.4 for c in checks[:4])  # the steepest sub-area at every (θ_i, λ) corner
+    assert any(c.slope == 0.2 for c in checks)  # and the median one at the hardest corner
     for u in study:
         reps = [checks[i] for i in represented[u.task]]
-        assert all(c.rms_slope >= u.rms_slope and c.theta_i >= u.theta_i for c in reps)
-    gentle = next(u for u in study if u.rms_slope == 0.05 and u.theta_i == 0.3)
-    assert {checks[i].rms_slope for i in represented[gentle.task]} == {0.2}  # the nearest steeper check
+        assert all(c.slope >= u.slope and c.theta_i >= u.theta_i for c in reps)
+    gentle = next(u for u in study if u.slope == 0.05 and u.theta_i == 0.3)
+    assert {checks[i].slope for i in represented[gentle.task]} == {0.2}  # the nearest steeper check
+
+
+
+def test_a_less_oblique_but_steeper_task_is_checked_too():
+    """Lit at 0.8 rad along an anisotropic surface's grooves (slope 0.12) and at 0.7 rad across them
+    (0.17), plus gentler tasks: the most oblique task alone is not as steep as the across one, so at
+    each end of the spectrum both are checked whatever the share, and every task is represented by
+    checks as oblique and as steep as itself."""
+    study = [CheckUnit(i, (t, s), lam, t, s, 10.0, True) for i, (t, s, lam) in enumerate(
+        (t, s, lam) for t, s in ((0.8, 0.12), (0.7, 0.17), (0.3, 0.10), (0.5, 0.15)) for lam in (0.45, 0.55, 0.65))]
+    checks, represented = select_spot_checks(study, 0.01)
+    assert [(c.theta_i, c.slope, c.wavelength_um) for c in checks] == [
+        (0.8, 0.12, 0.45), (0.7, 0.17, 0.45), (0.8, 0.12, 0.65), (0.7, 0.17, 0.65)]
+    for u in study:
+        reps = [checks[i] for i in represented[u.task]]
+        assert reps and all(c.theta_i >= u.theta_i and c.slope >= u.slope for c in reps), u
+    across = next(u for u in study if u.slope == 0.17)
+    assert {checks[i].slope for i in represented[across.task]} == {0.17}
+
+
+def test_the_slope_a_check_is_ranked_by_is_the_in_plane_one_where_larger():
+    """A grating lit across its grooves (the plane of incidence along k) ranks at √2 × its in-plane
+    rms slope a|k|/√2, i.e. a|k|; lit along them, or at normal incidence, at its rms slope a|k|/√2."""
+    a, period = 0.05, 0.8
+    grating = generate("sinusoid", cells=160, size_um=4.0, amplitude_um=a, period_um=period)  # k along x
+    ak = a * 2 * np.pi / period
+    assert check_slope(grating, np.radians(40), 0.0) == pytest.approx(ak, rel=2e-3)
+    assert check_slope(grating, np.radians(40), np.pi / 2) == pytest.approx(ak / np.sqrt(2), rel=2e-3)
+    assert check_slope(grating, 0.0, 0.0) == pytest.approx(ak / np.sqrt(2), rel=2e-3)
+
+
+BRUSHED = """
+[study]
+name = "brushed"
+output = "brushed.h5"
+[surface]
+generator = "brushed"
+size_um = 2.4
+cells = 48
+rms_height_um = 0.02
+correlation_um = [1.2, 0.15]
+angle_deg = 0.0
+seed = 3
+[material]
+name = "aluminium"
+[illumination]
+wavelengths_um = [0.5, 0.6]
+directions_deg = [[40, 0], [40, 90], [20, 0]]
+waist_um = 0.45
+[model]
+name = "auto"
+tolerance = 0.05
+[output]
+resolution = 32
+"""
+
+
+def test_spot_checks_of_an_anisotropic_surface_take_the_azimuth_across_its_grooves(tmp_path):
+    """Grooves along x, lit at θ_i 40° along them (listed first) and across them: the checks at both
+    ends of the spectrum are the across-grooves tasks (the harder: a brushed sub-area at 40° measured
+    kirchhoff 0.078 along and 0.19 across, docs/auto.md), and they represent the along-grooves ones."""
+    path = tmp_path / "brushed.toml"
+    path.write_text(BRUSHED)
+    plan = plan_study(load_config(path))
+    checks = [t for t in plan.tasks if t.kind == "check"]
+    assert len(checks) >= 2
+    scenes = {t.id: plan.scene(t) for t in plan.tasks}
+    forced = checks[:2]  # the hardest task at each end of the spectrum
+    assert {scenes[t.id].wavelength_um for t in forced} == {0.5, 0.6}
+    for t in forced:
+        assert np.degrees(scenes[t.id].theta_i) == pytest.approx(40)
+        assert np.degrees(scenes[t.id].phi_i) == pytest.approx(90)
+    along = [t for t in plan.tasks if t.kind == "direct" and np.degrees(scenes[t.id].phi_i) == pytest.approx(0)
+             and np.degrees(scenes[t.id].theta_i) == pytest.approx(40)]
+    assert along and all(t.checks for t in along)
+    for t in along:
+        assert all(np.degrees(scenes[i].phi_i) == pytest.approx(90) for i in t.checks)
 
 
 STUDY = """
