@@ -6,7 +6,7 @@ with ``wavebrdf run`` in a child process, CPU measured from the children's resou
     .venv/bin/python benchmarks/auto_at_scale.py pits         # spherical pits at λ scale: auto must choose BEM
     .venv/bin/python benchmarks/auto_at_scale.py brushed      # brushed Al, rms slope 0.13, anisotropic: a second low slope
     .venv/bin/python benchmarks/auto_at_scale.py glass-oblique    # rough glass at θ_i 40°, two azimuths
-    .venv/bin/python benchmarks/auto_at_scale.py brushed-oblique --tolerance 0.1    # brushed Al, along and across its grooves
+    .venv/bin/python benchmarks/auto_at_scale.py brushed-oblique --tolerance 0.1    # along and across the grooves
     .venv/bin/python benchmarks/auto_at_scale.py brushed-oblique-50 --tolerance 0.07
     .venv/bin/python benchmarks/auto_at_scale.py brushed-direct --tolerance 0.1     # the same, one patch, no steering
     .venv/bin/python benchmarks/auto_at_scale.py bumpy --tolerance 0.05 0.01 --keep out/auto_at_scale
@@ -58,8 +58,8 @@ REFERENCE_DIRECTIONS = 'directions_file = "{root}/configs/data/reference_subarea
 STEERED = ("size_um = 6.9\ncells = 230", "[steering]\npatches = [2, 2]\npatch_size_um = 5.4\nshift_um = 1.5\n")
 DIRECT = ("size_um = 5.4\ncells = 180", "")  # one sub-area of the steered studies, lit directly
 
-BRUSHED_ACROSS = ('generator = "brushed"\nrms_height_um = 0.035\ncorrelation_um = [2.5, 0.45]\nangle_deg = 0.0\n'
-                  'seed = 31')  # grooves along x
+BRUSHED_X = ('generator = "brushed"\nrms_height_um = 0.035\ncorrelation_um = [2.5, 0.45]\nangle_deg = 0.0\n'
+             'seed = 31')  # grooves along x
 
 # name: (surface table, wavelengths (µm), material table, directions[, (extent, steering): STEERED if left out])
 SURFACES = {
@@ -71,15 +71,15 @@ SURFACES = {
     "brushed": ('generator = "brushed"\nrms_height_um = 0.06\ncorrelation_um = [2.0, 0.8]\nangle_deg = 30.0\nseed = 9',
                 [0.5, 0.58, 0.66], ALUMINIUM, REFERENCE_DIRECTIONS),
     # a dielectric lit obliquely: glass, θ_i 40° at two azimuths, other wavelengths
-    "glass-oblique": ('generator = "gaussian"\nrms_height_um = 0.08\ncorrelation_um = 0.9\nseed = 23', [0.45, 0.55, 0.65],
-                      'name = "glass"', "directions_deg = [[40, 0], [40, 60]]"),
+    "glass-oblique": ('generator = "gaussian"\nrms_height_um = 0.08\ncorrelation_um = 0.9\nseed = 23',
+                      [0.45, 0.55, 0.65], 'name = "glass"', "directions_deg = [[40, 0], [40, 60]]"),
     # an anisotropic surface lit obliquely along its grooves (listed first) and across them: the
     # tangent-plane rungs' error depends on the azimuth (rms slope 0.11, 0.16 across the grooves)
-    "brushed-oblique": (BRUSHED_ACROSS, [0.5, 0.6], ALUMINIUM, "directions_deg = [[40, 0], [40, 90]]"),
+    "brushed-oblique": (BRUSHED_X, [0.5, 0.6], ALUMINIUM, "directions_deg = [[40, 0], [40, 90]]"),
     # the same, more oblique along the grooves than across them
-    "brushed-oblique-50": (BRUSHED_ACROSS, [0.5, 0.6], ALUMINIUM, "directions_deg = [[50, 0], [40, 90]]"),
+    "brushed-oblique-50": (BRUSHED_X, [0.5, 0.6], ALUMINIUM, "directions_deg = [[50, 0], [40, 90]]"),
     # one sub-area's size lit directly (no steering) at θ_i 40° along its grooves (listed first) and across them
-    "brushed-direct": (BRUSHED_ACROSS, [0.5, 0.6], ALUMINIUM, "directions_deg = [[40, 0], [40, 90]]", DIRECT),
+    "brushed-direct": (BRUSHED_X, [0.5, 0.6], ALUMINIUM, "directions_deg = [[40, 0], [40, 90]]", DIRECT),
 }
 
 STUDY = """[study]

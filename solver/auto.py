@@ -23,8 +23,9 @@ Modelling only what a scene requires, in three steps (docs/auto.md):
 In a study of many tasks the rule only chooses what to measure: the batch layer (jobs/spot_checks.py)
 adds **spot checks**, tasks chosen by :func:`select_spot_checks` to span the study (extremes of λ
 and θ_i, the steepest sub-areas) within a stated share of the all-full-wave cost (at both ends of
-the spectrum, checks as oblique and as steep as every task whatever the share), each running the
-full wave and every cheaper candidate rung on its scene (:meth:`AutoModel.spot_check`). Every other
+the spectrum, checks as oblique and as steep as every task there whose full wave fits, whatever
+the share), each running the full wave and every cheaper candidate rung on its scene
+(:meth:`AutoModel.spot_check`). Every other
 task then runs the cheapest rung whose *measured* error on the checks that represent it, times a
 margin, is within the tolerance (:meth:`AutoModel.run_checked`); one rung per (case, direction or
 sub-area) across wavelengths unless ``mix_wavelengths``.
@@ -441,8 +442,8 @@ def check_slope(surface, theta_i: float, phi_i: float) -> float:
     slope, or at oblique incidence √2 × its rms slope along the plane of incidence where that is
     larger. An isotropic surface's in-plane rms slope is its rms slope / √2, so there the two agree;
     an anisotropic one lit across its grooves is harder than its rms slope says (shadowing and the
-    spread of local incidence angles grow with the in-plane slope: a brushed aluminium sub-area at
-    θ_i 40°, docs/auto.md, measured kirchhoff 0.078 lit along its grooves and 0.19 across)."""
+    spread of local incidence angles grow with the in-plane slope: a brushed aluminium patch at θ_i
+    40°, docs/auto.md, measured kirchhoff 0.047 lit along its grooves and 0.135 across)."""
     total = surface.rms_slope()
     if theta_i <= 0.0:
         return total
@@ -460,18 +461,20 @@ def select_spot_checks(units: list[CheckUnit], share: float, mix_wavelengths: bo
     :func:`check_slope`: the sub-area's rms slope, or its slope in the plane of incidence, so that
     of several azimuths the one across an anisotropic surface's grooves counts), then the
     median-slope sub-area at (largest θ_i, shortest λ). At the shortest and at the longest λ the
-    hardest unit (largest θ_i there, then the steepest) — and, where a less oblique one is steeper,
-    the hardest of those, and so on, until every unit at that λ has a check as oblique and as steep
-    as itself — are taken whatever the share (when ``share`` > 0 and there are two units or more)
-    and come first; the others follow in that order while all the checks' full-wave estimates add
-    up to at most ``share`` of the all-full-wave estimate of the units where it fits.
+    hardest unit (largest θ_i there, then the steepest) — and, where a less oblique one is steeper
+    (by more than :data:`SLOPE_TIE`), the hardest of those, and so on, until every unit at that λ
+    has a check as oblique and as steep as itself — are taken whatever the share (when ``share`` > 0
+    and there are two units or more) and come first; the others follow in that order while all the
+    checks' full-wave estimates add up to at most ``share`` of the all-full-wave estimate of the
+    units where it fits.
 
     A unit is represented by the checks at the nearest θ_i at or above its own and, among those, the
-    nearest slope at or above its own (the tangent-plane rungs' errors grow with both), at every
-    checked λ — or, with ``mix_wavelengths``, only the nearest checked λ; a unit harder than every
-    check (its own full wave does not fit) by the most oblique, then steepest, checks. Along λ an
-    error may grow either way (with λ/ℓ where a rung's curvature limit binds, with h/λ where its
-    phase does), so both ends of the spectrum are measured."""
+    nearest slope at or above its own (within :data:`SLOPE_TIE`; the tangent-plane rungs' errors
+    grow with both), at every checked λ — or, with ``mix_wavelengths``, only the nearest checked λ;
+    a unit no check covers so (its own full wave does not fit, or it occurs at a middle λ only) by
+    every check no other covers, the worst of them. Along λ an error may grow either way (with λ/ℓ
+    where a rung's curvature limit binds, with h/λ where its phase does), so both ends of the
+    spectrum are measured."""
     eligible = [u for u in units if u.full_wave_fits and np.isfinite(u.full_wave_seconds)]
     if len(units) < 2 or share <= 0 or not eligible:
         return [], {}
@@ -499,31 +502,44 @@ def select_spot_checks(units: list[CheckUnit], share: float, mix_wavelengths: bo
     return checks, {u.task: _representatives(u, checks, mix_wavelengths) for u in units}
 
 
+ROUNDING = 1e-12  # θ_i (rad), slopes and λ (µm) this close are equal
+SLOPE_TIE = 0.05  # slopes within 5 % count as equal: an isotropic surface's in-plane slope moves by a few % with
+#                   the azimuth by realization, which would otherwise force a check per azimuth
+
+
+def _covers(check: CheckUnit, unit: CheckUnit) -> bool:
+    """``check`` is as oblique and as steep as ``unit`` (θ_i to rounding, slopes within :data:`SLOPE_TIE`)."""
+    return check.theta_i >= unit.theta_i - ROUNDING and check.slope * (1.0 + SLOPE_TIE) >= unit.slope
+
+
 def _staircase(units: list[CheckUnit]) -> list[CheckUnit]:
-    """The units that together are at least as oblique and as steep as every one of ``units``: the
-    hardest (largest θ_i, then steepest), then the hardest of those steeper than it, and so on."""
-    tiny = 1e-12
+    """Units that together cover every one of ``units``: the hardest (largest θ_i, then steepest),
+    then the hardest of those it does not cover (less oblique, steeper), and so on."""
     out = []
     while units:
         top = max(units, key=lambda u: (u.theta_i, u.slope, -u.task))
         out.append(top)
-        units = [u for u in units if u.slope > top.slope + tiny]
+        units = [u for u in units if not _covers(top, u)]
     return out
 
 
 def _representatives(unit: CheckUnit, checks: list[CheckUnit], mix_wavelengths: bool) -> tuple[int, ...]:
-    """Indices of the checks that represent ``unit`` (select_spot_checks)."""
-    tiny = 1e-12
-    pool = [i for i, c in enumerate(checks) if c.theta_i >= unit.theta_i - tiny and c.slope >= unit.slope - tiny]
-    if not pool:  # harder than every check (its full wave does not fit): the most oblique, then steepest, checks
-        top = max(c.theta_i for c in checks)
-        pool = [i for i, c in enumerate(checks) if c.theta_i >= top - tiny]
-        top = max(checks[i].slope for i in pool)
-        pool = [i for i in pool if checks[i].slope >= top - tiny]
-    for key in (lambda c: c.theta_i, lambda c: c.slope) + (
-            (lambda c: abs(c.wavelength_um - unit.wavelength_um),) if mix_wavelengths else ()):
+    """Indices of the checks that represent ``unit`` (select_spot_checks): of those that cover it,
+    the nearest θ_i, then the nearest slope; none covers it (its own full wave does not fit, or it
+    occurs only at a middle λ): every check no other one covers strictly, the most oblique to the
+    steepest, whose worst measured error then stands for it. With ``mix_wavelengths``, only the
+    nearest checked λ."""
+    pool = [i for i, c in enumerate(checks) if _covers(c, unit)]
+    keys = (lambda c: c.theta_i, lambda c: c.slope)
+    if not pool:
+        pool = [i for i, c in enumerate(checks)
+                if not any(_covers(o, c) and not _covers(c, o) for o in checks)]
+        keys = ()
+    if mix_wavelengths:
+        keys += (lambda c: abs(c.wavelength_um - unit.wavelength_um),)
+    for key in keys:
         nearest = min(key(checks[i]) for i in pool)
-        pool = [i for i in pool if key(checks[i]) <= nearest + tiny]
+        pool = [i for i in pool if key(checks[i]) <= nearest + ROUNDING]
     return tuple(pool)
 
 

@@ -126,7 +126,6 @@ def test_spot_checks_of_sub_areas_take_the_steepest_and_represent_by_slope():
     assert {checks[i].slope for i in represented[gentle.task]} == {0.2}  # the nearest steeper check
 
 
-
 def test_a_less_oblique_but_steeper_task_is_checked_too():
     """Lit at 0.8 rad along an anisotropic surface's grooves (slope 0.12) and at 0.7 rad across them
     (0.17), plus gentler tasks: the most oblique task alone is not as steep as the across one, so at
@@ -142,6 +141,24 @@ def test_a_less_oblique_but_steeper_task_is_checked_too():
         assert reps and all(c.theta_i >= u.theta_i and c.slope >= u.slope for c in reps), u
     across = next(u for u in study if u.slope == 0.17)
     assert {checks[i].slope for i in represented[across.task]} == {0.17}
+    # a steeper task whose full wave fits nowhere: every check no other covers, the worst of them standing for it
+    beyond = CheckUnit(len(study), (0.7, 0.2), 0.55, 0.7, 0.2, 10.0, False)
+    checks, represented = select_spot_checks(study + [beyond], 0.01)
+    assert {(checks[i].theta_i, checks[i].slope) for i in represented[beyond.task]} == {(0.8, 0.12), (0.7, 0.17)}
+
+
+def test_slopes_within_the_tie_take_no_check_of_their_own():
+    """An isotropic surface's in-plane slope moves by a few % with the azimuth: a less oblique task
+    2 % steeper than the most oblique one is covered by it, one 10 % steeper is checked too."""
+    study = [CheckUnit(i, (t, s), lam, t, s, 10.0, True) for i, (t, s, lam) in enumerate(
+        (t, s, lam) for t, s in ((0.6, 0.200), (0.4, 0.204), (0.2, 0.202)) for lam in (0.5, 0.6))]
+    checks, represented = select_spot_checks(study, 0.01)
+    assert [(c.theta_i, c.wavelength_um) for c in checks] == [(0.6, 0.5), (0.6, 0.6)]
+    assert all(represented[u.task] for u in study)
+    steeper = study + [CheckUnit(len(study) + k, (0.4, 0.22), lam, 0.4, 0.22, 10.0, True)
+                       for k, lam in enumerate((0.5, 0.6))]
+    checks, _ = select_spot_checks(steeper, 0.01)
+    assert [(c.theta_i, c.slope) for c in checks] == [(0.6, 0.2), (0.4, 0.22)] * 2
 
 
 def test_the_slope_a_check_is_ranked_by_is_the_in_plane_one_where_larger():
@@ -183,8 +200,8 @@ resolution = 32
 
 def test_spot_checks_of_an_anisotropic_surface_take_the_azimuth_across_its_grooves(tmp_path):
     """Grooves along x, lit at θ_i 40° along them (listed first) and across them: the checks at both
-    ends of the spectrum are the across-grooves tasks (the harder: a brushed sub-area at 40° measured
-    kirchhoff 0.078 along and 0.19 across, docs/auto.md), and they represent the along-grooves ones."""
+    ends of the spectrum are the across-grooves tasks (the harder: a brushed patch at 40° measured
+    kirchhoff 0.047 along and 0.135 across, docs/auto.md), and they represent the along-grooves ones."""
     path = tmp_path / "brushed.toml"
     path.write_text(BRUSHED)
     plan = plan_study(load_config(path))

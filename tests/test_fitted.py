@@ -118,18 +118,17 @@ def test_slope_below_a_scale_of_a_sinusoid(scale_um):
     assert tilted.rms_slope_below(0.2) < 1e-12
 
 
-
 @pytest.mark.parametrize("angle_deg", [0.0, 30.0])
 def test_slope_along_an_azimuth_of_a_sinusoid(angle_deg):
     """The spot checks' in-plane slope against the closed form: z = a sin(k·x) with k at angle α
     from x has the slope a|k| cos(kx)(cos α cos φ + sin α sin φ) along φ, rms a|k||cos(φ − α)|/√2
-    (the grid's central difference keeps sinc(|k|d/2) of it: < 0.1 % at d = Λ/32)."""
+    (the grid's central difference keeps sinc(|k|d/2) of it: 0.2–0.4 % off at d = Λ/32)."""
     a, period = 0.05, 0.8
     surface = generate("sinusoid", cells=160, size_um=4.0, amplitude_um=a, period_um=period, angle_deg=angle_deg)
     k = 2 * math.pi / period
     for phi_deg in (0.0, 30.0, 60.0, 90.0, 135.0):
         expected = a * k * abs(math.cos(math.radians(phi_deg - angle_deg))) / math.sqrt(2)
-        assert surface.rms_slope_along(math.radians(phi_deg)) == pytest.approx(expected, rel=2e-3, abs=2e-3 * a * k)
+        assert surface.rms_slope_along(math.radians(phi_deg)) == pytest.approx(expected, rel=5e-3, abs=1e-6)
     tilted = HeightField(0.1 * np.add.outer(np.zeros(33), np.linspace(0, 1, 33)), 1.0)  # z rises along y
     assert tilted.rms_slope_along(math.pi / 2) == pytest.approx(0.1, rel=1e-9)
     assert tilted.rms_slope_along(0.0) < 1e-12
