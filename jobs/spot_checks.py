@@ -4,7 +4,8 @@ A model whose capabilities say ``spot_checks`` measures its own choice: :func:`a
 describes every task it decides — direct tasks, or the patch tasks of a steered case — to the
 model (``check_unit``), which picks a few to check (``plan_spot_checks``: extremes of λ and θ_i,
 the steepest sub-areas, within its share of the all-full-wave estimate, but at both ends of the
-spectrum checks as oblique and as steep as every task there, whatever the share). Each pick becomes a
+spectrum checks as oblique and as steep as every task there whose full wave fits, whatever the
+share). Each pick becomes a
 "check" task with the indices of the task it copies (same scene); every decided task depends on
 the checks that represent it and reads their measurements when it runs (jobs/tasks.py).
 """
