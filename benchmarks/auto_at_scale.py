@@ -13,7 +13,7 @@ with ``wavebrdf run`` in a child process, CPU measured from the children's resou
     .venv/bin/python benchmarks/auto_at_scale.py single       # one-task studies at waist 5λ: rule vs measured
     .venv/bin/python benchmarks/auto_at_scale.py single --rule-only   # the rule's predictions alone
 
-Regime (every surface): 2 × 2 sub-areas of 5.4 µm at d = 0.03 µm (≤ λ/16 at λ ≥ 0.48 µm; 129 600
+Regime (unless said below): 2 × 2 sub-areas of 5.4 µm at d = 0.03 µm (≤ λ/16 at λ ≥ 0.48 µm; 129 600
 cells, ~130 000 unknowns each), shifted by the waist 1.5 µm (≥ 2.5 λ), the reference's aluminium
 ``wvl.txt``, exact beams, normal incidence plus the reference's four neighbouring ``wi.txt``
 directions (one basic direction), 256² output. ``bumpy``: 3 wavelengths (0.5, 0.55, 0.6 µm): 12
@@ -45,6 +45,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 import h5py
 import numpy as np
@@ -58,28 +59,38 @@ REFERENCE_DIRECTIONS = 'directions_file = "{root}/configs/data/reference_subarea
 STEERED = ("size_um = 6.9\ncells = 230", "[steering]\npatches = [2, 2]\npatch_size_um = 5.4\nshift_um = 1.5\n")
 DIRECT = ("size_um = 5.4\ncells = 180", "")  # one sub-area of the steered studies, lit directly
 
+
+class Study(NamedTuple):
+    """One study of the benchmark, as TOML snippets (``{root}``: the repository)."""
+
+    surface: str  # the [surface] table without its extent
+    wavelengths: list[float]  # µm
+    material: str  # the [material] table
+    directions: str  # the [illumination] directions
+    layout: tuple[str, str] = STEERED  # the surface's extent and the [steering] table
+
+
 BRUSHED_X = ('generator = "brushed"\nrms_height_um = 0.035\ncorrelation_um = [2.5, 0.45]\nangle_deg = 0.0\n'
              'seed = 31')  # grooves along x
 
-# name: (surface table, wavelengths (µm), material table, directions[, (extent, steering): STEERED if left out])
 SURFACES = {
-    "bumpy": ('generator = "gaussian"\nrms_height_um = 0.1\ncorrelation_um = 1.0\nseed = 7', [0.5, 0.55, 0.6],
-              ALUMINIUM, REFERENCE_DIRECTIONS),
-    "pits": ('generator = "spherical-pits"\nradius_um = 0.45\ndepth_um = 0.3\nperiod_um = 1.15', [0.5],
-             ALUMINIUM, REFERENCE_DIRECTIONS),
+    "bumpy": Study('generator = "gaussian"\nrms_height_um = 0.1\ncorrelation_um = 1.0\nseed = 7', [0.5, 0.55, 0.6],
+                   ALUMINIUM, REFERENCE_DIRECTIONS),
+    "pits": Study('generator = "spherical-pits"\nradius_um = 0.45\ndepth_um = 0.3\nperiod_um = 1.15', [0.5],
+                  ALUMINIUM, REFERENCE_DIRECTIONS),
     # a second low-slope surface, anisotropic (rms slope 0.13: the 230² realization's statistics()), other wavelengths
-    "brushed": ('generator = "brushed"\nrms_height_um = 0.06\ncorrelation_um = [2.0, 0.8]\nangle_deg = 30.0\nseed = 9',
-                [0.5, 0.58, 0.66], ALUMINIUM, REFERENCE_DIRECTIONS),
+    "brushed": Study('generator = "brushed"\nrms_height_um = 0.06\ncorrelation_um = [2.0, 0.8]\nangle_deg = 30.0\n'
+                     'seed = 9', [0.5, 0.58, 0.66], ALUMINIUM, REFERENCE_DIRECTIONS),
     # a dielectric lit obliquely: glass, θ_i 40° at two azimuths, other wavelengths
-    "glass-oblique": ('generator = "gaussian"\nrms_height_um = 0.08\ncorrelation_um = 0.9\nseed = 23',
-                      [0.45, 0.55, 0.65], 'name = "glass"', "directions_deg = [[40, 0], [40, 60]]"),
+    "glass-oblique": Study('generator = "gaussian"\nrms_height_um = 0.08\ncorrelation_um = 0.9\nseed = 23',
+                           [0.45, 0.55, 0.65], 'name = "glass"', "directions_deg = [[40, 0], [40, 60]]"),
     # an anisotropic surface lit obliquely along its grooves (listed first) and across them: the
     # tangent-plane rungs' error depends on the azimuth (rms slope 0.11, 0.16 across the grooves)
-    "brushed-oblique": (BRUSHED_X, [0.5, 0.6], ALUMINIUM, "directions_deg = [[40, 0], [40, 90]]"),
+    "brushed-oblique": Study(BRUSHED_X, [0.5, 0.6], ALUMINIUM, "directions_deg = [[40, 0], [40, 90]]"),
     # the same, more oblique along the grooves than across them
-    "brushed-oblique-50": (BRUSHED_X, [0.5, 0.6], ALUMINIUM, "directions_deg = [[50, 0], [40, 90]]"),
+    "brushed-oblique-50": Study(BRUSHED_X, [0.5, 0.6], ALUMINIUM, "directions_deg = [[50, 0], [40, 90]]"),
     # one sub-area's size lit directly (no steering) at θ_i 40° along its grooves (listed first) and across them
-    "brushed-direct": (BRUSHED_X, [0.5, 0.6], ALUMINIUM, "directions_deg = [[40, 0], [40, 90]]", DIRECT),
+    "brushed-direct": Study(BRUSHED_X, [0.5, 0.6], ALUMINIUM, "directions_deg = [[40, 0], [40, 90]]", DIRECT),
 }
 
 STUDY = """[study]
@@ -103,15 +114,14 @@ per_polarization = true
 {steering}"""
 
 
-def run_study(folder: Path, name: str, study: tuple, model: str) -> dict:
+def run_study(folder: Path, name: str, study: Study, model: str) -> dict:
     """``wavebrdf run`` of one study (a ``SURFACES`` entry) in a child process: its CPU seconds (user +
     system), wall time."""
-    surface, wavelengths, material, directions, *layout = study
-    extent, steering = layout[0] if layout else STEERED
+    extent, steering = study.layout
     config = folder / f"{name}.toml"
-    config.write_text(STUDY.format(name=name, surface=surface, wavelengths=wavelengths, model=model, root=ROOT,
-                                   material=material.format(root=ROOT), directions=directions.format(root=ROOT),
-                                   extent=extent, steering=steering))
+    config.write_text(STUDY.format(name=name, surface=study.surface, wavelengths=study.wavelengths, model=model,
+                                   root=ROOT, material=study.material.format(root=ROOT),
+                                   directions=study.directions.format(root=ROOT), extent=extent, steering=steering))
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     done = subprocess.run([sys.executable, "-m", "wavebrdf", "run", str(config), "--no-render", "-q"],
