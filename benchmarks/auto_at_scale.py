@@ -9,6 +9,7 @@ with ``wavebrdf run`` in a child process, CPU measured from the children's resou
     .venv/bin/python benchmarks/auto_at_scale.py brushed-oblique --tolerance 0.1    # along and across the grooves
     .venv/bin/python benchmarks/auto_at_scale.py brushed-oblique-50 --tolerance 0.07
     .venv/bin/python benchmarks/auto_at_scale.py brushed-direct --tolerance 0.1     # the same, one patch, no steering
+    .venv/bin/python benchmarks/auto_at_scale.py glass-single --one-task --tolerance 0.2   # each λ its own study: the rule
     .venv/bin/python benchmarks/auto_at_scale.py bumpy --tolerance 0.05 0.01 --keep out/auto_at_scale
     .venv/bin/python benchmarks/auto_at_scale.py single       # one-task studies at waist 5λ: rule vs measured
     .venv/bin/python benchmarks/auto_at_scale.py single --rule-only   # the rule's predictions alone
@@ -23,7 +24,11 @@ instead of the reference's directions, 3 wavelengths (0.45, 0.55, 0.65 µm): 24 
 ``brushed-oblique``: grooves along x lit at θ_i 40° along them (φ_i 0°) and across them (90°), 2
 wavelengths (0.5, 0.6 µm): 16 patch solves; ``brushed-oblique-50``: the same at 50° along them.
 ``brushed-direct``: no steering, the 5.4 µm surface of 180² cells (one sub-area's size) lit
-directly at θ_i 40° along and across its grooves, 2 wavelengths: 4 tasks.
+directly at θ_i 40° along and across its grooves, 2 wavelengths: 4 tasks. ``glass-single``: the
+glass-oblique surface on one such patch, lit directly at θ_i 34° (glass-oblique's steered basic
+θ_i), λ 0.45 and 0.65 µm. ``--one-task``: every (λ, direction) of a study without steering run as
+a study of its own, all-full-wave and with ``auto``: one task has no spot checks, so ``auto`` takes
+the rule's choice and its escalation check (the reason is printed).
 
 ``single``: three one-task scenes not in the trade table (smooth, bumpy, steep), aluminium at
 λ = 0.5 µm, waist 2.5 µm (5 λ), θ_i = 20°, 9 µm patches at d = 0.05 µm (λ/10; |k₂|d = 3.9 ≤ 4), 256²
@@ -91,6 +96,9 @@ SURFACES = {
     "brushed-oblique-50": Study(BRUSHED_X, [0.5, 0.6], ALUMINIUM, "directions_deg = [[50, 0], [40, 90]]"),
     # one sub-area's size lit directly (no steering) at θ_i 40° along its grooves (listed first) and across them
     "brushed-direct": Study(BRUSHED_X, [0.5, 0.6], ALUMINIUM, "directions_deg = [[40, 0], [40, 90]]", DIRECT),
+    # glass-oblique's surface on one patch at its steered basic θ_i: with --one-task, the rule's path on a dielectric
+    "glass-single": Study('generator = "gaussian"\nrms_height_um = 0.08\ncorrelation_um = 0.9\nseed = 23',
+                          [0.45, 0.65], 'name = "glass"', "directions_deg = [[34, 0]]", DIRECT),
 }
 
 STUDY = """[study]
@@ -173,7 +181,7 @@ def single_task_studies(tolerances: list[float], rule_only: bool = False) -> int
     """The one-task scenes of ``SINGLE`` through every rung and BEM, with the rule's predictions
     (``rule_only``: the predictions and picks alone, no rung run)."""
     from wavebrdf.jobs.compare import compare_scenes
-    from wavebrdf.solver.auto import REFERENCE, candidate_models, choose, default_rule, measure_scene
+    from wavebrdf.solver.auto import REFERENCE, candidate_models, choose, default_rule, measure_scene, table_error
     from wavebrdf.solver.farfield import HemisphereGrid
     from wavebrdf.solver.materials import Material
     from wavebrdf.solver.models import SurfaceScene
@@ -193,18 +201,19 @@ def single_task_studies(tolerances: list[float], rule_only: bool = False) -> int
     comparison = compare_scenes(scenes, rungs + [REFERENCE], {REFERENCE: {"method": "aim"}}, reference=REFERENCE,
                                 progress=lambda what: print(f"  running {what}", flush=True))
     rule = default_rule()
-    print("| scene | rms slope | rung | predicted | measured (speckle-avg) | raw | CPU (s) |")
+    print("| scene | rms slope | rung | predicted | measured (speckle-avg, worst of s, p, unpolarized) | raw | CPU (s) |")
     print("|---|---|---|---|---|---|---|")
     for label, scene in scenes:
         features = measure_scene(scene)
         rows = {r["model"]: r for r in comparison.rows if r["scene"] == label}
         for name, row in sorted(rows.items(), key=lambda kv: kv[1].get("cpu_s", np.inf)):
             print(f"| {label} | {features.rms_slope:.3g} | {name} | {rule.predict(name, features):.3g} | "
-                  f"{row.get('rel_l2_smooth', np.nan):.3g} | {row.get('rel_l2', np.nan):.3g} | {row.get('cpu_s', np.nan):.3g} |")
+                  f"{table_error(row):.3g} | {row.get('rel_l2', np.nan):.3g} | {row.get('cpu_s', np.nan):.3g} |")
         for tolerance in tolerances:
             picked = choose(scene, tolerance, rule, features).model
-            within = sorted((r["cpu_s"], m) for m, r in rows.items() if r.get("rel_l2_smooth", np.inf) <= tolerance)
-            print(f"{label}, tolerance {tolerance:g}: auto picks {picked} (measured {rows[picked].get('rel_l2_smooth', 0):.3g}); "
+            within = sorted((r["cpu_s"], m) for m, r in rows.items() if table_error(r) <= tolerance)
+            measured = 0.0 if picked == REFERENCE else table_error(rows[picked])
+            print(f"{label}, tolerance {tolerance:g}: auto picks {picked} (measured {measured:.3g}); "
                   f"cheapest measured within: {within[0][1] if within else REFERENCE}")
     return 0
 
@@ -224,29 +233,39 @@ def print_rule(scenes, rungs: list[str], tolerances: list[float]) -> int:
     return 0
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("surface", choices=sorted(SURFACES) + ["single"])
-    parser.add_argument("--tolerance", type=float, nargs="+", default=[0.05, 0.01])
-    parser.add_argument("--keep", type=Path, default=ROOT / "out" / "auto_at_scale")
-    parser.add_argument("--rule-only", action="store_true",
-                        help="single: print the rule's predictions and picks only (no rung or BEM run)")
-    args = parser.parse_args(argv)
-    if args.surface == "single":
-        return single_task_studies(args.tolerance, args.rule_only)
-    folder = args.keep / args.surface
-    folder.mkdir(parents=True, exist_ok=True)
-    study = SURFACES[args.surface]
-    bem = run_study(folder, "bem", study, 'name = "bem"\nmethod = "aim"')
-    print(f"all-BEM: {bem['cpu_s']:.0f} CPU-s, {bem['wall_s']:.0f} s wall; {rungs(bem['path'])}", flush=True)
-    summary = {"surface": args.surface, "bem_cpu_s": bem["cpu_s"], "bem_wall_s": bem["wall_s"], "auto": []}
-    for tolerance in args.tolerance:
-        name = f"auto_{tolerance:g}"
-        auto = run_study(folder, name, study, f'name = "auto"\ntolerance = {tolerance}')
+def one_task_studies(name: str, study: Study) -> list[tuple[str, Study]]:
+    """``study`` split into a study per (wavelength, direction), each named by them: one task each,
+    so ``auto`` takes the rule's choice and its escalation check. Only a study without steering
+    whose directions are listed (``directions_deg``)."""
+    import tomllib
+
+    if study.layout[1]:
+        raise SystemExit(f"--one-task: {name} is steered (its sub-areas are tasks of one direction); take a study "
+                         "without [steering]")
+    directions = tomllib.loads(study.directions).get("directions_deg")
+    if directions is None:
+        raise SystemExit(f"--one-task: {name} takes its directions from a file ({study.directions!r}); it needs "
+                         "directions_deg")
+    return [(f"{lam:g}um_{theta:g}_{phi:g}", study._replace(wavelengths=[lam], directions=f"directions_deg = [[{theta}, {phi}]]"))
+            for lam in study.wavelengths for theta, phi in directions]
+
+
+def measure(folder: Path, label: str, study: Study, tolerances: list[float], explain: bool = False) -> dict:
+    """``study`` all-full-wave and with ``auto`` at each tolerance: CPU, rungs, the errors of the
+    ``auto`` dataset against the all-full-wave one (printed; ``explain``: each task's rung and reason)."""
+    bem = run_study(folder, f"bem{label}", study, 'name = "bem"\nmethod = "aim"')
+    print(f"all-BEM{label}: {bem['cpu_s']:.0f} CPU-s, {bem['wall_s']:.0f} s wall; {rungs(bem['path'])}", flush=True)
+    summary = {"bem_cpu_s": bem["cpu_s"], "bem_wall_s": bem["wall_s"], "auto": []}
+    for tolerance in tolerances:
+        auto = run_study(folder, f"auto_{tolerance:g}{label}", study, f'name = "auto"\ntolerance = {tolerance}')
         rows = compare(auto["path"], bem["path"])
         worst = max(max(r["s"], r["p"], r["unpolarized"]) for r in rows)
-        print(f"\nauto, tolerance {tolerance:g}: {auto['cpu_s']:.0f} CPU-s, {auto['wall_s']:.0f} s wall; all-BEM / auto CPU "
-              f"{bem['cpu_s'] / auto['cpu_s']:.2f}x; rungs {rungs(auto['path'])}; worst error vs all-BEM {worst:.3g}")
+        print(f"\nauto{label}, tolerance {tolerance:g}: {auto['cpu_s']:.0f} CPU-s, {auto['wall_s']:.0f} s wall; all-BEM / auto "
+              f"CPU {bem['cpu_s'] / auto['cpu_s']:.2f}x; rungs {rungs(auto['path'])}; worst error vs all-BEM {worst:.3g}")
+        if explain:
+            with h5py.File(auto["path"]) as h5:
+                for model, reason in zip(h5["tasks/model"][()], h5["tasks/model_reason"][()]):
+                    print(f"  {model.decode()}: {reason.decode()}")
         print("| λ (µm) | θ_i (°) | φ_i (°) | s | p | unpolarized | raw | albedo auto | albedo BEM |")
         print("|---|---|---|---|---|---|---|---|---|")
         for r in rows:
@@ -255,6 +274,30 @@ def main(argv=None) -> int:
         summary["auto"].append({"tolerance": tolerance, "cpu_s": auto["cpu_s"], "wall_s": auto["wall_s"],
                                 "ratio": bem["cpu_s"] / auto["cpu_s"], "worst_error": worst, "rungs": rungs(auto["path"]),
                                 "rows": rows})
+    return summary
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("surface", choices=sorted(SURFACES) + ["single"])
+    parser.add_argument("--tolerance", type=float, nargs="+", default=[0.05, 0.01])
+    parser.add_argument("--keep", type=Path, default=ROOT / "out" / "auto_at_scale")
+    parser.add_argument("--rule-only", action="store_true",
+                        help="single: print the rule's predictions and picks only (no rung or BEM run)")
+    parser.add_argument("--one-task", action="store_true",
+                        help="run each (λ, direction) of a study without steering as a study of its own (the rule's "
+                             "path: one task has no spot checks)")
+    args = parser.parse_args(argv)
+    if args.surface == "single":
+        return single_task_studies(args.tolerance, args.rule_only)
+    folder = args.keep / args.surface
+    folder.mkdir(parents=True, exist_ok=True)
+    study = SURFACES[args.surface]
+    if args.one_task:
+        summary = {"surface": args.surface, "one_task": {label: measure(folder, f"_{label}", one, args.tolerance, True)
+                                                         for label, one in one_task_studies(args.surface, study)}}
+    else:
+        summary = {"surface": args.surface, **measure(folder, "", study, args.tolerance)}
     (folder / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
     return 0
 

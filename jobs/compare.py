@@ -356,10 +356,11 @@ class Comparison:
 
 
 def plot_trade(rows: list[dict], path: Path, group: str = "scene", title: str | None = None,
-               tolerance: float | None = None) -> None:
-    """Error (``rel_l2_smooth``) vs CPU time, log-log: one marker per model, one colour per
-    ``group`` value; the reference's own rows become a grey band of its CPU times; ``tolerance``
-    a dashed line."""
+               tolerance: float | None = None, error: str = "rel_l2_smooth",
+               error_label: str = "speckle-averaged, unpolarized") -> None:
+    """Error (the rows' ``error`` key, described on the axis by ``error_label``) vs CPU time,
+    log-log: one marker per model, one colour per ``group`` value; the reference's own rows become
+    a grey band of its CPU times; ``tolerance`` a dashed line."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -374,7 +375,7 @@ def plot_trade(rows: list[dict], path: Path, group: str = "scene", title: str | 
     colours = plt.get_cmap("tab10")
     fig, ax = plt.subplots(figsize=(8.5, 5.5), dpi=120)
     for r in rows:
-        err, t = r.get("rel_l2_smooth", np.nan), r.get("cpu_s", np.nan)
+        err, t = r.get(error, np.nan), r.get("cpu_s", np.nan)
         if r["model"] == reference_of(r) or not (np.isfinite(err) and np.isfinite(t)) or err <= 0:
             continue
         ax.loglog(max(t, 1e-3), err, linestyle="none", marker=markers[models.index(r["model"]) % len(markers)],
@@ -390,7 +391,7 @@ def plot_trade(rows: list[dict], path: Path, group: str = "scene", title: str | 
     for j, g in enumerate(groups):
         ax.plot([], [], linestyle="-", color=colours(j % 10), label=str(g))
     ax.set_xlabel("CPU time per scene (s)")
-    ax.set_ylabel("relative L2 over the lobe vs reference (speckle-averaged)")
+    ax.set_ylabel(f"relative L2 over the lobe vs reference ({error_label})")
     if title:
         ax.set_title(title)
     ax.grid(True, which="both", alpha=0.3)

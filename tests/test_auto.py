@@ -27,8 +27,8 @@ import pytest
 from wavebrdf.jobs.compare import plan_scenes
 from wavebrdf.jobs.config import load_config
 from wavebrdf.jobs.plan import plan_study
-from wavebrdf.solver.auto import (ERROR_COLUMN, FEATURES, REFERENCE, SINGLE_SCATTERING, AutoModel, AutoOptions, Rule,
-                                  choose, measure_scene, read_table)
+from wavebrdf.solver.auto import (FEATURES, REFERENCE, SINGLE_SCATTERING, AutoModel, AutoOptions, Rule, choose,
+                                  measure_scene, read_table, table_error)
 from wavebrdf.solver.farfield import HemisphereGrid
 from wavebrdf.solver.materials import Material
 from wavebrdf.solver.models import SurfaceScene
@@ -48,7 +48,8 @@ def aluminium(wavelength_um: float) -> complex:
 def test_on_the_suite_auto_picks_a_rung_within_tolerance_also_when_the_scene_was_left_out_of_the_fit():
     """The rule fitted to the whole table (on which its margin makes every prediction at least the
     measured error), and — the real check — fitted with each scene config left out in turn and
-    asked about that config's scenes: the chosen rung's measured error is within the tolerance."""
+    asked about that config's scenes: the chosen rung's measured error (the worst of s, p and
+    unpolarized) is within the tolerance."""
     table = read_table()
     assert len(SUITE) >= 11 and len({r["scene"] for r in table}) >= 36
     picks, cheapest = [], 0
@@ -62,11 +63,10 @@ def test_on_the_suite_auto_picks_a_rung_within_tolerance_also_when_the_scene_was
             first = next(iter(rows.values()))
             assert np.allclose([getattr(measured, k) for k in FEATURES], [float(first[k]) for k in FEATURES],
                                rtol=1e-6, atol=1e-9), label
-            within = sorted((float(r["cpu_s"]), m) for m, r in rows.items()
-                            if r[ERROR_COLUMN] and float(r[ERROR_COLUMN]) <= TOLERANCE)
+            within = sorted((float(r["cpu_s"]), m) for m, r in rows.items() if table_error(r) <= TOLERANCE)
             for rule, kind in ((Rule.fit(table), "fitted"), (left_out, "left out")):
                 choice = choose(scene, TOLERANCE, rule, measured)
-                error = float(rows[choice.model][ERROR_COLUMN] or "nan")
+                error = table_error(rows[choice.model])
                 picks.append((label, kind, choice.model, error, within[0][1]))
                 assert error <= TOLERANCE, f"{label} ({kind}): auto picked {choice.model}, measured error {error:.3g}"
                 cheapest += kind == "fitted" and choice.model == within[0][1]
@@ -99,6 +99,87 @@ def test_grazing_share_of_a_phase_grating_is_the_bessel_power_of_its_grazing_ord
     power = {m: jv(m, beta) ** 2 for m in (-3, -2, -1, 0, 1)}
     assert share[30.0] == pytest.approx((power[1] + power[-3]) / sum(power.values()), rel=2e-3)
     assert share[10.0] < 1e-3 * share[30.0]
+
+
+def test_polarization_contrast_of_a_flat_interface_against_brewsters_angle():
+    """The least R_p/R_s over the incidences the light meets, on flat glass (n = 1.5, so the rms
+    slope adds nothing): at Brewster's angle arctan(n₂/n₁) (the closed form, independent of the
+    code) R_p is 0, in air and under water (n₁ = 1.33); a beam of waist 0.6 µm at λ 0.5 µm spreads
+    ±λ/(πw) = ±15.2°, which reaches Brewster's 56.3° from θ_i 45° (the zero) and not from θ_i 20°
+    (the least ratio at the spread's upper edge, 35.2°, from the Fresnel formulas written out
+    here); through measure_scene the same figure; an index-matched material reflects nothing and
+    has no contrast (1)."""
+    from wavebrdf.solver.auto import polarization_contrast
+
+    n = 1.5
+    surface = generate("flat", cells=16, size_um=4.0, seed=0)
+
+    def scene(theta_deg: float, waist_um: float | None, index: float = n, exterior: float = 1.0) -> SurfaceScene:
+        return SurfaceScene(surface, 0.5, complex(index), theta_deg * DEG, 0.0, waist_um, HemisphereGrid(16),
+                            exterior_index=exterior)
+
+    def contrast(*args, **kwargs) -> float:
+        return polarization_contrast(scene(*args, **kwargs), rms_slope=0.0)
+
+    assert contrast(np.degrees(np.arctan(n)), None) < 1e-12
+    assert contrast(np.degrees(np.arctan(n / 1.33)), None, exterior=1.33) < 1e-12
+    assert contrast(np.degrees(np.arctan(n)), None, exterior=1.33) > 0.05  # in water Brewster's angle is 48.4°
+    assert contrast(45.0, 0.6) < 1e-4  # sampled every 0.17°: within one step of the zero
+    edge = np.radians(20.0) + 0.5 / (np.pi * 0.6)
+    cos_t = np.sqrt(1 - (np.sin(edge) / n) ** 2)
+    r_s = (np.cos(edge) - n * cos_t) / (np.cos(edge) + n * cos_t)
+    r_p = (n * np.cos(edge) - cos_t) / (n * np.cos(edge) + cos_t)
+    assert contrast(20.0, 0.6) == pytest.approx(r_p ** 2 / r_s ** 2, rel=1e-9)
+    assert measure_scene(scene(20.0, 0.6)).polarization_contrast == pytest.approx(r_p ** 2 / r_s ** 2, rel=1e-9)
+    assert contrast(30.0, 0.6, index=1.0) == 1.0
+
+
+def _censored_cost(x, y, censored, ridge):
+    """The censored least-squares cost and its gradient, written out here (independent of the rule)."""
+    def residual(w):
+        r = y - x @ w
+        return np.where(censored, np.maximum(r, 0.0), r)
+
+    def cost(w):
+        r = residual(w)
+        return r @ r + ridge * w @ w
+
+    def gradient(w):
+        return -2 * x.T @ residual(w) + 2 * ridge * w
+
+    return cost, gradient
+
+
+def test_the_rules_censored_fit_against_a_general_minimizer():
+    """Rows at the error ceiling are censored: each costs (ceiling − prediction)² only where predicted
+    below it. The rule's Newton steps against scipy's L-BFGS on that cost, written out here: on
+    data where 14 of 60 rows sit at the ceiling, and where the minimum sits on the kink (an
+    intercept whose uncensored rows average exactly the ceiling, censored rows at it: rounding
+    flips them in and out, the fit must still end there)."""
+    from scipy.optimize import minimize
+
+    from wavebrdf.solver.auto import ERROR_CEILING, _least_squares
+
+    rng = np.random.default_rng(5)
+    x = np.column_stack([np.ones(60), rng.normal(size=(60, 3))])
+    ceiling = np.log10(ERROR_CEILING)
+    y = np.minimum(x @ np.array([-0.8, 0.5, -0.3, 0.8]) + 0.1 * rng.normal(size=60), ceiling)
+    censored = y >= ceiling
+    assert censored.sum() == 14
+    ridge = 1e-3
+    cost, gradient = _censored_cost(x, y, censored, ridge)
+    best = minimize(cost, np.zeros(4), jac=gradient, method="L-BFGS-B", options={"gtol": 1e-12, "ftol": 1e-15})
+    assert _least_squares(x, y, censored, ridge) == pytest.approx(best.x, abs=1e-6)
+    plain = np.linalg.solve(x.T @ x + ridge * np.eye(4), x.T @ y)
+    assert np.max(np.abs(plain - best.x)) > 1e-2  # the censoring matters on these data
+
+    for seed in range(200):
+        draw = np.random.default_rng(seed)
+        free = ceiling + 0.1 * draw.normal(size=draw.integers(3, 9))
+        y = np.concatenate([free - free.mean() + ceiling, np.full(draw.integers(1, 5), ceiling)])
+        censored = np.arange(len(y)) >= len(free)
+        fit = _least_squares(np.ones((len(y), 1)), y, censored, 0.0)
+        assert fit[0] == pytest.approx(ceiling, abs=1e-9), seed
 
 
 def test_multiple_scattering_scenes_never_get_a_single_scattering_rung():
@@ -214,7 +295,7 @@ def compare_second_suite():
 def evaluate_auto_on(comparison, tolerance: float = TOLERANCE) -> list[dict]:
     """auto (escalation check included) on each scene of ``comparison``: its rung, error against
     the reference's BRDF, CPU time (pilot and check included), and the cheapest rung within
-    ``tolerance`` by the comparison's measured errors."""
+    ``tolerance`` by the comparison's measured errors (each the worst of s, p and unpolarized)."""
     from wavebrdf.jobs.compare import MeasuringProcess, comparison_metrics, speckle_sigma_u
     from wavebrdf.solver.auto import AutoModel
 
@@ -230,9 +311,9 @@ def evaluate_auto_on(comparison, tolerance: float = TOLERANCE) -> list[dict]:
                 run = process.measure("auto", {"tolerance": tolerance}, scene, label)
                 assert run.failure is None, run.failure
                 sigma = speckle_sigma_u(scene.wavelength_um, scene.waist_um, comparison.grid)
-                error = comparison_metrics(run, ref, comparison.grid, sigma, scene.theta_i, scene.phi_i)[ERROR_COLUMN]
+                error = table_error(comparison_metrics(run, ref, comparison.grid, sigma, scene.theta_i, scene.phi_i))
                 cpu, ran = run.cpu_s, run.diagnostics["model"]
-            within = sorted((r["cpu_s"], m) for m, r in rows.items() if r.get(ERROR_COLUMN, np.inf) <= tolerance)
+            within = sorted((r["cpu_s"], m) for m, r in rows.items() if table_error(r) <= tolerance)
             out.append(dict(scene=label, picked=picked, ran=ran, error=error, cpu=cpu, bem_cpu=rows[REFERENCE]["cpu_s"],
                             cheapest=within[0][1] if within else REFERENCE))
     return out
@@ -257,7 +338,7 @@ def test_second_suite_against_the_full_wave_reference():
         features = measure_scene(scene)
         for r in sorted((r for r in comparison.rows if r["scene"] == label), key=lambda r: r.get("cpu_s", np.inf)):
             print(f"| {label} | {r['model']} | {rule.predict(r['model'], features):.3g} | "
-                  f"{rule.predict(r['model'], features, central=True):.3g} | {r.get(ERROR_COLUMN, np.nan):.3g} | "
+                  f"{rule.predict(r['model'], features, central=True):.3g} | {table_error(r):.3g} | "
                   f"{r.get('cpu_s', np.nan):.3g} |")
     for tolerance in (TOLERANCE, 0.01):
         results = evaluate_auto_on(comparison, tolerance)
