@@ -13,6 +13,7 @@ with ``wavebrdf run`` in a child process, CPU measured from the children's resou
     .venv/bin/python benchmarks/auto_at_scale.py bumpy --tolerance 0.05 0.01 --keep out/auto_at_scale
     .venv/bin/python benchmarks/auto_at_scale.py single       # one-task studies at waist 5λ: rule vs measured
     .venv/bin/python benchmarks/auto_at_scale.py single --rule-only   # the rule's predictions alone
+    .venv/bin/python benchmarks/auto_at_scale.py single --material gold --wavelength 0.6 --scenes smooth bumpy
 
 Regime (unless said below): 2 × 2 sub-areas of 5.4 µm at d = 0.03 µm (≤ λ/16 at λ ≥ 0.48 µm; 129 600
 cells, ~130 000 unknowns each), shifted by the waist 1.5 µm (≥ 2.5 λ), the reference's aluminium
@@ -33,7 +34,9 @@ the rule's choice and its escalation check (the reason is printed).
 ``single``: three one-task scenes not in the trade table (smooth, bumpy, steep), aluminium at
 λ = 0.5 µm, waist 2.5 µm (5 λ), θ_i = 20°, 9 µm patches at d = 0.05 µm (λ/10; |k₂|d = 3.9 ≤ 4), 256²
 output: every rung and AIM BEM (``compare_scenes``), the rule's predicted error of each rung beside
-its measured error, and the rung ``auto`` (the rule: one task has no spot checks) picks.
+its measured error, and the rung ``auto`` (the rule: one task has no spot checks) picks;
+``--material``, ``--wavelength`` and ``--scenes`` change the material (a catalogue name), λ and
+which of the three run (the same patches and waist).
 
 Printed per direction and wavelength: the speckle-averaged relative L2 over the lobe of the
 ``auto`` dataset's BRDF against the all-full-wave one (per polarization and unpolarized, raw
@@ -177,9 +180,11 @@ SINGLE = {  # not in the trade table: new generators' parameters, seeds, waist a
 }
 
 
-def single_task_studies(tolerances: list[float], rule_only: bool = False) -> int:
-    """The one-task scenes of ``SINGLE`` through every rung and BEM, with the rule's predictions
-    (``rule_only``: the predictions and picks alone, no rung run)."""
+def single_task_studies(tolerances: list[float], rule_only: bool = False, material: str | None = None,
+                        wavelength_um: float = 0.5, names: list[str] | None = None) -> int:
+    """The one-task scenes of ``SINGLE`` (or those ``names``) through every rung and BEM, with the
+    rule's predictions (``rule_only``: the predictions and picks alone, no rung run); ``material``
+    a catalogue name instead of the reference's aluminium ``wvl.txt``, at ``wavelength_um``."""
     from wavebrdf.jobs.compare import compare_scenes
     from wavebrdf.solver.auto import REFERENCE, candidate_models, choose, default_rule, measure_scene, table_error
     from wavebrdf.solver.farfield import HemisphereGrid
@@ -187,10 +192,14 @@ def single_task_studies(tolerances: list[float], rule_only: bool = False) -> int
     from wavebrdf.solver.models import SurfaceScene
     from wavebrdf.solver.surface import generate
 
-    lam = 0.5
-    index = complex(Material.from_file(ROOT / "configs" / "data" / "aluminium_wvl.txt").index(lam))
+    lam = wavelength_um
+    catalogue = Material.from_name(material) if material else Material.from_file(ROOT / "configs" / "data" / "aluminium_wvl.txt")
+    index = complex(catalogue.index(lam))
+    print(f"material {material or 'aluminium (wvl.txt)'}: n = {index:.4g} at λ {lam:g} µm", flush=True)
     scenes = []
     for label, (generator, params) in SINGLE.items():
+        if names and label not in names:
+            continue
         params = dict(params)
         seed = params.pop("seed")
         surface = generate(generator, cells=180, size_um=9.0, seed=seed, **params)
@@ -284,12 +293,15 @@ def main(argv=None) -> int:
     parser.add_argument("--keep", type=Path, default=ROOT / "out" / "auto_at_scale")
     parser.add_argument("--rule-only", action="store_true",
                         help="single: print the rule's predictions and picks only (no rung or BEM run)")
+    parser.add_argument("--material", help="single: a catalogue material (default: the reference's aluminium wvl.txt)")
+    parser.add_argument("--wavelength", type=float, default=0.5, help="single: λ in µm (0.5)")
+    parser.add_argument("--scenes", nargs="+", choices=sorted(SINGLE), help="single: these scenes only (default: all)")
     parser.add_argument("--one-task", action="store_true",
                         help="run each (λ, direction) of a study without steering as a study of its own (the rule's "
                              "path: one task has no spot checks)")
     args = parser.parse_args(argv)
     if args.surface == "single":
-        return single_task_studies(args.tolerance, args.rule_only)
+        return single_task_studies(args.tolerance, args.rule_only, args.material, args.wavelength, args.scenes)
     folder = args.keep / args.surface
     folder.mkdir(parents=True, exist_ok=True)
     study = SURFACES[args.surface]

@@ -77,6 +77,9 @@ ERROR_CEILING = 0.3  # the rule bounds errors up to this (a rung measured worse 
 CENSORED_STEPS = 50  # Newton steps of the censored least squares at most (the trade table's 360 fits: ≤ 7)
 MIN_ROWS_PER_REGRESSOR = 4  # table rows a rung needs per regressor to be fitted (with 3.4, stam's 34 rows, its fit
 # without the smooth random aluminium config predicted 0.039 at λ 0.7 µm, θ_i 0°, measured 0.084: tests/test_auto.py)
+MATERIAL_SLACK = 1.5  # a material is like the table's within this factor of their |Re ε| (gold at λ 0.6 µm, Re ε −8.0
+# against aluminium's −22…−60: the tangent-plane rungs measured 0.56–0.63 on steep hemispheres at waist 5 λ where the
+# rule fitted on aluminium and glass bounded them at 0.19–0.26; benchmarks/auto_at_scale.py single --material gold)
 CHECKED_RUNG_SHARE = 0.25  # a spot check measures the candidate rungs estimated at most this share of the full wave
 
 
@@ -99,6 +102,7 @@ class SceneFeatures:
     index_contrast: float  # |n₂| / n₁ of the material below the surface
     polarization_contrast: float  # the least R_p/R_s over the incidences the light meets (:func:`polarization_contrast`)
     grazing_share: float  # of the phase-screen spectrum near grazing (:func:`grazing_share`)
+    permittivity: float  # Re (n₂/n₁)²: below 0 a metal, above a dielectric (not a regressor: :meth:`Rule.uncovered`)
 
     REGRESSORS = ("1", "log10 σ/λ", "rms slope", "sin²θ_i", "multi-bounce", "shadowed", "log10 w/λ",
                   "log10 |n₂|/n₁", "log10 Rp/Rs", "log10 grazing share")
@@ -153,6 +157,7 @@ def measure_scene(scene: SurfaceScene) -> SceneFeatures:
         index_contrast=float(abs(complex(scene.index)) / scene.exterior_index),
         polarization_contrast=polarization_contrast(scene, stats["rms_slope"]),
         grazing_share=grazing_share(scene),
+        permittivity=float(((complex(scene.index) / scene.exterior_index) ** 2).real),
     )
 
 
@@ -225,6 +230,21 @@ class Rule:
     rows: dict[str, int]
     low: dict[str, np.ndarray]
     high: dict[str, np.ndarray]
+    materials: dict[str, tuple[float, float]] = dataclasses.field(default_factory=dict)  # class → Re ε range
+
+    def uncovered(self, features: SceneFeatures) -> str | None:
+        """Why the table has no material like the scene's (None: it has): its permittivity's real
+        part must have the sign of a class the table measured (metal below 0, dielectric above) and
+        a magnitude within that class's range widened by :data:`MATERIAL_SLACK` either way."""
+        kind = "metal" if features.permittivity < 0 else "dielectric"
+        if kind not in self.materials:
+            return f"the trade table has no {kind} (Re ε {features.permittivity:.3g})"
+        low, high = self.materials[kind]
+        size = abs(features.permittivity)
+        if size < low / MATERIAL_SLACK or size > high * MATERIAL_SLACK:
+            return (f"Re ε {features.permittivity:.3g} is outside the trade table's {kind}s (|Re ε| {low:.3g}–{high:.3g}, "
+                    f"×{MATERIAL_SLACK:g} either way)")
+        return None
 
     @classmethod
     def fit(cls, table: list[dict], ridge: float = 1e-3) -> "Rule":
@@ -258,7 +278,11 @@ class Rule:
             w[used] = _least_squares(x[:, used], y, censored, ridge)
             coefficients[name], margin[name], rows[name] = w, float(max(0.0, np.max(bound - x @ w))), len(mine)
             low[name], high[name] = x.min(axis=0), x.max(axis=0)
-        return cls(coefficients, margin, rows, low, high)
+        permittivity = np.array([_float(r["permittivity"]) for r in table])
+        materials = {kind: (float(np.abs(values).min()), float(np.abs(values).max()))
+                     for kind, values in (("metal", permittivity[permittivity < 0]),
+                                          ("dielectric", permittivity[permittivity > 0])) if values.size}
+        return cls(coefficients, margin, rows, low, high, materials)
 
     def predict(self, name: str, features: SceneFeatures, central: bool = False) -> float:
         """Predicted error of rung ``name`` (NaN when the table does not cover it): the bound (fit
@@ -425,7 +449,8 @@ def reference_model():
 
 def choose(scene: SurfaceScene, tolerance: float, rule: Rule | None = None,
            features: SceneFeatures | None = None, central: bool = False) -> Choice:
-    """The cheapest candidate predicted within ``tolerance``; none: the full-wave reference with the
+    """The cheapest candidate predicted within ``tolerance``; none (or the table has no material like
+    the scene's, :meth:`Rule.uncovered`): the full-wave reference with the
     settings fitted to the task's memory budget, or, where the full-wave model cannot take the scene
     (its ValueError) or would not fit :func:`memory_budget_bytes`, the approximation predicted best —
     said so in the reason (``Choice.within`` false). ``central``: by the rule's fit without its
@@ -445,8 +470,9 @@ def choose(scene: SurfaceScene, tolerance: float, rule: Rule | None = None,
                 continue
             full_wave = estimate
         candidates[name] = (rule.predict(name, features, central), estimate.seconds)
-    fitting = sorted((seconds, name) for name, (error, seconds) in candidates.items()
-                     if name != REFERENCE and np.isfinite(error) and error <= tolerance)
+    unlike = rule.uncovered(features)  # the fit has not seen such a material: no prediction is relied on
+    fitting = [] if unlike else sorted((seconds, name) for name, (error, seconds) in candidates.items()
+                                       if name != REFERENCE and np.isfinite(error) and error <= tolerance)
     avoided = "" if full_wave is None else (
         f"; avoided {REFERENCE} ≈ {full_wave.seconds:.3g} s, {full_wave.memory_bytes / 2**30:.2f} GiB")
     if fitting:
@@ -458,13 +484,15 @@ def choose(scene: SurfaceScene, tolerance: float, rule: Rule | None = None,
         return Choice(name, error, candidates, full_wave, reason)
     best = min(((e, n) for n, (e, _) in candidates.items() if n != REFERENCE and np.isfinite(e)), default=None)
     closest = f"; best approximation {best[1]} predicted {best[0]:.3g}" if best else ""
+    none = (f"no rung's prediction is relied on: {unlike}" if unlike
+            else f"no rung predicted within tolerance {tolerance:g}")
     if full_wave is not None:
-        reason = f"{REFERENCE}: no rung predicted within tolerance {tolerance:g}{closest} ({features.describe()})"
+        reason = f"{REFERENCE}: {none}{closest} ({features.describe()})"
         return Choice(REFERENCE, 0.0, candidates, None, reason)
     if best is None:
         raise ValueError(f"[model] name = \"auto\": no rung of the trade table can take this scene and {REFERENCE} "
                          f"cannot run it within {budget / 2**30:.1f} GiB; choose a model")
-    reason = (f"{best[1]}: no rung predicted within tolerance {tolerance:g} and {REFERENCE} cannot take this "
+    reason = (f"{best[1]}: {none} and {REFERENCE} cannot take this "
               f"scene or exceeds the task's {budget / 2**30:.1f} GiB; the best approximation, predicted "
               f"{best[0]:.3g} ({features.describe()})")
     return Choice(best[1], best[0], candidates, None, reason, within=False)
