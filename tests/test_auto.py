@@ -185,20 +185,27 @@ def test_the_rules_censored_fit_against_a_general_minimizer():
 def test_a_material_unlike_the_tables_gets_no_predicted_rung():
     """The trade table measured aluminium (Re ε −22 … −60 over λ 0.4–0.7 µm) and glass (+2.25). Gold
     at λ 0.6 µm (Re ε −8.0, from the catalogue's Lorentz–Drude model) is unlike both: on steep
-    hemispheres at waist 5 λ its tangent-plane rungs measured 0.56–0.63 where the rule bounded them
-    at 0.19–0.26 (docs/auto.md). So on a smooth surface where aluminium gets a cheap rung at
-    tolerance 0.2, gold (and silver, Re ε −12.6) gets the full wave, the reason naming the
-    material; water-clear n = 1.33 (Re ε 1.77) is like glass within the slack."""
+    hemispheres at waist 4.2 λ its tangent-plane rungs measured 0.56–0.63 where the rule bounded
+    them at 0.19–0.26 (aluminium's measured 0.26–0.29 there, itself above its bounds at such a
+    tolerance: the pick is said UNVALIDATED; docs/auto.md). So on a smooth surface where aluminium gets a cheap rung at tolerance 0.2, gold
+    (and silver, Re ε −12.6) gets the full wave, the reason naming the material; water-clear
+    n = 1.33 (Re ε 1.77) is like glass within the slack. Where the full wave does not fit the
+    budget, the best approximation runs, said not to meet the tolerance and with no predicted
+    error."""
     surface = generate("gaussian", cells=64, size_um=4.0, seed=8, rms_height_um=0.01, correlation_um=0.8)
 
-    def choice(index: complex, lam: float = 0.6):
-        return choose(SurfaceScene(surface, lam, index, 20 * DEG, 0.0, 0.6, HemisphereGrid(48)), 0.2)
+    def choice(index: complex, budget: float | None = None):
+        return choose(SurfaceScene(surface, 0.6, index, 20 * DEG, 0.0, 0.6, HemisphereGrid(48),
+                                   memory_budget_bytes=budget), 0.2)
 
-    assert choice(aluminium(0.6)).model != REFERENCE
+    assert choice(aluminium(0.6)).model != REFERENCE and not choice(aluminium(0.6)).unlike
+    assert "UNVALIDATED" in choice(aluminium(0.6)).reason  # 0.2: above the tolerances the rule was measured at
     assert choice(complex(1.33)).model != REFERENCE
     for metal in ("gold", "silver"):
         picked = choice(complex(Material.from_name(metal).index(0.6)))
-        assert picked.model == REFERENCE and "outside the trade table's metals" in picked.reason, picked.reason
+        assert picked.model == REFERENCE and "outside the trade table's metals" in picked.unlike, picked.reason
+    starved = choice(complex(Material.from_name("gold").index(0.6)), budget=1e6)
+    assert starved.model != REFERENCE and not starved.within and np.isnan(starved.predicted_error), starved.reason
 
 
 def test_multiple_scattering_scenes_never_get_a_single_scattering_rung():
