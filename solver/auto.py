@@ -285,8 +285,8 @@ class Rule:
             low[name], high[name] = x.min(axis=0), x.max(axis=0)
         permittivity = np.array([_float(r["permittivity"]) for r in table])
         ranges = {kind: (float(np.abs(values).min()), float(np.abs(values).max()))
-                     for kind, values in (("metal", permittivity[permittivity < 0]),
-                                          ("dielectric", permittivity[permittivity > 0])) if values.size}
+                  for kind, values in (("metal", permittivity[permittivity < 0]),
+                                       ("dielectric", permittivity[permittivity > 0])) if values.size}
         return cls(coefficients, margin, rows, low, high, ranges)
 
     def predict(self, name: str, features: SceneFeatures, central: bool = False) -> float:
