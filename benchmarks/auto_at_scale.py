@@ -262,13 +262,15 @@ def one_task_studies(name: str, study: Study) -> list[tuple[str, Study]]:
 def measure(folder: Path, label: str, study: Study, tolerances: list[float], explain: bool = False) -> dict:
     """``study`` all-full-wave and with ``auto`` at each tolerance: CPU, rungs, the errors of the
     ``auto`` dataset against the all-full-wave one (printed; ``explain``: each task's rung and reason)."""
+    from wavebrdf.solver.metrics import worst_speckle_error
+
     bem = run_study(folder, f"bem{label}", study, 'name = "bem"\nmethod = "aim"')
     print(f"all-BEM{label}: {bem['cpu_s']:.0f} CPU-s, {bem['wall_s']:.0f} s wall; {rungs(bem['path'])}", flush=True)
     summary = {"bem_cpu_s": bem["cpu_s"], "bem_wall_s": bem["wall_s"], "auto": []}
     for tolerance in tolerances:
         auto = run_study(folder, f"auto_{tolerance:g}{label}", study, f'name = "auto"\ntolerance = {tolerance}')
         rows = compare(auto["path"], bem["path"])
-        worst = max(max(r["s"], r["p"], r["unpolarized"]) for r in rows)
+        worst = max(worst_speckle_error(r) for r in rows)
         print(f"\nauto{label}, tolerance {tolerance:g}: {auto['cpu_s']:.0f} CPU-s, {auto['wall_s']:.0f} s wall; all-BEM / auto "
               f"CPU {bem['cpu_s'] / auto['cpu_s']:.2f}x; rungs {rungs(auto['path'])}; worst error vs all-BEM {worst:.3g}")
         if explain:

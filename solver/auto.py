@@ -800,7 +800,7 @@ class AutoModel(Model):
         (the footprint's spread λ₁/(πw)) and raw. Returns the full-wave result; its diagnostics
         ``spot_check`` hold the measured errors (JSON: rung → figures; ``error`` is the largest
         speckle-averaged one of s, p and unpolarized, the figure the choice uses)."""
-        from wavebrdf.solver.metrics import speckle_errors, speckle_sigma_u
+        from wavebrdf.solver.metrics import speckle_errors, speckle_sigma_u, worst_speckle_error
 
         scene = budgeted(scene)
         reference = self.rung(REFERENCE).run(ctx, scene)
@@ -825,7 +825,7 @@ class AutoModel(Model):
                 continue
             finally:
                 self.rung(name).release()
-            worst = float(np.max([errors["s"], errors["p"], errors["unpolarized"]]))  # NaN stays NaN
+            worst = worst_speckle_error(errors)
             measured[name] = {"error": worst if np.isfinite(worst) else None, **_finite(errors),
                               **_finite({"predicted": choice.candidates[name][0]}), "seconds": choice.candidates[name][1],
                               "cpu_s": time.process_time() - started, "warnings": len(caught)}
@@ -889,7 +889,7 @@ class AutoModel(Model):
 
     def run(self, ctx, scene: SurfaceScene):
         from wavebrdf.solver.farfield import HemisphereGrid
-        from wavebrdf.solver.metrics import speckle_errors, speckle_sigma_u
+        from wavebrdf.solver.metrics import speckle_errors, speckle_sigma_u, worst_speckle_error
 
         scene = budgeted(scene)
         choice = self.choice(scene)
@@ -912,8 +912,7 @@ class AutoModel(Model):
             if next_rung_up(choice, name) is None:
                 reason += f"; no approximate rung predicted more accurate than {name}: nothing to check against"
             while (up := next_rung_up(choice, name)) is not None:
-                differs = speckle_errors(sentinel(name), sentinel(up), coarse.grid, sigma)
-                differ = float(np.max([differs["s"], differs["p"], differs["unpolarized"]]))  # NaN stays NaN
+                differ = worst_speckle_error(speckle_errors(sentinel(name), sentinel(up), coarse.grid, sigma))
                 if differ <= self.options.tolerance:
                     reason += f"; checked against {up} on {SENTINEL_RESOLUTION}² sentinel directions: differ {differ:.3g}"
                     break

@@ -38,6 +38,7 @@ __all__ = [
     "relative_l2",
     "speckle_errors",
     "speckle_sigma_u",
+    "worst_speckle_error",
 ]
 
 LOBE_FRACTION = 1e-3  # the lobe: pixels whose radiance f·μ_o exceeds this fraction of the peak
@@ -153,3 +154,9 @@ def speckle_errors(brdf_sp: np.ndarray, reference_sp: np.ndarray, grid: Hemisphe
         out[key] = float(relative_l2(blur(f, grid, sigma_u), blur(g, grid, sigma_u), grid))
         out["raw" if key == "unpolarized" else f"raw_{key}"] = float(relative_l2(f, g, grid))
     return out
+
+
+def worst_speckle_error(errors: dict[str, float]) -> float:
+    """The largest speckle-averaged figure of :func:`speckle_errors` (``s``, ``p``, ``unpolarized``;
+    NaN where one is NaN): what ``auto``'s tolerance bounds."""
+    return float(np.max([errors["s"], errors["p"], errors["unpolarized"]]))
