@@ -407,6 +407,7 @@ class Choice:
     reason: str
     within: bool = True  # false: no rung (the full wave included) can meet the tolerance within the budget
     unlike: str = ""  # why the trade table has no material like the scene's (then no prediction is relied on)
+    unvalidated: bool = False  # a cheap rung picked by the rule's bound above VALIDATED_TOLERANCE
 
 
 def candidate_models(scene: SurfaceScene) -> list[str]:
@@ -487,10 +488,11 @@ def choose(scene: SurfaceScene, tolerance: float, rule: Rule | None = None,
         how = "expected to measure" if central else "predicted"
         reason = (f"{name}: the cheapest rung {how} within tolerance {tolerance:g} ({how} {error:.3g}; "
                   f"{features.describe()}){avoided}")
-        if not central and tolerance > VALIDATED_TOLERANCE:
+        unvalidated = not central and tolerance > VALIDATED_TOLERANCE
+        if unvalidated:
             reason += (f"; UNVALIDATED: the rule's bounds were measured off its table up to tolerance "
                        f"{VALIDATED_TOLERANCE:g} only (at 0.2 they missed on steep surfaces)")
-        return Choice(name, error, candidates, full_wave, reason)
+        return Choice(name, error, candidates, full_wave, reason, unvalidated=unvalidated)
     best = min(((e, n) for n, (e, _) in candidates.items() if n != REFERENCE and np.isfinite(e)), default=None)
     closest = f"; best approximation {best[1]} predicted {best[0]:.3g}" if best else ""
     none = (f"no rung's prediction is relied on: {unlike}" if unlike
@@ -896,7 +898,7 @@ class AutoModel(Model):
         name, reason = choice.model, choice.reason
         if not choice.within:
             _warn_tolerance(reason)
-        elif name != REFERENCE and self.options.tolerance > VALIDATED_TOLERANCE:
+        elif choice.unvalidated:
             warnings.warn(f"auto relies on its rule beyond the tolerances it was validated at: {reason}",
                           ToleranceWarning, stacklevel=2)
         if self.options.check and name != REFERENCE:
