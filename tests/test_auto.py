@@ -28,7 +28,7 @@ from wavebrdf.jobs.compare import plan_scenes
 from wavebrdf.jobs.config import load_config
 from wavebrdf.jobs.plan import plan_study
 from wavebrdf.solver.auto import (FEATURES, REFERENCE, SINGLE_SCATTERING, AutoModel, AutoOptions, Rule, choose,
-                                  default_rule, measure_scene, read_table, table_error)
+                                  VALIDATED_TOLERANCE, default_rule, measure_scene, read_table, table_error)
 from wavebrdf.solver.farfield import HemisphereGrid
 from wavebrdf.solver.materials import Material
 from wavebrdf.solver.models import SurfaceScene
@@ -187,22 +187,25 @@ def test_a_material_unlike_the_tables_gets_no_predicted_rung():
     at λ 0.6 µm (Re ε −8.0, from the catalogue's Lorentz–Drude model) is unlike both: on steep
     hemispheres at waist 4.2 λ its tangent-plane rungs measured 0.56–0.63 where the rule bounds
     them at 0.30–0.36 (aluminium's measured 0.26–0.29 there; docs/auto.md). So on a smooth surface
-    where aluminium gets a cheap rung at tolerance 0.2 (at 0.25, above VALIDATED_TOLERANCE, said
-    UNVALIDATED: beyond the tolerances the rule's bounds were measured at off its table), gold
+    where aluminium gets a cheap rung at tolerance 0.2 (said UNVALIDATED: above the tolerances at
+    which the rule's bounds held off its table), gold
     (and silver, Re ε −12.6) gets the full wave, the reason naming the material; water-clear
     n = 1.33 (Re ε 1.77) is like glass within the slack. Where the full wave does not fit the
     budget, the best approximation runs, said not to meet the tolerance and with no predicted
     error."""
     surface = generate("gaussian", cells=64, size_um=4.0, seed=8, rms_height_um=0.01, correlation_um=0.8)
 
-    def choice(index: complex, budget: float | None = None, tolerance: float = 0.2):
+    def choice(index: complex, budget: float | None = None):
         return choose(SurfaceScene(surface, 0.6, index, 20 * DEG, 0.0, 0.6, HemisphereGrid(48),
-                                   memory_budget_bytes=budget), tolerance)
+                                   memory_budget_bytes=budget), 0.2)
 
-    assert choice(aluminium(0.6)).model != REFERENCE and not choice(aluminium(0.6)).unlike
-    assert "UNVALIDATED" not in choice(aluminium(0.6)).reason and not choice(aluminium(0.6)).unvalidated
-    above = choice(aluminium(0.6), tolerance=0.25)
-    assert above.unvalidated and "UNVALIDATED" in above.reason, above.reason
+    loose = choice(aluminium(0.6))
+    assert loose.model != REFERENCE and not loose.unlike
+    assert loose.unvalidated == (0.2 > VALIDATED_TOLERANCE) and ("UNVALIDATED" in loose.reason) == loose.unvalidated
+    wide = generate("gaussian", cells=180, size_um=9.0, seed=41, rms_height_um=0.01, correlation_um=1.2)
+    validated = choose(SurfaceScene(wide, 0.5, aluminium(0.5), 20 * DEG, 0.0, 2.5, HemisphereGrid(48)),
+                       VALIDATED_TOLERANCE)  # the second suite's smooth scene at waist 5 λ: a cheap rung, relied on
+    assert validated.model != REFERENCE and not validated.unvalidated and "UNVALIDATED" not in validated.reason
     assert choice(complex(1.33)).model != REFERENCE
     for metal in ("gold", "silver"):
         picked = choice(complex(Material.from_name(metal).index(0.6)))
@@ -299,7 +302,7 @@ def test_an_auto_study_plans_and_runs_storing_the_rung_and_its_reason(tmp_path):
 
 SMALL = dict(size_um=3.2, cells=48, waist_um=0.5)  # the table's waist-≈λ suites: 4 µm, 80 cells, waist 0.6 µm
 WIDE = dict(size_um=9.0, cells=180, waist_um=2.5)  # the reference simulator's waist, 5 λ at 0.5 µm
-SECOND_SUITE = [  # (generator, parameters, λ µm, θ_i°, patch, material): new seeds, parameters, patches
+SECOND_SUITE = [  # (generator, parameters, λ µm, θ_i°, patch, material: a catalogue name or n): new seeds, parameters
     ("gaussian", dict(rms_height_um=0.006, correlation_um=0.7, seed=31), 0.6, 30.0, SMALL, "aluminium"),
     ("gaussian", dict(rms_height_um=0.09, correlation_um=0.6, seed=32), 0.6, 60.0, SMALL, "aluminium"),
     ("brushed", dict(rms_height_um=0.03, correlation_um=[1.5, 0.25], angle_deg=-20.0, seed=33), 0.6, 30.0, SMALL,
@@ -315,6 +318,21 @@ SECOND_SUITE = [  # (generator, parameters, λ µm, θ_i°, patch, material): ne
     ("hemispheres", dict(radius_um=0.5, fill=0.3, placement="random", seed=43), 0.5, 20.0, WIDE, "aluminium"),
     # the same at λ 0.6 µm: the tangent-plane errors rise (0.26–0.29) while the regressors say the scene got easier
     ("hemispheres", dict(radius_um=0.5, fill=0.3, placement="random", seed=43), 0.6, 20.0, WIDE, "aluminium"),
+    # other metals (copper, silver: Re ε within the table's metals' slack), dielectrics of other index (a number: n),
+    # grazing incidence, small hemispheres at normal incidence
+    ("gaussian", dict(rms_height_um=0.02, correlation_um=0.8, seed=51), 0.7, 45.0, SMALL, "copper"),
+    ("gaussian", dict(rms_height_um=0.05, correlation_um=0.7, seed=52), 0.7, 0.0, SMALL, "silver"),
+    ("brushed", dict(rms_height_um=0.04, correlation_um=[1.2, 0.3], angle_deg=30.0, seed=53), 0.7, 20.0, SMALL,
+     "copper"),
+    ("sinusoid", dict(amplitude_um=0.04, period_um=3.2 / 3), 0.7, 30.0, SMALL, "silver"),
+    ("gaussian", dict(rms_height_um=0.004, correlation_um=0.9, seed=55), 0.45, 70.0, SMALL, "aluminium"),
+    ("hemispheres", dict(radius_um=0.3, fill=0.2, placement="random", seed=56), 0.45, 0.0, SMALL, "aluminium"),
+    ("gaussian", dict(rms_height_um=0.03, correlation_um=0.8, seed=57), 0.65, 20.0, SMALL, 1.5),
+    ("gaussian", dict(rms_height_um=0.01, correlation_um=1.0, seed=58), 0.5, 10.0, SMALL, 1.7),
+    ("brushed", dict(rms_height_um=0.02, correlation_um=[1.5, 0.4], angle_deg=0.0, seed=59), 0.55, 30.0, SMALL, 1.33),
+    ("spherical-pits", dict(radius_um=0.35, depth_um=0.15, period_um=3.2 / 3), 0.7, 20.0, SMALL, "copper"),
+    ("gaussian", dict(rms_height_um=0.04, correlation_um=0.8, seed=61), 0.55, 40.0, WIDE, "aluminium"),
+    ("gaussian", dict(rms_height_um=0.06, correlation_um=1.5, seed=62), 0.7, 10.0, WIDE, "silver"),
 ]
 SECOND_SUITE_TOLERANCES = (TOLERANCE, 0.01, 0.1, 0.2)
 
@@ -325,16 +343,18 @@ def second_suite_scenes() -> list[tuple[str, SurfaceScene]]:
         params = dict(params)
         seed = params.pop("seed", 0)
         surface = generate(generator, cells=patch["cells"], size_um=patch["size_um"], seed=seed, **params)
-        index = complex(Material.from_name(material).index(lam))
+        named = isinstance(material, str)
+        index = complex(Material.from_name(material).index(lam)) if named else complex(material)
         rms = f" σ {params['rms_height_um']:g} µm" if "rms_height_um" in params else ""
-        label = f"{generator}{rms} {material} w={patch['waist_um']:g} λ={lam:g} θi={theta:.0f}°"
+        label = (f"{generator}{rms} {material if named else f'n={material:g}'} w={patch['waist_um']:g} λ={lam:g} "
+                 f"θi={theta:.0f}°")
         scenes.append((label, SurfaceScene(surface, lam, index, theta * DEG, 0.0, patch["waist_um"], HemisphereGrid(96))))
     return scenes
 
 
 def compare_second_suite():
-    """Every rung and AIM BEM on the second suite (the slow part: 13 full-wave solves, four of them
-    on 9 µm patches: 1 360 CPU-s of BEM, 14 min on 2 cores)."""
+    """Every rung and AIM BEM on the second suite (the slow part: 25 full-wave solves, six of them
+    on 9 µm patches)."""
     from wavebrdf.jobs.compare import compare_scenes
 
     rungs = ["gs", "gm", "ohs", "ghs", "kirchhoff", "ws-v", "wm", "po"]
@@ -354,7 +374,8 @@ def evaluate_auto_on(comparison, tolerance: float = TOLERANCE) -> list[dict]:
         for label, scene in second_suite_scenes():
             rows = {r["model"]: r for r in comparison.rows if r["scene"] == label}
             ref = next(m for m in comparison.measurements if m.scene == label and m.model == REFERENCE)
-            picked = AutoModel({"tolerance": tolerance}).choice(scene).model
+            choice = AutoModel({"tolerance": tolerance}).choice(scene)
+            picked = choice.model
             if picked == REFERENCE:  # the same full-wave run: nothing to approximate
                 error, cpu, ran = 0.0, rows[REFERENCE]["cpu_s"], REFERENCE
             else:
@@ -365,21 +386,24 @@ def evaluate_auto_on(comparison, tolerance: float = TOLERANCE) -> list[dict]:
                 cpu, ran = run.cpu_s, run.diagnostics["model"]
             within = sorted((r["cpu_s"], m) for m, r in rows.items() if table_error(r) <= tolerance)
             out.append(dict(scene=label, picked=picked, ran=ran, error=error, cpu=cpu, bem_cpu=rows[REFERENCE]["cpu_s"],
+                            unvalidated=choice.unvalidated,
                             cheapest=within[0][1] if within else REFERENCE))
     return out
 
 
-# 13 full-wave solves: 14 min on the idle 2-core machine, past the suite's 30-minute limit when the
+# 25 full-wave solves: 16 min on the idle 2-core machine, past the suite's 30-minute limit when the
 # machine is shared
 @pytest.mark.slow
 @pytest.mark.timeout(7200)
 def test_second_suite_against_the_full_wave_reference():
-    """Fresh scenes (new seeds, parameters and patches; aluminium and glass at waist 0.5 µm ≈ λ,
-    aluminium one-task studies at waist 2.5 µm: smooth, bumpy and steep at λ 0.5 µm (5 λ), steep at
-    0.6 µm (4.2 λ)) through auto and every rung, against AIM BEM: the rung auto ran within the
-    tolerance in every scene at 0.01, 0.05, 0.1 and 0.2,
-    the cheapest such rung in most at 0.05; printed: the rule's predicted error of each rung beside
-    the measured one, the CPU time saved against BEM everywhere and the worst error."""
+    """Fresh scenes (new seeds, parameters and patches; aluminium, copper, silver, glass and
+    dielectrics of n 1.33 and 1.7 at waist 0.5 µm ≈ λ, θ_i 0–70°; aluminium and silver one-task
+    studies at waist 2.5 µm: smooth, bumpy and steep at λ 0.5 µm (5 λ), steep at 0.6 µm (4.2 λ))
+    through auto and every rung, against AIM BEM: the rung auto ran within the tolerance in every
+    scene at 0.01 and 0.05 (up to VALIDATED_TOLERANCE), and at 0.1 and 0.2 within or said
+    UNVALIDATED — never a silent miss; the cheapest such rung in most at 0.05; printed: the rule's
+    predicted error of each rung beside the measured one, the CPU time saved against BEM everywhere
+    and the worst error."""
     comparison = compare_second_suite()
     rule = default_rule()
     print("| scene | rung | predicted (bound) | rule's fit | measured | CPU (s) |")
@@ -392,13 +416,17 @@ def test_second_suite_against_the_full_wave_reference():
     for tolerance in SECOND_SUITE_TOLERANCES:
         results = evaluate_auto_on(comparison, tolerance)
         for r in results:
-            print(f"tolerance {tolerance:g}, {r['scene']}: auto → {r['ran']} (chose {r['picked']}) error {r['error']:.3g}, "
-                  f"CPU {r['cpu']:.3g} s; cheapest within tolerance {r['cheapest']}")
+            print(f"tolerance {tolerance:g}, {r['scene']}: auto → {r['ran']} (chose {r['picked']}"
+                  f"{', UNVALIDATED' if r['unvalidated'] else ''}) error {r['error']:.3g}, CPU {r['cpu']:.3g} s; "
+                  f"cheapest within tolerance {r['cheapest']}")
         within = sum(r["error"] <= tolerance for r in results)
         cheapest = sum(r["ran"] == r["cheapest"] for r in results)
         saved = sum(r["bem_cpu"] for r in results) / sum(r["cpu"] for r in results)
         print(f"second suite, tolerance {tolerance:g}: within {within}/{len(results)}, cheapest {cheapest}/{len(results)}, "
               f"worst error {max(r['error'] for r in results):.3g}, CPU of BEM everywhere / auto {saved:.3g}")
-        assert within == len(results)
+        silent = [r["scene"] for r in results if r["error"] > tolerance and not r["unvalidated"]]
+        assert not silent, f"tolerance {tolerance:g}: missed without a word on {silent}"
+        if tolerance <= VALIDATED_TOLERANCE:
+            assert within == len(results)
         if tolerance == TOLERANCE:
             assert cheapest >= len(results) / 2
