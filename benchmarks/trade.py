@@ -755,8 +755,11 @@ def measured_summary(rows: list[dict], tolerance: float) -> str:
 
 
 def _worst(run: dict) -> float:
-    """An auto run's error as its tolerance reads it: the worst of unpolarized, s and p."""
-    return max(run["error"], run["error_s"], run["error_p"])
+    """An auto run's error as its tolerance reads it: the worst of unpolarized, s and p (NaN where
+    one is)."""
+    from wavebrdf.solver.metrics import worst_speckle_error
+
+    return worst_speckle_error({"unpolarized": run["error"], "s": run["error_s"], "p": run["error_p"]})
 
 
 def _write_csv(path: Path, columns, rows: list[dict]) -> None:

@@ -56,6 +56,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wavebrdf.solver.metrics import worst_speckle_error
 from wavebrdf.solver.models import (Capabilities, Estimate, Model, ModelsWith, SurfaceScene, get_model, model_class,
                                     model_names, rungs)
 from wavebrdf.solver.options import option
@@ -65,7 +66,8 @@ __all__ = ["AutoModel", "CheckUnit", "Choice", "Rule", "SceneFeatures", "Toleran
            "measure_scene", "polarization_contrast", "select_spot_checks", "table_error", "TRADE_TABLE"]
 
 TRADE_TABLE = Path(__file__).parent / "data" / "trade.csv"
-ERROR_COLUMNS = ("rel_l2_smooth", "rel_l2_smooth_s", "rel_l2_smooth_p")  # unpolarized, s, p: the tolerance bounds all
+ERROR_COLUMNS = {"unpolarized": "rel_l2_smooth", "s": "rel_l2_smooth_s", "p": "rel_l2_smooth_p"}  # speckle_errors' keys →
+# the trade table's columns: the tolerance bounds all three
 PILOT_RAYS = 1 << 14
 PILOT_SECONDS = 0.5  # the pilot and the scene statistics, measured 0.3–2 s on the trade suite (2 cores)
 SENTINEL_RESOLUTION = 32
@@ -379,9 +381,9 @@ def _float(value) -> float:
 
 def table_error(row: dict) -> float:
     """A trade-table row's error as ``auto``'s tolerance reads it: the worst of its speckle-averaged
-    relative L2 errors unpolarized, for s and for p (:data:`ERROR_COLUMNS`); NaN where one is missing."""
-    values = [_float(row.get(column)) for column in ERROR_COLUMNS]
-    return float(max(values)) if np.all(np.isfinite(values)) else float("nan")
+    relative L2 errors unpolarized, for s and for p (:data:`ERROR_COLUMNS`;
+    :func:`~wavebrdf.solver.metrics.worst_speckle_error`); NaN where one is missing."""
+    return worst_speckle_error({key: _float(row.get(column)) for key, column in ERROR_COLUMNS.items()})
 
 
 def _features(row: dict) -> SceneFeatures:
@@ -392,7 +394,7 @@ def read_table(path: Path = TRADE_TABLE) -> list[dict]:
     """The trade table's rows; a table without the columns the rule needs is refused, naming them."""
     with open(path, newline="") as fh:
         rows = list(csv.DictReader(fh))
-    missing = sorted({"model", *ERROR_COLUMNS, *FEATURES} - set(rows[0] if rows else ()))
+    missing = sorted({"model", *ERROR_COLUMNS.values(), *FEATURES} - set(rows[0] if rows else ()))
     if missing:
         raise ValueError(f"{path}: the trade table lacks column(s) {', '.join(missing)}; regenerate it with "
                          "benchmarks/trade.py")
@@ -817,7 +819,7 @@ class AutoModel(Model):
         ``spot_check`` hold the measured errors (JSON: rung → figures; ``error`` is the largest
         speckle-averaged one of s, p and unpolarized, the figure the choice uses; ``predicted`` the
         rule's bound beside it, left out for a material the rule relies on no prediction for)."""
-        from wavebrdf.solver.metrics import speckle_errors, speckle_sigma_u, worst_speckle_error
+        from wavebrdf.solver.metrics import speckle_errors, speckle_sigma_u
 
         scene = budgeted(scene)
         reference = self.rung(REFERENCE).run(ctx, scene)
@@ -907,7 +909,7 @@ class AutoModel(Model):
 
     def run(self, ctx, scene: SurfaceScene):
         from wavebrdf.solver.farfield import HemisphereGrid
-        from wavebrdf.solver.metrics import speckle_errors, speckle_sigma_u, worst_speckle_error
+        from wavebrdf.solver.metrics import speckle_errors, speckle_sigma_u
 
         scene = budgeted(scene)
         choice = self.choice(scene)
