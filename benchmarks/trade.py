@@ -7,6 +7,7 @@ beside the table's spacing, finer or coarser, ``--finer-pair``).
 
     .venv/bin/python benchmarks/trade.py              # resumes: scenes already compared are reused
     .venv/bin/python benchmarks/trade.py --force      # recompute every scene
+    .venv/bin/python benchmarks/trade.py --rerun po    # po again everywhere, the other BRDFs as stored
 
 Suites (one folder each; the regime in every config's second line): aluminium and glass at waist
 0.6 µm (≈ λ) on 4 µm patches, aluminium at waist 2.5 µm (5 λ at 0.5 µm, the reference
@@ -162,10 +163,14 @@ class Record:
         return [{**r, "suite": path.parent.name, "config": str(path.relative_to(ROOT))} for r in mine]
 
 
-def compare_suite(configs: list[Path], force: bool, log, record: Record | None = None) -> None:
+def compare_suite(configs: list[Path], force: bool, log, record: Record | None = None,
+                  rerun: tuple[str, ...] = ()) -> None:
     """Run ``wavebrdf compare`` on each config whose comparison is neither stored in ``out/trade``
     nor kept in ``record`` (or, ``force``, on every one), its BEM reference taken from a kept solve
-    of the same scene and options where there is one (:func:`stored_solve`; not with ``force``)."""
+    of the same scene and options where there is one (:func:`stored_solve`; not with ``force``).
+    ``rerun``: rungs to run again on every config (after a rung changed): on a stored comparison
+    alone, the other rungs' BRDFs and BEM's taken as stored; a config kept only in ``record`` is
+    compared whole (its rows of the other rungs are no BRDFs to reuse)."""
     from wavebrdf.jobs.compare import compare_config
     from wavebrdf.jobs.config import load_config
 
@@ -173,13 +178,21 @@ def compare_suite(configs: list[Path], force: bool, log, record: Record | None =
 
     WORK.mkdir(parents=True, exist_ok=True)
     for path in configs:
+        if rerun and not force and _stored(path).is_file():
+            t0 = time.perf_counter()
+            kept = {key: m for key, m in stored_measurements(_stored(path)).items() if key[1] not in rerun}
+            comparison = compare_config(load_config(path), progress=lambda what: log(f"  {what}"), measured=kept)
+            comparison.write(_stem(path))
+            log(f"{path.relative_to(ROOT)}: {', '.join(rerun)} again, the others as stored: "
+                f"{time.perf_counter() - t0:.0f} s")
+            continue
         if not force and _stored(path).is_file():
             failed = [label for (label, model), m in stored_measurements(_stored(path)).items()
                       if model == REFERENCE and m.failure]
             if not failed:
                 continue
             log(f"{path.relative_to(ROOT)}: the stored reference failed on {', '.join(failed)}; comparing it again")
-        elif not force and record is not None and record.kept_rows(path) is not None:
+        elif not force and not rerun and record is not None and record.kept_rows(path) is not None:
             continue
         t0 = time.perf_counter()
         measured = {} if force else _stored_references(path, log)
@@ -682,11 +695,12 @@ def evaluate_auto(configs: list[Path], table: list[dict], tolerance: float, leav
 
 
 def measured_auto(configs: list[Path], table: list[dict], tolerance: float, log, record: Record | None = None,
-                  force: bool = False) -> list[dict]:
+                  force: bool = False, rerun: tuple[str, ...] = ()) -> list[dict]:
     """``model = "auto"`` run on every scene (one task: the rule's path and its escalation check)
     in the measuring process, its rung's error against the stored BEM and its CPU time measured;
     where it picks BEM, that is the table's own full-wave run (its CPU plus the pilot's). A run
-    ``record`` keeps for the same scene, config, tolerance and pick is reused (not with ``force``)."""
+    ``record`` keeps for the same scene, config, tolerance and pick is reused (not with ``force``,
+    nor where the pick is one of the ``rerun`` rungs)."""
     from wavebrdf.jobs.compare import MeasuringProcess, comparison_metrics
     from wavebrdf.solver.auto import REFERENCE, AutoModel, default_rule
 
@@ -700,7 +714,8 @@ def measured_auto(configs: list[Path], table: list[dict], tolerance: float, log,
                 picked = AutoModel({"tolerance": tolerance}).choice(scene).model
                 pilot = time.process_time() - t0
                 bem_cpu = _num(mine[REFERENCE]["cpu_s"])
-                kept = None if record is None or force else record.auto.get((label, tolerance, picked))
+                reuse = record is not None and not force and picked not in rerun
+                kept = record.auto.get((label, tolerance, picked)) if reuse else None
                 if kept is not None and kept["config_digest"] == config_digest(path):
                     run = {k: (kept[k] if k in ("picked", "ran") else _num(kept[k]))
                            for k in ("picked", "ran", "error", "error_s", "error_p", "cpu_s")}
@@ -780,6 +795,10 @@ def main(argv=None) -> int:
                              "out/trade (cached; the others are listed as not measured), or none")
     parser.add_argument("--measured-tolerances", nargs="*", type=float, default=[0.05, 0.01],
                         help="tolerances at which auto is run on every scene, end to end (0.05 0.01)")
+    parser.add_argument("--rerun", nargs="+", default=(), metavar="RUNG",
+                        help="run these rungs again everywhere (after they changed): on a comparison stored in "
+                             "out/trade alone, the other rungs and BEM as stored; a config kept only in the "
+                             "committed table is compared whole")
     parser.add_argument("--finer-pair", nargs=2, metavar=("CONFIG", "CELLS"),
                         help="only solve one refinement beside the table's: CONFIG's hardest scene at CELLS per side "
                              f"and at {REFINEMENT:g}× CELLS (listed under the convergence table at the next run); "
@@ -813,7 +832,13 @@ def main(argv=None) -> int:
         return 0
     configs = sorted(p.resolve() for p in args.configs) if args.configs else suite_configs()
     record = Record.read()
-    compare_suite(configs, args.force, log, record)
+    from wavebrdf.solver.models import model_names
+
+    rerun = tuple(args.rerun)
+    unknown = sorted(set(rerun) - set(model_names()))
+    if unknown:
+        parser.error(f"--rerun {' '.join(unknown)}: not a model (the models: {', '.join(model_names())})")
+    compare_suite(configs, args.force, log, record, rerun)
     converged = [] if args.convergence == "none" else \
         [convergence(p, args.force, log, args.convergence == "all", record) for p in configs]
     features = scene_features(configs, log)
@@ -826,7 +851,8 @@ def main(argv=None) -> int:
     auto_rows = evaluate_auto(configs, table, args.tolerance)
     sweep = {tol: evaluate_auto(configs, table, tol) for tol in SWEEP}
     unseen = {tol: evaluate_auto(configs, table, tol, leave_out=True) for tol in SWEEP}
-    ran = {tol: measured_auto(configs, table, tol, log, record, args.force) for tol in args.measured_tolerances}
+    ran = {tol: measured_auto(configs, table, tol, log, record, args.force, rerun)
+           for tol in args.measured_tolerances}
     AUTO_RUNS.parent.mkdir(parents=True, exist_ok=True)
     _write_csv(AUTO_RUNS, AUTO_COLUMNS, [r for rows in ran.values() for r in rows])
     for suite in dict.fromkeys(r["suite"] for r in table):

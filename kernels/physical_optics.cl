@@ -10,6 +10,10 @@
  * The incident field's currents on every node are subtracted (they radiate nothing upward for a
  * Maxwell field; the footprint's radiate only its ∇W leak): lit nodes keep the reflected part
  * m̃ × η₁H_r, −m̃ × E_r, unlit ones carry −m̃ × η₁H_i, m̃ × E_i.
+ * po_beam_currents (one work-item per node): the same currents summed over the plane waves of the exact
+ * Gaussian beam (solver/beams.py), each with its own direction k̂_m and Fresnel coefficients at its own
+ * local angle: Δ² Σ_m e^{−j k k̂_m·(r − f)} e^{−jk ω_i·r} currents(k̂_m, E_m), f the focus (the phase
+ * e^{+jk ω_i·r} is again left to the transform). On a plane this reflects every plane wave exactly.
  * Output: 12 apertures (pol s|p) × (J'_x, J'_y, J'_z, M_x, M_y, M_z), transformed by the Chebyshev /
  * chirp-z machinery of kernels/kirchhoff.cl into N' = Σ J' e^{+jk(ω_i+ω_o)·r}, L likewise.
  *
@@ -36,35 +40,22 @@ inline void cross_rr(const real_t *a, const real_t *b, real_t *out)
 inline real_t dot_rr(const real_t *a, const real_t *b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 
 
-__kernel void po_currents(
-    __global const real_t *slopes,    /* (2, na·nb) h_x, h_y at the nodes */
-    __global const cplx_t *window,    /* (na·nb) Δ² W */
-    __global const uchar *lit,        /* (na·nb) V_i (ray-traced or 1) */
-    const int nodes,
-    const real_t wx, const real_t wy, const real_t wz,   /* ω_i */
-    __global const real_t *polarizations,                /* (2, 3) ê_s, ê_p */
-    const cplx_t eta,                                    /* n₂/n₁ */
-    __global cplx_t *out)             /* (12, na·nb) */
+/* The currents (J' = η₁J, M per unit dx dy; 12: pol s|p × (J'_x, J'_y, J'_z, M_x, M_y, M_z)) at a node
+ * of m̃ (m = m̃/|m̃|) from one plane wave of direction k̂ and complex polarization vectors e (2 × 3):
+ * the reflected field's where lit and c = −k̂·m > 0, else minus the incident field's. */
+inline void po_wave_currents(const real_t *mt, const real_t *m, const real_t *kh, const cplx_t *e, const cplx_t eta,
+                             const int lit, cplx_t *cur)
 {
-    const int gid = get_global_id(0);
-    if (gid >= nodes) return;
-    const size_t plane = (size_t)nodes;
-    const real_t mt[3] = {-slopes[gid], -slopes[plane + gid], R(1.0)}; /* m̃ */
-    const real_t inv = R(1.0) / sqrt(dot_rr(mt, mt));
-    const real_t m[3] = {mt[0] * inv, mt[1] * inv, mt[2] * inv};
-    const real_t kh[3] = {-wx, -wy, -wz};                                /* k̂ */
-    const real_t c = -dot_rr(kh, m);                                   /* ω_i·m */
-    const cplx_t w = window[gid];
-    if (!lit[gid] || c <= R(0.0)) { /* minus the incident field's own currents */
+    const real_t c = -dot_rr(kh, m);
+    if (!lit || c <= R(0.0)) { /* minus the incident field's own currents */
         for (int p = 0; p < 2; ++p) {
-            const real_t e[3] = {polarizations[3 * p], polarizations[3 * p + 1], polarizations[3 * p + 2]};
-            real_t ke[3], J[3], M[3];
-            cross_rr(kh, e, ke);
-            cross_rr(mt, ke, J);
-            cross_rr(mt, e, M);
+            cplx_t ke[3], J[3], M[3];
+            cross_rc(kh, e + 3 * p, ke);
+            cross_rc(mt, ke, J);
+            cross_rc(mt, e + 3 * p, M);
             for (int q = 0; q < 3; ++q) {
-                out[(p * 6 + q) * plane + gid] = c_scale(w, -J[q]);
-                out[(p * 6 + 3 + q) * plane + gid] = c_scale(w, M[q]);
+                cur[p * 6 + q] = c_scale(J[q], R(-1.0));
+                cur[p * 6 + 3 + q] = M[q];
             }
         }
         return;
@@ -86,19 +77,80 @@ __kernel void po_currents(
     cplx_t rs, rp;
     fresnel_rs_rp(eta, c, &rs, &rp);
     for (int p = 0; p < 2; ++p) {
-        const real_t e[3] = {polarizations[3 * p], polarizations[3 * p + 1], polarizations[3 * p + 2]};
-        const real_t es = dot_rr(e, s), ep = dot_rr(e, pi);
-        cplx_t Er[3], Hr[3];
-        for (int q = 0; q < 3; ++q) Er[q] = c_add(c_scale(rs, es * s[q]), c_scale(rp, ep * pr[q]));
+        const cplx_t *ep = e + 3 * p;
+        const cplx_t es = c_add(c_add(c_scale(ep[0], s[0]), c_scale(ep[1], s[1])), c_scale(ep[2], s[2]));
+        const cplx_t epi = c_add(c_add(c_scale(ep[0], pi[0]), c_scale(ep[1], pi[1])), c_scale(ep[2], pi[2]));
+        const cplx_t as = c_mul(rs, es), ap = c_mul(rp, epi);
+        cplx_t Er[3], Hr[3], J[3], M[3];
+        for (int q = 0; q < 3; ++q) Er[q] = c_add(c_scale(as, s[q]), c_scale(ap, pr[q]));
         cross_rc(kr, Er, Hr);
-        cplx_t J[3], M[3];
         cross_rc(mt, Hr, J);
         cross_rc(mt, Er, M);
         for (int q = 0; q < 3; ++q) {
-            out[(p * 6 + q) * plane + gid] = c_mul(w, J[q]);
-            out[(p * 6 + 3 + q) * plane + gid] = c_mul(w, c_scale(M[q], R(-1.0)));
+            cur[p * 6 + q] = J[q];
+            cur[p * 6 + 3 + q] = c_scale(M[q], R(-1.0));
         }
     }
+}
+
+
+__kernel void po_currents(
+    __global const real_t *slopes,    /* (2, na·nb) h_x, h_y at the nodes */
+    __global const cplx_t *window,    /* (na·nb) Δ² W */
+    __global const uchar *lit,        /* (na·nb) V_i (ray-traced or 1) */
+    const int nodes,
+    const real_t wx, const real_t wy, const real_t wz,   /* ω_i */
+    __global const real_t *polarizations,                /* (2, 3) ê_s, ê_p */
+    const cplx_t eta,                                    /* n₂/n₁ */
+    __global cplx_t *out)             /* (12, na·nb) */
+{
+    const int gid = get_global_id(0);
+    if (gid >= nodes) return;
+    const size_t plane = (size_t)nodes;
+    const real_t mt[3] = {-slopes[gid], -slopes[plane + gid], R(1.0)}; /* m̃ */
+    const real_t inv = R(1.0) / sqrt(dot_rr(mt, mt));
+    const real_t m[3] = {mt[0] * inv, mt[1] * inv, mt[2] * inv};
+    const real_t kh[3] = {-wx, -wy, -wz};                                /* k̂ */
+    cplx_t e[6], cur[12];
+    for (int q = 0; q < 6; ++q) e[q] = c_new(polarizations[q], R(0.0));
+    po_wave_currents(mt, m, kh, e, eta, lit[gid], cur);
+    const cplx_t w = window[gid];
+    for (int q = 0; q < 12; ++q) out[q * plane + gid] = c_mul(w, cur[q]);
+}
+
+
+__kernel void po_beam_currents(
+    __global const real_t *slopes,     /* (2, nodes) h_x, h_y */
+    __global const real_t *positions,  /* (3, nodes) x, y, z − z_ref (µm) */
+    __global const uchar *lit,         /* (nodes) V_i along the beam axis */
+    const int nodes,
+    const int waves,
+    __global const real_t *directions, /* (waves, 3) k̂_m */
+    __global const real_t *phases,     /* (waves, 4) q_m = k k̂_m + k ω_i and φ_m = k k̂_m·f: e^{j(φ_m − q_m·r)} */
+    __global const cplx_t *amplitudes, /* (waves, 2, 3) E_m per beam polarization */
+    const cplx_t eta,                  /* n₂/n₁ */
+    const real_t area,                 /* Δ² (µm²) */
+    __global cplx_t *out)              /* (12, nodes) */
+{
+    const int gid = get_global_id(0);
+    if (gid >= nodes) return;
+    const size_t plane = (size_t)nodes;
+    const real_t mt[3] = {-slopes[gid], -slopes[plane + gid], R(1.0)};
+    const real_t inv = R(1.0) / sqrt(dot_rr(mt, mt));
+    const real_t m[3] = {mt[0] * inv, mt[1] * inv, mt[2] * inv};
+    const real_t r[3] = {positions[gid], positions[plane + gid], positions[2 * plane + gid]};
+    const int on = lit[gid];
+    cplx_t acc[12], cur[12], e[6];
+    for (int q = 0; q < 12; ++q) acc[q] = c_new(R(0.0), R(0.0));
+    for (int w = 0; w < waves; ++w) {
+        const real_t kh[3] = {directions[3 * w], directions[3 * w + 1], directions[3 * w + 2]};
+        __global const real_t *ph = phases + 4 * w;
+        const cplx_t phase = c_scale(c_expj(ph[3] - (ph[0] * r[0] + ph[1] * r[1] + ph[2] * r[2])), area);
+        for (int q = 0; q < 6; ++q) e[q] = amplitudes[6 * w + q];
+        po_wave_currents(mt, m, kh, e, eta, on, cur);
+        for (int q = 0; q < 12; ++q) acc[q] = c_fma(phase, cur[q], acc[q]);
+    }
+    for (int q = 0; q < 12; ++q) out[q * plane + gid] = acc[q];
 }
 
 

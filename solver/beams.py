@@ -51,6 +51,8 @@ __all__ = [
     "PlaneWave",
     "beam_frame",
     "make_beam",
+    "scene_beam",
+    "steering_fields",
 ]
 
 BEAMS = ("exact", "paraxial", "plane")
@@ -601,3 +603,20 @@ def make_beam(kind: str, wavelength_um: float, theta_i: float, phi_i: float, wai
             raise ValueError("the exact beam needs patch_size_um (sets its spectral lattice)")
         return ExactGaussianBeam(**common, waist_um=waist_um, patch_size_um=patch_size_um)
     raise ValueError(f"illumination.beam must be one of {BEAMS}, got {kind!r}")
+
+
+def scene_beam(scene, kind: str | None = None) -> Beam:
+    """The beam that lights a surface scene in the full-wave solver: ``kind`` (default the scene's
+    ``beam``) toward its (θ_i, φ_i), waist and exterior index, focused at its footprint centre on
+    the phase-reference plane z = 0, its spectral lattice set by the patch size."""
+    return make_beam(kind or scene.beam, scene.wavelength_um, scene.theta_i, scene.phi_i, scene.waist_um,
+                     exterior_index=scene.exterior_index,
+                     focus_um=(scene.footprint_centre_um[0], scene.footprint_centre_um[1], 0.0),
+                     patch_size_um=scene.surface.size_um)
+
+
+def steering_fields(beam: Beam, points) -> tuple[np.ndarray, np.ndarray]:
+    """(E, H) of ``beam`` at ``points`` (..., 3), each (2 pol, 3, ...): the layout of a model's
+    ``incident_fields`` (beams return (2, ..., 3))."""
+    E, H = beam.fields(np.asarray(points, dtype=float))
+    return np.moveaxis(E, -1, 1), np.moveaxis(H, -1, 1)

@@ -211,3 +211,54 @@ def test_a_random_realization_keeps_its_digest_at_its_own_cells_and_is_refused_b
     ran.clear()
     trade.compare_suite([config], False, lambda line: None)
     assert ran == [("kirchhoff", 16)]
+
+
+def test_rerun_runs_again_only_the_named_rungs_on_a_stored_comparison(trade, tmp_path, monkeypatch):
+    """``--rerun po``: po runs again with its current options while BEM's and the other rungs'
+    stored BRDFs and times are taken as they are; without it a stored comparison is not rerun."""
+    monkeypatch.setattr(trade, "ROOT", tmp_path)
+    suite = tmp_path / "tiny"
+    suite.mkdir()
+    config = suite / "flat.toml"
+    config.write_text("""
+[study]
+name = "tiny_flat"
+output = "tiny_flat.h5"
+[surface]
+size_um = 1.6
+cells = 24
+generator = "gaussian"
+rms_height_um = 0.005
+correlation_um = 0.4
+seed = 3
+[material]
+name = "glass"
+[illumination]
+wavelengths_um = [0.5]
+directions_deg = [[30, 0]]
+waist_um = 0.3
+[model]
+name = "bem"
+method = "aim"
+[output]
+resolution = 24
+[compare]
+reference = "bem"
+models = ["bem", "kirchhoff", "po"]
+""")
+    log = lambda message: None  # noqa: E731
+    trade.compare_suite([config], False, log)
+    before = trade.stored_measurements(trade._stored(config))
+    label = next(label for label, model in before if model == "po")
+    trade.compare_suite([config], False, log)  # stored: nothing runs again
+    assert trade.stored_measurements(trade._stored(config))[label, "po"].wall_s == before[label, "po"].wall_s
+    text = config.read_text().replace('models = ["bem", "kirchhoff", "po"]',
+                                      'models = ["bem", "kirchhoff", "po"]\n[compare.po]\nincidence = "beam"')
+    config.write_text(text)
+    trade._scenes.cache_clear()
+    trade.compare_suite([config], False, log, rerun=("po",))
+    after = trade.stored_measurements(trade._stored(config))
+    for model in ("bem", "kirchhoff"):
+        assert np.array_equal(after[label, model].brdf, before[label, model].brdf, equal_nan=True)
+        assert after[label, model].cpu_s == before[label, model].cpu_s
+    assert not np.array_equal(after[label, "po"].brdf, before[label, "po"].brdf, equal_nan=True)  # lit by the beam

@@ -235,7 +235,8 @@ class KirchhoffSetup:
                                    n_max=0)
 
     def farfield(self, E: np.ndarray, theta_i: float, phi_i: float, model: str = "kirchhoff",
-                 **diagnostics) -> FarField:
+                 incident_power: np.ndarray | None = None, **diagnostics) -> FarField:
+        """The FarField of ``E``, normalised by the footprint's Φ_i or the ``incident_power`` given."""
         return FarField(
             grid=self.grid,
             wavelength_um=self.lambda1 * self.exterior_index,
@@ -243,7 +244,7 @@ class KirchhoffSetup:
             theta_i=theta_i,
             phi_i=phi_i,
             E=E,
-            incident_power=self.incident_power(),
+            incident_power=self.incident_power() if incident_power is None else incident_power,
             diagnostics={"model": model, "chebyshev_terms": self.n_max + 1, **diagnostics},
         )
 

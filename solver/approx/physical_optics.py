@@ -37,6 +37,13 @@ when the ray tracer is not installed). Masking V_o is not applied (classical PO 
 current); the footprint-weighted shadowed and back-facing fractions are reported in the
 diagnostics, as is the albedo in excess of 1.
 
+Lit by the beam (``incidence = "beam"``): the full-wave solver's exact Gaussian beam
+(:func:`wavebrdf.solver.beams.scene_beam`) as its plane waves (k̂_m, E_m), each node carrying
+Δ² Σ_m e^{−jk k̂_m·(r − f)} e^{−jk ω_i·r} × the currents above for wave m (its own local frame and
+Fresnel coefficients at its own local angle; V_i that of the beam axis), normalised by that beam's
+Φ_i: a plane then reflects every plane wave of the beam exactly, where the footprint plane wave gives
+every direction θ_i's Fresnel coefficients (docs/approx.md, po).
+
 OpenCL kernels in kernels/physical_optics.cl (currents, per-pixel radiation) with host FFTs; NumPy
 twins with ``ctx=None``.
 """
@@ -59,6 +66,7 @@ from wavebrdf.solver.approx.kirchhoff import (
     transform_orders,
 )
 from wavebrdf.solver.approx.raytrace import SHADOWING, lit_nodes, node_slopes
+from wavebrdf.solver.beams import scene_beam, steering_fields
 from wavebrdf.solver.farfield import FarField
 from wavebrdf.solver.footprint import incident_basis
 from wavebrdf.solver.fresnel import fresnel_rs_rp
@@ -68,24 +76,30 @@ from wavebrdf.solver.precision import Precision
 from wavebrdf.solver.validity import check_waist
 
 __all__ = [
+    "BeamWaves",
+    "INCIDENCE",
     "POModel",
     "POOptions",
+    "po_beam_currents_numpy",
     "po_currents_numpy",
     "po_farfield",
 ]
 
 CHANNELS = 12  # 2 polarizations × (J'_x, J'_y, J'_z, M_x, M_y, M_z)
+INCIDENCE = ("footprint", "beam")  # PO's incident field: the footprint plane wave, or the exact beam's plane waves
+BEAM_TAIL = 1e-8  # the beam's plane waves below this share of the largest amplitude are left out
+BEAM_SECONDS_PER_NODE_WAVE = 5.5e-8  # po_beam_currents on 2 cores (PoCL, double or single; docs/approx.md)
 
 
-def po_currents_numpy(window: np.ndarray, slopes: np.ndarray, lit: np.ndarray, omega_i: np.ndarray,
-                      polarizations: np.ndarray, eta: complex) -> np.ndarray:
-    """Twin of the kernel po_currents: (12, na, nb) apertures Δ²W·(J', M) per polarization, J' = η₁J
-    (lit nodes: the reflected field's currents; unlit: minus the incident field's)."""
-    mt = np.stack([-slopes[0], -slopes[1], np.ones_like(slopes[0])], axis=-1)  # m̃ (na, nb, 3)
+def _wave_currents_numpy(mt: np.ndarray, lit: np.ndarray, k_hat: np.ndarray, e: np.ndarray,
+                         eta: complex) -> np.ndarray:
+    """Twin of ``po_wave_currents``: (12, na, nb) currents J' = η₁J, M per unit dx dy at nodes of
+    m̃ ``mt`` (na, nb, 3) from one plane wave of direction ``k_hat`` and polarization vectors ``e``
+    (2, 3; complex for a beam's waves): the reflected field's where ``lit`` and −k̂·m > 0, else minus
+    the incident field's."""
     m = mt / np.linalg.norm(mt, axis=-1, keepdims=True)
-    kh = -np.asarray(omega_i, dtype=float)
-    c = -(m @ kh)
-    s = np.cross(kh, m)
+    c = -(m @ k_hat)
+    s = np.cross(k_hat, m)
     s2 = np.sum(s * s, axis=-1)
     degenerate = s2 < 1e-24
     if np.any(degenerate):
@@ -94,19 +108,79 @@ def po_currents_numpy(window: np.ndarray, slopes: np.ndarray, lit: np.ndarray, o
         s[degenerate] = np.cross(md, a)
         s2 = np.sum(s * s, axis=-1)
     s = s / np.sqrt(s2)[..., None]
-    p_i = np.cross(s, kh)
-    k_r = kh + 2.0 * c[..., None] * m
+    p_i = np.cross(s, k_hat)
+    k_r = k_hat + 2.0 * c[..., None] * m
     p_r = np.cross(s, k_r)
     r_s, r_p = fresnel_rs_rp(eta, np.clip(c, 0.0, 1.0))
     on = (lit & (c > 0))[..., None]
-    out = np.zeros((CHANNELS,) + slopes.shape[1:], dtype=complex)
-    for p, e in enumerate(polarizations):
-        E_r = (r_s * (s @ e))[..., None] * s + (r_p * (p_i @ e))[..., None] * p_r
+    out = np.zeros((CHANNELS,) + mt.shape[:-1], dtype=complex)
+    for p, ep in enumerate(e):
+        E_r = (r_s * (s @ ep))[..., None] * s + (r_p * (p_i @ ep))[..., None] * p_r
         # lit: the reflected field's currents; unlit: minus the incident field's (module docstring)
-        J = np.where(on, np.cross(mt, np.cross(k_r, E_r)), -np.cross(mt, np.cross(kh, e)))
-        M = np.where(on, -np.cross(mt, E_r), np.cross(mt, np.broadcast_to(e, mt.shape)))
-        currents = np.concatenate([J, M], axis=-1) * window[..., None]
-        out[6 * p : 6 * p + 6] = np.moveaxis(currents, -1, 0)
+        J = np.where(on, np.cross(mt, np.cross(k_r, E_r)), -np.cross(mt, np.cross(k_hat, ep)))
+        M = np.where(on, -np.cross(mt, E_r), np.cross(mt, np.broadcast_to(ep, mt.shape)))
+        out[6 * p : 6 * p + 6] = np.moveaxis(np.concatenate([J, M], axis=-1), -1, 0)
+    return out
+
+
+def _normal(slopes: np.ndarray) -> np.ndarray:
+    """m̃ = (−h_x, −h_y, 1) on the nodes, (na, nb, 3)."""
+    return np.stack([-slopes[0], -slopes[1], np.ones_like(slopes[0])], axis=-1)
+
+
+def po_currents_numpy(window: np.ndarray, slopes: np.ndarray, lit: np.ndarray, omega_i: np.ndarray,
+                      polarizations: np.ndarray, eta: complex) -> np.ndarray:
+    """Twin of the kernel po_currents: (12, na, nb) apertures Δ²W·(J', M) per polarization, J' = η₁J
+    (lit nodes: the reflected field's currents; unlit: minus the incident field's)."""
+    k_hat = -np.asarray(omega_i, dtype=float)
+    return _wave_currents_numpy(_normal(slopes), lit, k_hat, np.asarray(polarizations), eta) * window
+
+
+@dataclass(frozen=True)
+class BeamWaves:
+    """The exact Gaussian beam as PO's incident field: its plane waves of direction ``directions``
+    (M, 3) k̂_m and amplitudes ``amplitudes`` (M, 2, 3) (E per beam polarization s|p, |E| = 1 V/µm
+    at the focus like the footprint), ``phases`` (M, 4): q_m = k k̂_m + k ω_i and φ_m = k k̂_m·f, so
+    that wave m on node r relative to the transform's e^{+jk ω_i·r} is e^{j(φ_m − q_m·r)};
+    ``incident_power`` (2,) Φ_i per polarization (W), the full-wave solver's normalisation."""
+
+    directions: np.ndarray
+    amplitudes: np.ndarray
+    phases: np.ndarray
+    incident_power: np.ndarray
+
+    @classmethod
+    def of(cls, scene: SurfaceScene) -> "BeamWaves":
+        """The plane waves of the scene's exact beam (focus at the footprint centre on the phase
+        reference plane, as the full-wave solver's) whose amplitude is at least
+        :data:`BEAM_TAIL` of the largest."""
+        beam = scene_beam(scene, "exact")
+        waves = beam.plane_waves
+        size = np.abs(waves["E"]).max(axis=(0, 2))
+        keep = size >= BEAM_TAIL * size.max()
+        kvec = waves["kvec"][keep]
+        k = float(np.linalg.norm(kvec[0]))
+        omega_i, _, _ = incident_basis(scene.theta_i, scene.phi_i)
+        phases = np.concatenate([kvec + k * omega_i, (kvec @ np.asarray(beam.focus_um, dtype=float))[:, None]], axis=1)
+        return cls(kvec / k, np.ascontiguousarray(np.moveaxis(waves["E"][:, keep], 0, 1)), phases,
+                   np.asarray(beam.incident_power(), dtype=float))
+
+
+def node_positions(setup: KirchhoffSetup, surface) -> np.ndarray:
+    """(na, nb, 3) node positions x, y and height above the phase-reference plane (µm)."""
+    X, Y = np.meshgrid(surface.x, surface.y, indexing="ij")
+    return np.stack([X, Y, setup.z_mid + setup.dz_ref], axis=-1)
+
+
+def po_beam_currents_numpy(positions: np.ndarray, slopes: np.ndarray, lit: np.ndarray, waves: BeamWaves,
+                           eta: complex, area: float) -> np.ndarray:
+    """Twin of the kernel po_beam_currents: (12, na, nb) apertures Δ² Σ_m e^{j(φ_m − q_m·r)}
+    (J', M)(k̂_m, E_m), each wave's currents at its own local angle."""
+    mt = _normal(slopes)
+    out = np.zeros((CHANNELS,) + slopes.shape[1:], dtype=complex)
+    for k_hat, e, (qx, qy, qz, phi) in zip(waves.directions, waves.amplitudes, waves.phases):
+        phase = area * np.exp(1j * (phi - positions @ np.array([qx, qy, qz])))
+        out += _wave_currents_numpy(mt, lit, k_hat, e, eta) * phase
     return out
 
 
@@ -122,6 +196,23 @@ def _currents_opencl(ctx, window, slopes, lit, omega_i, polarizations, eta, prec
         ctx.to_device(lit, np.uint8), np.int32(nodes), *(real.type(w) for w in omega_i),
         ctx.to_device(polarizations, real), np.array(eta, dtype=cplx), out)
     currents = np.empty((CHANNELS,) + window.shape, dtype=cplx)
+    cl.enqueue_copy(ctx.queue, currents, out)
+    return currents
+
+
+def _beam_currents_opencl(ctx, positions, slopes, lit, waves: BeamWaves, eta, area: float, precision: Precision):
+    import pyopencl as cl
+
+    real = precision.real
+    cplx = precision.complex
+    nodes = lit.size
+    knl = ctx.kernel("physical_optics.cl", "po_beam_currents", ctx.defines(precision))
+    out = cl.Buffer(ctx.context, cl.mem_flags.WRITE_ONLY, CHANNELS * nodes * cplx.itemsize)
+    knl(ctx.queue, (nodes,), None, ctx.to_device(slopes, real), ctx.to_device(np.moveaxis(positions, -1, 0), real),
+        ctx.to_device(lit, np.uint8), np.int32(nodes), np.int32(len(waves.directions)),
+        ctx.to_device(waves.directions, real), ctx.to_device(waves.phases, real), ctx.to_device(waves.amplitudes, cplx),
+        np.array(eta, dtype=cplx), real.type(area), out)
+    currents = np.empty((CHANNELS,) + lit.shape, dtype=cplx)
     cl.enqueue_copy(ctx.queue, currents, out)
     return currents
 
@@ -162,10 +253,15 @@ def _radiate_opencl(ctx, setup: KirchhoffSetup, currents: np.ndarray, precision:
     return E.astype(np.complex128, copy=False)
 
 
-def po_farfield(ctx, scene: SurfaceScene, shadowing: str = "rays", border: str = "periodic") -> FarField:
+def po_farfield(ctx, scene: SurfaceScene, shadowing: str = "rays", border: str = "periodic",
+                incidence: str = "footprint") -> FarField:
     """Physical-optics far field of ``scene`` (``ctx`` None: NumPy twins, double precision);
-    ``shadowing`` "rays" | "none" and ``border`` "periodic" | "clamp" choose V_i (module docstring)."""
+    ``shadowing`` "rays" | "none" and ``border`` "periodic" | "clamp" choose V_i (module docstring);
+    ``incidence`` "footprint" | "beam" the incident field (a plane-wave scene, waist None, is lit by
+    its one plane wave either way)."""
     t0 = time.perf_counter()
+    if incidence not in INCIDENCE:
+        raise ValueError(f"po incidence must be one of {INCIDENCE}, got {incidence!r}")
     precision = scene.precision
     if ctx is None and not precision.fp64:
         raise ValueError(f"the NumPy reference runs in double precision only, got precision = {precision!r}")
@@ -178,22 +274,34 @@ def po_farfield(ctx, scene: SurfaceScene, shadowing: str = "rays", border: str =
     slopes = node_slopes(surface)
     front, lit, shadowing = lit_nodes(ctx, surface, omega_i, slopes, shadowing, border, precision)
     t_lit = time.perf_counter()
-    if ctx is None:
+    beam = incidence == "beam" and scene.waist_um is not None
+    power, extra = None, {}
+    if beam:
+        waves = BeamWaves.of(scene)
+        positions, area = node_positions(setup, surface), surface.spacing_um ** 2
+        if ctx is None:
+            currents = po_beam_currents_numpy(positions, slopes, lit, waves, setup.eta, area)
+        else:
+            currents = _beam_currents_opencl(ctx, positions, slopes, lit, waves, setup.eta, area, precision)
+        power, extra = waves.incident_power, {"plane_waves": len(waves.directions)}  # the full-wave solver's Φ_i
+    elif ctx is None:
         currents = po_currents_numpy(setup.window, slopes, lit, omega_i, polarizations, setup.eta)
-        E = _radiate_numpy(setup, currents)
     else:
         currents = _currents_opencl(ctx, setup.window, slopes, lit, omega_i, polarizations, setup.eta, precision)
-        E = _radiate_opencl(ctx, setup, currents, precision)
+    t_currents = time.perf_counter()
+    E = _radiate_numpy(setup, currents) if ctx is None else _radiate_opencl(ctx, setup, currents, precision)
     weight = np.abs(setup.window) ** 2
     total = weight.sum()
     ff = setup.farfield(
-        E, theta_i, phi_i, model="po", device="numpy" if ctx is None else ctx.describe(), precision=precision,
-        shadowing=shadowing, back_facing_fraction=float(weight[~front].sum() / total),
+        E, theta_i, phi_i, model="po", incident_power=power, device="numpy" if ctx is None else ctx.describe(),
+        precision=precision, shadowing=shadowing, back_facing_fraction=float(weight[~front].sum() / total),
         shadowed_fraction=float(weight[front & ~lit].sum() / total), time_visibility_s=t_lit - t0,
-        wall_time_s=time.perf_counter() - t0,
+        incidence="beam" if beam else "footprint", time_currents_s=t_currents - t_lit,
+        wall_time_s=time.perf_counter() - t0, **extra,
     )
     ff.diagnostics["albedo_excess"] = albedo_excess(ff)
-    check_waist(scene, ff.diagnostics, "po")
+    if not beam:  # the beam's plane waves each reflect at their own angle: no spread error to predict
+        check_waist(scene, ff.diagnostics, "po")
     return ff
 
 
@@ -204,6 +312,11 @@ class POOptions:
                                 "'none' = the local back-facing test ω_i·m > 0 only")
     border: str = option("periodic", choices=("periodic", "clamp"),
                          doc="height field beyond the patch for the ray-traced V_i (raytrace.py)")
+    incidence: str = option("footprint", choices=INCIDENCE,
+                            doc="incident field: 'footprint' = the footprint plane wave, Fresnel at θ_i's local "
+                                "angle (the Kirchhoff family's); 'beam' = the full-wave solver's exact beam as "
+                                "plane waves, each with Fresnel at its own local angle (exact on a plane; "
+                                "docs/approx.md)")
 
 
 class POModel(FootprintModel):
@@ -219,7 +332,13 @@ class POModel(FootprintModel):
                                 vector_fields=True)
 
     def run(self, ctx, scene: SurfaceScene) -> FarField:
-        return po_farfield(ctx, scene, self.options.shadowing, self.options.border)
+        return po_farfield(ctx, scene, self.options.shadowing, self.options.border, self.options.incidence)
+
+    def incident_fields(self, scene: SurfaceScene, points):
+        """The footprint plane wave, or with ``incidence = "beam"`` the full-wave solver's exact beam."""
+        if self.options.incidence == "beam" and scene.waist_um is not None:
+            return steering_fields(scene_beam(scene, "exact"), points)
+        return super().incident_fields(scene, points)
 
     def estimate(self, scene: SurfaceScene) -> Estimate:
         nodes = scene.surface.cells + 1
@@ -228,6 +347,10 @@ class POModel(FootprintModel):
         memory, seconds = chebyshev_cost(nodes, res, orders, channels=CHANNELS)
         memory += 16.0 * (CHANNELS + 4) * nodes**2
         seconds += 2e-7 * nodes**2 if self.options.shadowing == "rays" else 0.0
+        if self.options.incidence == "beam" and scene.waist_um is not None:
+            waves = len(BeamWaves.of(scene).directions)
+            seconds += BEAM_SECONDS_PER_NODE_WAVE * nodes**2 * waves
+            memory += 8.0 * 16 * waves
         held, largest = chebyshev_device_bytes(nodes, res, orders, channels=CHANNELS, precision=scene.precision)
         item = float(scene.precision.complex.itemsize)
         currents, planes = item * CHANNELS * nodes**2, item * CHANNELS * res * res  # one buffer each

@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from wavebrdf.solver.beams import make_beam
+from wavebrdf.solver.beams import scene_beam, steering_fields
 from wavebrdf.solver.bem3d.aim.options import AIMOptions
 from wavebrdf.solver.bem3d.warm_start import WarmStarts
 from wavebrdf.solver.farfield import FarField
@@ -190,10 +190,4 @@ class BEMModel(Model):
         return Estimate(est["bytes"], seconds, f"dense {n} unknowns, Z {est['matrix_bytes'] / 2**30:.2f} GiB")
 
     def incident_fields(self, scene: SurfaceScene, points):
-        beam = make_beam(scene.beam, scene.wavelength_um, scene.theta_i, scene.phi_i, scene.waist_um,
-                         exterior_index=scene.exterior_index,
-                         focus_um=(scene.footprint_centre_um[0], scene.footprint_centre_um[1], 0.0),
-                         patch_size_um=scene.surface.size_um)
-        E, H = beam.fields(np.asarray(points, dtype=float))
-        # beams return (2, ..., 3); the steering code wants (2, 3, ...)
-        return np.moveaxis(E, -1, 1), np.moveaxis(H, -1, 1)
+        return steering_fields(scene_beam(scene), points)
