@@ -21,6 +21,7 @@
  *   = (jk/4π) [ω_o (ω_o·N') − N' + ω_o × L]   (far field E e^{−jkr}/r, Balanis' e^{+jωt} form).
  */
 #include "kirchhoff.cl"
+#include "wb_beam_waves.h"
 
 /* a × b for real a and complex b */
 inline void cross_rc(const real_t *a, const cplx_t *b, cplx_t *out)
@@ -120,13 +121,11 @@ __kernel void po_currents(
 
 
 __kernel void po_beam_currents(
-    __global const real_t *slopes,     /* (2, nodes) h_x, h_y */
-    __global const real_t *positions,  /* (3, nodes) x, y, z − z_ref (µm) */
+    __global const real_t *geometry,   /* (5, nodes) h_x, h_y, x, y, z − z_ref (wb_beam_waves.h) */
     __global const uchar *lit,         /* (nodes) V_i along the beam axis */
     const int nodes,
     const int waves,
-    __global const real_t *directions, /* (waves, 3) k̂_m */
-    __global const real_t *phases,     /* (waves, 4) q_m = k k̂_m + k ω_i and φ_m = k k̂_m·f: e^{j(φ_m − q_m·r)} */
+    __global const real_t *table,      /* (waves, 7) k̂_m, q_m, φ_m (wb_beam_waves.h) */
     __global const cplx_t *amplitudes, /* (waves, 2, 3) E_m per beam polarization */
     const cplx_t eta,                  /* n₂/n₁ */
     const real_t area,                 /* Δ² (µm²) */
@@ -134,23 +133,18 @@ __kernel void po_beam_currents(
 {
     const int gid = get_global_id(0);
     if (gid >= nodes) return;
-    const size_t plane = (size_t)nodes;
-    const real_t mt[3] = {-slopes[gid], -slopes[plane + gid], R(1.0)};
-    const real_t inv = R(1.0) / sqrt(dot_rr(mt, mt));
-    const real_t m[3] = {mt[0] * inv, mt[1] * inv, mt[2] * inv};
-    const real_t r[3] = {positions[gid], positions[plane + gid], positions[2 * plane + gid]};
+    real_t mt[3], m[3], r[3], kh[3];
+    beam_node(geometry, gid, nodes, mt, m, r);
     const int on = lit[gid];
     cplx_t acc[12], cur[12], e[6];
     for (int q = 0; q < 12; ++q) acc[q] = c_new(R(0.0), R(0.0));
     for (int w = 0; w < waves; ++w) {
-        const real_t kh[3] = {directions[3 * w], directions[3 * w + 1], directions[3 * w + 2]};
-        __global const real_t *ph = phases + 4 * w;
-        const cplx_t phase = c_scale(c_expj(ph[3] - (ph[0] * r[0] + ph[1] * r[1] + ph[2] * r[2])), area);
+        const cplx_t phase = beam_wave(table, w, r, area, kh);
         for (int q = 0; q < 6; ++q) e[q] = amplitudes[6 * w + q];
         po_wave_currents(mt, m, kh, e, eta, on, cur);
         for (int q = 0; q < 12; ++q) acc[q] = c_fma(phase, cur[q], acc[q]);
     }
-    for (int q = 0; q < 12; ++q) out[q * plane + gid] = acc[q];
+    for (int q = 0; q < 12; ++q) out[(size_t)q * nodes + gid] = acc[q];
 }
 
 

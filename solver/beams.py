@@ -39,13 +39,17 @@ from functools import cached_property
 import numpy as np
 
 from wavebrdf.solver.farfield import ETA0
+from wavebrdf.solver.footprint import incident_basis
 from wavebrdf.solver.fresnel import fresnel_rs_rp
 
 logger = logging.getLogger(__name__)
 
 __all__ = [
     "BEAMS",
+    "BEAM_TAIL",
     "Beam",
+    "INCIDENCE",
+    "BeamWaves",
     "ExactGaussianBeam",
     "ParaxialGaussianBeam",
     "PlaneWave",
@@ -58,6 +62,8 @@ __all__ = [
 BEAMS = ("exact", "paraxial", "plane")
 SPECTRUM_TAIL = 1e-16  # drop plane waves whose Gaussian weight is below this (relative)
 REPLICA_LEVEL = 1e-9  # amplitude of the neighbouring periodic copies on the patch
+BEAM_TAIL = 1e-8  # BeamWaves leaves out the plane waves below this share of the largest amplitude
+INCIDENCE = ("footprint", "beam")  # what lights the approximate wave rungs: the footprint plane wave, or BeamWaves
 
 
 def beam_frame(theta: float, phi: float) -> np.ndarray:
@@ -351,6 +357,18 @@ class ExactGaussianBeam(_GaussianBeam):
         return {"kvec": kvec, "E": E / norm, "H": H / norm, "period_um": P, "norm": norm,
                 "lattice": lattice, "kx_axis": KX[:, 0], "ky_axis": KY[0, :]}
 
+    def lattice_size(self, tail: float) -> int:
+        """How many of ``plane_waves``' lattice points inside the light cone have a Gaussian weight
+        of at least ``tail`` (about how many waves of amplitude ≥ ``tail`` of the largest the beam
+        has), without evaluating the beam: for cost estimates."""
+        w, dk = self.waist_um, 2.0 * np.pi / self.period_um
+        k_par = self.k * self.frame[2][:2]
+        m = int(np.ceil(2.0 * np.sqrt(np.log(1.0 / tail)) / w / dk))
+        offsets = dk * np.arange(-m, m + 1)
+        KX, KY = np.meshgrid(k_par[0] + offsets, k_par[1] + offsets, indexing="ij")
+        gauss = np.exp(-0.25 * w**2 * ((KX - k_par[0]) ** 2 + (KY - k_par[1]) ** 2))
+        return int(np.count_nonzero((gauss >= tail) & (KX**2 + KY**2 < self.k**2)))
+
     def spectrum(self, kx, ky) -> tuple[np.ndarray, np.ndarray]:
         """Continuous angular spectrum (E, H densities per unit κ area, shape (2, ..., 3)) at
         propagating transverse wavevectors (κx, κy): E(r) = ∫ Ê(κ) e^{−jk(κ)·(r − focus)} d²κ."""
@@ -620,3 +638,55 @@ def steering_fields(beam: Beam, points) -> tuple[np.ndarray, np.ndarray]:
     ``incident_fields`` (beams return (2, ..., 3))."""
     E, H = beam.fields(np.asarray(points, dtype=float))
     return np.moveaxis(E, -1, 1), np.moveaxis(H, -1, 1)
+
+
+@dataclass(frozen=True)
+class BeamWaves:
+    """A surface scene's exact Gaussian beam as the approximate wave rungs' incident field (po,
+    ws-v, wm with ``incidence = "beam"``): its plane waves of direction ``directions`` (M, 3) k̂_m
+    and amplitudes ``amplitudes`` (M, 2, 3) (E per beam polarization s|p, |E| = 1 V/µm at the focus
+    like the footprint), ``phases`` (M, 4): q_m = k k̂_m + k ω_i and φ_m = k k̂_m·f, so that wave m
+    on node r relative to the rungs' transform phase e^{+jk ω_i·r} is e^{j(φ_m − q_m·r)};
+    ``incident_power`` (2,) Φ_i per polarization (W), the full-wave solver's normalisation;
+    ``incidence`` (θ_i, φ_i) of the beam axis (radians)."""
+
+    directions: np.ndarray
+    amplitudes: np.ndarray
+    phases: np.ndarray
+    incident_power: np.ndarray
+    incidence: tuple[float, float]
+
+    @classmethod
+    def of(cls, scene) -> "BeamWaves":
+        """The plane waves of the scene's exact beam (focus at the footprint centre on the phase
+        reference plane, as the full-wave solver's) whose amplitude is at least
+        :data:`BEAM_TAIL` of the largest."""
+        beam = scene_beam(scene, "exact")
+        waves = beam.plane_waves
+        size = np.abs(waves["E"]).max(axis=(0, 2))
+        keep = size >= BEAM_TAIL * size.max()
+        kvec = waves["kvec"][keep]
+        k = float(np.linalg.norm(kvec[0]))
+        omega_i, _, _ = incident_basis(scene.theta_i, scene.phi_i)
+        phases = np.concatenate([kvec + k * omega_i, (kvec @ np.asarray(beam.focus_um, dtype=float))[:, None]], axis=1)
+        return cls(kvec / k, np.ascontiguousarray(np.moveaxis(waves["E"][:, keep], 0, 1)), phases,
+                   np.asarray(beam.incident_power(), dtype=float), (float(scene.theta_i), float(scene.phi_i)))
+
+    @staticmethod
+    def count(scene) -> int:
+        """About how many plane waves :meth:`of` keeps for ``scene`` (the beam's lattice points of
+        Gaussian weight ≥ :data:`BEAM_TAIL` inside the light cone), in microseconds: for estimates."""
+        return scene_beam(scene, "exact").lattice_size(BEAM_TAIL)
+
+    def table(self) -> np.ndarray:
+        """(M, 7) rows k̂_m, q_m, φ_m: what the OpenCL kernels read (kernels/wb_beam_waves.h)."""
+        return np.concatenate([self.directions, self.phases], axis=1)
+
+    def scalar_amplitudes(self) -> np.ndarray:
+        """(M, 2) amplitudes of the scalar beam the scalar rungs are lit by: per polarization,
+        each wave's |E_m| with the phase of its component along the beam's own ê_s or ê_p (its
+        flux is the vector beam's, ``incident_power``)."""
+        _, e_s, e_p = incident_basis(*self.incidence)
+        along = np.einsum("mpc,pc->mp", self.amplitudes, np.stack([e_s, e_p]))
+        return np.linalg.norm(self.amplitudes, axis=-1) * np.exp(1j * np.angle(along))
+

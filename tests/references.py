@@ -29,10 +29,12 @@ __all__ = [
     "fresnel_transmittance",
     "gaussian_beam_power_ratio",
     "normal_reflectance",
+    "reflected_spectrum_brdf",
     "transmitted_normal_wavenumber",
 ]
 
 ALUMINIUM_400NM = 0.46582 - 4.7119j  # aluminium at 0.4 µm (the reference simulator's examples)
+VACUUM_IMPEDANCE = 376.730313668  # Ω (CODATA 2018, µ₀c)
 
 
 def transmitted_normal_wavenumber(n1: float, n2: complex, sin_i) -> np.ndarray:
@@ -285,3 +287,27 @@ def cylinder_widths_treams(wavelength_um: float, radius_um: float, index: comple
     if not np.all(ext > 0):  # e.g. θ_i = 80°, 89°: treams' plane wave misses the T-matrix's k_z
         raise ValueError(f"treams gave no extinction at θ_i = {np.rad2deg(theta_i):g}° ({ext}): not a reference here")
     return ext, sca
+
+
+def reflected_spectrum_brdf(E: np.ndarray, u: np.ndarray, v: np.ndarray, n2: complex, k: float,
+                            power: np.ndarray) -> np.ndarray:
+    """BRDF (2, n) of a beam of angular spectrum E reflected by the flat interface z = 0 from vacuum
+    onto n₂, each plane wave in its own plane of incidence (Novotny & Hecht §3.2, Born & Wolf
+    §1.5.2): at ω_o = (u, v, μ) the far field of the reflected spectrum is |E| = 2πk μ |Ê_r(κ)| at
+    κ = k(u, v) (stationary phase), Ê_r = r_s (Ê·ŝ) ŝ + r_p (Ê·p̂) p̂_r with ŝ = ẑ × k̂ normalised
+    and θ the wave's angle, so f = |E|²/(2 η₀ Φ_i μ) = (2πk)² μ (|r_s Ê·ŝ|² + |r_p Ê·p̂|²)/(2 η₀ Φ_i).
+
+    E: (2 pol, n, 3) incident spectral densities (per unit κ area) at those κ, travelling down;
+    u, v: (n,) direction cosines (u² + v² < 1); power: (2,) Φ_i per polarization (W)."""
+    mu = np.sqrt(1.0 - u * u - v * v)
+    k_in = np.stack([u, v, -mu], axis=-1)
+    s_hat = np.cross([0.0, 0.0, 1.0], k_in)
+    s_hat /= np.linalg.norm(s_hat, axis=1)[:, None]
+    p_hat = np.cross(s_hat, k_in)
+    r_s, r_p = fresnel_coefficients(1.0, n2, np.arccos(mu))
+    out = np.empty((2, len(u)))
+    for pol in range(2):
+        reflected = (np.abs(r_s * np.einsum("nc,nc->n", E[pol], s_hat)) ** 2
+                     + np.abs(r_p * np.einsum("nc,nc->n", E[pol], p_hat)) ** 2)
+        out[pol] = (2 * np.pi * k) ** 2 * mu * reflected / (2 * VACUUM_IMPEDANCE * power[pol])
+    return out

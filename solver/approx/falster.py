@@ -28,6 +28,13 @@ directions of square blocks of output pixels) and each pixel takes its block's m
 transform minus a direct sum over the lit nodes its class masks (kernels/falster.cl), exact for
 the class mask and cheap where few nodes are masked.
 
+Lit by the beam (``incidence = "beam"``): the scalar beam of
+:meth:`~wavebrdf.solver.beams.BeamWaves.scalar_amplitudes` (the full-wave solver's exact beam,
+each plane wave's |E_m| with the phase of its component along the beam's ê_s or ê_p), the four
+apertures summed over its waves, Σ_m A_m Δ² e^{j(φ_m − q_m·r)} with ω_m for ω_i and r at wave m's
+own local angle (a node lit by wave m where V_i, the axis's, and m̃·ω_m > 0; the r-free term
+subtracted per wave), normalised by that beam's Φ_i: on a plane each wave reflects at its own angle.
+
 WM adds the incoherent depth ≥ 2 part of geometric-optics path tracing (raytrace.trace_paths,
 ``multiple``) to the WS-V BRDF, per incident polarization: f_WM = f_WS-V + f_GM⁺ (Falster Eq. 19).
 """
@@ -46,11 +53,14 @@ from wavebrdf.solver.approx.kirchhoff import (
     chebyshev_cost,
     chebyshev_device_bytes,
     chebyshev_transform,
+    beam_geometry,
     chebyshev_transform_numpy,
     check_incidence,
+    node_positions,
     transform_orders,
 )
 from wavebrdf.solver.approx.raytrace import BORDERS, lit_nodes, node_slopes, node_visibility, trace_paths
+from wavebrdf.solver.beams import INCIDENCE, BeamWaves
 from wavebrdf.solver.farfield import FarField, HemisphereGrid, IntensityResult, albedo, transverse_basis
 from wavebrdf.solver.footprint import incident_basis
 from wavebrdf.solver.fresnel import fresnel_rs_rp
@@ -62,6 +72,8 @@ from wavebrdf.solver.validity import check_waist
 __all__ = ["WMModel", "WMOptions", "WSVModel", "WSVOptions", "masking_blocks", "wsv_farfield"]
 
 APERTURES = 4  # (m̃·ω_i)(r − 1), −h_x(r + 1), −h_y(r + 1), (r + 1): per polarization
+WAVES_PER_PASS = 16  # plane waves of the beam summed per vectorised pass (_beam_apertures)
+BEAM_SECONDS_PER_NODE_WAVE = 9e-8  # wsv_beam_sums on 2 cores (PoCL, double; docs/approx.md)
 
 
 @dataclass(frozen=True)
@@ -74,6 +86,10 @@ class WSVOptions:
                                       "direction and shared by its pixels")
     border: str = option("periodic", choices=BORDERS,
                          doc="surface beyond the patch for the visibility rays (raytrace.py)")
+    incidence: str = option("footprint", choices=INCIDENCE,
+                            doc="incident field: 'footprint' = the footprint plane wave, Fresnel at θ_i's local "
+                                "angle; 'beam' = the full-wave solver's exact beam as plane waves, each with "
+                                "Fresnel at its own local angle (docs/approx.md)")
 
 
 @dataclass(frozen=True)
@@ -126,6 +142,85 @@ def _apertures(setup: KirchhoffSetup, slopes: np.ndarray, lit: np.ndarray, omega
         out[p, 2] = -hy * (window * (r[p] + 1.0) - all_nodes)
         out[p, 3] = window * (r[p] + 1.0) - all_nodes
     return out.reshape(2 * APERTURES, *hx.shape)
+
+
+def _beam_sums_numpy(setup: KirchhoffSetup, slopes: np.ndarray, lit: np.ndarray, waves: BeamWaves,
+                     positions: np.ndarray, area: float) -> np.ndarray:
+    """Twin of the kernel ``wsv_beam_sums`` (kernels/falster.cl): (2 pol, 4, na, nb) sums over the
+    beam's waves — Σ_lit c_m w (ρ − 1), Σ_lit w (ρ + 1), Σ c_m w, Σ w — in chunks of
+    :data:`WAVES_PER_PASS` waves."""
+    hx, hy = slopes
+    norm = np.sqrt(1.0 + hx * hx + hy * hy)
+    unit_normal = np.stack([-hx, -hy, np.ones_like(hx)], axis=-1) / norm[..., None]
+    amplitudes = waves.scalar_amplitudes()
+    power = np.sum(np.abs(waves.amplitudes) ** 2, axis=-1)  # |E_m|² per polarization, (M, 2)
+    out = np.zeros((2, 4) + hx.shape, dtype=complex)
+    for start in range(0, len(waves.directions), WAVES_PER_PASS):
+        chunk = slice(start, start + WAVES_PER_PASS)
+        omega = -waves.directions[chunk]  # ω_m toward the light, (C, 3)
+        m_dot = omega[:, 2] - hx[..., None] * omega[:, 0] - hy[..., None] * omega[:, 1]  # m̃·ω_m (na, nb, C)
+        q, phi = waves.phases[chunk, :3], waves.phases[chunk, 3]
+        phase = area * np.exp(1j * (phi - positions @ q.T))
+        on = lit[..., None] & (m_dot > 0)
+        r_s, r_p = fresnel_rs_rp(setup.eta, np.clip(m_dot / norm[..., None], 0.0, 1.0))
+        s_local = np.cross(waves.directions[chunk], unit_normal[..., None, :])  # k̂_m × m (na, nb, C, 3)
+        s_size = np.sum(s_local * s_local, axis=-1)
+        for p, r in enumerate((r_s, r_p)):
+            along_s = np.abs(np.einsum("...ck,ck->...c", s_local, waves.amplitudes[chunk, p])) ** 2
+            share_s = np.divide(along_s, s_size * power[chunk, p], out=np.full_like(along_s, 0.5),
+                                where=s_size > 1e-24)
+            size = np.sqrt(share_s * np.abs(r_s) ** 2 + (1.0 - share_s) * np.abs(r_p) ** 2)
+            reflection = size * np.exp(1j * np.angle(r))
+            w = phase * amplitudes[chunk, p]
+            lit_w = np.where(on, w, 0.0)
+            out[p, 0] += np.sum(m_dot * lit_w * (reflection - 1.0), axis=-1)
+            out[p, 1] += np.sum(lit_w * (reflection + 1.0), axis=-1)
+            out[p, 2] += np.sum(m_dot * w, axis=-1)
+            out[p, 3] += np.sum(w, axis=-1)
+    return out
+
+
+def _beam_sums_opencl(ctx, slopes: np.ndarray, lit: np.ndarray, waves: BeamWaves, positions: np.ndarray,
+                      eta: complex, area: float, precision: Precision) -> np.ndarray:
+    import pyopencl as cl
+
+    real, cplx = precision.real, precision.complex
+    nodes = lit.size
+    knl = ctx.kernel("falster.cl", "wsv_beam_sums", ctx.defines(precision))
+    out = cl.Buffer(ctx.context, cl.mem_flags.WRITE_ONLY, 8 * nodes * cplx.itemsize)
+    power = np.sum(np.abs(waves.amplitudes) ** 2, axis=-1)
+    knl(ctx.queue, (nodes,), None, ctx.to_device(beam_geometry(slopes, positions), real), ctx.to_device(lit, np.uint8),
+        np.int32(nodes), np.int32(len(waves.directions)), ctx.to_device(waves.table(), real),
+        ctx.to_device(waves.amplitudes, cplx), ctx.to_device(waves.scalar_amplitudes(), cplx), ctx.to_device(power, real),
+        np.array(eta, dtype=cplx), real.type(area), out)
+    sums = np.empty((2, 4) + lit.shape, dtype=cplx)
+    cl.enqueue_copy(ctx.queue, sums, out)
+    return sums.astype(complex)
+
+
+def _beam_apertures(ctx, setup: KirchhoffSetup, slopes: np.ndarray, lit: np.ndarray, waves: BeamWaves,
+                    positions: np.ndarray, area: float, precision: Precision) -> tuple[np.ndarray, np.ndarray]:
+    """The eight apertures lit by the beam's plane waves (:class:`~wavebrdf.solver.beams.BeamWaves`,
+    each its scalar amplitude A_m): Σ_m A_m Δ² e^{j(φ_m − q_m·r)} × the footprint's terms with ω_m
+    for ω_i, a node lit by wave m where V_i (the beam axis's) and m̃·ω_m > 0. The reflection of
+    wave m at a node is its local Fresnel reflectance for that wave's own polarization: of modulus
+    √(w_s |r_s|² + (1 − w_s) |r_p|²), w_s = |E_m·ŝ|²/|E_m|² its share along the local ŝ = k̂_m × m
+    (at normal local incidence ½), with the phase of the pass's r (r_s for s, r_p for p), so a plane
+    reflects each wave's power exactly. Returns (with the leak, as :func:`_apertures`; without it:
+    minus the r-free term m̃·(ω_o − ω_m) of every wave on every node), each (8, na, nb); ``ctx``
+    None: the NumPy twin."""
+    if ctx is None:
+        sums = _beam_sums_numpy(setup, slopes, lit, waves, positions, area)
+    else:
+        sums = _beam_sums_opencl(ctx, slopes, lit, waves, positions, setup.eta, area, precision)
+    hx, hy = slopes
+
+    def assemble(zero_order: np.ndarray, first_order: np.ndarray) -> np.ndarray:
+        out = np.stack([zero_order, -hx * first_order, -hy * first_order, first_order], axis=1)
+        return out.reshape(2 * APERTURES, *hx.shape)
+
+    lit0, lit1, free0, free1 = np.moveaxis(sums, 1, 0)
+    return assemble(lit0, lit1), assemble(lit0 + free0, lit1 - free1)
 
 
 def _transform(ctx, setup: KirchhoffSetup, windows: np.ndarray, precision: Precision) -> np.ndarray:
@@ -191,9 +286,13 @@ def _masked_sums(ctx, setup: KirchhoffSetup, apertures: np.ndarray, block: np.nd
 
 
 def wsv_farfield(ctx, scene: SurfaceScene, masking: str = "rays", masking_classes: int = 16,
-                 border: str = "periodic") -> FarField:
-    """WS-V far field of ``scene`` (module docstring); ``ctx`` None: NumPy twins (double)."""
+                 border: str = "periodic", incidence: str = "footprint") -> FarField:
+    """WS-V far field of ``scene`` (module docstring); ``ctx`` None: NumPy twins (double);
+    ``incidence`` "footprint" | "beam" the incident field (a plane-wave scene, waist None, is lit by
+    its one plane wave either way)."""
     t0 = time.perf_counter()
+    if incidence not in INCIDENCE:
+        raise ValueError(f"ws-v incidence must be one of {INCIDENCE}, got {incidence!r}")
     check_incidence(scene.theta_i, scene.index)
     precision = scene.precision
     if ctx is None and not precision.fp64:
@@ -206,12 +305,22 @@ def wsv_farfield(ctx, scene: SurfaceScene, masking: str = "rays", masking_classe
     omega_i, _, _ = incident_basis(scene.theta_i, scene.phi_i)
     slopes = node_slopes(surface)
     front, lit, _ = lit_nodes(ctx, surface, omega_i, slopes, "none" if flat else "rays", border, precision)
-    apertures = _apertures(setup, slopes, lit, omega_i)
+    beam = incidence == "beam" and scene.waist_um is not None
+    power, extra = None, {}
+    if beam:
+        waves = BeamWaves.of(scene)
+        apertures, radiating = _beam_apertures(ctx, setup, slopes, lit, waves, node_positions(setup, surface),
+                                               surface.spacing_um ** 2, precision)
+        power, extra = waves.incident_power, {"plane_waves": len(waves.directions)}  # the full-wave solver's Φ_i
+    else:
+        apertures, radiating = _apertures(setup, slopes, lit, omega_i), _apertures(setup, slopes, lit, omega_i, False)
     t_vis = time.perf_counter()
 
     weight = np.abs(setup.window) ** 2
     total = weight.sum()
-    relevant = lit & (weight > 1e-12 * weight.max())  # nodes that radiate at all
+    # nodes that radiate at all (the beam's field, cut at the light cone, reaches beyond the footprint)
+    strength = np.abs(apertures).max(axis=0) ** 2 if beam else weight
+    relevant = lit & (strength > 1e-12 * strength.max())
     block, directions = masking_blocks(grid, masking_classes)
     if masking == "none" or flat:
         masked = [np.zeros(0, dtype=np.int32) for _ in directions]
@@ -220,7 +329,7 @@ def wsv_farfield(ctx, scene: SurfaceScene, masking: str = "rays", masking_classe
         masked = [np.flatnonzero((relevant & ~v).ravel()).astype(np.int32) for v in visible]
     t_mask = time.perf_counter()
 
-    channels = _transform(ctx, setup, _apertures(setup, slopes, lit, omega_i, leak=False), precision)
+    channels = _transform(ctx, setup, radiating, precision)
     if any(m.size for m in masked):
         correction = _masked_sums(ctx, setup, apertures, block, masked, surface, omega_i, precision)
         channels = channels - correction * np.exp(1j * setup.k * (setup.mu_i + grid.mu) * setup.dz_ref)[None]
@@ -239,16 +348,18 @@ def wsv_farfield(ctx, scene: SurfaceScene, masking: str = "rays", masking_classe
     E[0] = np.moveaxis(phi_hat, -1, 0) * amp[0][None]
     E[1] = np.moveaxis(theta_hat, -1, 0) * amp[1][None]
     ff = setup.farfield(
-        E, scene.theta_i, scene.phi_i, model="ws-v", device="numpy" if ctx is None else ctx.describe(),
+        E, scene.theta_i, scene.phi_i, model="ws-v", incident_power=power,
+        device="numpy" if ctx is None else ctx.describe(),
         precision=precision, back_facing_fraction=float(weight[~front].sum() / total),
         shadowed_fraction=float(weight[front & ~lit].sum() / total),
         masking_blocks=len(directions), masked_nodes=int(sum(m.size for m in masked)),
         masked_fraction_max=float(masked_weight.max()) if masked_weight.size else 0.0,
         time_visibility_s=t_vis - t0, time_masking_s=t_mask - t_vis, time_transform_s=t_transform - t_mask,
-        wall_time_s=time.perf_counter() - t0,
+        wall_time_s=time.perf_counter() - t0, incidence="beam" if beam else "footprint", **extra,
     )
     ff.diagnostics["albedo_excess"] = albedo_excess(ff)
-    check_waist(scene, ff.diagnostics, "ws-v")
+    if not beam:  # the beam's plane waves each reflect at their own angle: no spread error to predict
+        check_waist(scene, ff.diagnostics, "ws-v")
     return ff
 
 
@@ -265,6 +376,8 @@ def _wsv_estimate(scene: SurfaceScene, options) -> Estimate:
     share = 0.0 if (flat or options.masking == "none") else min(1.0, 0.5 * scene.surface.statistics()["rms_slope"])
     terms = share * nodes**2 * res * res
     seconds += 5e-7 * rays + 2e-8 * terms
+    if options.incidence == "beam" and scene.waist_um is not None:
+        seconds += BEAM_SECONDS_PER_NODE_WAVE * nodes**2 * BeamWaves.count(scene)
     held, largest = chebyshev_device_bytes(nodes, res, orders, channels=2 * APERTURES, precision=scene.precision)
     item = float(scene.precision.complex.itemsize)
     masked = item * 2 * APERTURES * max(nodes**2, res * res)  # the apertures, the masked sums: one buffer each
@@ -285,7 +398,7 @@ class WSVModel(Model):
 
     def run(self, ctx, scene: SurfaceScene) -> FarField:
         o = self.options
-        return wsv_farfield(ctx, scene, o.masking, o.masking_classes, o.border)
+        return wsv_farfield(ctx, scene, o.masking, o.masking_classes, o.border, o.incidence)
 
     def estimate(self, scene: SurfaceScene) -> Estimate:
         return _wsv_estimate(scene, self.options)
@@ -304,7 +417,7 @@ class WMModel(Model):
 
     def run(self, ctx, scene: SurfaceScene) -> IntensityResult:
         o = self.options
-        single = wsv_farfield(ctx, scene, o.masking, o.masking_classes, o.border)
+        single = wsv_farfield(ctx, scene, o.masking, o.masking_classes, o.border, o.incidence)
         trace = trace_paths(ctx, scene, rays=o.rays, max_depth=o.max_depth, border=o.border, seed=o.seed, keep=False)
         grid = scene.grid
         f_single, f_multiple = single.brdf(), trace.result("multiple").brdf()

@@ -62,7 +62,9 @@ __all__ = [
     "chebyshev_device_bytes",
     "chebyshev_transform_numpy",
     "check_incidence",
+    "beam_geometry",
     "footprint_power",
+    "node_positions",
     "kirchhoff_farfield",
     "kirchhoff_farfield_numpy",
     "scalar_farfield_numpy",
@@ -247,6 +249,18 @@ class KirchhoffSetup:
             incident_power=self.incident_power() if incident_power is None else incident_power,
             diagnostics={"model": model, "chebyshev_terms": self.n_max + 1, **diagnostics},
         )
+
+
+def beam_geometry(slopes: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """(5, nodes) h_x, h_y, x, y, z − z_ref: the nodes as the beam kernels read them
+    (kernels/wb_beam_waves.h) from ``slopes`` (2, na, nb) and :func:`node_positions`."""
+    return np.concatenate([slopes.reshape(2, -1), np.moveaxis(positions, -1, 0).reshape(3, -1)])
+
+
+def node_positions(setup: KirchhoffSetup, surface) -> np.ndarray:
+    """(na, nb, 3) node positions x, y and height above the phase-reference plane (µm)."""
+    X, Y = np.meshgrid(surface.x, surface.y, indexing="ij")
+    return np.stack([X, Y, setup.z_mid + setup.dz_ref], axis=-1)
 
 
 def _chunk_orders(n_total: int, res: int, length: int, budget_bytes: float = 256e6) -> int:

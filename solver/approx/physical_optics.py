@@ -62,11 +62,13 @@ from wavebrdf.solver.approx.kirchhoff import (
     chebyshev_cost,
     chebyshev_device_bytes,
     chebyshev_transform,
+    beam_geometry,
     chebyshev_transform_numpy,
+    node_positions,
     transform_orders,
 )
 from wavebrdf.solver.approx.raytrace import SHADOWING, lit_nodes, node_slopes
-from wavebrdf.solver.beams import scene_beam, steering_fields
+from wavebrdf.solver.beams import INCIDENCE, BeamWaves, scene_beam, steering_fields
 from wavebrdf.solver.farfield import FarField
 from wavebrdf.solver.footprint import incident_basis
 from wavebrdf.solver.fresnel import fresnel_rs_rp
@@ -76,8 +78,6 @@ from wavebrdf.solver.precision import Precision
 from wavebrdf.solver.validity import check_waist
 
 __all__ = [
-    "BeamWaves",
-    "INCIDENCE",
     "POModel",
     "POOptions",
     "po_beam_currents_numpy",
@@ -86,9 +86,7 @@ __all__ = [
 ]
 
 CHANNELS = 12  # 2 polarizations × (J'_x, J'_y, J'_z, M_x, M_y, M_z)
-INCIDENCE = ("footprint", "beam")  # PO's incident field: the footprint plane wave, or the exact beam's plane waves
-BEAM_TAIL = 1e-8  # the beam's plane waves below this share of the largest amplitude are left out
-BEAM_SECONDS_PER_NODE_WAVE = 5.5e-8  # po_beam_currents on 2 cores (PoCL, double or single; docs/approx.md)
+BEAM_SECONDS_PER_NODE_WAVE = 7e-8  # po_beam_currents on 2 cores (PoCL, double or single: 5.5–8.6e-8; docs/approx.md)
 
 
 def _wave_currents_numpy(mt: np.ndarray, lit: np.ndarray, k_hat: np.ndarray, e: np.ndarray,
@@ -136,42 +134,6 @@ def po_currents_numpy(window: np.ndarray, slopes: np.ndarray, lit: np.ndarray, o
     return _wave_currents_numpy(_normal(slopes), lit, k_hat, np.asarray(polarizations), eta) * window
 
 
-@dataclass(frozen=True)
-class BeamWaves:
-    """The exact Gaussian beam as PO's incident field: its plane waves of direction ``directions``
-    (M, 3) k̂_m and amplitudes ``amplitudes`` (M, 2, 3) (E per beam polarization s|p, |E| = 1 V/µm
-    at the focus like the footprint), ``phases`` (M, 4): q_m = k k̂_m + k ω_i and φ_m = k k̂_m·f, so
-    that wave m on node r relative to the transform's e^{+jk ω_i·r} is e^{j(φ_m − q_m·r)};
-    ``incident_power`` (2,) Φ_i per polarization (W), the full-wave solver's normalisation."""
-
-    directions: np.ndarray
-    amplitudes: np.ndarray
-    phases: np.ndarray
-    incident_power: np.ndarray
-
-    @classmethod
-    def of(cls, scene: SurfaceScene) -> "BeamWaves":
-        """The plane waves of the scene's exact beam (focus at the footprint centre on the phase
-        reference plane, as the full-wave solver's) whose amplitude is at least
-        :data:`BEAM_TAIL` of the largest."""
-        beam = scene_beam(scene, "exact")
-        waves = beam.plane_waves
-        size = np.abs(waves["E"]).max(axis=(0, 2))
-        keep = size >= BEAM_TAIL * size.max()
-        kvec = waves["kvec"][keep]
-        k = float(np.linalg.norm(kvec[0]))
-        omega_i, _, _ = incident_basis(scene.theta_i, scene.phi_i)
-        phases = np.concatenate([kvec + k * omega_i, (kvec @ np.asarray(beam.focus_um, dtype=float))[:, None]], axis=1)
-        return cls(kvec / k, np.ascontiguousarray(np.moveaxis(waves["E"][:, keep], 0, 1)), phases,
-                   np.asarray(beam.incident_power(), dtype=float))
-
-
-def node_positions(setup: KirchhoffSetup, surface) -> np.ndarray:
-    """(na, nb, 3) node positions x, y and height above the phase-reference plane (µm)."""
-    X, Y = np.meshgrid(surface.x, surface.y, indexing="ij")
-    return np.stack([X, Y, setup.z_mid + setup.dz_ref], axis=-1)
-
-
 def po_beam_currents_numpy(positions: np.ndarray, slopes: np.ndarray, lit: np.ndarray, waves: BeamWaves,
                            eta: complex, area: float) -> np.ndarray:
     """Twin of the kernel po_beam_currents: (12, na, nb) apertures Δ² Σ_m e^{j(φ_m − q_m·r)}
@@ -208,10 +170,9 @@ def _beam_currents_opencl(ctx, positions, slopes, lit, waves: BeamWaves, eta, ar
     nodes = lit.size
     knl = ctx.kernel("physical_optics.cl", "po_beam_currents", ctx.defines(precision))
     out = cl.Buffer(ctx.context, cl.mem_flags.WRITE_ONLY, CHANNELS * nodes * cplx.itemsize)
-    knl(ctx.queue, (nodes,), None, ctx.to_device(slopes, real), ctx.to_device(np.moveaxis(positions, -1, 0), real),
-        ctx.to_device(lit, np.uint8), np.int32(nodes), np.int32(len(waves.directions)),
-        ctx.to_device(waves.directions, real), ctx.to_device(waves.phases, real), ctx.to_device(waves.amplitudes, cplx),
-        np.array(eta, dtype=cplx), real.type(area), out)
+    knl(ctx.queue, (nodes,), None, ctx.to_device(beam_geometry(slopes, positions), real), ctx.to_device(lit, np.uint8),
+        np.int32(nodes), np.int32(len(waves.directions)), ctx.to_device(waves.table(), real),
+        ctx.to_device(waves.amplitudes, cplx), np.array(eta, dtype=cplx), real.type(area), out)
     currents = np.empty((CHANNELS,) + lit.shape, dtype=cplx)
     cl.enqueue_copy(ctx.queue, currents, out)
     return currents
@@ -348,7 +309,7 @@ class POModel(FootprintModel):
         memory += 16.0 * (CHANNELS + 4) * nodes**2
         seconds += 2e-7 * nodes**2 if self.options.shadowing == "rays" else 0.0
         if self.options.incidence == "beam" and scene.waist_um is not None:
-            waves = len(BeamWaves.of(scene).directions)
+            waves = BeamWaves.count(scene)
             seconds += BEAM_SECONDS_PER_NODE_WAVE * nodes**2 * waves
             memory += 8.0 * 16 * waves
         held, largest = chebyshev_device_bytes(nodes, res, orders, channels=CHANNELS, precision=scene.precision)

@@ -24,7 +24,8 @@ import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
 
-from references import ALUMINIUM_400NM, beam_fresnel_reflectance, fresnel_coefficients, fresnel_reflectance
+from references import (ALUMINIUM_400NM, beam_fresnel_reflectance, fresnel_coefficients, fresnel_reflectance,
+                        reflected_spectrum_brdf)
 from wavebrdf.solver.approx.kirchhoff import kirchhoff_farfield
 from wavebrdf.solver.approx.physical_optics import po_farfield
 from wavebrdf.solver.beams import make_beam
@@ -138,23 +139,13 @@ def test_tilted_facet_reflects_in_its_own_frame(cl_ctx):
 
 
 def _reflected_beam_lobe(beam, index: complex, grid: HemisphereGrid, k: float) -> np.ndarray:
-    """(2, res, res) BRDF of the beam's continuous angular spectrum reflected by a flat interface,
-    each plane wave in its own plane of incidence with textbook Fresnel at its own angle: far field
-    |E| = 2πk μ_o |Ê_r(κ)| at κ = k(u_o, v_o), f = n₁|E|²/(2η₀ Φ_i μ_o) (n₁ = 1)."""
-    inside, mu = grid.inside, grid.mu[grid.inside]
+    """(2, res, res) BRDF of the beam's continuous angular spectrum reflected by a flat interface
+    wave by wave (tests/references.py ``reflected_spectrum_brdf``)."""
     U, V = grid.uv
-    E, _ = beam.spectrum(k * U[inside], k * V[inside])  # (2 pol, n, 3) per unit κ area
-    k_in = np.stack([U[inside], V[inside], -mu], axis=-1)
-    s = np.cross([0.0, 0.0, 1.0], k_in)
-    s /= np.linalg.norm(s, axis=1)[:, None]
-    p_in = np.cross(s, k_in)
-    r_s, r_p = fresnel_coefficients(1.0, index, np.arccos(mu))
+    u, v = U[grid.inside], V[grid.inside]
+    E, _ = beam.spectrum(k * u, k * v)
     out = np.full((2,) + grid.mu.shape, np.nan)
-    power = beam.continuous_power()
-    for pol in range(2):
-        reflected = (np.abs(r_s * np.einsum("nc,nc->n", E[pol], s)) ** 2
-                     + np.abs(r_p * np.einsum("nc,nc->n", E[pol], p_in)) ** 2)
-        out[pol][inside] = (2 * np.pi * k) ** 2 * mu * reflected / (2 * ETA0 * power[pol])
+    out[:, grid.inside] = reflected_spectrum_brdf(E, u, v, index, k, beam.continuous_power())
     return out
 
 

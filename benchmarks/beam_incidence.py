@@ -1,16 +1,17 @@
-"""Physical optics lit by the footprint plane wave against physical optics lit by the exact beam's
-plane waves (``[model.po] incidence``), each against AIM BEM on the same scenes.
+"""The wave rungs lit by the footprint plane wave against the same rungs lit by the exact beam's
+plane waves (``[model.<rung>] incidence``: po, ws-v, wm), each against AIM BEM on the same scenes.
 
-    .venv/bin/python benchmarks/po_incidence.py                 # the trade scenes whose BEM BRDFs are in out/trade
-    .venv/bin/python benchmarks/po_incidence.py --second-suite  # also tests/test_auto.py's second suite (25 BEM solves)
+    .venv/bin/python benchmarks/beam_incidence.py                 # po on the trade scenes whose BEM BRDFs are in out/trade
+    .venv/bin/python benchmarks/beam_incidence.py --second-suite  # also tests/test_auto.py's second suite (25 BEM solves)
+    .venv/bin/python benchmarks/beam_incidence.py --second-suite --rungs ws-v wm
 
 The trade scenes are those of ``configs/compare/trade`` whose comparison ``benchmarks/trade.py``
 left in ``out/trade`` (the others are listed as skipped: their BRDFs are only in the committed
 table's aggregates). The second suite's BEM solves (16 min on 2 cores) are kept in
-``out/po_incidence/second_suite.*`` and reused. Both rungs run in this process on the default
-OpenCL device; errors are the trade table's (``jobs.compare.comparison_metrics``: speckle-averaged
+``out/beam_incidence/second_suite.*`` and reused. Each rung runs with each incidence in this process
+on the default OpenCL device (wm's path tracer with ``--rays``); errors are the trade table's (``jobs.compare.comparison_metrics``: speckle-averaged
 relative L2 over the lobe, unpolarized and per incident polarization) and the time is the rung's
-wall time. A line per scene, then the median and worst of each column.
+wall time. Per rung a line per scene, then the median and worst of each column.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 sys.path.insert(0, str(ROOT / "tests"))
-WORK = ROOT / "out" / "po_incidence"
+WORK = ROOT / "out" / "beam_incidence"
 COLUMNS = ("rel_l2_smooth", "rel_l2_smooth_s", "rel_l2_smooth_p")
 
 
@@ -66,10 +67,10 @@ def second_suite_scenes(log) -> list[tuple[str, object, object]]:
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--second-suite", action="store_true", help="also the second suite of tests/test_auto.py")
+    parser.add_argument("--rungs", nargs="+", default=["po"], choices=("po", "ws-v", "wm"), help="the rungs (po)")
+    parser.add_argument("--rays", type=int, default=1 << 20, help="wm's path-traced rays (2^20, as the trade table)")
     args = parser.parse_args(argv)
 
-    from wavebrdf.jobs.compare import Measurement, comparison_metrics, speckle_sigma_u
-    from wavebrdf.solver.models import get_model
     from wavebrdf.solver.opencl import create_context
 
     def log(message: str) -> None:
@@ -78,6 +79,16 @@ def main(argv=None) -> None:
     scenes = trade_scenes(log) + (second_suite_scenes(log) if args.second_suite else [])
     ctx = create_context()
     print(f"device: {ctx.describe()}")
+    for rung in args.rungs:
+        compare_rung(ctx, rung, {"rays": args.rays} if rung == "wm" else {}, scenes)
+
+
+def compare_rung(ctx, rung: str, options: dict, scenes) -> None:
+    """The table of one rung, footprint against beam, on every (label, scene, BEM Measurement)."""
+    from wavebrdf.jobs.compare import Measurement, comparison_metrics, speckle_sigma_u
+    from wavebrdf.solver.models import get_model
+
+    print(f"\n## {rung}\n")
     print("| scene | footprint: unpolarized / s / p | beam: unpolarized / s / p | plane waves | wall footprint / beam (s) |")
     print("|---|---|---|---|---|")
     table = []
@@ -85,14 +96,14 @@ def main(argv=None) -> None:
         sigma = speckle_sigma_u(scene.wavelength_um, scene.waist_um, scene.grid)
         errors, walls, waves = {}, {}, None
         for incidence in ("footprint", "beam"):
-            model = get_model("po", {"incidence": incidence})
+            model = get_model(rung, {**options, "incidence": incidence})
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 t0 = time.perf_counter()
-                ff = model.run(ctx, scene)
+                result = model.run(ctx, scene)
                 walls[incidence] = time.perf_counter() - t0
-            waves = ff.diagnostics.get("plane_waves", waves)
-            metrics = comparison_metrics(Measurement("po", label, brdf=ff.brdf()), ref, scene.grid, sigma,
+            waves = result.diagnostics.get("plane_waves", waves)
+            metrics = comparison_metrics(Measurement(rung, label, brdf=result.brdf()), ref, scene.grid, sigma,
                                          scene.theta_i, scene.phi_i)
             errors[incidence] = [metrics[c] for c in COLUMNS]
         table.append(errors["footprint"] + errors["beam"])
@@ -103,8 +114,10 @@ def main(argv=None) -> None:
     for name, value in (("median", np.median(table, axis=0)), ("worst", np.max(table, axis=0))):
         print(f"| {name} of {len(table)} | {' / '.join(f'{e:.3g}' for e in value[:3])} | "
               f"{' / '.join(f'{e:.3g}' for e in value[3:])} | | |")
-    better = int(np.sum(np.max(table[:, 3:], axis=1) < np.max(table[:, :3], axis=1)))
-    print(f"beam's worst of unpolarized, s and p below the footprint's in {better} of {len(table)} scenes")
+    worst_footprint, worst_beam = np.max(table[:, :3], axis=1), np.max(table[:, 3:], axis=1)
+    print(f"\n{rung}: the beam's worst of unpolarized, s and p below the footprint's in "
+          f"{int(np.sum(worst_beam < worst_footprint))} of {len(table)} scenes; median of that worst "
+          f"{np.median(worst_footprint):.3g} (footprint), {np.median(worst_beam):.3g} (beam)")
 
 
 if __name__ == "__main__":
