@@ -8,7 +8,8 @@ plane waves (``[model.<rung>] incidence``: po, ws-v, wm), each against AIM BEM o
 The trade scenes are those of ``configs/compare/trade`` whose comparison ``benchmarks/trade.py``
 left in ``out/trade`` (the others are listed as skipped: their BRDFs are only in the committed
 table's aggregates). The second suite's BEM solves (16 min on 2 cores) are kept in
-``out/beam_incidence/second_suite.*`` and reused. Each rung runs with each incidence in this process
+``out/beam_incidence/second_suite.*`` and reused (by scene label, which does not name every
+parameter: delete that folder when the suite changes). Each rung runs with each incidence in this process
 on the default OpenCL device (wm's path tracer with ``--rays``); errors are the trade table's (``jobs.compare.comparison_metrics``: speckle-averaged
 relative L2 over the lobe, unpolarized and per incident polarization) and the time is the rung's
 wall time. Per rung a line per scene, then the median and worst of each column.

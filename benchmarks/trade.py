@@ -169,8 +169,9 @@ def compare_suite(configs: list[Path], force: bool, log, record: Record | None =
     nor kept in ``record`` (or, ``force``, on every one), its BEM reference taken from a kept solve
     of the same scene and options where there is one (:func:`stored_solve`; not with ``force``).
     ``rerun``: rungs to run again on every config (after a rung changed): on a stored comparison
-    alone, the other rungs' BRDFs and BEM's taken as stored; a config kept only in ``record`` is
-    compared whole (its rows of the other rungs are no BRDFs to reuse)."""
+    of the config's current scenes whose reference did not fail alone, the other rungs' BRDFs and
+    BEM's taken as stored; otherwise (a config kept only in ``record``, scenes that changed, a
+    failed reference) the config is compared whole."""
     from wavebrdf.jobs.compare import compare_config
     from wavebrdf.jobs.config import load_config
 
@@ -178,13 +179,7 @@ def compare_suite(configs: list[Path], force: bool, log, record: Record | None =
 
     WORK.mkdir(parents=True, exist_ok=True)
     for path in configs:
-        if rerun and not force and _stored(path).is_file():
-            t0 = time.perf_counter()
-            kept = {key: m for key, m in stored_measurements(_stored(path)).items() if key[1] not in rerun}
-            comparison = compare_config(load_config(path), progress=lambda what: log(f"  {what}"), measured=kept)
-            comparison.write(_stem(path))
-            log(f"{path.relative_to(ROOT)}: {', '.join(rerun)} again, the others as stored: "
-                f"{time.perf_counter() - t0:.0f} s")
+        if rerun and not force and _stored(path).is_file() and _rerun_on_stored(path, rerun, log):
             continue
         if not force and _stored(path).is_file():
             failed = [label for (label, model), m in stored_measurements(_stored(path)).items()
@@ -199,6 +194,35 @@ def compare_suite(configs: list[Path], force: bool, log, record: Record | None =
         comparison = compare_config(load_config(path), progress=lambda what: log(f"  {what}"), measured=measured)
         comparison.write(_stem(path))
         log(f"{path.relative_to(ROOT)}: {time.perf_counter() - t0:.0f} s")
+
+
+def _rerun_on_stored(path: Path, rerun: tuple[str, ...], log) -> bool:
+    """Run the ``rerun`` rungs again on ``path``'s stored comparison, every other measurement taken
+    as stored; False (nothing run) where the stored comparison is not of the config's current
+    scenes or its reference failed on one: the config is then to be compared whole."""
+    from wavebrdf.jobs.compare import compare_config
+    from wavebrdf.jobs.config import load_config
+
+    from wavebrdf.solver.auto import REFERENCE
+
+    stored = stored_measurements(_stored(path))
+    labels = {label for label, _ in _scenes(path)}
+    if {label for label, _ in stored} != labels:
+        log(f"{path.relative_to(ROOT)}: its stored comparison is of other scenes; comparing it whole")
+        return False
+    if any(m.failure for (_, model), m in stored.items() if model == REFERENCE):
+        log(f"{path.relative_to(ROOT)}: its stored reference failed; comparing it whole")
+        return False
+    absent = sorted(set(rerun) - {model for _, model in stored})
+    if absent:
+        log(f"{path.relative_to(ROOT)}: {', '.join(absent)} not among its compared rungs")
+    t0 = time.perf_counter()
+    kept = {key: m for key, m in stored.items() if key[1] not in rerun}
+    comparison = compare_config(load_config(path), progress=lambda what: log(f"  {what}"), measured=kept)
+    comparison.write(_stem(path))
+    log(f"{path.relative_to(ROOT)}: {', '.join(sorted(set(rerun) - set(absent))) or 'nothing'} again, the others as "
+        f"stored: {time.perf_counter() - t0:.0f} s")
+    return True
 
 
 def _stored_references(path: Path, log) -> dict:
@@ -700,7 +724,7 @@ def measured_auto(configs: list[Path], table: list[dict], tolerance: float, log,
     in the measuring process, its rung's error against the stored BEM and its CPU time measured;
     where it picks BEM, that is the table's own full-wave run (its CPU plus the pilot's). A run
     ``record`` keeps for the same scene, config, tolerance and pick is reused (not with ``force``,
-    nor where the pick is one of the ``rerun`` rungs)."""
+    nor with ``rerun``: a changed rung may be the pick, the rung run or the one its check measures)."""
     from wavebrdf.jobs.compare import MeasuringProcess, comparison_metrics
     from wavebrdf.solver.auto import REFERENCE, AutoModel, default_rule
 
@@ -714,7 +738,7 @@ def measured_auto(configs: list[Path], table: list[dict], tolerance: float, log,
                 picked = AutoModel({"tolerance": tolerance}).choice(scene).model
                 pilot = time.process_time() - t0
                 bem_cpu = _num(mine[REFERENCE]["cpu_s"])
-                reuse = record is not None and not force and picked not in rerun
+                reuse = record is not None and not force and not rerun  # a re-run rung may be auto's check
                 kept = record.auto.get((label, tolerance, picked)) if reuse else None
                 if kept is not None and kept["config_digest"] == config_digest(path):
                     run = {k: (kept[k] if k in ("picked", "ran") else _num(kept[k]))

@@ -61,7 +61,7 @@ __kernel void wsv_beam_sums(
     const int waves,
     __global const real_t *table,       /* (waves, 7) k̂_m, q_m, φ_m (wb_beam_waves.h) */
     __global const cplx_t *fields,      /* (waves, 2, 3) E_m per beam polarization */
-    __global const cplx_t *amplitudes,  /* (waves, 2) scalar amplitudes A_m */
+    __global const cplx_t *scalars,     /* (waves, 2) scalar amplitudes A_m */
     __global const real_t *power,       /* (waves, 2) |E_m|² */
     const cplx_t eta,                   /* n₂/n₁ */
     const real_t area,                  /* Δ² (µm²) */
@@ -89,13 +89,14 @@ __kernel void wsv_beam_sums(
             s2 = s[0] * s[0] + s[1] * s[1] + s[2] * s[2];
         }
         for (int p = 0; p < 2; ++p) {
-            const cplx_t weight = c_mul(phase, amplitudes[2 * w + p]);
+            const cplx_t weight = c_mul(phase, scalars[2 * w + p]);
             acc[4 * p + 2] = c_fma(weight, c_new(c_m, R(0.0)), acc[4 * p + 2]);
             acc[4 * p + 3] = c_add(acc[4 * p + 3], weight);
             if (!on) continue;
             __global const cplx_t *E = fields + 6 * w + 3 * p;
             const cplx_t along = c_add(c_add(c_scale(E[0], s[0]), c_scale(E[1], s[1])), c_scale(E[2], s[2]));
-            const real_t share = s2 > R(1e-24) ? c_abs2(along) / (s2 * power[2 * w + p]) : R(0.5);
+            const real_t scale = s2 * power[2 * w + p];
+            const real_t share = s2 > R(1e-24) && scale > R(0.0) ? c_abs2(along) / scale : R(0.5);
             const real_t size = sqrt(share * c_abs2(rs) + (R(1.0) - share) * c_abs2(rp));
             const cplx_t pass = p == 0 ? rs : rp;
             const real_t pass_size = c_abs(pass);

@@ -126,7 +126,7 @@ __kernel void po_beam_currents(
     const int nodes,
     const int waves,
     __global const real_t *table,      /* (waves, 7) k̂_m, q_m, φ_m (wb_beam_waves.h) */
-    __global const cplx_t *amplitudes, /* (waves, 2, 3) E_m per beam polarization */
+    __global const cplx_t *fields,     /* (waves, 2, 3) E_m per beam polarization */
     const cplx_t eta,                  /* n₂/n₁ */
     const real_t area,                 /* Δ² (µm²) */
     __global cplx_t *out)              /* (12, nodes) */
@@ -140,7 +140,7 @@ __kernel void po_beam_currents(
     for (int q = 0; q < 12; ++q) acc[q] = c_new(R(0.0), R(0.0));
     for (int w = 0; w < waves; ++w) {
         const cplx_t phase = beam_wave(table, w, r, area, kh);
-        for (int q = 0; q < 6; ++q) e[q] = amplitudes[6 * w + q];
+        for (int q = 0; q < 6; ++q) e[q] = fields[6 * w + q];
         po_wave_currents(mt, m, kh, e, eta, on, cur);
         for (int q = 0; q < 12; ++q) acc[q] = c_fma(phase, cur[q], acc[q]);
     }

@@ -648,19 +648,20 @@ class BeamWaves:
     like the footprint), ``phases`` (M, 4): q_m = k k̂_m + k ω_i and φ_m = k k̂_m·f, so that wave m
     on node r relative to the rungs' transform phase e^{+jk ω_i·r} is e^{j(φ_m − q_m·r)};
     ``incident_power`` (2,) Φ_i per polarization (W), the full-wave solver's normalisation;
-    ``incidence`` (θ_i, φ_i) of the beam axis (radians)."""
+    ``axis`` (θ_i, φ_i) of the beam axis (radians)."""
 
     directions: np.ndarray
     amplitudes: np.ndarray
     phases: np.ndarray
     incident_power: np.ndarray
-    incidence: tuple[float, float]
+    axis: tuple[float, float]
 
     @classmethod
     def of(cls, scene) -> "BeamWaves":
         """The plane waves of the scene's exact beam (focus at the footprint centre on the phase
         reference plane, as the full-wave solver's) whose amplitude is at least
-        :data:`BEAM_TAIL` of the largest."""
+        :data:`BEAM_TAIL` of the largest. The exact beam whatever the scene's ``beam``: a paraxial
+        Gaussian is not a sum of plane waves (the full-wave solver's default is the exact one)."""
         beam = scene_beam(scene, "exact")
         waves = beam.plane_waves
         size = np.abs(waves["E"]).max(axis=(0, 2))
@@ -675,18 +676,23 @@ class BeamWaves:
     @staticmethod
     def count(scene) -> int:
         """About how many plane waves :meth:`of` keeps for ``scene`` (the beam's lattice points of
-        Gaussian weight ≥ :data:`BEAM_TAIL` inside the light cone), in microseconds: for estimates."""
+        Gaussian weight ≥ :data:`BEAM_TAIL` inside the light cone), counted in a fraction of a
+        millisecond without evaluating the beam: for estimates."""
         return scene_beam(scene, "exact").lattice_size(BEAM_TAIL)
 
     def table(self) -> np.ndarray:
         """(M, 7) rows k̂_m, q_m, φ_m: what the OpenCL kernels read (kernels/wb_beam_waves.h)."""
         return np.concatenate([self.directions, self.phases], axis=1)
 
+    def power(self) -> np.ndarray:
+        """(M, 2) |E_m|² per beam polarization."""
+        return np.sum(np.abs(self.amplitudes) ** 2, axis=-1)
+
     def scalar_amplitudes(self) -> np.ndarray:
         """(M, 2) amplitudes of the scalar beam the scalar rungs are lit by: per polarization,
         each wave's |E_m| with the phase of its component along the beam's own ê_s or ê_p (its
         flux is the vector beam's, ``incident_power``)."""
-        _, e_s, e_p = incident_basis(*self.incidence)
+        _, e_s, e_p = incident_basis(*self.axis)
         along = np.einsum("mpc,pc->mp", self.amplitudes, np.stack([e_s, e_p]))
         return np.linalg.norm(self.amplitudes, axis=-1) * np.exp(1j * np.angle(along))
 

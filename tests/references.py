@@ -302,7 +302,8 @@ def reflected_spectrum_brdf(E: np.ndarray, u: np.ndarray, v: np.ndarray, n2: com
     mu = np.sqrt(1.0 - u * u - v * v)
     k_in = np.stack([u, v, -mu], axis=-1)
     s_hat = np.cross([0.0, 0.0, 1.0], k_in)
-    s_hat /= np.linalg.norm(s_hat, axis=1)[:, None]
+    norm = np.linalg.norm(s_hat, axis=1)
+    s_hat = np.where(norm[:, None] > 1e-12, s_hat / np.where(norm > 0, norm, 1.0)[:, None], [0.0, 1.0, 0.0])  # any at 0°
     p_hat = np.cross(s_hat, k_in)
     r_s, r_p = fresnel_coefficients(1.0, n2, np.arccos(mu))
     out = np.empty((2, len(u)))

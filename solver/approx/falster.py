@@ -34,6 +34,7 @@ each plane wave's |E_m| with the phase of its component along the beam's ê_s or
 apertures summed over its waves, Σ_m A_m Δ² e^{j(φ_m − q_m·r)} with ω_m for ω_i and r at wave m's
 own local angle (a node lit by wave m where V_i, the axis's, and m̃·ω_m > 0; the r-free term
 subtracted per wave), normalised by that beam's Φ_i: on a plane each wave reflects at its own angle.
+WM's depth ≥ 2 part stays the path tracer's, its rays launched along the beam axis.
 
 WM adds the incoherent depth ≥ 2 part of geometric-optics path tracing (raytrace.trace_paths,
 ``multiple``) to the WS-V BRDF, per incident polarization: f_WM = f_WS-V + f_GM⁺ (Falster Eq. 19).
@@ -73,7 +74,7 @@ __all__ = ["WMModel", "WMOptions", "WSVModel", "WSVOptions", "masking_blocks", "
 
 APERTURES = 4  # (m̃·ω_i)(r − 1), −h_x(r + 1), −h_y(r + 1), (r + 1): per polarization
 WAVES_PER_PASS = 16  # plane waves of the beam summed per vectorised pass (_beam_apertures)
-BEAM_SECONDS_PER_NODE_WAVE = 9e-8  # wsv_beam_sums on 2 cores (PoCL, double; docs/approx.md)
+BEAM_SECONDS_PER_NODE_WAVE = 1e-7  # wsv_beam_sums on 2 cores (PoCL, double: 8e-8–1.2e-7; docs/approx.md)
 
 
 @dataclass(frozen=True)
@@ -153,7 +154,7 @@ def _beam_sums_numpy(setup: KirchhoffSetup, slopes: np.ndarray, lit: np.ndarray,
     norm = np.sqrt(1.0 + hx * hx + hy * hy)
     unit_normal = np.stack([-hx, -hy, np.ones_like(hx)], axis=-1) / norm[..., None]
     amplitudes = waves.scalar_amplitudes()
-    power = np.sum(np.abs(waves.amplitudes) ** 2, axis=-1)  # |E_m|² per polarization, (M, 2)
+    power = waves.power()
     out = np.zeros((2, 4) + hx.shape, dtype=complex)
     for start in range(0, len(waves.directions), WAVES_PER_PASS):
         chunk = slice(start, start + WAVES_PER_PASS)
@@ -167,10 +168,11 @@ def _beam_sums_numpy(setup: KirchhoffSetup, slopes: np.ndarray, lit: np.ndarray,
         s_size = np.sum(s_local * s_local, axis=-1)
         for p, r in enumerate((r_s, r_p)):
             along_s = np.abs(np.einsum("...ck,ck->...c", s_local, waves.amplitudes[chunk, p])) ** 2
-            share_s = np.divide(along_s, s_size * power[chunk, p], out=np.full_like(along_s, 0.5),
-                                where=s_size > 1e-24)
+            scale = s_size * power[chunk, p]
+            share_s = np.divide(along_s, scale, out=np.full_like(along_s, 0.5), where=(s_size > 1e-24) & (scale > 0))
             size = np.sqrt(share_s * np.abs(r_s) ** 2 + (1.0 - share_s) * np.abs(r_p) ** 2)
-            reflection = size * np.exp(1j * np.angle(r))
+            magnitude = np.abs(r)
+            reflection = size * np.divide(r, magnitude, out=np.ones_like(r), where=magnitude > 0)
             w = phase * amplitudes[chunk, p]
             lit_w = np.where(on, w, 0.0)
             out[p, 0] += np.sum(m_dot * lit_w * (reflection - 1.0), axis=-1)
@@ -188,10 +190,9 @@ def _beam_sums_opencl(ctx, slopes: np.ndarray, lit: np.ndarray, waves: BeamWaves
     nodes = lit.size
     knl = ctx.kernel("falster.cl", "wsv_beam_sums", ctx.defines(precision))
     out = cl.Buffer(ctx.context, cl.mem_flags.WRITE_ONLY, 8 * nodes * cplx.itemsize)
-    power = np.sum(np.abs(waves.amplitudes) ** 2, axis=-1)
     knl(ctx.queue, (nodes,), None, ctx.to_device(beam_geometry(slopes, positions), real), ctx.to_device(lit, np.uint8),
         np.int32(nodes), np.int32(len(waves.directions)), ctx.to_device(waves.table(), real),
-        ctx.to_device(waves.amplitudes, cplx), ctx.to_device(waves.scalar_amplitudes(), cplx), ctx.to_device(power, real),
+        ctx.to_device(waves.amplitudes, cplx), ctx.to_device(waves.scalar_amplitudes(), cplx), ctx.to_device(waves.power(), real),
         np.array(eta, dtype=cplx), real.type(area), out)
     sums = np.empty((2, 4) + lit.shape, dtype=cplx)
     cl.enqueue_copy(ctx.queue, sums, out)
@@ -305,6 +306,7 @@ def wsv_farfield(ctx, scene: SurfaceScene, masking: str = "rays", masking_classe
     omega_i, _, _ = incident_basis(scene.theta_i, scene.phi_i)
     slopes = node_slopes(surface)
     front, lit, _ = lit_nodes(ctx, surface, omega_i, slopes, "none" if flat else "rays", border, precision)
+    t_vis = time.perf_counter()
     beam = incidence == "beam" and scene.waist_um is not None
     power, extra = None, {}
     if beam:
@@ -314,7 +316,7 @@ def wsv_farfield(ctx, scene: SurfaceScene, masking: str = "rays", masking_classe
         power, extra = waves.incident_power, {"plane_waves": len(waves.directions)}  # the full-wave solver's Φ_i
     else:
         apertures, radiating = _apertures(setup, slopes, lit, omega_i), _apertures(setup, slopes, lit, omega_i, False)
-    t_vis = time.perf_counter()
+    t_apertures = time.perf_counter()
 
     weight = np.abs(setup.window) ** 2
     total = weight.sum()
@@ -354,7 +356,8 @@ def wsv_farfield(ctx, scene: SurfaceScene, masking: str = "rays", masking_classe
         shadowed_fraction=float(weight[front & ~lit].sum() / total),
         masking_blocks=len(directions), masked_nodes=int(sum(m.size for m in masked)),
         masked_fraction_max=float(masked_weight.max()) if masked_weight.size else 0.0,
-        time_visibility_s=t_vis - t0, time_masking_s=t_mask - t_vis, time_transform_s=t_transform - t_mask,
+        time_visibility_s=t_vis - t0, time_apertures_s=t_apertures - t_vis, time_masking_s=t_mask - t_apertures,
+        time_transform_s=t_transform - t_mask,
         wall_time_s=time.perf_counter() - t0, incidence="beam" if beam else "footprint", **extra,
     )
     ff.diagnostics["albedo_excess"] = albedo_excess(ff)
