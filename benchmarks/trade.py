@@ -179,9 +179,11 @@ def compare_suite(configs: list[Path], force: bool, log, record: Record | None =
 
     WORK.mkdir(parents=True, exist_ok=True)
     for path in configs:
-        if rerun and not force and _stored(path).is_file() and _rerun_on_stored(path, rerun, log):
-            continue
-        if not force and _stored(path).is_file():
+        stored = not force and _stored(path).is_file()
+        if stored and rerun:
+            if _rerun_on_stored(path, rerun, log):
+                continue
+        elif stored:
             failed = [label for (label, model), m in stored_measurements(_stored(path)).items()
                       if model == REFERENCE and m.failure]
             if not failed:

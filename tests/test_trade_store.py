@@ -262,3 +262,48 @@ models = ["bem", "kirchhoff", "po"]
         assert np.array_equal(after[label, model].brdf, before[label, model].brdf, equal_nan=True)
         assert after[label, model].cpu_s == before[label, model].cpu_s
     assert not np.array_equal(after[label, "po"].brdf, before[label, "po"].brdf, equal_nan=True)  # lit by the beam
+
+
+def test_rerun_compares_whole_a_config_whose_stored_scenes_changed(trade, tmp_path, monkeypatch):
+    """A stored comparison of other scenes (the config's wavelengths changed since) is not reused
+    by ``--rerun``: the config is compared whole, BEM included, on its current scenes."""
+    monkeypatch.setattr(trade, "ROOT", tmp_path)
+    suite = tmp_path / "tiny"
+    suite.mkdir()
+    config = suite / "flat.toml"
+    text = """
+[study]
+name = "tiny_flat"
+output = "tiny_flat.h5"
+[surface]
+size_um = 1.6
+cells = 24
+generator = "gaussian"
+rms_height_um = 0.005
+correlation_um = 0.4
+seed = 3
+[material]
+name = "glass"
+[illumination]
+wavelengths_um = [WAVELENGTH]
+directions_deg = [[30, 0]]
+waist_um = 0.3
+[model]
+name = "bem"
+method = "aim"
+[output]
+resolution = 24
+[compare]
+reference = "bem"
+models = ["bem", "po"]
+"""
+    config.write_text(text.replace("WAVELENGTH", "0.5"))
+    log = lambda message: None  # noqa: E731
+    trade.compare_suite([config], False, log)
+    config.write_text(text.replace("WAVELENGTH", "0.55"))
+    trade._scenes.cache_clear()
+    trade.compare_suite([config], False, log, rerun=("po",))
+    after = trade.stored_measurements(trade._stored(config))
+    assert {label for label, _ in after} == {label for label, _ in trade._scenes(config)}
+    assert all("λ=0.55 µm" in label for label, _ in after)
+    assert all(m.failure is None and m.brdf is not None for m in after.values())
