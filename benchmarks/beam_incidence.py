@@ -90,7 +90,8 @@ def compare_rung(ctx, rung: str, options: dict, scenes) -> None:
     from wavebrdf.solver.models import get_model
 
     print(f"\n## {rung}\n")
-    print("| scene | footprint: unpolarized / s / p | beam: unpolarized / s / p | plane waves | wall footprint / beam (s) |")
+    print("| scene | footprint: unpolarized / s / p | beam: unpolarized / s / p | plane waves "
+          "| wall footprint / beam (s) |")
     print("|---|---|---|---|---|")
     table = []
     for label, scene, ref in scenes:

@@ -51,10 +51,10 @@ from wavebrdf.solver.approx.geometric import RAYS_DEFAULT
 from wavebrdf.solver.approx.kirchhoff import (
     KirchhoffSetup,
     albedo_excess,
+    beam_geometry,
     chebyshev_cost,
     chebyshev_device_bytes,
     chebyshev_transform,
-    beam_geometry,
     chebyshev_transform_numpy,
     check_incidence,
     node_positions,
@@ -192,8 +192,8 @@ def _beam_sums_opencl(ctx, slopes: np.ndarray, lit: np.ndarray, waves: BeamWaves
     out = cl.Buffer(ctx.context, cl.mem_flags.WRITE_ONLY, 8 * nodes * cplx.itemsize)
     knl(ctx.queue, (nodes,), None, ctx.to_device(beam_geometry(slopes, positions), real), ctx.to_device(lit, np.uint8),
         np.int32(nodes), np.int32(len(waves.directions)), ctx.to_device(waves.table(), real),
-        ctx.to_device(waves.amplitudes, cplx), ctx.to_device(waves.scalar_amplitudes(), cplx), ctx.to_device(waves.power(), real),
-        np.array(eta, dtype=cplx), real.type(area), out)
+        ctx.to_device(waves.amplitudes, cplx), ctx.to_device(waves.scalar_amplitudes(), cplx),
+        ctx.to_device(waves.power(), real), np.array(eta, dtype=cplx), real.type(area), out)
     sums = np.empty((2, 4) + lit.shape, dtype=cplx)
     cl.enqueue_copy(ctx.queue, sums, out)
     return sums.astype(complex)
