@@ -340,15 +340,9 @@ class ExactGaussianBeam(_GaussianBeam):
         where the lattice samples a cut spectrum coarsely; BRDFs divide by a power of the same
         normalisation, so it cancels).
         """
-        k, w, P = self.k, self.waist_um, self.period_um
-        k_par = self.k * self.frame[2][:2]
+        P = self.period_um
         dk = 2.0 * np.pi / P
-        reach = 2.0 * np.sqrt(np.log(1.0 / SPECTRUM_TAIL)) / w
-        m = int(np.ceil(reach / dk))
-        i = np.arange(-m, m + 1)
-        KX, KY = np.meshgrid(k_par[0] + dk * i, k_par[1] + dk * i, indexing="ij")
-        gauss = np.exp(-0.25 * w**2 * ((KX - k_par[0]) ** 2 + (KY - k_par[1]) ** 2))
-        keep = (gauss >= SPECTRUM_TAIL) & (KX**2 + KY**2 < k**2)
+        KX, KY, keep = self._lattice(SPECTRUM_TAIL)
         kvec, E, H = self._densities(KX[keep], KY[keep])
         E, H = E * dk**2, H * dk**2
         norm = self._continuum["norm"]  # the non-periodic beam's x_b component of the p field at the focus
@@ -357,17 +351,22 @@ class ExactGaussianBeam(_GaussianBeam):
         return {"kvec": kvec, "E": E / norm, "H": H / norm, "period_um": P, "norm": norm,
                 "lattice": lattice, "kx_axis": KX[:, 0], "ky_axis": KY[0, :]}
 
+    def _lattice(self, tail: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(κx, κy, keep) of the spectral lattice of pitch 2π/P about the beam's κ_c, out to a
+        Gaussian weight of ``tail``; ``keep``: the points of weight ≥ ``tail`` inside the light cone."""
+        w, dk = self.waist_um, 2.0 * np.pi / self.period_um
+        k_par = self.k * self.frame[2][:2]
+        m = int(np.ceil(2.0 * np.sqrt(np.log(1.0 / tail)) / w / dk))
+        i = np.arange(-m, m + 1)
+        KX, KY = np.meshgrid(k_par[0] + dk * i, k_par[1] + dk * i, indexing="ij")
+        gauss = np.exp(-0.25 * w**2 * ((KX - k_par[0]) ** 2 + (KY - k_par[1]) ** 2))
+        return KX, KY, (gauss >= tail) & (KX**2 + KY**2 < self.k**2)
+
     def lattice_size(self, tail: float) -> int:
         """How many of ``plane_waves``' lattice points inside the light cone have a Gaussian weight
         of at least ``tail`` (about how many waves of amplitude ≥ ``tail`` of the largest the beam
         has), without evaluating the beam: for cost estimates."""
-        w, dk = self.waist_um, 2.0 * np.pi / self.period_um
-        k_par = self.k * self.frame[2][:2]
-        m = int(np.ceil(2.0 * np.sqrt(np.log(1.0 / tail)) / w / dk))
-        offsets = dk * np.arange(-m, m + 1)
-        KX, KY = np.meshgrid(k_par[0] + offsets, k_par[1] + offsets, indexing="ij")
-        gauss = np.exp(-0.25 * w**2 * ((KX - k_par[0]) ** 2 + (KY - k_par[1]) ** 2))
-        return int(np.count_nonzero((gauss >= tail) & (KX**2 + KY**2 < self.k**2)))
+        return int(np.count_nonzero(self._lattice(tail)[2]))
 
     def spectrum(self, kx, ky) -> tuple[np.ndarray, np.ndarray]:
         """Continuous angular spectrum (E, H densities per unit κ area, shape (2, ..., 3)) at

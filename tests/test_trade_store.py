@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib.util
+import json
 import sys
 from pathlib import Path
 
@@ -213,14 +214,7 @@ def test_a_random_realization_keeps_its_digest_at_its_own_cells_and_is_refused_b
     assert ran == [("kirchhoff", 16)]
 
 
-def test_rerun_runs_again_only_the_named_rungs_on_a_stored_comparison(trade, tmp_path, monkeypatch):
-    """``--rerun po``: po runs again with its current options while BEM's and the other rungs'
-    stored BRDFs and times are taken as they are; without it a stored comparison is not rerun."""
-    monkeypatch.setattr(trade, "ROOT", tmp_path)
-    suite = tmp_path / "tiny"
-    suite.mkdir()
-    config = suite / "flat.toml"
-    config.write_text("""
+TINY_STUDY = """
 [study]
 name = "tiny_flat"
 output = "tiny_flat.h5"
@@ -234,7 +228,7 @@ seed = 3
 [material]
 name = "glass"
 [illumination]
-wavelengths_um = [0.5]
+wavelengths_um = [{wavelength}]
 directions_deg = [[30, 0]]
 waist_um = 0.3
 [model]
@@ -244,18 +238,37 @@ method = "aim"
 resolution = 24
 [compare]
 reference = "bem"
-models = ["bem", "kirchhoff", "po"]
-""")
+models = {models}
+{extra}"""
+
+
+def _tiny_study(trade, tmp_path, monkeypatch) -> Path:
+    """The path of a one-scene glass study (24 cells, AIM BEM) in a suite folder of ``tmp_path``,
+    which the benchmark then takes as its root; written by :func:`_write_tiny_study`."""
+    monkeypatch.setattr(trade, "ROOT", tmp_path)
+    suite = tmp_path / "tiny"
+    suite.mkdir()
+    return suite / "flat.toml"
+
+
+def _write_tiny_study(config: Path, trade, wavelength: float = 0.5, models=("bem", "po"), extra: str = "") -> None:
+    config.write_text(TINY_STUDY.format(wavelength=wavelength, models=json.dumps(list(models)), extra=extra))
+    trade._scenes.cache_clear()  # the benchmark plans a config's scenes once per run
+
+
+def test_rerun_runs_again_only_the_named_rungs_on_a_stored_comparison(trade, tmp_path, monkeypatch):
+    """``--rerun po``: po runs again with its current options while BEM's and the other rungs'
+    stored BRDFs and times are taken as they are; without it a stored comparison is not rerun."""
+    config = _tiny_study(trade, tmp_path, monkeypatch)
+    models = ("bem", "kirchhoff", "po")
+    _write_tiny_study(config, trade, models=models)
     log = lambda message: None  # noqa: E731
     trade.compare_suite([config], False, log)
     before = trade.stored_measurements(trade._stored(config))
     label = next(label for label, model in before if model == "po")
     trade.compare_suite([config], False, log)  # stored: nothing runs again
     assert trade.stored_measurements(trade._stored(config))[label, "po"].wall_s == before[label, "po"].wall_s
-    text = config.read_text().replace('models = ["bem", "kirchhoff", "po"]',
-                                      'models = ["bem", "kirchhoff", "po"]\n[compare.po]\nincidence = "beam"')
-    config.write_text(text)
-    trade._scenes.cache_clear()
+    _write_tiny_study(config, trade, models=models, extra='[compare.po]\nincidence = "beam"')
     trade.compare_suite([config], False, log, rerun=("po",))
     after = trade.stored_measurements(trade._stored(config))
     for model in ("bem", "kirchhoff"):
@@ -267,41 +280,11 @@ models = ["bem", "kirchhoff", "po"]
 def test_rerun_compares_whole_a_config_whose_stored_scenes_changed(trade, tmp_path, monkeypatch):
     """A stored comparison of other scenes (the config's wavelengths changed since) is not reused
     by ``--rerun``: the config is compared whole, BEM included, on its current scenes."""
-    monkeypatch.setattr(trade, "ROOT", tmp_path)
-    suite = tmp_path / "tiny"
-    suite.mkdir()
-    config = suite / "flat.toml"
-    text = """
-[study]
-name = "tiny_flat"
-output = "tiny_flat.h5"
-[surface]
-size_um = 1.6
-cells = 24
-generator = "gaussian"
-rms_height_um = 0.005
-correlation_um = 0.4
-seed = 3
-[material]
-name = "glass"
-[illumination]
-wavelengths_um = [WAVELENGTH]
-directions_deg = [[30, 0]]
-waist_um = 0.3
-[model]
-name = "bem"
-method = "aim"
-[output]
-resolution = 24
-[compare]
-reference = "bem"
-models = ["bem", "po"]
-"""
-    config.write_text(text.replace("WAVELENGTH", "0.5"))
+    config = _tiny_study(trade, tmp_path, monkeypatch)
+    _write_tiny_study(config, trade, wavelength=0.5)
     log = lambda message: None  # noqa: E731
     trade.compare_suite([config], False, log)
-    config.write_text(text.replace("WAVELENGTH", "0.55"))
-    trade._scenes.cache_clear()
+    _write_tiny_study(config, trade, wavelength=0.55)
     trade.compare_suite([config], False, log, rerun=("po",))
     after = trade.stored_measurements(trade._stored(config))
     assert {label for label, _ in after} == {label for label, _ in trade._scenes(config)}
