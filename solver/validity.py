@@ -49,9 +49,10 @@ def check_evanescent_loss(fraction: float, diagnostics: dict, theta_i: float) ->
         warnings.warn(message, ValidityWarning, stacklevel=3)
 
 
-def check_waist(scene, diagnostics: dict, model: str) -> None:
+def check_waist(scene, diagnostics: dict, model: str, remedy: str = "ghs") -> None:
     """Warn when the footprint's angular spread makes the albedo err by more than SPREAD_ERROR
-    (``diagnostics["waist_spread_error"]``: the predicted relative error)."""
+    (``diagnostics["waist_spread_error"]``: the predicted relative error); the message names a
+    waist that would do, or ``remedy``: what else removes the spread error for ``model``."""
     if scene.waist_um is None:
         return
     lambda1 = scene.wavelength_um / scene.exterior_index
@@ -62,7 +63,7 @@ def check_waist(scene, diagnostics: dict, model: str) -> None:
         message = (f"{model}: the footprint of waist {scene.waist_um:g} µm spreads over λ₁/(πw) = "
                    f"{lambda1 / (np.pi * scene.waist_um):.3g} rad at θ_i = {np.rad2deg(scene.theta_i):.4g}°, so the "
                    f"albedo is off by about {error:.2g} (relative; obliquity and Fresnel vary across the spread): use a "
-                   f"waist ≥ {lambda1 / np.pi * np.sqrt(SPREAD_COEFFICIENT / SPREAD_ERROR) / mu_i:.3g} µm, or ghs")
+                   f"waist ≥ {lambda1 / np.pi * np.sqrt(SPREAD_COEFFICIENT / SPREAD_ERROR) / mu_i:.3g} µm, or {remedy}")
         _append(diagnostics, message)
         warnings.warn(message, ValidityWarning, stacklevel=3)
 

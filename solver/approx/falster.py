@@ -61,7 +61,7 @@ from wavebrdf.solver.approx.kirchhoff import (
     transform_orders,
 )
 from wavebrdf.solver.approx.raytrace import BORDERS, lit_nodes, node_slopes, node_visibility, trace_paths
-from wavebrdf.solver.beams import INCIDENCE, BeamWaves
+from wavebrdf.solver.beams import BEAM_REMEDY, INCIDENCE, BeamWaves
 from wavebrdf.solver.farfield import FarField, HemisphereGrid, IntensityResult, albedo, transverse_basis
 from wavebrdf.solver.footprint import incident_basis
 from wavebrdf.solver.fresnel import fresnel_rs_rp
@@ -362,7 +362,7 @@ def wsv_farfield(ctx, scene: SurfaceScene, masking: str = "rays", masking_classe
     )
     ff.diagnostics["albedo_excess"] = albedo_excess(ff)
     if not beam:  # the beam's plane waves each reflect at their own angle: no spread error to predict
-        check_waist(scene, ff.diagnostics, "ws-v")
+        check_waist(scene, ff.diagnostics, "ws-v", remedy=BEAM_REMEDY.format(tables="[model.ws-v] or [model.wm]"))
     return ff
 
 
