@@ -47,7 +47,6 @@ logger = logging.getLogger(__name__)
 __all__ = [
     "BEAMS",
     "BEAM_TAIL",
-    "BEAM_REMEDY",
     "Beam",
     "INCIDENCE",
     "BeamWaves",
@@ -65,8 +64,6 @@ SPECTRUM_TAIL = 1e-16  # drop plane waves whose Gaussian weight is below this (r
 REPLICA_LEVEL = 1e-9  # amplitude of the neighbouring periodic copies on the patch
 BEAM_TAIL = 1e-8  # BeamWaves leaves out the plane waves below this share of the largest amplitude
 INCIDENCE = ("footprint", "beam")  # what lights the approximate wave rungs: the footprint plane wave, or BeamWaves
-BEAM_REMEDY = 'incidence = "beam" in {tables} (each of the beam\'s plane waves reflected at its own angle)'  # the
-# footprint-lit rungs' waist warning (solver/validity.py check_waist) names it
 
 
 def beam_frame(theta: float, phi: float) -> np.ndarray:

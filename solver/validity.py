@@ -6,7 +6,9 @@ diagnostics). Found by the extremes suite (tests/extremes.py, docs/extremes.md).
 * :func:`check_waist` — a footprint of waist w spreads over λ₁/(πw) in angle, across which the
   rungs' obliquity and Fresnel factors vary: the flat albedo is off by ≈ 0.3 (λ₁/(πw))²/μ_i²
   (measured on flat aluminium at 0°: +3.1% for w = 0.38 µm, +0.18% for w = 1.5 µm at λ = 0.4 µm,
-  Kirchhoff and Stam alike; OHS −2.9%, PO +2.7% at w = 0.15 µm). GHS renormalizes it away.
+  Kirchhoff and Stam alike; OHS −2.9%, PO +2.7% at w = 0.15 µm). GHS renormalizes it away; po,
+  ws-v and wm lit by the beam reflect each plane wave at its own angle and are not checked, and lit
+  by the footprint their warning names that option (:func:`beam_incidence_remedy`).
 * :func:`check_evanescent_loss` — OHS keeps only the part of the reflected angular spectrum
   inside the unit disk (GHS renormalizes it): on rough patches the rest is simply missing.
 """
@@ -18,8 +20,8 @@ import warnings
 import numpy as np
 
 
-__all__ = ["EVANESCENT_LOSS", "SPREAD_ERROR", "SPREAD_COEFFICIENT", "ValidityWarning", "cells_fix",
-           "check_evanescent_loss", "check_waist"]
+__all__ = ["EVANESCENT_LOSS", "SPREAD_ERROR", "SPREAD_COEFFICIENT", "ValidityWarning", "beam_incidence_remedy",
+           "cells_fix", "check_evanescent_loss", "check_waist"]
 
 EVANESCENT_LOSS = 0.01  # OHS: warn when this share of the reflected spectrum is dropped
 SPREAD_COEFFICIENT = 0.3  # albedo error ≈ this × (λ₁/(πw))²/μ_i² (fitted on flat aluminium, see above)
@@ -47,6 +49,11 @@ def check_evanescent_loss(fraction: float, diagnostics: dict, theta_i: float) ->
                    "(rough patch; ghs renormalizes it)")
         _append(diagnostics, message)
         warnings.warn(message, ValidityWarning, stacklevel=3)
+
+
+def beam_incidence_remedy(model: str) -> str:
+    """What removes the footprint's spread error from ``model`` (po, ws-v or wm), in check_waist's words."""
+    return f'incidence = "beam" in [model.{model}] (each plane wave of the beam reflected at its own angle)'
 
 
 def check_waist(scene, diagnostics: dict, model: str, remedy: str = "ghs") -> None:

@@ -61,14 +61,14 @@ from wavebrdf.solver.approx.kirchhoff import (
     transform_orders,
 )
 from wavebrdf.solver.approx.raytrace import BORDERS, lit_nodes, node_slopes, node_visibility, trace_paths
-from wavebrdf.solver.beams import BEAM_REMEDY, INCIDENCE, BeamWaves
+from wavebrdf.solver.beams import INCIDENCE, BeamWaves
 from wavebrdf.solver.farfield import FarField, HemisphereGrid, IntensityResult, albedo, transverse_basis
 from wavebrdf.solver.footprint import incident_basis
 from wavebrdf.solver.fresnel import fresnel_rs_rp
 from wavebrdf.solver.models import Capabilities, Estimate, Model, SurfaceScene
 from wavebrdf.solver.options import option
 from wavebrdf.solver.precision import Precision
-from wavebrdf.solver.validity import check_waist
+from wavebrdf.solver.validity import beam_incidence_remedy, check_waist
 
 __all__ = ["WMModel", "WMOptions", "WSVModel", "WSVOptions", "masking_blocks", "wsv_farfield"]
 
@@ -287,13 +287,14 @@ def _masked_sums(ctx, setup: KirchhoffSetup, apertures: np.ndarray, block: np.nd
 
 
 def wsv_farfield(ctx, scene: SurfaceScene, masking: str = "rays", masking_classes: int = 16,
-                 border: str = "periodic", incidence: str = "footprint") -> FarField:
+                 border: str = "periodic", incidence: str = "footprint", model: str = "ws-v") -> FarField:
     """WS-V far field of ``scene`` (module docstring); ``ctx`` None: NumPy twins (double);
     ``incidence`` "footprint" | "beam" the incident field (a plane-wave scene, waist None, is lit by
-    its one plane wave either way)."""
+    its one plane wave either way); ``model`` the rung its warnings name ("ws-v", or "wm" for WM's
+    single-scattering part)."""
     t0 = time.perf_counter()
     if incidence not in INCIDENCE:
-        raise ValueError(f"ws-v incidence must be one of {INCIDENCE}, got {incidence!r}")
+        raise ValueError(f"{model} incidence must be one of {INCIDENCE}, got {incidence!r}")
     check_incidence(scene.theta_i, scene.index)
     precision = scene.precision
     if ctx is None and not precision.fp64:
@@ -362,7 +363,7 @@ def wsv_farfield(ctx, scene: SurfaceScene, masking: str = "rays", masking_classe
     )
     ff.diagnostics["albedo_excess"] = albedo_excess(ff)
     if not beam:  # the beam's plane waves each reflect at their own angle: no spread error to predict
-        check_waist(scene, ff.diagnostics, "ws-v", remedy=BEAM_REMEDY.format(tables="[model.ws-v] or [model.wm]"))
+        check_waist(scene, ff.diagnostics, model, remedy=beam_incidence_remedy(model))
     return ff
 
 
@@ -420,7 +421,7 @@ class WMModel(Model):
 
     def run(self, ctx, scene: SurfaceScene) -> IntensityResult:
         o = self.options
-        single = wsv_farfield(ctx, scene, o.masking, o.masking_classes, o.border, o.incidence)
+        single = wsv_farfield(ctx, scene, o.masking, o.masking_classes, o.border, o.incidence, model=self.name)
         trace = trace_paths(ctx, scene, rays=o.rays, max_depth=o.max_depth, border=o.border, seed=o.seed, keep=False)
         grid = scene.grid
         f_single, f_multiple = single.brdf(), trace.result("multiple").brdf()

@@ -68,14 +68,14 @@ from wavebrdf.solver.approx.kirchhoff import (
     transform_orders,
 )
 from wavebrdf.solver.approx.raytrace import SHADOWING, lit_nodes, node_slopes
-from wavebrdf.solver.beams import BEAM_REMEDY, INCIDENCE, BeamWaves, scene_beam, steering_fields
+from wavebrdf.solver.beams import INCIDENCE, BeamWaves, scene_beam, steering_fields
 from wavebrdf.solver.farfield import FarField
 from wavebrdf.solver.footprint import incident_basis
 from wavebrdf.solver.fresnel import fresnel_rs_rp
 from wavebrdf.solver.models import Capabilities, Estimate, SurfaceScene
 from wavebrdf.solver.options import option
 from wavebrdf.solver.precision import Precision
-from wavebrdf.solver.validity import check_waist
+from wavebrdf.solver.validity import beam_incidence_remedy, check_waist
 
 __all__ = [
     "POModel",
@@ -262,7 +262,7 @@ def po_farfield(ctx, scene: SurfaceScene, shadowing: str = "rays", border: str =
     )
     ff.diagnostics["albedo_excess"] = albedo_excess(ff)
     if not beam:  # the beam's plane waves each reflect at their own angle: no spread error to predict
-        check_waist(scene, ff.diagnostics, "po", remedy=BEAM_REMEDY.format(tables="[model.po]"))
+        check_waist(scene, ff.diagnostics, "po", remedy=beam_incidence_remedy("po"))
     return ff
 
 
