@@ -282,15 +282,20 @@ def test_corner_cubes_retroreflect_only_with_multiple_scattering(cl_ctx, shape, 
 
 def test_wm_lit_by_the_beam_adds_the_same_multiple_scattering(cl_ctx):
     """wm = ws-v + the path-traced depth ≥ 2 part whatever lights ws-v: with ``incidence = "beam"``
-    both rungs change by the same single-scattering BRDF; a misspelt incidence is refused by name."""
+    both rungs change by the same single-scattering BRDF; a misspelt incidence is refused by name.
+    Lit by the footprint of this 0.45 µm waist, wm's waist warning names wm's own table."""
     surface = generate("gaussian", cells=32, size_um=2.4, seed=5, rms_height_um=0.12, correlation_um=0.3)
     scene = SurfaceScene(surface, 0.5, 1.5, 30 * DEG, 0.0, 0.45, HemisphereGrid(24))
-    multiple = {}
+    multiple, diagnostics = {}, {}
     for incidence in ("footprint", "beam"):
         options = {"incidence": incidence}
-        wm = _quiet(get_model("wm", {**options, "rays": 1 << 14}), cl_ctx, scene).brdf()
+        wm_result = _quiet(get_model("wm", {**options, "rays": 1 << 14}), cl_ctx, scene)
+        wm, diagnostics[incidence] = wm_result.brdf(), wm_result.diagnostics
         wsv = _quiet(get_model("ws-v", options), cl_ctx, scene).brdf()
         multiple[incidence] = np.nan_to_num(wm) - np.nan_to_num(wsv)
+    warned = str(diagnostics["footprint"]["warnings"])
+    assert "ValidityWarning: wm: the footprint" in warned and 'incidence = "beam" in [model.wm]' in warned
+    assert "waist_spread_error" not in diagnostics["beam"]
     assert np.nanmax(multiple["footprint"]) > 0
     assert np.allclose(multiple["beam"], multiple["footprint"], rtol=1e-9, atol=1e-12 * np.nanmax(multiple["footprint"]))
     with pytest.raises(OptionsError, match=r"\[model.ws-v\] incidence = \"plane\""):
