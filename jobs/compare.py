@@ -15,7 +15,11 @@ compared with the reference model's on the same scene (solver/metrics.py):
 * ``misplaced``: E₁ = ½∫|f − f_ref| d²u (fraction of the incident power);
 * ``albedo_diff``: albedo − the reference's albedo (unpolarized);
 * ``peak_offset_deg``: angle between the blurred lobes' peak centroids;
-* ``retro``: share of the reflected power within :data:`RETRO_CONE_DEG` of ω_i.
+* ``retro``: share of the reflected power within :data:`RETRO_CONE_DEG` of ω_i;
+* ``warnings``: what the model said of its own figure while it ran (validity, sampling, the
+  full wave's checks) and an albedo above 1 (the line a run's task table carries): the Markdown
+  table gives their kinds and lists a warned reference's in full, since every error measured
+  against it carries them.
 
 The reference is ``--reference`` or the most accurate rung (the models' ``Capabilities.rung``) whose
 estimate fits the memory budget; a lower rung as reference is said so in the table. Results: a
@@ -27,8 +31,10 @@ from __future__ import annotations
 
 import csv
 import logging
+import re
 import time
 import traceback
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -46,16 +52,17 @@ from wavebrdf.solver.metrics import (
     speckle_sigma_u,
 )
 from wavebrdf.solver.models import get_model, model_class, model_names, rung_order, rungs
+from wavebrdf.solver.validity import energy_excess_warning
 
 logger = logging.getLogger(__name__)
 
 __all__ = ["Comparison", "Measurement", "choose_reference", "compare_options", "compare_scenes", "comparison_metrics",
-           "measure", "speckle_sigma_u"]
+           "measure", "speckle_sigma_u", "warning_kinds"]
 
 RETRO_CONE_DEG = 5.0
 COLUMNS = ("scene", "model", "reference", "wall_s", "cpu_s", "peak_mb", "albedo", "albedo_diff", "rel_l2",
            "rel_l2_smooth", "rel_l2_s", "rel_l2_smooth_s", "rel_l2_p", "rel_l2_smooth_p", "misplaced",
-           "peak_offset_deg", "retro", "failure")
+           "peak_offset_deg", "retro", "failure", "warnings")
 
 
 @dataclass
@@ -75,7 +82,6 @@ class Measurement:
 def _run_one(ctx, name: str, options, scene) -> dict:
     """Run model ``name`` once on ``scene``: wall/CPU time, peak memory over the baseline, BRDF,
     diagnostics (warnings included), or the failure."""
-    import os
     import warnings
 
     from wavebrdf.jobs.tasks import plain
@@ -84,17 +90,17 @@ def _run_one(ctx, name: str, options, scene) -> dict:
     try:
         model = get_model(name, options)
         baseline = reset_peak_memory()  # NaN where the peak cannot be reset: the peak is then not this model's
-        t0, c0 = time.perf_counter(), os.times()
+        t0, c0 = time.perf_counter(), time.process_time()  # ns resolution (os.times ticks at 10 ms)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             result = model.run(ctx, scene)
-        wall = time.perf_counter() - t0
-        c1 = os.times()
-        diagnostics = plain(result.diagnostics)
-        if caught:
-            diagnostics["warnings"] = "; ".join(sorted({str(w.message) for w in caught}))
-        return dict(wall_s=wall, cpu_s=(c1.user - c0.user) + (c1.system - c0.system),
-                    peak_mb=max(peak_resident_bytes() - baseline, 0.0) / 2**20, brdf=result.brdf(), diagnostics=diagnostics)
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        diagnostics, brdf = plain(result.diagnostics), result.brdf()
+        messages = {f"{w.category.__name__}: {w.message}" for w in caught}  # as a run's task table stores them
+        messages.add(energy_excess_warning(name, float(np.rad2deg(scene.theta_i)), albedo(brdf, scene.grid)) or "")
+        diagnostics["warnings"] = "; ".join(sorted(messages - {""}))
+        return dict(wall_s=wall, cpu_s=cpu,
+                    peak_mb=max(peak_resident_bytes() - baseline, 0.0) / 2**20, brdf=brdf, diagnostics=diagnostics)
     except Exception as exc:  # noqa: BLE001 - reported in the table, the comparison goes on
         return dict(failure=f"{type(exc).__name__}: {exc}", trace=traceback.format_exc())
 
@@ -290,8 +296,16 @@ class Comparison:
                 return "" if not np.isfinite(v) else f"{v:.3g}"
             return "" if v is None else str(v)
 
+        def short(r, k):  # a warning's kind in the table; its text is in the CSV and the .h5
+            return warning_kinds(r.get(k) or "") if k == "warnings" else cell(r.get(k))
+
         lines = ["| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
-        lines += ["| " + " | ".join(cell(r.get(k)) for k in COLUMNS) + " |" for r in self.rows]
+        lines += ["| " + " | ".join(short(r, k) for k in COLUMNS) + " |" for r in self.rows]
+        warned = [r for r in self.rows if r.get("warnings") and r["model"] == r["reference"].split(" (")[0]]
+        if warned:
+            lines += ["", f"The reference warned on {len(warned)} scene(s); every error measured against it there "
+                      "carries that warning (full text in the CSV's `warnings` column):"]
+            lines += [f"- {r['scene']}, {r['model']}: {r['warnings']}" for r in warned]
         return "\n".join(lines) + "\n"
 
     def plot(self, path: Path) -> None:
@@ -401,6 +415,19 @@ def plot_trade(rows: list[dict], path: Path, group: str = "scene", title: str | 
     plt.close(fig)
 
 
+def _warning_text(recorded) -> str:
+    """A measurement's warnings as one string (a model's diagnostics may hold them as a list)."""
+    if isinstance(recorded, (list, tuple)):
+        return "; ".join(str(w) for w in recorded)
+    return str(recorded or "")
+
+
+def warning_kinds(text: str) -> str:
+    """The kinds of the warnings in a ``warnings`` cell ("ValidityWarning ×2, EnergyWarning")."""
+    counts = Counter(re.findall(r"(?:^|; )(\w+Warning):", text))
+    return ", ".join(kind + (f" ×{n}" if n > 1 else "") for kind, n in sorted(counts.items()))
+
+
 def comparison_metrics(m: Measurement, ref: Measurement, grid: HemisphereGrid, sigma_u: float, theta: float, phi: float) -> dict:
     """The columns of one model against the reference: the unpolarized BRDF's albedo, relative L2
     over the lobe raw and speckle-averaged (``_smooth``), the same per incident polarization
@@ -473,7 +500,8 @@ def _compare_one(process, label, scene, models, options, reference, budget, kept
     sigma_u = speckle_sigma_u(scene.wavelength_um, scene.waist_um, grid, scene.exterior_index)
     for name, m in runs.items():
         row = {"scene": label, "model": name, "reference": ref_name if reference else f"{ref_name} ({why})",
-               "wall_s": m.wall_s, "cpu_s": m.cpu_s, "peak_mb": m.peak_mb, "failure": m.failure}
+               "wall_s": m.wall_s, "cpu_s": m.cpu_s, "peak_mb": m.peak_mb, "failure": m.failure,
+               "warnings": _warning_text(m.diagnostics.get("warnings"))}
         if m.failure is None and ref.failure is None:
             row.update(comparison_metrics(m, ref, grid, sigma_u, scene.theta_i, scene.phi_i))
         rows.append(row)

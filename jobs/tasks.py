@@ -32,6 +32,7 @@ from wavebrdf.solver.farfield import BRDFResult, FarField, albedo, combine_polar
 from wavebrdf.solver.models import Estimate, Model, model_class
 from wavebrdf.solver.polarimetry import jones
 from wavebrdf.solver.resources import peak_memory_mb
+from wavebrdf.solver.validity import energy_excess_warning
 
 __all__ = ["KINDS", "ModelPool", "TaskKind", "execute_task", "plain"]
 
@@ -139,21 +140,14 @@ def _estimate_check(plan, task) -> Estimate:
 
 # --- save (parts folder) -----------------------------------------------------------------------
 
-ENERGY_SLACK = 1e-3  # an albedo above 1 by more than this is energy the model created
-
 
 def _energy_check(plan, task, albedo_sp: np.ndarray, diagnostics: dict) -> None:
-    """Record ``albedo_excess`` and, beyond :data:`ENERGY_SLACK`, a warning naming the model and the
-    incidence: no model may return more power than falls on the surface (κ ≥ 0)."""
-    excess = float(np.max(albedo_sp)) - 1.0
-    diagnostics["albedo_excess"] = max(0.0, excess)
-    if excess > ENERGY_SLACK:
-        theta, _ = np.rad2deg(plan.direction_rad(task))
-        model = diagnostics.get("model", plan.model_spec(task).name)
-        message = (f"EnergyWarning: albedo (s, p) = ({albedo_sp[0]:.4g}, {albedo_sp[1]:.4g}) > 1 at θ_i = "
-                   f"{theta:g}°: {model} returns {excess:.3g} of the incident power that does not exist "
-                   "(outside the model's validity, e.g. no shadowing at grazing incidence; a rung with "
-                   "shadowing such as ws-v, or bem, models it)")
+    """Record ``albedo_excess`` and, beyond :data:`~wavebrdf.solver.validity.ENERGY_SLACK`, a
+    warning naming the model and the incidence (:func:`~wavebrdf.solver.validity.energy_excess_warning`)."""
+    diagnostics["albedo_excess"] = max(0.0, float(np.max(albedo_sp)) - 1.0)
+    theta, _ = np.rad2deg(plan.direction_rad(task))
+    message = energy_excess_warning(diagnostics.get("model", plan.model_spec(task).name), theta, albedo_sp)
+    if message:
         diagnostics["warnings"] = "; ".join(w for w in (diagnostics.get("warnings", ""), message) if w)
 
 

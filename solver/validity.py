@@ -11,6 +11,8 @@ diagnostics). Found by the extremes suite (tests/extremes.py, docs/extremes.md).
   by the footprint their warning names that option (:func:`beam_incidence_remedy`).
 * :func:`check_evanescent_loss` — OHS keeps only the part of the reflected angular spectrum
   inside the unit disk (GHS renormalizes it): on rough patches the rest is simply missing.
+* :func:`energy_excess_warning` — no model may return more power than falls on the surface
+  (κ ≥ 0): the line a run's task table and ``compare``'s table carry when one does.
 """
 
 from __future__ import annotations
@@ -20,12 +22,13 @@ import warnings
 import numpy as np
 
 
-__all__ = ["EVANESCENT_LOSS", "SPREAD_ERROR", "SPREAD_COEFFICIENT", "ValidityWarning", "beam_incidence_remedy",
-           "cells_fix", "check_evanescent_loss", "check_waist"]
+__all__ = ["ENERGY_SLACK", "EVANESCENT_LOSS", "SPREAD_ERROR", "SPREAD_COEFFICIENT", "ValidityWarning",
+           "beam_incidence_remedy", "cells_fix", "check_evanescent_loss", "check_waist", "energy_excess_warning"]
 
 EVANESCENT_LOSS = 0.01  # OHS: warn when this share of the reflected spectrum is dropped
 SPREAD_COEFFICIENT = 0.3  # albedo error ≈ this × (λ₁/(πw))²/μ_i² (fitted on flat aluminium, see above)
 SPREAD_ERROR = 0.005  # warn above this predicted relative albedo error (the rungs' flat tolerance)
+ENERGY_SLACK = 1e-3  # an albedo above 1 by more than this is energy the model created
 
 
 class ValidityWarning(UserWarning):
@@ -49,6 +52,18 @@ def check_evanescent_loss(fraction: float, diagnostics: dict, theta_i: float) ->
                    "(rough patch; ghs renormalizes it)")
         _append(diagnostics, message)
         warnings.warn(message, ValidityWarning, stacklevel=3)
+
+
+def energy_excess_warning(model: str, theta_i_deg: float, albedo_sp) -> str | None:
+    """The EnergyWarning line (category first, as task tables store warnings) when the albedo (s,
+    p) of ``model``'s BRDF at θ_i (degrees) exceeds 1 by more than :data:`ENERGY_SLACK`, else None."""
+    excess = float(np.max(albedo_sp)) - 1.0
+    if not excess > ENERGY_SLACK:
+        return None
+    return (f"EnergyWarning: albedo (s, p) = ({albedo_sp[0]:.4g}, {albedo_sp[1]:.4g}) > 1 at θ_i = "
+            f"{theta_i_deg:g}°: {model} returns {excess:.3g} of the incident power that does not exist "
+            "(outside the model's validity, e.g. no shadowing at grazing incidence; a rung with "
+            "shadowing such as ws-v, or bem, models it)")
 
 
 def beam_incidence_remedy(model: str) -> str:

@@ -51,6 +51,37 @@ def test_a_model_against_itself_and_a_failing_one(flat_scene, tmp_path):
         read_comparison(write_small_h5(tmp_path / "other.h5"))
 
 
+def test_every_row_carries_what_its_model_warned_and_a_warned_reference_is_listed(tmp_path):
+    """Rough gold at θ_i = 88° lit by a 1 µm waist: the tangent-plane rungs return more power than
+    falls on the patch (a passive surface reflects at most all of it), and each row whose albedo
+    exceeds 1 says so in its ``warnings`` (EnergyWarning, as a run's task table), beside the waist
+    warning its model raised; flat glass at 30° lit by a waist its patch holds (Fresnel's 0.04)
+    carries none. The Markdown
+    gives the kinds and lists the warned reference's text in full."""
+    from wavebrdf.solver.materials import Material
+
+    rough = generate("gaussian", cells=120, size_um=6.0, rms_height_um=0.05, correlation_um=0.8, seed=3)
+    gold = complex(Material.from_name("gold").index(0.9))
+    grazing = SurfaceScene(rough, 0.9, gold, np.deg2rad(88.0), 0.0, 1.0, HemisphereGrid(48))
+    comparison = compare_scenes([("gold 88°", grazing)], ["kirchhoff", "stam"], reference="kirchhoff")
+    held = SurfaceScene(generate("flat", cells=100, size_um=20.0), 0.5, 1.5 + 0j, np.deg2rad(30.0), 0.0, 3.0,
+                        HemisphereGrid(48))
+    calm = compare_scenes([("flat glass 30°", held)], ["kirchhoff"], reference="kirchhoff")
+    for row in comparison.rows:
+        assert row["albedo"] > 1.0 + 1e-3, row  # the scene is beyond these rungs' validity
+        assert "EnergyWarning: albedo (s, p)" in row["warnings"] and f"{row['model']} returns" in row["warnings"]
+        assert f"ValidityWarning: {row['model']}: the footprint of waist 1 µm" in row["warnings"]
+    assert calm.rows[0]["albedo"] < 0.1 and calm.rows[0]["warnings"] == ""
+    table = comparison.markdown()
+    assert "| EnergyWarning, ValidityWarning |" in table
+    assert "The reference warned on 1 scene(s)" in table and "- gold 88°, kirchhoff: EnergyWarning:" in table
+    assert "warned" not in calm.markdown()
+    comparison.write(tmp_path / "grazing")
+    with open(tmp_path / "grazing.csv") as fh:
+        assert all("EnergyWarning" in r["warnings"] for r in csv.DictReader(fh))
+    assert "EnergyWarning" in read_comparison(tmp_path / "grazing.h5")[0]["warnings"][1]
+
+
 def write_small_h5(path):
     with h5py.File(path, "w") as h5:
         h5["x"] = 1
