@@ -311,8 +311,8 @@ def cmd_inspect(args) -> int:
 
 
 def _print_validity(plan) -> None:
-    """The sampling-validity warnings (and refusals) each task's model would carry (Model.validity),
-    once per message with the tasks that carry it."""
+    """The warnings (and refusals) each task's model would carry that need no run (sampling, the
+    footprint's spread: Model.foreseen_warnings), once per message with the tasks that carry it."""
     models, notes = {}, {}
     for task in plan.tasks:
         if task.kind not in ("direct", "patch", "fiber"):
@@ -322,7 +322,8 @@ def _print_validity(plan) -> None:
             models[id(spec)] = spec.build()
         model = models[id(spec)]
         try:  # a task with spot checks: the rung expected for its series (jobs/spot_checks.py)
-            found = model.validity(plan.model_scene(task), *([expectation_scene(plan, task)] if task.checks else []))
+            found = model.foreseen_warnings(plan.model_scene(task),
+                                            *([expectation_scene(plan, task)] if task.checks else []))
         except ValueError as exc:
             found = [f"refused: {exc}"]
         for message in found:

@@ -727,6 +727,12 @@ class AutoModel(Model):
             return []
         return self.rung(self.choice(like or scene, checked=like is not None).model).validity(scene)
 
+    def foreseen_warnings(self, scene, like: SurfaceScene | None = None) -> list[str]:
+        """As :meth:`validity`: those of the rung the rule expects (for ``like``, given)."""
+        if not isinstance(scene, SurfaceScene):
+            return []
+        return self.rung(self.choice(like or scene, checked=like is not None).model).foreseen_warnings(scene)
+
     def incident_fields(self, scene: SurfaceScene, points):
         """The full-wave reference's beam: the steerable rungs' patch fields are normalized to the
         same incident power within O((λ/πw)²), so one beam serves sub-areas of mixed rungs."""

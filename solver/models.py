@@ -39,7 +39,7 @@ from wavebrdf.solver.farfield import HemisphereGrid
 from wavebrdf.solver.options import NoOptions, parse_options
 from wavebrdf.solver.precision import Precision
 from wavebrdf.solver.surface import HeightField
-from wavebrdf.solver.validity import ValidityWarning, check_sampling
+from wavebrdf.solver.validity import ValidityWarning, check_sampling, waist_spread
 
 __all__ = [
     "Capabilities",
@@ -260,6 +260,22 @@ class Model(ABC):
         if not isinstance(scene, SurfaceScene):
             return []
         return check_sampling(self.name, self.sampling, scene)
+
+    def waist_remedy(self) -> str | None:
+        """What removes the footprint's angular-spread error from this model's albedo besides a
+        wider waist, as its run's :func:`~wavebrdf.solver.validity.check_waist` names it; None where
+        its run has no such error to predict (rays, renormalized or beam-lit rungs, the full wave)."""
+        return None
+
+    def foreseen_warnings(self, scene) -> list[str]:
+        """What ``plan`` shows for ``scene`` before anything runs: the warnings of :meth:`validity`
+        and of the run-time checks that need no run (the footprint's spread,
+        :func:`~wavebrdf.solver.validity.waist_spread`), in the words the run will use."""
+        found = list(self.validity(scene))
+        remedy = self.waist_remedy()
+        if remedy is not None and isinstance(scene, SurfaceScene):
+            found += [message for message in waist_spread(scene, self.name, remedy)[1:] if message]
+        return found
 
     def incident_fields(self, scene: SurfaceScene, points):
         """Incident (E, H), each (2 pol, 3, ...), at ``points`` (..., 3) in patch coordinates,

@@ -23,7 +23,8 @@ import numpy as np
 
 
 __all__ = ["ENERGY_SLACK", "EVANESCENT_LOSS", "SPREAD_ERROR", "SPREAD_COEFFICIENT", "ValidityWarning",
-           "beam_incidence_remedy", "cells_fix", "check_evanescent_loss", "check_waist", "energy_excess_warning"]
+           "beam_incidence_remedy", "cells_fix", "check_evanescent_loss", "check_waist", "energy_excess_warning",
+           "waist_spread"]
 
 EVANESCENT_LOSS = 0.01  # OHS: warn when this share of the reflected spectrum is dropped
 SPREAD_COEFFICIENT = 0.3  # albedo error ≈ this × (λ₁/(πw))²/μ_i² (fitted on flat aluminium, see above)
@@ -71,21 +72,33 @@ def beam_incidence_remedy(model: str) -> str:
     return f'incidence = "beam" in [model.{model}] (each plane wave of the beam reflected at its own angle)'
 
 
-def check_waist(scene, diagnostics: dict, model: str, remedy: str = "ghs") -> None:
-    """Warn when the footprint's angular spread makes the albedo err by more than SPREAD_ERROR
-    (``diagnostics["waist_spread_error"]``: the predicted relative error); the message names a
-    waist that would do, or ``remedy``: what else removes the spread error for ``model``."""
+def waist_spread(scene, model: str, remedy: str = "ghs") -> tuple[float | None, str | None]:
+    """The footprint's angular spread λ₁/(πw) makes the albedo err by ≈ :data:`SPREAD_COEFFICIENT`
+    (λ₁/(πw))²/μ_i² (relative): that predicted error (None for a plane wave) and, above
+    :data:`SPREAD_ERROR`, the warning naming a waist that would do, or ``remedy``: what else removes
+    the spread error for ``model``. Runs nothing (``plan`` foresees it: Model.foreseen_warnings)."""
     if scene.waist_um is None:
-        return
+        return None, None
     lambda1 = scene.wavelength_um / scene.exterior_index
     mu_i = max(float(np.cos(scene.theta_i)), 1e-12)
     error = SPREAD_COEFFICIENT * (lambda1 / (np.pi * scene.waist_um)) ** 2 / mu_i**2
-    diagnostics["waist_spread_error"] = float(error)
-    if error > SPREAD_ERROR:
-        message = (f"{model}: the footprint of waist {scene.waist_um:g} µm spreads over λ₁/(πw) = "
-                   f"{lambda1 / (np.pi * scene.waist_um):.3g} rad at θ_i = {np.rad2deg(scene.theta_i):.4g}°, so the "
-                   f"albedo is off by about {error:.2g} (relative; obliquity and Fresnel vary across the spread): use a "
-                   f"waist ≥ {lambda1 / np.pi * np.sqrt(SPREAD_COEFFICIENT / SPREAD_ERROR) / mu_i:.3g} µm, or {remedy}")
+    if not error > SPREAD_ERROR:
+        return float(error), None
+    return float(error), (
+        f"{model}: the footprint of waist {scene.waist_um:g} µm spreads over λ₁/(πw) = "
+        f"{lambda1 / (np.pi * scene.waist_um):.3g} rad at θ_i = {np.rad2deg(scene.theta_i):.4g}°, so the "
+        f"albedo is off by about {error:.2g} (relative; obliquity and Fresnel vary across the spread): use a "
+        f"waist ≥ {lambda1 / np.pi * np.sqrt(SPREAD_COEFFICIENT / SPREAD_ERROR) / mu_i:.3g} µm, or {remedy}")
+
+
+def check_waist(scene, diagnostics: dict, model: str, remedy: str = "ghs") -> None:
+    """Warn when the footprint's angular spread makes the albedo err by more than SPREAD_ERROR
+    (:func:`waist_spread`; ``diagnostics["waist_spread_error"]``: the predicted relative error)."""
+    error, message = waist_spread(scene, model, remedy)
+    if error is None:
+        return
+    diagnostics["waist_spread_error"] = error
+    if message:
         _append(diagnostics, message)
         warnings.warn(message, ValidityWarning, stacklevel=3)
 

@@ -282,6 +282,45 @@ def test_sampling_warnings_reach_plan_task_table_and_inspect(tmp_path):
     assert "requested statistics" in shown.stdout and "surface.cells ≥" in shown.stdout
 
 
+OBLIQUE_SPREAD = ("kirchhoff", None, "ghs"), ("stam", None, "ghs"), ("ohs", None, "ghs"), ("ghs", None, None), \
+    ("po", None, '[model.po]'), ("po", {"incidence": "beam"}, None), ("ws-v", None, '[model.ws-v]')
+
+
+@pytest.mark.parametrize("name, options, remedy", OBLIQUE_SPREAD)
+def test_the_footprints_spread_is_foreseen_in_the_words_the_run_uses(cl_ctx, name, options, remedy):
+    """Aluminium at θ_i = 75° lit by a 1 µm waist: the spread λ/(πw) = 0.16 rad makes a rung that
+    takes one incidence angle err in albedo; ``foreseen_warnings`` (what ``plan`` prints) gives the
+    run's own warning, word for word, with the rung's remedy, before anything runs; ghs (renormalized)
+    and po lit by the beam (each plane wave at its own angle) foresee and raise none."""
+    surface = generate("gaussian", cells=96, size_um=6.0, rms_height_um=0.02, correlation_um=0.8, seed=2)
+    scene = SurfaceScene(surface, 0.5, complex(0.87, -6.4), np.deg2rad(75.0), 0.0, 1.0, HemisphereGrid(48))
+    model = get_model(name, options)
+    foreseen = [m for m in model.foreseen_warnings(scene) if "spreads over" in m]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        model.run(cl_ctx, scene)
+    raised = [str(w.message) for w in caught if "spreads over" in str(w.message)]
+    assert foreseen == raised, (foreseen, raised)
+    assert len(raised) == (remedy is not None) and all(remedy in m for m in raised)
+
+
+def test_plan_prints_the_footprints_spread_before_the_run(tmp_path, capsys):
+    """``wavebrdf plan`` at θ_i 0° and 85° (waist 2.3 µm, λ 0.45 µm): the oblique task's warning,
+    the normal one none."""
+    from wavebrdf.jobs.cli import main
+
+    config = tmp_path / "oblique.toml"
+    config.write_text(
+        '[study]\nname = "oblique"\noutput = "oblique.h5"\n[surface]\ngenerator = "gaussian"\nsize_um = 12.5\n'
+        'cells = 250\nrms_height_um = 0.05\ncorrelation_um = 1.8\nseed = 7\n[material]\nname = "aluminium"\n'
+        '[illumination]\nwavelengths_um = [0.45]\ndirections_deg = [[0, 0], [85, 0]]\nwaist_um = 2.3\n'
+        '[model]\nname = "kirchhoff"\n[output]\nresolution = 64\n')
+    assert main(["plan", str(config)]) == 0
+    out = capsys.readouterr().out
+    assert "WARNING (task #1): kirchhoff: the footprint of waist 2.3 µm spreads over" in out, out
+    assert "task #0" not in out and "or ghs" in out
+
+
 def test_a_correlation_far_beyond_the_patch_is_warned_with_the_patch_fix():
     """T = 10⁶ µm on a 3 µm patch: the grid holds none of the ensemble's power beyond the mean; the
     warning says so without NaN and asks for a larger patch, not more cells."""

@@ -404,6 +404,9 @@ class WSVModel(Model):
         o = self.options
         return wsv_farfield(ctx, scene, o.masking, o.masking_classes, o.border, o.incidence)
 
+    def waist_remedy(self) -> str | None:
+        return None if self.options.incidence == "beam" else beam_incidence_remedy(self.name)  # lit by the beam
+
     def estimate(self, scene: SurfaceScene) -> Estimate:
         return _wsv_estimate(scene, self.options)
 
@@ -418,6 +421,10 @@ class WMModel(Model):
     Options = WMOptions
     capabilities = Capabilities(takes="height_field", returns="intensity", polarized=True, steerable=False,
                                 reciprocal=False, conserves_energy=False, rung=7)
+
+    def waist_remedy(self) -> str | None:
+        """As ws-v's (its single-scattering part warns as wm)."""
+        return WSVModel.waist_remedy(self)
 
     def run(self, ctx, scene: SurfaceScene) -> IntensityResult:
         o = self.options

@@ -503,6 +503,9 @@ class OHSModel(HarveyShackModel):
     variant = "ohs"
     capabilities = replace(HarveyShackModel.capabilities, rung=2)
 
+    def waist_remedy(self) -> str | None:
+        return "ghs"  # harvey_shack_farfield's check_waist
+
 
 class GHSModel(HarveyShackModel):
     """``[model] name = "ghs"``: generalized Harvey–Shack (c_z = k(μ_i+μ_o), Ω = μ_o/μ_i, Fresnel at

@@ -518,8 +518,11 @@ class KirchhoffModel(FootprintModel):
             scene.grid, window=scene_footprint(scene), exterior_index=scene.exterior_index,
             z_reference=scene.z_reference, precision=scene.precision,
         )
-        check_waist(scene, ff.diagnostics, self.name)
+        check_waist(scene, ff.diagnostics, self.name, self.waist_remedy())
         return ff
+
+    def waist_remedy(self) -> str | None:
+        return "ghs"
 
     def estimate(self, scene: SurfaceScene) -> Estimate:
         nodes = scene.surface.cells + 1

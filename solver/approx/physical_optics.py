@@ -295,6 +295,9 @@ class POModel(FootprintModel):
     def run(self, ctx, scene: SurfaceScene) -> FarField:
         return po_farfield(ctx, scene, self.options.shadowing, self.options.border, self.options.incidence)
 
+    def waist_remedy(self) -> str | None:
+        return None if self.options.incidence == "beam" else beam_incidence_remedy(self.name)  # lit by the beam
+
     def incident_fields(self, scene: SurfaceScene, points):
         """The footprint plane wave, or with ``incidence = "beam"`` the full-wave solver's exact beam."""
         if self.options.incidence == "beam" and scene.waist_um is not None:

@@ -246,8 +246,11 @@ class StamModel(Model):
                                  incident_power=np.array([power, power]),
                                  diagnostics={"model": self.name, "precision": scene.precision, **diagnostics,
                                               "wall_time_s": time.perf_counter() - t0})
-        check_waist(scene, result.diagnostics, self.name)
+        check_waist(scene, result.diagnostics, self.name, self.waist_remedy())
         return result
+
+    def waist_remedy(self) -> str | None:
+        return "ghs"
 
     def estimate(self, scene: SurfaceScene) -> Estimate:
         pixels = float(np.count_nonzero(scene.grid.inside))
