@@ -36,7 +36,7 @@ from wavebrdf.jobs.render import add_render_flags, pictures_folder, render_datas
 from wavebrdf.jobs.scheduler import prepare_output, run_plan
 from wavebrdf.jobs.shards import add_merge_parser
 from wavebrdf.jobs.spot_checks import expectation_scene, spot_check_summary
-from wavebrdf.jobs.store import Dataset, StoreError
+from wavebrdf.jobs.store import Dataset, StoreError, is_comparison, read_comparison
 from wavebrdf.jobs.study_kinds import study_kind
 from wavebrdf.jobs.submit import add_submit_parser
 from wavebrdf.solver.auto import plan_summary
@@ -275,6 +275,8 @@ def cmd_models(args) -> int:
 
 
 def cmd_inspect(args) -> int:
+    if is_comparison(args.file):
+        return _inspect_comparison(args.file)
     with Dataset(args.file) as ds, ds.reading():
         attrs = ds.attrs
         print(f"{ds.path}: {ds.kind} study {attrs.get('study')!r}, wavebrdf {attrs.get('software_version')}, "
@@ -331,6 +333,18 @@ def _print_validity(plan) -> None:
     for message, ids in notes.items():
         more = f", ... ({len(ids)} tasks)" if len(ids) > 3 else ""
         print(f"WARNING (task {', '.join(f'#{i}' for i in ids[:3])}{more}): {message}")
+
+
+def _inspect_comparison(path) -> int:
+    """A file of ``wavebrdf compare``: its scenes, models and table, as ``compare`` printed it."""
+    from wavebrdf.jobs.compare import comparison_markdown
+
+    table, brdfs = read_comparison(path)
+    rows = [dict(zip(table, values)) for values in zip(*table.values())]
+    print(f"{path}: wavebrdf compare of {len(set(table['model']))} model(s) on {len(set(table['scene']))} scene(s), "
+          f"{len(brdfs)} BRDF(s) stored")
+    print(comparison_markdown(rows), end="")
+    return 0
 
 
 def _texts(tasks: dict, column: str) -> list[str]:

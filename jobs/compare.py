@@ -56,8 +56,8 @@ from wavebrdf.solver.validity import energy_excess_warning
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Comparison", "Measurement", "choose_reference", "compare_options", "compare_scenes", "comparison_metrics",
-           "measure", "speckle_sigma_u", "warning_kinds"]
+__all__ = ["Comparison", "Measurement", "choose_reference", "compare_options", "compare_scenes", "comparison_markdown",
+           "comparison_metrics", "measure", "speckle_sigma_u", "warning_kinds"]
 
 RETRO_CONE_DEG = 5.0
 COLUMNS = ("scene", "model", "reference", "wall_s", "cpu_s", "peak_mb", "albedo", "albedo_diff", "rel_l2",
@@ -291,22 +291,7 @@ class Comparison:
         return paths
 
     def markdown(self) -> str:
-        def cell(v):
-            if isinstance(v, float):
-                return "" if not np.isfinite(v) else f"{v:.3g}"
-            return "" if v is None else str(v)
-
-        def short(r, k):  # a warning's kind in the table; its text is in the CSV and the .h5
-            return warning_kinds(r.get(k) or "") if k == "warnings" else cell(r.get(k))
-
-        lines = ["| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
-        lines += ["| " + " | ".join(short(r, k) for k in COLUMNS) + " |" for r in self.rows]
-        warned = [r for r in self.rows if r.get("warnings") and r["model"] == r["reference"].split(" (")[0]]
-        if warned:
-            lines += ["", f"The reference warned on {len(warned)} scene(s); every error measured against it there "
-                      "carries that warning (full text in the CSV's `warnings` column):"]
-            lines += [f"- {r['scene']}, {r['model']}: {r['warnings']}" for r in warned]
-        return "\n".join(lines) + "\n"
+        return comparison_markdown(self.rows)
 
     def plot(self, path: Path) -> None:
         plot_trade(self.rows, path)
@@ -413,6 +398,27 @@ def plot_trade(rows: list[dict], path: Path, group: str = "scene", title: str | 
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
+
+
+def comparison_markdown(rows: list[dict]) -> str:
+    """The Markdown table of a comparison's rows (:data:`COLUMNS`; a warning by its kind) and,
+    under it, the full text of every warning the reference raised."""
+    def cell(r, k):  # a warning's kind in the table; its text is in the CSV and the .h5
+        v = r.get(k)
+        if k == "warnings":
+            return warning_kinds(v or "")
+        if isinstance(v, float):
+            return "" if not np.isfinite(v) else f"{v:.3g}"
+        return "" if v is None else str(v)
+
+    lines = ["| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
+    lines += ["| " + " | ".join(cell(r, k) for k in COLUMNS) + " |" for r in rows]
+    warned = [r for r in rows if r.get("warnings") and r["model"] == str(r["reference"]).split(" (")[0]]
+    if warned:
+        lines += ["", f"The reference warned on {len(warned)} scene(s); every error measured against it there "
+                  "carries that warning (full text in the CSV's `warnings` column):"]
+        lines += [f"- {r['scene']}, {r['model']}: {r['warnings']}" for r in warned]
+    return "\n".join(lines) + "\n"
 
 
 def _warning_text(recorded) -> str:

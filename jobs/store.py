@@ -81,6 +81,7 @@ __all__ = [
     "read_comparison",
     "write_comparison",
     "write_dataset",
+    "is_comparison",
 ]
 
 FORMAT = "wavebrdf"
@@ -307,6 +308,16 @@ def write_comparison(path: Path, columns, rows: list[dict], brdfs: list[tuple[st
         for i, (scene, model, brdf, diagnostics) in enumerate(brdfs):
             ds = group.create_dataset(f"{i:04d}", data=np.asarray(brdf, dtype=np.float32), compression="gzip")
             ds.attrs.update({"model": model, "scene": scene, "diagnostics": json.dumps(diagnostics, default=repr)})
+
+
+def is_comparison(path: Path) -> bool:
+    """Whether ``path`` is a file of ``wavebrdf compare`` (:func:`write_comparison`); False for
+    anything else, a study's dataset or no HDF5 file at all included."""
+    try:
+        with h5py.File(path, "r") as h5:
+            return "wavebrdf_compare" in h5.attrs
+    except OSError:
+        return False
 
 
 def read_comparison(path: Path) -> tuple[dict[str, list], dict[tuple[str, str], np.ndarray]]:
@@ -730,6 +741,9 @@ class Dataset:
         """Format, version and the variables of the layout, before anything else is read."""
         attrs = self._h5.attrs
         if attrs.get("format") != FORMAT:
+            if "wavebrdf_compare" in attrs:
+                raise self._fail("is a file of `wavebrdf compare`, not a study's dataset: `wavebrdf inspect` prints "
+                                 "its table (jobs/store.py read_comparison reads its BRDFs)")
             raise self._fail("is not a wavebrdf dataset (no format=\"wavebrdf\" attribute)")
         version = attrs.get("format_version")
         if not isinstance(version, (int, np.integer)) or isinstance(version, (bool, np.bool_)):
@@ -771,8 +785,8 @@ class Dataset:
         """Turn what a damaged file raises while it is read into a one-line :class:`StoreError`."""
         try:
             yield self
-        except (StorageError, BrokenPipeError):  # a reader that stopped reading is not a damaged file
-            raise
+        except (StorageError, StoreError, BrokenPipeError):  # a reader that stopped reading is not a damaged
+            raise  # file, and a file found not to be a dataset says so itself
         except (KeyError, ValueError, IndexError, TypeError, OSError, RuntimeError) as exc:  # h5py: stale scales
             text = " ".join(str(exc).split())[:200]
             raise self._fail(f"is damaged or incomplete ({type(exc).__name__}: {text})") from None

@@ -51,13 +51,14 @@ def test_a_model_against_itself_and_a_failing_one(flat_scene, tmp_path):
         read_comparison(write_small_h5(tmp_path / "other.h5"))
 
 
-def test_every_row_carries_what_its_model_warned_and_a_warned_reference_is_listed(tmp_path):
+def test_every_row_carries_what_its_model_warned_and_a_warned_reference_is_listed(tmp_path, capsys):
     """Rough gold at θ_i = 88° lit by a 1 µm waist: the tangent-plane rungs return more power than
     falls on the patch (a passive surface reflects at most all of it), and each row whose albedo
     exceeds 1 says so in its ``warnings`` (EnergyWarning, as a run's task table), beside the waist
     warning its model raised; flat glass at 30° lit by a waist its patch holds (Fresnel's 0.04)
     carries none. The Markdown
-    gives the kinds and lists the warned reference's text in full."""
+    gives the kinds and lists the warned reference's text in full; ``wavebrdf inspect`` prints the
+    file's table the same way, and ``render`` (a study's pictures) refuses it saying what it is."""
     from wavebrdf.solver.materials import Material
 
     rough = generate("gaussian", cells=120, size_um=6.0, rms_height_um=0.05, correlation_um=0.8, seed=3)
@@ -80,6 +81,15 @@ def test_every_row_carries_what_its_model_warned_and_a_warned_reference_is_liste
     with open(tmp_path / "grazing.csv") as fh:
         assert all("EnergyWarning" in r["warnings"] for r in csv.DictReader(fh))
     assert "EnergyWarning" in read_comparison(tmp_path / "grazing.h5")[0]["warnings"][1]
+    from wavebrdf.jobs.cli import main
+
+    assert main(["inspect", str(tmp_path / "grazing.h5")]) == 0  # the table as compare printed it
+    shown = capsys.readouterr().out
+    assert "wavebrdf compare of 2 model(s) on 1 scene(s), 2 BRDF(s) stored" in shown
+    assert "| gold 88° | stam | kirchhoff |" in shown and "- gold 88°, kirchhoff: EnergyWarning:" in shown
+    assert main(["render", str(tmp_path / "grazing.h5")]) == 2  # a study's pictures: refused, saying why
+    error = capsys.readouterr().err
+    assert "is a file of `wavebrdf compare`" in error and "damaged" not in error, error
 
 
 def write_small_h5(path):

@@ -108,7 +108,8 @@ def test_open_rejects_foreign_files(tmp_path):
     other = tmp_path / "other.h5"
     with h5py.File(other, "w") as h5:
         h5["x"] = 1
-    with pytest.raises(StoreError, match="not a wavebrdf dataset"):
+    with pytest.raises(StoreError, match="not a wavebrdf dataset") as refused:
         wavebrdf.open(other)
+    assert "damaged" not in str(refused.value)  # a foreign file is not a damaged dataset
     with pytest.raises(StoreError, match="does not exist"):
         wavebrdf.open(tmp_path / "missing.h5")
