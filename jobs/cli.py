@@ -276,7 +276,7 @@ def cmd_models(args) -> int:
 
 def cmd_inspect(args) -> int:
     if is_comparison(args.file):
-        return _inspect_comparison(args.file)
+        return _inspect_comparison(args.file, args.config)
     with Dataset(args.file) as ds, ds.reading():
         attrs = ds.attrs
         print(f"{ds.path}: {ds.kind} study {attrs.get('study')!r}, wavebrdf {attrs.get('software_version')}, "
@@ -335,7 +335,7 @@ def _print_validity(plan) -> None:
         print(f"WARNING (task {', '.join(f'#{i}' for i in ids[:3])}{more}): {message}")
 
 
-def _inspect_comparison(path) -> int:
+def _inspect_comparison(path, config: bool = False) -> int:
     """A file of ``wavebrdf compare``: its scenes, models and table, as ``compare`` printed it."""
     from wavebrdf.jobs.compare import comparison_markdown
 
@@ -344,6 +344,8 @@ def _inspect_comparison(path) -> int:
     print(f"{path}: wavebrdf compare of {len(set(table['model']))} model(s) on {len(set(table['scene']))} scene(s), "
           f"{len(brdfs)} BRDF(s) stored")
     print(comparison_markdown(rows), end="")
+    if config:
+        print("config: a comparison file keeps no config (the study's config wrote it)")
     return 0
 
 

@@ -30,6 +30,7 @@ scene) and an HDF5 file with the same numbers and every BRDF.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import logging
 import re
 import time
@@ -87,6 +88,7 @@ def _run_one(ctx, name: str, options, scene) -> dict:
     from wavebrdf.jobs.tasks import plain
     from wavebrdf.solver.resources import peak_resident_bytes, reset_peak_memory
 
+    caught: list = []
     try:
         model = get_model(name, options)
         baseline = reset_peak_memory()  # NaN where the peak cannot be reset: the peak is then not this model's
@@ -96,13 +98,17 @@ def _run_one(ctx, name: str, options, scene) -> dict:
             result = model.run(ctx, scene)
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         diagnostics, brdf = plain(result.diagnostics), result.brdf()
-        messages = {f"{w.category.__name__}: {w.message}" for w in caught}  # as a run's task table stores them
-        messages.add(energy_excess_warning(name, float(np.rad2deg(scene.theta_i)), albedo(brdf, scene.grid)) or "")
-        diagnostics["warnings"] = "; ".join(sorted(messages - {""}))
+        diagnostics["warnings"] = _caught_text(caught)
         return dict(wall_s=wall, cpu_s=cpu,
                     peak_mb=max(peak_resident_bytes() - baseline, 0.0) / 2**20, brdf=brdf, diagnostics=diagnostics)
     except Exception as exc:  # noqa: BLE001 - reported in the table, the comparison goes on
-        return dict(failure=f"{type(exc).__name__}: {exc}", trace=traceback.format_exc())
+        return dict(failure=f"{type(exc).__name__}: {exc}", trace=traceback.format_exc(),
+                    diagnostics={"warnings": _caught_text(caught)})  # what it said before it failed
+
+
+def _caught_text(caught) -> str:
+    """Recorded warnings as a run's task table stores them: "Category: message"; …, each once."""
+    return "; ".join(sorted({f"{w.category.__name__}: {w.message}" for w in caught}))
 
 
 PROGRESS_FILE_VARIABLE = "WAVEBRDF_MEASURE_PROGRESS"
@@ -413,7 +419,7 @@ def comparison_markdown(rows: list[dict]) -> str:
 
     lines = ["| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
     lines += ["| " + " | ".join(cell(r, k) for k in COLUMNS) + " |" for r in rows]
-    warned = [r for r in rows if r.get("warnings") and r["model"] == str(r["reference"]).split(" (")[0]]
+    warned = [r for r in rows if r.get("warnings") and r.get("model") == str(r.get("reference", "")).split(" (")[0]]
     if warned:
         lines += ["", f"The reference warned on {len(warned)} scene(s); every error measured against it there "
                   "carries that warning (full text in the CSV's `warnings` column):"]
@@ -421,16 +427,38 @@ def comparison_markdown(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _warning_text(recorded) -> str:
-    """A measurement's warnings as one string (a model's diagnostics may hold them as a list)."""
-    if isinstance(recorded, (list, tuple)):
-        return "; ".join(str(w) for w in recorded)
-    return str(recorded or "")
+def _finite_or_failed(m: Measurement, scene) -> Measurement:
+    """``m`` (run here or stored before), or where its BRDF holds NaN/inf inside the disk a failure
+    saying so, as a run's task fails."""
+    if m.failure is not None or m.brdf is None:
+        return m
+    bad = int(np.count_nonzero(~np.isfinite(m.brdf[:, scene.grid.inside])))
+    if not bad:
+        return m
+    return dataclasses.replace(m, brdf=None, failure=f"FloatingPointError: {bad} BRDF value(s) NaN/inf inside the "
+                                                     "unit disk")
+
+
+def _row_warnings(m: Measurement, scene) -> str:
+    """The ``warnings`` cell of ``m``'s row: what it raised while it ran and, where its albedo
+    exceeds 1, the EnergyWarning naming the rung that ran (:func:`~wavebrdf.solver.validity.
+    energy_excess_warning`, the line a run's task table carries)."""
+    recorded = m.diagnostics.get("warnings")
+    text = "; ".join(map(str, recorded)) if isinstance(recorded, (list, tuple)) else str(recorded or "")
+    if m.failure is None and m.brdf is not None:
+        energy = energy_excess_warning(m.diagnostics.get("model", m.model), float(np.rad2deg(scene.theta_i)),
+                                       albedo(m.brdf, scene.grid))
+        if energy and energy not in text:
+            text = "; ".join(w for w in (text, energy) if w)
+    return text
 
 
 def warning_kinds(text: str) -> str:
-    """The kinds of the warnings in a ``warnings`` cell ("ValidityWarning ×2, EnergyWarning")."""
+    """The kinds of the warnings in a ``warnings`` cell ("ValidityWarning ×2, EnergyWarning"); a
+    text without a "Category:" prefix (a solve stored by an older version) reads "warned"."""
     counts = Counter(re.findall(r"(?:^|; )(\w+Warning):", text))
+    if not counts:
+        return "warned" if text.strip() else ""
     return ", ".join(kind + (f" ×{n}" if n > 1 else "") for kind, n in sorted(counts.items()))
 
 
@@ -498,7 +526,8 @@ def _compare_one(process, label, scene, models, options, reference, budget, kept
         before = (label, name) in measured
         if progress:
             progress(f"{label}: {name}{' (measured before)' if before else ''}")
-        runs[name] = measured[label, name] if before else process.measure(name, options.get(name), scene, label)
+        runs[name] = _finite_or_failed(measured[label, name] if before else
+                                       process.measure(name, options.get(name), scene, label), scene)
         kept.append(runs[name])
         logger.info("%s: %s %.3g s wall, %.3g s CPU, %.0f MB%s", label, name, runs[name].wall_s,
                     runs[name].cpu_s, runs[name].peak_mb, f" — {runs[name].failure}" if runs[name].failure else "")
@@ -507,7 +536,7 @@ def _compare_one(process, label, scene, models, options, reference, budget, kept
     for name, m in runs.items():
         row = {"scene": label, "model": name, "reference": ref_name if reference else f"{ref_name} ({why})",
                "wall_s": m.wall_s, "cpu_s": m.cpu_s, "peak_mb": m.peak_mb, "failure": m.failure,
-               "warnings": _warning_text(m.diagnostics.get("warnings"))}
+               "warnings": _row_warnings(m, scene)}
         if m.failure is None and ref.failure is None:
             row.update(comparison_metrics(m, ref, grid, sigma_u, scene.theta_i, scene.phi_i))
         rows.append(row)

@@ -299,8 +299,9 @@ def write_comparison(path: Path, columns, rows: list[dict], brdfs: list[tuple[st
         table = h5.create_group("table")
         for key in columns:
             values = [r.get(key) for r in rows]
-            if all(isinstance(v, (int, float)) for v in values):
-                table.create_dataset(key, data=np.array(values, dtype=float))
+            numbers = [v for v in values if v is not None]
+            if numbers and all(isinstance(v, (int, float)) for v in numbers):  # a failed row's metric: NaN
+                table.create_dataset(key, data=np.array([np.nan if v is None else v for v in values], dtype=float))
             else:
                 table.create_dataset(key, data=np.array(["" if v is None else str(v) for v in values], dtype=STRING))
         group = h5.create_group("brdf")
@@ -743,7 +744,7 @@ class Dataset:
         if attrs.get("format") != FORMAT:
             if "wavebrdf_compare" in attrs:
                 raise self._fail("is a file of `wavebrdf compare`, not a study's dataset: `wavebrdf inspect` prints "
-                                 "its table (jobs/store.py read_comparison reads its BRDFs)")
+                                 "its table (wavebrdf.jobs.store.read_comparison reads its BRDFs)")
             raise self._fail("is not a wavebrdf dataset (no format=\"wavebrdf\" attribute)")
         version = attrs.get("format_version")
         if not isinstance(version, (int, np.integer)) or isinstance(version, (bool, np.bool_)):

@@ -274,7 +274,8 @@ class Model(ABC):
         found = list(self.validity(scene))
         remedy = self.waist_remedy()
         if remedy is not None and isinstance(scene, SurfaceScene):
-            found += [message for message in waist_spread(scene, self.name, remedy)[1:] if message]
+            _, message = waist_spread(scene, self.name, remedy)
+            found += [message] if message else []
         return found
 
     def incident_fields(self, scene: SurfaceScene, points):

@@ -57,8 +57,10 @@ def check_evanescent_loss(fraction: float, diagnostics: dict, theta_i: float) ->
 
 def energy_excess_warning(model: str, theta_i_deg: float, albedo_sp) -> str | None:
     """The EnergyWarning line (category first, as task tables store warnings) when the albedo (s,
-    p) of ``model``'s BRDF at θ_i (degrees) exceeds 1 by more than :data:`ENERGY_SLACK`, else None."""
-    excess = float(np.max(albedo_sp)) - 1.0
+    p) of ``model``'s BRDF at θ_i (degrees) exceeds 1 by more than :data:`ENERGY_SLACK` in either
+    polarization (a NaN in one does not hide the other), else None."""
+    finite = np.asarray(albedo_sp, dtype=float)[np.isfinite(albedo_sp)]
+    excess = float(finite.max()) - 1.0 if finite.size else float("nan")
     if not excess > ENERGY_SLACK:
         return None
     return (f"EnergyWarning: albedo (s, p) = ({albedo_sp[0]:.4g}, {albedo_sp[1]:.4g}) > 1 at θ_i = "

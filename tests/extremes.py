@@ -28,7 +28,6 @@ from __future__ import annotations
 import math
 import time
 import traceback
-import types
 import warnings
 from dataclasses import dataclass, field
 
@@ -291,14 +290,10 @@ def cusp_section(radius_um: float, notch_deg: float, segments: float):
 
 
 def _energy_warning(model: str, theta_rad: float, albedo_sp) -> str:
-    """The dataset's EnergyWarning for this albedo (jobs/tasks.py ``_energy_check``), or ""."""
-    from wavebrdf.jobs.tasks import _energy_check
+    """The dataset's EnergyWarning for this albedo (what jobs/tasks.py ``_energy_check`` stores), or ""."""
+    from wavebrdf.solver.validity import energy_excess_warning
 
-    plan = types.SimpleNamespace(direction_rad=lambda task: (theta_rad, 0.0),
-                                 model_spec=lambda task: types.SimpleNamespace(name=model))
-    diagnostics: dict = {}
-    _energy_check(plan, None, np.asarray(albedo_sp), diagnostics)
-    return diagnostics.get("warnings", "")
+    return energy_excess_warning(model, float(np.rad2deg(theta_rad)), np.asarray(albedo_sp)) or ""
 
 
 def _run_surface(ctx, case: Case, name: str, precision: str, out: Outcome, models: dict):

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from references import fresnel_reflectance
-from wavebrdf.jobs.compare import Measurement, choose_reference, compare_scenes
+from wavebrdf.jobs.compare import Measurement, choose_reference, compare_scenes, warning_kinds
 from wavebrdf.jobs.store import StoreError, read_comparison
 from wavebrdf.solver.farfield import HemisphereGrid
 from wavebrdf.solver.models import SurfaceScene, rung_order
@@ -75,7 +75,9 @@ def test_every_row_carries_what_its_model_warned_and_a_warned_reference_is_liste
     assert calm.rows[0]["albedo"] < 0.1 and calm.rows[0]["warnings"] == ""
     table = comparison.markdown()
     assert "| EnergyWarning, ValidityWarning |" in table
-    assert "The reference warned on 1 scene(s)" in table and "- gold 88°, kirchhoff: EnergyWarning:" in table
+    assert warning_kinds("a solve's note stored without its kind") == "warned" and warning_kinds("") == ""
+    listed = table.split("- gold 88°, kirchhoff: ")[-1]
+    assert "The reference warned on 1 scene(s)" in table and "EnergyWarning: albedo (s, p)" in listed
     assert "warned" not in calm.markdown()
     comparison.write(tmp_path / "grazing")
     with open(tmp_path / "grazing.csv") as fh:
@@ -86,7 +88,7 @@ def test_every_row_carries_what_its_model_warned_and_a_warned_reference_is_liste
     assert main(["inspect", str(tmp_path / "grazing.h5")]) == 0  # the table as compare printed it
     shown = capsys.readouterr().out
     assert "wavebrdf compare of 2 model(s) on 1 scene(s), 2 BRDF(s) stored" in shown
-    assert "| gold 88° | stam | kirchhoff |" in shown and "- gold 88°, kirchhoff: EnergyWarning:" in shown
+    assert "| gold 88° | stam | kirchhoff |" in shown and listed in shown
     assert main(["render", str(tmp_path / "grazing.h5")]) == 2  # a study's pictures: refused, saying why
     error = capsys.readouterr().err
     assert "is a file of `wavebrdf compare`" in error and "damaged" not in error, error
@@ -116,6 +118,39 @@ def test_a_measurement_made_before_is_taken_instead_of_running_the_model_again(f
     e = {r["model"]: r for r in first.rows}["po"]["rel_l2"]  # po against kirchhoff: P = K + δ, |δ| = e |K|
     assert e < 0.05
     assert abs(rows["po"]["rel_l2"] - 0.5) <= e / 2 + 1e-12  # |K − δ| / |2K| lies in 1/2 ± e/2 in any norm
+
+
+def test_a_stored_measurement_is_checked_like_one_run_here(flat_scene, tmp_path, capsys):
+    """A solve taken from before is held to what a run is held to: with its BRDF scaled past unit
+    albedo (flat glass reflects 4 %: ×40 is 1.6 of the incident power) its row carries the
+    EnergyWarning naming the rung that ran, listed under the table as the reference's; with a NaN
+    inside the disk it is a failure saying so (a run's task fails the same way), and the other
+    rows keep their own figures. The file of the first reads back, failures and all, as printed."""
+    label = "flat glass 30°"
+    first = compare_scenes([(label, flat_scene)], ["kirchhoff", "stam"], reference="kirchhoff")
+    kirchhoff = first.measurements[0]
+    bright = Measurement("kirchhoff", label, wall_s=1.0, cpu_s=1.0, peak_mb=1.0, brdf=40 * kirchhoff.brdf,
+                         diagnostics={"model": "kirchhoff"})
+    holed = kirchhoff.brdf.copy()
+    u, v = np.nonzero(flat_scene.grid.inside)
+    holed[1, u[:3], v[:3]] = np.nan  # three pixels of p inside the disk
+    broken = Measurement("stam", label, wall_s=1.0, cpu_s=1.0, peak_mb=1.0, brdf=holed)
+    again = compare_scenes([(label, flat_scene)], ["kirchhoff", "stam"], reference="kirchhoff",
+                           measured={(label, "kirchhoff"): bright, (label, "stam"): broken})
+    rows = {r["model"]: r for r in again.rows}
+    assert rows["kirchhoff"]["albedo"] > 1.5
+    assert "EnergyWarning: albedo (s, p)" in rows["kirchhoff"]["warnings"] and "kirchhoff returns" in rows["kirchhoff"][
+        "warnings"]
+    assert rows["stam"]["failure"] == "FloatingPointError: 3 BRDF value(s) NaN/inf inside the unit disk"
+    assert "rel_l2" not in rows["stam"]
+    assert "- flat glass 30°, kirchhoff: EnergyWarning:" in again.markdown()
+    again.write(tmp_path / "checked")
+    from wavebrdf.jobs.cli import main
+
+    assert main(["inspect", str(tmp_path / "checked.h5")]) == 0
+    shown = capsys.readouterr().out
+    assert f"| {label} | kirchhoff | kirchhoff | 1 | 1 | 1 | {rows['kirchhoff']['albedo']:.3g} |" in shown, shown
+    assert "NaN/inf inside the unit disk" in shown
 
 
 def test_the_reference_is_the_highest_rung_that_fits(flat_scene):

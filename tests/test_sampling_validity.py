@@ -283,7 +283,8 @@ def test_sampling_warnings_reach_plan_task_table_and_inspect(tmp_path):
 
 
 OBLIQUE_SPREAD = ("kirchhoff", None, "ghs"), ("stam", None, "ghs"), ("ohs", None, "ghs"), ("ghs", None, None), \
-    ("po", None, '[model.po]'), ("po", {"incidence": "beam"}, None), ("ws-v", None, '[model.ws-v]')
+    ("po", None, '[model.po]'), ("po", {"incidence": "beam"}, None), ("ws-v", None, '[model.ws-v]'), \
+    ("ws-v", {"incidence": "beam"}, None), ("wm", None, '[model.wm]'), ("wm", {"incidence": "beam"}, None)
 
 
 @pytest.mark.parametrize("name, options, remedy", OBLIQUE_SPREAD)
