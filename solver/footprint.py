@@ -18,6 +18,7 @@ __all__ = [
     "EDGE_AMPLITUDE",
     "FootprintWarning",
     "edge_fraction",
+    "footprint_edge_warning",
     "footprint_plane_wave",
     "gaussian_footprint",
     "incident_basis",
@@ -36,6 +37,16 @@ def gaussian_footprint(surface: HeightField, waist_um: float, centre_um=(0.0, 0.
         raise ValueError(f"illumination.waist_um must be > 0, got {waist_um!r}")
     X, Y = np.meshgrid(surface.x - centre_um[0], surface.y - centre_um[1], indexing="ij")
     return np.exp(-(X**2 + Y**2) / waist_um**2)
+
+
+def footprint_edge_warning(window: np.ndarray, patch_um: float) -> str | None:
+    """The FootprintWarning's text when the footprint ``window`` on the nodes of a patch of side
+    ``patch_um`` is above :data:`EDGE_AMPLITUDE` of its peak at the patch border, else None."""
+    edge = edge_fraction(window)
+    if not edge > EDGE_AMPLITUDE:
+        return None
+    return (f"illumination footprint is {edge:.2g} of its peak at the patch edge (patch {patch_um:g} µm): edge "
+            "diffraction will show; use a larger patch or a smaller waist (patch >= ~5.3 waists)")
 
 
 def edge_fraction(window: np.ndarray) -> float:

@@ -36,6 +36,7 @@ from typing import ClassVar
 import numpy as np
 
 from wavebrdf.solver.farfield import HemisphereGrid
+from wavebrdf.solver.footprint import footprint_edge_warning, gaussian_footprint
 from wavebrdf.solver.options import NoOptions, parse_options
 from wavebrdf.solver.precision import Precision
 from wavebrdf.solver.surface import HeightField
@@ -270,11 +271,19 @@ class Model(ABC):
     def foreseen_warnings(self, scene) -> list[str]:
         """What ``plan`` shows for ``scene`` before anything runs: the warnings of :meth:`validity`
         and of the run-time checks that need no run (the footprint's spread,
-        :func:`~wavebrdf.solver.validity.waist_spread`), in the words the run will use."""
+        :func:`~wavebrdf.solver.validity.waist_spread`; for the rungs that sum over the footprint on
+        the nodes, its amplitude at the patch edge, :func:`~wavebrdf.solver.footprint.
+        footprint_edge_warning`), in the words the run will use."""
         found = list(self.validity(scene))
+        if not isinstance(scene, SurfaceScene):
+            return found
         remedy = self.waist_remedy()
-        if remedy is not None and isinstance(scene, SurfaceScene):
+        if remedy is not None:
             _, message = waist_spread(scene, self.name, remedy)
+            found += [message] if message else []
+        if "lattice" in self.sampling and scene.waist_um is not None:  # the node sum weighs the footprint W
+            window = gaussian_footprint(scene.surface, scene.waist_um, scene.footprint_centre_um)
+            message = footprint_edge_warning(window, scene.surface.size_um)
             found += [message] if message else []
         return found
 

@@ -305,6 +305,24 @@ def test_the_footprints_spread_is_foreseen_in_the_words_the_run_uses(cl_ctx, nam
     assert len(raised) == (remedy is not None) and all(remedy in m for m in raised)
 
 
+@pytest.mark.parametrize("name", ["kirchhoff", "ohs", "ghs", "po", "ws-v", "wm", "stam", "gs"])
+def test_a_footprint_the_patch_cuts_is_foreseen_in_the_words_the_run_uses(cl_ctx, name):
+    """A 2 µm waist on a 6 µm patch: the footprint is exp(−(3/2)²) = 0.105 of its peak at the patch
+    edge. The rungs that sum over the footprint on the nodes warn of it when they run, and
+    ``foreseen_warnings`` gives that text before; stam (statistics) and gs (rays) raise none and
+    foresee none."""
+    surface = generate("gaussian", cells=96, size_um=6.0, rms_height_um=0.02, correlation_um=0.8, seed=2)
+    scene = SurfaceScene(surface, 0.5, complex(0.87, -6.4), 0.0, 0.0, 2.0, HemisphereGrid(48))
+    model = get_model(name)
+    foreseen = [m for m in model.foreseen_warnings(scene) if "at the patch edge" in m]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        model.run(cl_ctx, scene)
+    raised = [str(w.message) for w in caught if "at the patch edge" in str(w.message)]
+    assert foreseen == raised, (foreseen, raised)
+    assert len(raised) == (name not in ("stam", "gs")) and all("0.11 of its peak" in m for m in raised)
+
+
 def test_plan_prints_the_footprints_spread_before_the_run(tmp_path, capsys):
     """``wavebrdf plan`` at θ_i 0° and 85° (waist 2.3 µm, λ 0.45 µm): the oblique task's warning,
     the normal one none."""

@@ -35,13 +35,7 @@ import scipy.special
 
 from wavebrdf.solver.czt import ChirpZAxis
 from wavebrdf.solver.farfield import ETA0, BRDFResult, FarField, HemisphereGrid, albedo, transverse_basis
-from wavebrdf.solver.footprint import (
-    EDGE_AMPLITUDE,
-    FootprintWarning,
-    edge_fraction,
-    footprint_plane_wave,
-    gaussian_footprint,
-)
+from wavebrdf.solver.footprint import FootprintWarning, footprint_edge_warning, footprint_plane_wave, gaussian_footprint
 from wavebrdf.solver.fresnel import fresnel_rs_rp
 from wavebrdf.solver.models import Capabilities, Estimate, Model, SurfaceScene
 from wavebrdf.solver.precision import Precision
@@ -143,15 +137,9 @@ class Aperture:
         window = window.astype(complex if np.iscomplexobj(window) else float)
         if window.shape != surface.z.shape:
             raise ValueError(f"footprint shape {window.shape} != height matrix {surface.z.shape}")
-        edge = edge_fraction(window)
-        if edge > EDGE_AMPLITUDE:
-            warnings.warn(
-                f"illumination footprint is {edge:.2g} of its peak at the patch edge "
-                f"(patch {surface.size_um:g} µm): edge diffraction will show; use a larger patch or "
-                "a smaller waist (patch >= ~5.3 waists)",
-                FootprintWarning,
-                stacklevel=stacklevel,
-            )
+        message = footprint_edge_warning(window, surface.size_um)
+        if message:
+            warnings.warn(message, FootprintWarning, stacklevel=stacklevel)
         d = surface.spacing_um
         z_ref = float(np.mean(surface.z)) if z_reference is None else float(z_reference)
         mid = 0.5 * (surface.z.max() + surface.z.min())
