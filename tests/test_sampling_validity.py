@@ -282,6 +282,16 @@ def test_sampling_warnings_reach_plan_task_table_and_inspect(tmp_path):
     assert "requested statistics" in shown.stdout and "surface.cells ≥" in shown.stdout
 
 
+def _foreseen_and_raised(cl_ctx, model, scene, marker: str) -> tuple[list[str], list[str]]:
+    """The warnings containing ``marker`` that ``model`` foresees for ``scene`` (what ``plan``
+    prints) and those its run raises."""
+    foreseen = [m for m in model.foreseen_warnings(scene) if marker in m]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        model.run(cl_ctx, scene)
+    return foreseen, [str(w.message) for w in caught if marker in str(w.message)]
+
+
 OBLIQUE_SPREAD = ("kirchhoff", None, "ghs"), ("stam", None, "ghs"), ("ohs", None, "ghs"), ("ghs", None, None), \
     ("po", None, '[model.po]'), ("po", {"incidence": "beam"}, None), ("ws-v", None, '[model.ws-v]'), \
     ("ws-v", {"incidence": "beam"}, None), ("wm", None, '[model.wm]'), ("wm", {"incidence": "beam"}, None)
@@ -295,12 +305,7 @@ def test_the_footprints_spread_is_foreseen_in_the_words_the_run_uses(cl_ctx, nam
     and po lit by the beam (each plane wave at its own angle) foresee and raise none."""
     surface = generate("gaussian", cells=96, size_um=6.0, rms_height_um=0.02, correlation_um=0.8, seed=2)
     scene = SurfaceScene(surface, 0.5, complex(0.87, -6.4), np.deg2rad(75.0), 0.0, 1.0, HemisphereGrid(48))
-    model = get_model(name, options)
-    foreseen = [m for m in model.foreseen_warnings(scene) if "spreads over" in m]
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        model.run(cl_ctx, scene)
-    raised = [str(w.message) for w in caught if "spreads over" in str(w.message)]
+    foreseen, raised = _foreseen_and_raised(cl_ctx, get_model(name, options), scene, "spreads over")
     assert foreseen == raised, (foreseen, raised)
     assert len(raised) == (remedy is not None) and all(remedy in m for m in raised)
 
@@ -313,12 +318,7 @@ def test_a_footprint_the_patch_cuts_is_foreseen_in_the_words_the_run_uses(cl_ctx
     foresee none."""
     surface = generate("gaussian", cells=96, size_um=6.0, rms_height_um=0.02, correlation_um=0.8, seed=2)
     scene = SurfaceScene(surface, 0.5, complex(0.87, -6.4), 0.0, 0.0, 2.0, HemisphereGrid(48))
-    model = get_model(name)
-    foreseen = [m for m in model.foreseen_warnings(scene) if "at the patch edge" in m]
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        model.run(cl_ctx, scene)
-    raised = [str(w.message) for w in caught if "at the patch edge" in str(w.message)]
+    foreseen, raised = _foreseen_and_raised(cl_ctx, get_model(name), scene, "at the patch edge")
     assert foreseen == raised, (foreseen, raised)
     assert len(raised) == (name not in ("stam", "gs")) and all("0.11 of its peak" in m for m in raised)
 
