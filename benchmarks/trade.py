@@ -263,7 +263,8 @@ def _scenes(path: Path) -> list[tuple[str, object]]:
 
 
 def stored_measurements(h5_path: Path) -> dict[tuple[str, str], object]:
-    """(scene, model) → the Measurement a comparison's .h5 holds (its BRDF, times, failure)."""
+    """(scene, model) → the Measurement a comparison's .h5 holds (its BRDF, times, failure and the
+    warnings its row carried, where the file has them)."""
     from wavebrdf.jobs.compare import Measurement
     from wavebrdf.jobs.store import read_comparison
 
@@ -271,8 +272,9 @@ def stored_measurements(h5_path: Path) -> dict[tuple[str, str], object]:
     table, brdfs = read_comparison(h5_path)
     for i, (scene, model) in enumerate(zip(table["scene"], table["model"])):
         failure = table["failure"][i] or None
+        warned = {"warnings": table["warnings"][i]} if table.get("warnings", [""] * (i + 1))[i] else {}
         out[scene, model] = Measurement(model, scene, float(table["wall_s"][i]), float(table["cpu_s"][i]),
-                                        float(table["peak_mb"][i]), brdfs.get((scene, model)), {}, failure)
+                                        float(table["peak_mb"][i]), brdfs.get((scene, model)), warned, failure)
     return out
 
 

@@ -64,6 +64,7 @@ RETRO_CONE_DEG = 5.0
 COLUMNS = ("scene", "model", "reference", "wall_s", "cpu_s", "peak_mb", "albedo", "albedo_diff", "rel_l2",
            "rel_l2_smooth", "rel_l2_s", "rel_l2_smooth_s", "rel_l2_p", "rel_l2_smooth_p", "misplaced",
            "peak_offset_deg", "retro", "failure", "warnings")
+TEXT_COLUMNS = ("scene", "model", "reference", "failure", "warnings")  # the others are numbers (NaN where missing)
 
 
 @dataclass
@@ -357,7 +358,7 @@ class Comparison:
     def _write_h5(self, path: Path) -> None:
         write_comparison(path, COLUMNS, self.rows, [(m.scene, m.model, m.brdf, m.diagnostics)
                                                     for m in self.measurements if m.brdf is not None],
-                         self.grid.resolution)
+                         self.grid.resolution, TEXT_COLUMNS)
 
 
 def plot_trade(rows: list[dict], path: Path, group: str = "scene", title: str | None = None,

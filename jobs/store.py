@@ -290,17 +290,17 @@ COMPARISON_FORMAT = 1  # ``wavebrdf_compare`` attribute of a comparison file
 
 
 def write_comparison(path: Path, columns, rows: list[dict], brdfs: list[tuple[str, str, np.ndarray, dict]],
-                     grid_resolution: int) -> None:
-    """A comparison's file, atomically: ``table/<column>`` (one entry per row; numbers as float,
-    else strings) and ``brdf/<i>`` per (scene, model, BRDF (2, n, n) in 1/sr s/p, diagnostics)
-    stored as float32 with the scene, model and diagnostics (JSON) as attributes."""
+                     grid_resolution: int, text_columns=()) -> None:
+    """A comparison's file, atomically: ``table/<column>`` (one entry per row: strings in the
+    ``text_columns``, elsewhere floats where every value is a number or missing — a failed row's
+    NaN —, else strings) and ``brdf/<i>`` per (scene, model, BRDF (2, n, n) in 1/sr s/p,
+    diagnostics) stored as float32 with the scene, model and diagnostics (JSON) as attributes."""
     with atomic_h5(path) as h5:
         h5.attrs["wavebrdf_compare"] = COMPARISON_FORMAT
         table = h5.create_group("table")
         for key in columns:
             values = [r.get(key) for r in rows]
-            numbers = [v for v in values if v is not None]
-            if numbers and all(isinstance(v, (int, float)) for v in numbers):  # a failed row's metric: NaN
+            if key not in text_columns and all(v is None or isinstance(v, (int, float)) for v in values):
                 table.create_dataset(key, data=np.array([np.nan if v is None else v for v in values], dtype=float))
             else:
                 table.create_dataset(key, data=np.array(["" if v is None else str(v) for v in values], dtype=STRING))

@@ -144,7 +144,7 @@ def _estimate_check(plan, task) -> Estimate:
 def _energy_check(plan, task, albedo_sp: np.ndarray, diagnostics: dict) -> None:
     """Record ``albedo_excess`` and, beyond :data:`~wavebrdf.solver.validity.ENERGY_SLACK`, a
     warning naming the model and the incidence (:func:`~wavebrdf.solver.validity.energy_excess_warning`)."""
-    diagnostics["albedo_excess"] = max(0.0, float(np.max(albedo_sp)) - 1.0)
+    diagnostics["albedo_excess"] = max(0.0, float(np.nanmax(albedo_sp)) - 1.0)
     theta, _ = np.rad2deg(plan.direction_rad(task))
     message = energy_excess_warning(diagnostics.get("model", plan.model_spec(task).name), theta, albedo_sp)
     if message:

@@ -925,14 +925,18 @@ class AutoModel(Model):
         elif choice.unvalidated:
             warnings.warn(f"auto relies on its rule beyond the tolerances it was validated at: {reason}",
                           ToleranceWarning, stacklevel=2)
+        check_warnings: set[str] = set()
         if self.options.check and name != REFERENCE:
             coarse = dataclasses.replace(scene, grid=HemisphereGrid(SENTINEL_RESOLUTION))
             sigma = speckle_sigma_u(scene.wavelength_um, scene.waist_um, coarse.grid, scene.exterior_index)
             coarse_brdf = {}
 
             def sentinel(n: str) -> np.ndarray:
-                if n not in coarse_brdf:
-                    coarse_brdf[n] = self.rung(n).run(ctx, coarse).brdf()
+                if n not in coarse_brdf:  # what the check's runs warn of is theirs (its coarse grid), not the task's
+                    with warnings.catch_warnings(record=True) as caught:
+                        warnings.simplefilter("always")
+                        coarse_brdf[n] = self.rung(n).run(ctx, coarse).brdf()
+                    check_warnings.update(f"{w.category.__name__}: {w.message}" for w in caught)
                 return coarse_brdf[n]
 
             if next_rung_up(choice, name) is None:
@@ -945,6 +949,8 @@ class AutoModel(Model):
                 reason += f"; escalated to {up} ({name} and {up} differ by {differ:.3g} > {self.options.tolerance:g})"
                 name = up
         result = self._only(name).run(ctx, scene)
+        if check_warnings:
+            result.diagnostics["escalation_check_warnings"] = "; ".join(sorted(check_warnings))
         result.diagnostics.update(model=name, model_reason=reason,
                                   model_predicted_error=(float("nan") if choice.unlike and name != REFERENCE
                                                          else choice.candidates.get(name, (0.0,))[0]))

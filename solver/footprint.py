@@ -19,6 +19,7 @@ __all__ = [
     "FootprintWarning",
     "edge_fraction",
     "footprint_edge_warning",
+    "gaussian_edge_fraction",
     "footprint_plane_wave",
     "gaussian_footprint",
     "incident_basis",
@@ -39,14 +40,21 @@ def gaussian_footprint(surface: HeightField, waist_um: float, centre_um=(0.0, 0.
     return np.exp(-(X**2 + Y**2) / waist_um**2)
 
 
-def footprint_edge_warning(window: np.ndarray, patch_um: float) -> str | None:
-    """The FootprintWarning's text when the footprint ``window`` on the nodes of a patch of side
-    ``patch_um`` is above :data:`EDGE_AMPLITUDE` of its peak at the patch border, else None."""
-    edge = edge_fraction(window)
+def footprint_edge_warning(edge: float, patch_um: float) -> str | None:
+    """The FootprintWarning's text when a footprint is ``edge`` (:func:`edge_fraction`) of its peak
+    at the border of a patch of side ``patch_um``, above :data:`EDGE_AMPLITUDE`; else None."""
     if not edge > EDGE_AMPLITUDE:
         return None
     return (f"illumination footprint is {edge:.2g} of its peak at the patch edge (patch {patch_um:g} µm): edge "
             "diffraction will show; use a larger patch or a smaller waist (patch >= ~5.3 waists)")
+
+
+def gaussian_edge_fraction(surface: HeightField, waist_um: float, centre_um=(0.0, 0.0)) -> float:
+    """:func:`edge_fraction` of :func:`gaussian_footprint` from its border nodes and the node
+    nearest its centre alone, the same numbers without the whole node array (``plan``, per task)."""
+    x2, y2 = (surface.x - centre_um[0]) ** 2, (surface.y - centre_um[1]) ** 2
+    border = min(x2[0], x2[-1]) + y2.min(), x2.min() + min(y2[0], y2[-1])
+    return float(np.exp(-min(border) / waist_um**2) / np.exp(-(x2.min() + y2.min()) / waist_um**2))
 
 
 def edge_fraction(window: np.ndarray) -> float:

@@ -36,7 +36,7 @@ from typing import ClassVar
 import numpy as np
 
 from wavebrdf.solver.farfield import HemisphereGrid
-from wavebrdf.solver.footprint import footprint_edge_warning, gaussian_footprint
+from wavebrdf.solver.footprint import footprint_edge_warning, gaussian_edge_fraction
 from wavebrdf.solver.options import NoOptions, parse_options
 from wavebrdf.solver.precision import Precision
 from wavebrdf.solver.surface import HeightField
@@ -282,8 +282,8 @@ class Model(ABC):
             _, message = waist_spread(scene, self.name, remedy)
             found += [message] if message else []
         if "lattice" in self.sampling and scene.waist_um is not None:  # the node sum weighs the footprint W
-            window = gaussian_footprint(scene.surface, scene.waist_um, scene.footprint_centre_um)
-            message = footprint_edge_warning(window, scene.surface.size_um)
+            edge = gaussian_edge_fraction(scene.surface, scene.waist_um, scene.footprint_centre_um)
+            message = footprint_edge_warning(edge, scene.surface.size_um)
             found += [message] if message else []
         return found
 

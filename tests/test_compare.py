@@ -47,6 +47,11 @@ def test_a_model_against_itself_and_a_failing_one(flat_scene, tmp_path):
     assert table["model"] == ["kirchhoff", "bem"] and table["failure"][1] == rows["bem"]["failure"]
     assert list(brdfs) == [("flat glass 30°", "kirchhoff")]  # the failed model has no BRDF
     assert not list(tmp_path.glob(".*.tmp"))  # written atomically: no temporary left
+    nothing = compare_scenes([("flat glass 30°", flat_scene)], ["bem"], reference="bem",
+                             options={"bem": {"method": "dense", "no_such_key": 1}})
+    nothing.write(tmp_path / "failed")  # no row has a metric: the columns are still numbers
+    table, _ = read_comparison(tmp_path / "failed.h5")
+    assert np.isnan(table["albedo"][0]) and np.isnan(table["rel_l2"][0]) and "no_such_key" in table["failure"][0]
     with pytest.raises(StoreError, match="not a comparison file"):
         read_comparison(write_small_h5(tmp_path / "other.h5"))
 
@@ -130,7 +135,7 @@ def test_a_stored_measurement_is_checked_like_one_run_here(flat_scene, tmp_path,
     first = compare_scenes([(label, flat_scene)], ["kirchhoff", "stam"], reference="kirchhoff")
     kirchhoff = first.measurements[0]
     bright = Measurement("kirchhoff", label, wall_s=1.0, cpu_s=1.0, peak_mb=1.0, brdf=40 * kirchhoff.brdf,
-                         diagnostics={"model": "kirchhoff"})
+                         diagnostics={"model": "ghs"})  # its diagnostics name the rung that ran, as auto's do
     holed = kirchhoff.brdf.copy()
     u, v = np.nonzero(flat_scene.grid.inside)
     holed[1, u[:3], v[:3]] = np.nan  # three pixels of p inside the disk
@@ -139,7 +144,7 @@ def test_a_stored_measurement_is_checked_like_one_run_here(flat_scene, tmp_path,
                            measured={(label, "kirchhoff"): bright, (label, "stam"): broken})
     rows = {r["model"]: r for r in again.rows}
     assert rows["kirchhoff"]["albedo"] > 1.5
-    assert "EnergyWarning: albedo (s, p)" in rows["kirchhoff"]["warnings"] and "kirchhoff returns" in rows["kirchhoff"][
+    assert "EnergyWarning: albedo (s, p)" in rows["kirchhoff"]["warnings"] and "ghs returns" in rows["kirchhoff"][
         "warnings"]
     assert rows["stam"]["failure"] == "FloatingPointError: 3 BRDF value(s) NaN/inf inside the unit disk"
     assert "rel_l2" not in rows["stam"]

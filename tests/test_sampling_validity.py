@@ -323,6 +323,19 @@ def test_a_footprint_the_patch_cuts_is_foreseen_in_the_words_the_run_uses(cl_ctx
     assert len(raised) == (name not in ("stam", "gs")) and all("0.11 of its peak" in m for m in raised)
 
 
+@pytest.mark.parametrize("name", ["ohs", "ghs"])
+def test_a_kept_s_grid_warns_of_its_footprint_on_every_scene_it_serves(cl_ctx, name):
+    """ohs and ghs transform the aperture once per (surface, λ, footprint) and keep it for the next
+    incidences: each incidence's run still raises the footprint's warning that ``plan`` foresees for
+    it, not only the one that built the grid."""
+    surface = generate("gaussian", cells=96, size_um=6.0, rms_height_um=0.02, correlation_um=0.8, seed=2)
+    model = get_model(name)
+    for theta in (0.0, 20.0):
+        scene = SurfaceScene(surface, 0.5, complex(0.87, -6.4), np.deg2rad(theta), 0.0, 2.0, HemisphereGrid(48))
+        foreseen, raised = _foreseen_and_raised(cl_ctx, model, scene, "at the patch edge")
+        assert len(raised) == 1 and foreseen == raised, (theta, foreseen, raised)
+
+
 def test_plan_prints_the_footprints_spread_before_the_run(tmp_path, capsys):
     """``wavebrdf plan`` at θ_i 0° and 85° (waist 2.3 µm, λ 0.45 µm): the oblique task's warning,
     the normal one none."""

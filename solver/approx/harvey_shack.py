@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import hashlib
 import time
+import warnings
 from collections import OrderedDict
 from dataclasses import dataclass, field, replace
 
@@ -77,6 +78,7 @@ from wavebrdf.solver.approx.kirchhoff import (
     transform_orders,
 )
 from wavebrdf.solver.czt import fast_length
+from wavebrdf.solver.footprint import FootprintWarning, edge_fraction, footprint_edge_warning
 from wavebrdf.solver.farfield import FarField, HemisphereGrid
 from wavebrdf.solver.fresnel import fresnel_rs_rp
 from wavebrdf.solver.models import Capabilities, Estimate, SurfaceScene
@@ -144,6 +146,7 @@ class SGrid:
     weight_sum: float
     precision: Precision
     build_time_s: float = 0.0
+    edge_warning: str | None = None  # the footprint's FootprintWarning, raised again by each scene that reuses the grid
     _device: dict = field(default_factory=dict, repr=False)
 
     @property
@@ -200,6 +203,7 @@ class SGrid:
             centre=(float(surface.x[c]), float(surface.y[c])), k=ap.k, lambda1=ap.lambda1,
             exterior_index=ap.exterior_index, dz_ref=ap.dz_ref, weight_sum=ap.weight_sum, precision=precision,
             build_time_s=time.perf_counter() - t0,
+            edge_warning=footprint_edge_warning(edge_fraction(np.abs(ap.window)), surface.size_um),
         )
 
     def axis_weights(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, int]:
@@ -461,6 +465,8 @@ class HarveyShackModel(FootprintModel):
         if not self._all_incidence(scene):
             return harvey_shack_farfield(ctx, scene, self.variant)
         sgrid, reused = self._sgrid(ctx, scene)
+        if reused and sgrid.edge_warning:  # built (and warned) for an earlier scene: this one is cut the same
+            warnings.warn(sgrid.edge_warning, FootprintWarning, stacklevel=2)
         ff = harvey_shack_farfield(ctx, scene, self.variant, sgrid)
         ff.diagnostics.update(sgrid_reused=reused, sgrid_size=sgrid.M, sgrid_mb=sgrid.nbytes / 2**20,
                               sgrid_build_s=0.0 if reused else sgrid.build_time_s)

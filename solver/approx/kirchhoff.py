@@ -35,7 +35,8 @@ import scipy.special
 
 from wavebrdf.solver.czt import ChirpZAxis
 from wavebrdf.solver.farfield import ETA0, BRDFResult, FarField, HemisphereGrid, albedo, transverse_basis
-from wavebrdf.solver.footprint import FootprintWarning, footprint_edge_warning, footprint_plane_wave, gaussian_footprint
+from wavebrdf.solver.footprint import (FootprintWarning, edge_fraction, footprint_edge_warning, footprint_plane_wave,
+                                      gaussian_footprint)
 from wavebrdf.solver.fresnel import fresnel_rs_rp
 from wavebrdf.solver.models import Capabilities, Estimate, Model, SurfaceScene
 from wavebrdf.solver.precision import Precision
@@ -137,7 +138,7 @@ class Aperture:
         window = window.astype(complex if np.iscomplexobj(window) else float)
         if window.shape != surface.z.shape:
             raise ValueError(f"footprint shape {window.shape} != height matrix {surface.z.shape}")
-        message = footprint_edge_warning(window, surface.size_um)
+        message = footprint_edge_warning(edge_fraction(window), surface.size_um)
         if message:
             warnings.warn(message, FootprintWarning, stacklevel=stacklevel)
         d = surface.spacing_um
