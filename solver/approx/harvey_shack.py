@@ -78,8 +78,8 @@ from wavebrdf.solver.approx.kirchhoff import (
     transform_orders,
 )
 from wavebrdf.solver.czt import fast_length
-from wavebrdf.solver.footprint import FootprintWarning, edge_fraction, footprint_edge_warning
 from wavebrdf.solver.farfield import FarField, HemisphereGrid
+from wavebrdf.solver.footprint import FootprintWarning, edge_fraction, footprint_edge_warning
 from wavebrdf.solver.fresnel import fresnel_rs_rp
 from wavebrdf.solver.models import Capabilities, Estimate, SurfaceScene
 from wavebrdf.solver.options import option
