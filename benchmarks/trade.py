@@ -270,11 +270,12 @@ def stored_measurements(h5_path: Path) -> dict[tuple[str, str], object]:
 
     out = {}
     table, brdfs = read_comparison(h5_path)
+    warned = table.get("warnings") or [""] * len(table["scene"])  # files written before the column: none
     for i, (scene, model) in enumerate(zip(table["scene"], table["model"])):
         failure = table["failure"][i] or None
-        warned = {"warnings": table["warnings"][i]} if table.get("warnings", [""] * (i + 1))[i] else {}
         out[scene, model] = Measurement(model, scene, float(table["wall_s"][i]), float(table["cpu_s"][i]),
-                                        float(table["peak_mb"][i]), brdfs.get((scene, model)), warned, failure)
+                                        float(table["peak_mb"][i]), brdfs.get((scene, model)),
+                                        {"warnings": warned[i]} if warned[i] else {}, failure)
     return out
 
 

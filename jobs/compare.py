@@ -53,7 +53,7 @@ from wavebrdf.solver.metrics import (
     speckle_sigma_u,
 )
 from wavebrdf.solver.models import get_model, model_class, model_names, rung_order, rungs
-from wavebrdf.solver.validity import energy_excess_warning
+from wavebrdf.solver.validity import energy_excess_warning, recorded_warnings
 
 logger = logging.getLogger(__name__)
 
@@ -99,17 +99,12 @@ def _run_one(ctx, name: str, options, scene) -> dict:
             result = model.run(ctx, scene)
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         diagnostics, brdf = plain(result.diagnostics), result.brdf()
-        diagnostics["warnings"] = _caught_text(caught)
+        diagnostics["warnings"] = recorded_warnings(caught)
         return dict(wall_s=wall, cpu_s=cpu,
                     peak_mb=max(peak_resident_bytes() - baseline, 0.0) / 2**20, brdf=brdf, diagnostics=diagnostics)
     except Exception as exc:  # noqa: BLE001 - reported in the table, the comparison goes on
         return dict(failure=f"{type(exc).__name__}: {exc}", trace=traceback.format_exc(),
-                    diagnostics={"warnings": _caught_text(caught)})  # what it said before it failed
-
-
-def _caught_text(caught) -> str:
-    """Recorded warnings as a run's task table stores them: "Category: message"; …, each once."""
-    return "; ".join(sorted({f"{w.category.__name__}: {w.message}" for w in caught}))
+                    diagnostics={"warnings": recorded_warnings(caught)})  # what it said before it failed
 
 
 PROGRESS_FILE_VARIABLE = "WAVEBRDF_MEASURE_PROGRESS"

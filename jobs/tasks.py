@@ -32,7 +32,7 @@ from wavebrdf.solver.farfield import BRDFResult, FarField, albedo, combine_polar
 from wavebrdf.solver.models import Estimate, Model, model_class
 from wavebrdf.solver.polarimetry import jones
 from wavebrdf.solver.resources import peak_memory_mb
-from wavebrdf.solver.validity import energy_excess_warning
+from wavebrdf.solver.validity import energy_excess_warning, recorded_warnings
 
 __all__ = ["KINDS", "ModelPool", "TaskKind", "execute_task", "plain"]
 
@@ -232,7 +232,6 @@ def execute_task(ctx, plan, task, parts, pool: ModelPool) -> dict:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         output = kind.run(ctx, plan, task, pool, parts)
-    messages = sorted({f"{w.category.__name__}: {w.message}" for w in caught})
     extra = {
         "kind": task.kind,
         # the rung that ran: `auto` names its choice (and model_reason) in the result's diagnostics
@@ -240,6 +239,6 @@ def execute_task(ctx, plan, task, parts, pool: ModelPool) -> dict:
         "wall_time_s": time.perf_counter() - t0,
         "peak_memory_mb": peak_memory_mb(),
         "device": ctx.describe() if ctx is not None else "",
-        "warnings": "; ".join(messages),
+        "warnings": recorded_warnings(caught),
     }
     return kind.save(plan, task, parts, output, extra)

@@ -61,6 +61,7 @@ from wavebrdf.solver.models import (Capabilities, Estimate, Model, ModelsWith, S
                                     model_names, rungs)
 from wavebrdf.solver.options import option
 from wavebrdf.solver.precision import Precision
+from wavebrdf.solver.validity import recorded_warnings
 
 __all__ = ["AutoModel", "CheckUnit", "Choice", "Rule", "SceneFeatures", "ToleranceWarning", "check_slope", "choose",
            "measure_scene", "polarization_contrast", "select_spot_checks", "table_error", "TRADE_TABLE"]
@@ -925,7 +926,7 @@ class AutoModel(Model):
         elif choice.unvalidated:
             warnings.warn(f"auto relies on its rule beyond the tolerances it was validated at: {reason}",
                           ToleranceWarning, stacklevel=2)
-        check_warnings: set[str] = set()
+        check_caught: list = []
         if self.options.check and name != REFERENCE:
             coarse = dataclasses.replace(scene, grid=HemisphereGrid(SENTINEL_RESOLUTION))
             sigma = speckle_sigma_u(scene.wavelength_um, scene.waist_um, coarse.grid, scene.exterior_index)
@@ -936,7 +937,7 @@ class AutoModel(Model):
                     with warnings.catch_warnings(record=True) as caught:
                         warnings.simplefilter("always")
                         coarse_brdf[n] = self.rung(n).run(ctx, coarse).brdf()
-                    check_warnings.update(f"{w.category.__name__}: {w.message}" for w in caught)
+                    check_caught.extend(caught)
                 return coarse_brdf[n]
 
             if next_rung_up(choice, name) is None:
@@ -949,8 +950,8 @@ class AutoModel(Model):
                 reason += f"; escalated to {up} ({name} and {up} differ by {differ:.3g} > {self.options.tolerance:g})"
                 name = up
         result = self._only(name).run(ctx, scene)
-        if check_warnings:
-            result.diagnostics["escalation_check_warnings"] = "; ".join(sorted(check_warnings))
+        if check_caught:
+            result.diagnostics["escalation_check_warnings"] = recorded_warnings(check_caught)
         result.diagnostics.update(model=name, model_reason=reason,
                                   model_predicted_error=(float("nan") if choice.unlike and name != REFERENCE
                                                          else choice.candidates.get(name, (0.0,))[0]))

@@ -24,7 +24,7 @@ import numpy as np
 
 __all__ = ["ENERGY_SLACK", "EVANESCENT_LOSS", "SPREAD_ERROR", "SPREAD_COEFFICIENT", "ValidityWarning",
            "beam_incidence_remedy", "cells_fix", "check_evanescent_loss", "check_waist", "energy_excess_warning",
-           "waist_spread"]
+           "recorded_warnings", "waist_spread"]
 
 EVANESCENT_LOSS = 0.01  # OHS: warn when this share of the reflected spectrum is dropped
 SPREAD_COEFFICIENT = 0.3  # albedo error ≈ this × (λ₁/(πw))²/μ_i² (fitted on flat aluminium, see above)
@@ -69,9 +69,18 @@ def energy_excess_warning(model: str, theta_i_deg: float, albedo_sp) -> str | No
             "shadowing such as ws-v, or bem, models it)")
 
 
-def beam_incidence_remedy(model: str) -> str:
-    """What removes the footprint's spread error from ``model`` (po, ws-v or wm), in check_waist's words."""
+def beam_incidence_remedy(model: str, incidence: str = "footprint") -> str | None:
+    """What removes the footprint's spread error from ``model`` (po, ws-v or wm) lit by ``incidence``,
+    in check_waist's words; None lit by the beam (no spread error to remove)."""
+    if incidence == "beam":
+        return None
     return f'incidence = "beam" in [model.{model}] (each plane wave of the beam reflected at its own angle)'
+
+
+def recorded_warnings(caught) -> str:
+    """Warnings recorded by ``warnings.catch_warnings(record=True)`` as task tables store them:
+    "Category: message", each once, sorted, joined by "; "."""
+    return "; ".join(sorted({f"{w.category.__name__}: {w.message}" for w in caught}))
 
 
 def waist_spread(scene, model: str, remedy: str = "ghs") -> tuple[float | None, str | None]:

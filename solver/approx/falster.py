@@ -405,7 +405,7 @@ class WSVModel(Model):
         return wsv_farfield(ctx, scene, o.masking, o.masking_classes, o.border, o.incidence)
 
     def waist_remedy(self) -> str | None:
-        return None if self.options.incidence == "beam" else beam_incidence_remedy(self.name)  # lit by the beam
+        return beam_incidence_remedy(self.name, self.options.incidence)
 
     def estimate(self, scene: SurfaceScene) -> Estimate:
         return _wsv_estimate(scene, self.options)
@@ -422,9 +422,8 @@ class WMModel(Model):
     capabilities = Capabilities(takes="height_field", returns="intensity", polarized=True, steerable=False,
                                 reciprocal=False, conserves_energy=False, rung=7)
 
-    def waist_remedy(self) -> str | None:
-        """As ws-v's (its single-scattering part warns as wm)."""
-        return WSVModel.waist_remedy(self)
+    def waist_remedy(self) -> str | None:  # its single-scattering part (ws-v's) warns as wm
+        return beam_incidence_remedy(self.name, self.options.incidence)
 
     def run(self, ctx, scene: SurfaceScene) -> IntensityResult:
         o = self.options

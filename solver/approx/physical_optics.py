@@ -296,7 +296,7 @@ class POModel(FootprintModel):
         return po_farfield(ctx, scene, self.options.shadowing, self.options.border, self.options.incidence)
 
     def waist_remedy(self) -> str | None:
-        return None if self.options.incidence == "beam" else beam_incidence_remedy(self.name)  # lit by the beam
+        return beam_incidence_remedy(self.name, self.options.incidence)
 
     def incident_fields(self, scene: SurfaceScene, points):
         """The footprint plane wave, or with ``incidence = "beam"`` the full-wave solver's exact beam."""
