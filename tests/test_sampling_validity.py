@@ -336,6 +336,29 @@ def test_a_kept_s_grid_warns_of_its_footprint_on_every_scene_it_serves(cl_ctx, n
         assert len(raised) == 1 and foreseen == raised, (theta, foreseen, raised)
 
 
+@pytest.mark.parametrize("beam, theta_deg, waist_um, expected", [
+    ("exact", 75.0, 0.6, ("of the incident power", "Gaussian spectrum")),
+    ("paraxial", 60.0, 0.8, ("of the incident power",)),
+    ("exact", 0.0, 0.4, ())])
+def test_the_full_waves_beam_warnings_are_foreseen_in_the_words_the_run_uses(cl_ctx, beam, theta_deg, waist_um,
+                                                                             expected):
+    """The full wave on a 2 µm patch: a 0.6 µm waist at 75° (exact beam) leaves 8 % of the incident
+    power outside the patch and drops part of its spectrum at the light cone, a 0.8 µm paraxial
+    beam at 60° leaves 6 % outside, a 0.4 µm waist at normal incidence stays within it. What
+    ``plan`` foresees (``foreseen_warnings``) is what the solve raises, word for word."""
+    surface = generate("gaussian", cells=20, size_um=2.0, rms_height_um=0.01, correlation_um=0.5, seed=2)
+    scene = SurfaceScene(surface, 0.5, complex(0.87, -6.4), np.deg2rad(theta_deg), 0.3, waist_um, HemisphereGrid(24),
+                         beam=beam)
+    model = get_model("bem", {"method": "dense"})
+    foreseen = [m for m in model.foreseen_warnings(scene) if not m.startswith("bem: ")]  # the mesh's are tested above
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        model.run(cl_ctx, scene)
+    raised = [str(w.message) for w in caught if w.category.__name__ == "FootprintWarning"]
+    assert foreseen == raised, (foreseen, raised)
+    assert len(raised) == len(expected) and all(marker in m for marker, m in zip(expected, raised)), raised
+
+
 def test_plan_prints_the_footprints_spread_before_the_run(tmp_path, capsys):
     """``wavebrdf plan`` at θ_i 0° and 85° (waist 2.3 µm, λ 0.45 µm): the oblique task's warning,
     the normal one none."""

@@ -21,6 +21,7 @@ __all__ = [
     "MaterialWarning",
     "ResolutionWarning",
     "SolverWarning",
+    "beam_spectrum_message",
     "check_beam_spectrum",
     "check_continuation_flux",
     "check_footprint",
@@ -28,6 +29,8 @@ __all__ = [
     "check_resolution",
     "check_surface_plasmons",
     "emit",
+    "footprint_leaks",
+    "footprint_message",
     "resolution_messages",
 ]
 
@@ -68,18 +71,28 @@ def _check_power_outside(fraction: float, key: str, message: str, diagnostics=No
     (a FootprintWarning) when it exceeds OUTSIDE_FRACTION."""
     if diagnostics is not None:
         diagnostics[key] = float(fraction)
-    if not np.isfinite(fraction) or fraction > OUTSIDE_FRACTION:
+    if footprint_leaks(fraction):
         emit(diagnostics, FootprintWarning, message, stacklevel=4)
+
+
+def footprint_message(outside_fraction: float, theta_i: float, patch_um: float, beam: str) -> str:
+    """The FootprintWarning's text for ``outside_fraction`` of the incident power outside the patch."""
+    return (f"{outside_fraction:.3g} of the incident power of the {beam} beam at θ_i = "
+            f"{np.rad2deg(theta_i):.4g}° falls outside the {patch_um:g} µm patch (limit {OUTSIDE_FRACTION:g}): "
+            "the currents are truncated at the patch edge, so edge diffraction and a wrong Φ_i enter "
+            "the BRDF; use a larger patch or a smaller waist (grazing incidence spreads the footprint)")
+
+
+def footprint_leaks(outside_fraction: float) -> bool:
+    """Whether a share of the incident power outside the patch (or beyond the continuation) is
+    warned of: above OUTSIDE_FRACTION, or not a number."""
+    return not np.isfinite(outside_fraction) or outside_fraction > OUTSIDE_FRACTION
 
 
 def check_footprint(outside_fraction: float, theta_i: float, patch_um: float, beam: str, diagnostics=None):
     """Warn when more than OUTSIDE_FRACTION of the incident power crosses z = 0 outside the patch."""
-    _check_power_outside(
-        outside_fraction, "incident_outside_fraction",
-        f"{outside_fraction:.3g} of the incident power of the {beam} beam at θ_i = "
-        f"{np.rad2deg(theta_i):.4g}° falls outside the {patch_um:g} µm patch (limit {OUTSIDE_FRACTION:g}): "
-        "the currents are truncated at the patch edge, so edge diffraction and a wrong Φ_i enter "
-        "the BRDF; use a larger patch or a smaller waist (grazing incidence spreads the footprint)", diagnostics)
+    _check_power_outside(outside_fraction, "incident_outside_fraction",
+                         footprint_message(outside_fraction, theta_i, patch_um, beam), diagnostics)
 
 
 def check_continuation_flux(flux_left: float, theta_i: float, extent_um: float, diagnostics=None):
@@ -100,17 +113,23 @@ def check_beam_spectrum(evanescent_fraction: float, theta_i: float, waist_um: fl
     cone (``ExactGaussianBeam.evanescent_fraction``)."""
     if diagnostics is not None:
         diagnostics["beam_evanescent_fraction"] = float(evanescent_fraction)
-    if evanescent_fraction > SPECTRUM_CUT:
-        emit(
-            diagnostics,
-            FootprintWarning,
-            f"the exact beam at θ_i = {np.rad2deg(theta_i):.4g}° with waist {waist_um:g} µm (λ = {wavelength_um:g} µm) "
+    message = beam_spectrum_message(evanescent_fraction, theta_i, waist_um, wavelength_um)
+    if message:
+        emit(diagnostics, FootprintWarning, message)
+
+
+def beam_spectrum_message(evanescent_fraction: float, theta_i: float, waist_um: float,
+                          wavelength_um: float) -> str | None:
+    """The FootprintWarning's text when the exact beam drops more than SPECTRUM_CUT of its
+    Gaussian spectrum at the light cone (None: it does not)."""
+    if not evanescent_fraction > SPECTRUM_CUT:
+        return None
+    return (f"the exact beam at θ_i = {np.rad2deg(theta_i):.4g}° with waist {waist_um:g} µm (λ = {wavelength_um:g} µm) "
             f"drops {evanescent_fraction:.2g} of its Gaussian spectrum beyond the light cone (limit {SPECTRUM_CUT:g}): "
             "its footprint is not the Gaussian of that waist but has long tails along the plane of incidence, "
             "which a pinned patch's edge cuts and which move a flat-continued patch's currents with the extent "
             "of the continuation (at 80°, waist 2.4 µm at λ 0.4 µm: M00 at the mirror by 3-4 %; docs/dataset.md, "
-            "'toward grazing'); use a larger waist",
-        )
+            "'toward grazing'); use a larger waist")
 
 
 def check_material(media: Media, patch_um: float, diagnostics=None):

@@ -13,19 +13,21 @@ element per du dv), which is what the far-field sum and the surface power need.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 
 from wavebrdf.solver.beams import BEAMS, make_beam
-from wavebrdf.solver.bem3d.checks import check_beam_spectrum, check_footprint
+from wavebrdf.solver.bem3d.checks import (beam_spectrum_message, check_beam_spectrum, check_footprint, footprint_leaks,
+                                          footprint_message)
 from wavebrdf.solver.bem3d.media import Media
 from wavebrdf.solver.bem3d.mesh import SLOT_TANGENT, BEMMesh, slot_weight
 from wavebrdf.solver.bem3d.quadrature import tensor_rule
 from wavebrdf.solver.farfield import ETA0
 
 __all__ = ["ELEMENT_BLOCK", "BeamExcitation", "SurfaceRule", "beam_excitation", "beam_right_hand_side",
-           "element_blocks", "power_into_material", "right_hand_side", "surface_currents"]
+           "element_blocks", "foreseen_beam_warnings", "power_into_material", "right_hand_side", "surface_currents"]
 
 ELEMENT_BLOCK = 16384  # elements per block of quadrature-point arrays (excitation, surface power)
 
@@ -136,6 +138,29 @@ class BeamExcitation:
     beam: object
     rhs: np.ndarray
     incident_power: np.ndarray
+
+
+@functools.lru_cache(maxsize=512)
+def foreseen_beam_warnings(beam: str, wavelength_um: float, theta_i: float, phi_i: float, waist_um: float | None,
+                           exterior_index: float, focus_um: tuple[float, float], patch_um: float,
+                           continued: bool) -> tuple[str, ...]:
+    """The FootprintWarnings :func:`beam_excitation` will raise for this beam on a patch of side
+    ``patch_um`` (µm; angles in radians), in its words, before anything runs: the power outside the
+    patch (not with the flat continuation, ``continued``, whose reach the solve sets) and the exact
+    beam's spectrum cut at the light cone. Cached: a study's tasks share few beams, and the
+    outside fraction is a numerical integral (≈ 0.5 s)."""
+    if beam == "plane":
+        return ()
+    inc = make_beam(beam, wavelength_um, theta_i, phi_i, waist_um, exterior_index=exterior_index,
+                    focus_um=(focus_um[0], focus_um[1], 0.0), patch_size_um=patch_um)
+    found = []
+    if not continued:
+        fraction = inc.outside_fraction(patch_um)
+        found += [footprint_message(fraction, theta_i, patch_um, beam)] if footprint_leaks(fraction) else []
+    if beam == "exact":
+        message = beam_spectrum_message(inc.evanescent_fraction, theta_i, waist_um, wavelength_um)
+        found += [message] if message else []
+    return tuple(found)
 
 
 def beam_excitation(mesh: BEMMesh, media: Media, theta_i: float, phi_i: float, *, waist_um: float | None,

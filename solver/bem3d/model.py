@@ -153,6 +153,22 @@ class BEMModel(Model):
             found += [f"bem: {message}" for message in resolution_messages(media, scene.surface)]
         return found
 
+    def foreseen_warnings(self, scene) -> list[str]:
+        """:meth:`Model.foreseen_warnings` and the beam's own FootprintWarnings (the power outside
+        the patch, the exact beam's spectrum cut: solver/bem3d/excitation.py ``foreseen_beam_warnings``);
+        with the flat continuation, the flux beyond its reach is known only once the solve sizes
+        it and is not foreseen."""
+        found = super().foreseen_warnings(scene)
+        if isinstance(scene, SurfaceScene):
+            from wavebrdf.solver.bem3d.excitation import foreseen_beam_warnings
+
+            continued = self.options.method == "aim" and self.options.aim.edge == "flat"
+            focus = tuple(float(c) for c in scene.footprint_centre_um[:2])
+            found += foreseen_beam_warnings(scene.beam, float(scene.wavelength_um), float(scene.theta_i),
+                                            float(scene.phi_i), scene.waist_um, float(scene.exterior_index),
+                                            focus, float(scene.surface.size_um), continued)
+        return found
+
     def check(self, scene: SurfaceScene) -> None:
         """Refuse, before anything runs, what the flat edge continuation cannot do."""
         if self.options.method != "aim" or self.options.aim.edge != "flat":
