@@ -242,11 +242,13 @@ def cmd_plan(args) -> int:
 
 
 def cmd_compare(args) -> int:
-    from wavebrdf.jobs.compare import compare_config  # its scipy.ndimage (solver/metrics.py) costs every command 0.3 s
+    from wavebrdf.jobs.compare import check_comparison_outputs, compare_config  # its scipy.ndimage (solver/metrics.py)
+    # costs every command 0.3 s
 
     config = load_config(args.config)
     models = None if args.models is None else [m.strip() for m in args.models.split(",") if m.strip()]
     stem = args.out or Path(config.output).with_suffix("").with_name(Path(config.output).stem + "_compare")
+    check_comparison_outputs(stem, args.force)
 
     def progress(what: str) -> None:
         if not args.quiet:
@@ -616,6 +618,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--memory-gb", type=_gib("--memory-gb"), help="memory budget for the reference (default: 80%% "
                                                                   "of the available memory)")
     p.add_argument("--out", type=Path, help="output stem (default: <output stem>_compare)")
+    p.add_argument("--force", action="store_true", help="overwrite files at the output stem that are not a "
+                                                        "previous comparison's")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress lines")
     p.set_defaults(func=cmd_compare)
 
@@ -624,7 +628,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
     add_submit_parser(sub, _count, _gib)
-    add_merge_parser(sub)
+    add_merge_parser(sub, _count)
 
     p = sub.add_parser("inspect", help="summarise a dataset")
     p.add_argument("file", type=Path)

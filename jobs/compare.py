@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wavebrdf.jobs.store import write_comparison
+from wavebrdf.jobs.store import StoreError, is_comparison, write_comparison
 from wavebrdf.solver.farfield import HemisphereGrid, albedo
 from wavebrdf.solver.metrics import (
     angular_distance_deg,
@@ -57,7 +57,8 @@ from wavebrdf.solver.validity import energy_excess_warning, recorded_warnings
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Comparison", "Measurement", "choose_reference", "compare_options", "compare_scenes", "comparison_markdown",
+__all__ = ["COMPARISON_ENDINGS", "Comparison", "Measurement", "check_comparison_outputs", "choose_reference",
+           "comparison_paths", "compare_options", "compare_scenes", "comparison_markdown",
            "comparison_metrics", "measure", "speckle_sigma_u", "warning_kinds"]
 
 RETRO_CONE_DEG = 5.0
@@ -279,8 +280,7 @@ class Comparison:
         """``stem``.csv, .md, .png (error vs time), _gallery.png (every model's BRDF side by side)
         and .h5 (returns the paths written); the stem's name is kept whole (``a0.6_compare`` →
         ``a0.6_compare.csv``)."""
-        stem = Path(stem)
-        paths = [stem.with_name(stem.name + ending) for ending in (".csv", ".md", ".png", ".h5", "_gallery.png")]
+        paths = comparison_paths(stem)
         with open(paths[0], "w", newline="") as fh:
             writer = csv.DictWriter(fh, COLUMNS)
             writer.writeheader()
@@ -294,6 +294,7 @@ class Comparison:
 
     def markdown(self) -> str:
         return comparison_markdown(self.rows)
+
 
     def plot(self, path: Path) -> None:
         plot_trade(self.rows, path)
@@ -354,6 +355,32 @@ class Comparison:
         write_comparison(path, COLUMNS, self.rows, [(m.scene, m.model, m.brdf, m.diagnostics)
                                                     for m in self.measurements if m.brdf is not None],
                          self.grid.resolution, TEXT_COLUMNS)
+
+
+COMPARISON_ENDINGS = (".csv", ".md", ".png", ".h5", "_gallery.png")  # Comparison.write's files, in its order
+
+
+def comparison_paths(stem: Path) -> list[Path]:
+    """The files :meth:`Comparison.write` writes at ``stem`` (its name kept whole)."""
+    stem = Path(stem)
+    return [stem.with_name(stem.name + ending) for ending in COMPARISON_ENDINGS]
+
+
+def check_comparison_outputs(stem: Path, force: bool = False) -> None:
+    """StoreError (unless ``force``) where writing a comparison at ``stem`` would replace a file it
+    does not own: ``stem``.h5 that is not a file of ``wavebrdf compare`` (a study's dataset, any other
+    HDF5 or file), or, with no comparison's .h5 there, any of its other files (nothing tells a
+    previous comparison's CSV, Markdown or PNG from a user's own). Checked before anything runs."""
+    paths = comparison_paths(stem)
+    h5 = paths[COMPARISON_ENDINGS.index(".h5")]
+    if force or (h5.exists() and is_comparison(h5)):
+        return
+    present = [p for p in paths if p.exists()]
+    if present:
+        named, what = ((h5, "is not a file of `wavebrdf compare`") if h5 in present
+                       else (present[0], "has no comparison's .h5 beside it"))
+        raise StoreError(f"{named} {what}, so a comparison does not replace it; choose another --out, move it "
+                         "away, or add --force to overwrite it")
 
 
 def plot_trade(rows: list[dict], path: Path, group: str = "scene", title: str | None = None,

@@ -58,6 +58,13 @@ NOT_SWEEPABLE = {
     "study.name": "a study has one name",
     "steering.patches": "the patch layout is shared by all cases",
     "output.polarization": "every case must store the same variables",
+    "output.per_polarization": "every case must store the same variables",
+    "illumination.polarization": "the dataset labels its BRDF with one polarization; store s and p beside it with "
+                                 "[output] per_polarization = true (brdf_sp)",
+    "run.executor": "it does not change the results",
+    "run.workers": "it does not change the results",
+    "run.retries": "it does not change the results",
+    "run.prologue": "it does not change the results",
 }
 REQUIRED_SECTIONS = ("material", "illumination", "model")  # + the section of one study kind
 

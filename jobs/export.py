@@ -42,13 +42,15 @@ class ExportError(ValueError):
 @dataclass(frozen=True)
 class ExportFormat:
     """A file format ``export`` writes: ``build(path, case, options)`` returns (``write(fh)``,
-    a one-line summary); ``kinds``: the dataset kinds (jobs/study_kinds.py) it takes."""
+    a one-line summary); ``kinds``: the dataset kinds (jobs/study_kinds.py) it takes; ``owns(path)``:
+    whether an existing file is of this format (an export replaces no other file)."""
 
     name: str
     suffix: str
     summary: str
     kinds: tuple[str, ...]
     build: Callable
+    owns: Callable
 
 
 @dataclass(frozen=True)
@@ -81,12 +83,21 @@ def _build_rgl(path: Path, case: int, options: ExportOptions):
     summary = (f"RGL {d['channels']} ({what}), {'isotropic' if d['isotropic'] else 'anisotropic'} "
                f"({why}): {len(d['theta_i_deg'])} θ_i × {len(d['phi_i_deg'])} φ_i, sample space "
                f"{d['sample_resolution']}², {d['bytes'] / 2**20:.1f} MiB")
+    if d["polarization"] not in ("", "unpolarized"):  # the format is read as unpolarized
+        summary += (f"; note: the dataset's BRDF is {d['polarization']}-polarized ([illumination] polarization = "
+                    f"\"{d['polarization']}\"), and so is the file's: not the unpolarized BRDF a renderer expects")
     return (lambda fh: write_tensor_file(fh, made.fields)), summary
+
+
+def _is_tensor_file(path: Path) -> bool:
+    from wavebrdf.mitsuba.rgl import is_tensor_file
+
+    return is_tensor_file(path)
 
 
 FORMATS: dict[str, ExportFormat] = {
     "rgl": ExportFormat("rgl", ".bsdf", "RGL material file: Mitsuba 3 'measured' BSDF, pbrt-v4 measured material",
-                        ("surface",), _build_rgl),
+                        ("surface",), _build_rgl, _is_tensor_file),
 }
 
 
@@ -143,8 +154,11 @@ def _description(ds: Dataset, case: int, fmt: ExportFormat) -> str:
         model = tomllib.loads(ds.config).get("model", {}).get("name", "?")
     except tomllib.TOMLDecodeError:
         model = "?"
+    polarization = ds.h5["brdf"].attrs.get("polarization", "")
+    polarization = polarization.decode() if isinstance(polarization, bytes) else str(polarization)
     return (f"wavebrdf {__version__} export ({fmt.name}) of {ds.path.name}: study {ds.attrs.get('study')!r}, "
-            f"case {case}{f' ({values})' if values else ''}, model {model}, created {ds.attrs.get('created')}")
+            f"case {case}{f' ({values})' if values else ''}, model {model}, "
+            f"{f'{polarization} BRDF, ' if polarization else ''}created {ds.attrs.get('created')}")
 
 
 def export_dataset(dataset: str | Path, out: str | Path | None = None, *, fmt: str = "rgl", case: int | None = None,
@@ -174,6 +188,11 @@ def export_dataset(dataset: str | Path, out: str | Path | None = None, *, fmt: s
     if out.resolve() == dataset.resolve() or (out.is_file() and not_a_dataset(out) is None):
         raise ExportError(f"-o {out}: is a wavebrdf dataset; an export never replaces one (give another file name, "
                           f"e.g. {dataset.with_suffix(chosen.suffix)})")
+    if out.suffix != chosen.suffix:
+        raise ExportError(f"-o {out}: a {fmt} file ends in {chosen.suffix} (e.g. {out.with_suffix(chosen.suffix)})")
+    if out.exists() and not chosen.owns(out):
+        raise ExportError(f"-o {out}: exists and is not a {fmt} file; an export replaces only its own format's files "
+                          "(give another file name, or move it away)")
     write, summary = chosen.build(dataset, case, ExportOptions(description=description, **options))
     make_output_folder(out)
     atomic_write(out, write)

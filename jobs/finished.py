@@ -69,8 +69,6 @@ def up_to_date(plan, force: bool = False, force_flag: str = "--force") -> bool:
     if problem is not None:
         raise ResumeError(f"{output} {problem}: it is not a wavebrdf dataset, so it is not replaced; move it "
                           f"away, set another [study] output, or add {force_flag} to overwrite it")
-    if output.with_name(output.name + ".parts").exists():
-        return False  # a run to resume
     try:
         with h5py.File(output, "r") as h5:
             found = h5.attrs.get("fingerprint")
@@ -84,5 +82,7 @@ def up_to_date(plan, force: bool = False, force_flag: str = "--force") -> bool:
         raise ResumeError(f"{output} holds the results of another configuration (study {_text(study)!r}, "
                           f"fingerprint {_text(found)}; changed: {changed_keys(_text(config), plan.config.text)}); "
                           f"add {force_flag} to overwrite it, or set another [study] output")
+    if output.with_name(output.name + ".parts").exists():
+        return False  # a run of this configuration to resume
     states = {_text(s) for s in status}
     return len(status) == len(plan.tasks) and states == {"done"}

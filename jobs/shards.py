@@ -151,10 +151,11 @@ def cmd_merge(args) -> int:
     return 0
 
 
-def add_merge_parser(sub) -> None:
+def add_merge_parser(sub, count) -> None:
+    """The ``merge`` subcommand; ``count(flag)`` the CLI's argparse type of a positive integer flag."""
     p = sub.add_parser("merge", help="merge the shards of 'run --shard i/K' into the study's dataset")
     p.add_argument("config", type=Path)
-    p.add_argument("--shards", type=int, help="K (default: found beside the output)")
+    p.add_argument("--shards", type=count("--shards"), help="K (default: found beside the output)")
     p.add_argument("--if-complete", action="store_true",
                    help="exit 0 without merging while a shard is unfinished (the array jobs' last step)")
     p.add_argument("--wait", action="store_true", help="wait for another run or merge holding the output")

@@ -888,7 +888,11 @@ class AutoModel(Model):
             _, name, error = within[0]
             reason = (f"{name}: the cheapest rung measured within tolerance {tolerance:g} (worst {error:.3g} × margin "
                       f"{margin:g} over {len(checks)} spot check(s): {where})")
-            result = self._only(name).run(ctx, scene)
+            outside: list = []
+            name, result, reason = self._run_measured(ctx, scene, name, reason, outside)
+            if outside:
+                result.diagnostics["escalation_check_warnings"] = recorded_warnings(outside)
+            error = error if name != REFERENCE else 0.0
         elif (full := self.full_wave_estimate(scene)) is not None and full.memory_bytes <= memory_budget_bytes(scene):
             name, error = REFERENCE, 0.0
             reason = (f"{REFERENCE}: no rung measured within tolerance {tolerance:g} (margin {margin:g}) over "
@@ -906,6 +910,30 @@ class AutoModel(Model):
             return self.run(ctx, scene)
         result.diagnostics.update(model=name, model_reason=reason, model_measured_error=error, spot_checks=where)
         return result
+
+    def _run_measured(self, ctx, scene: SurfaceScene, name: str, reason: str, set_aside: list):
+        """Run rung ``name``; where its own run measures it outside its validity by more than the
+        tolerance — its albedo that share below one reflection off its lit facets
+        (``lit_facet_deficit``, solver/validity.py check_lit_facets: on the trade table the rungs'
+        measured errors are at least about it) — run the full wave instead when it fits the task's
+        budget (the rung's warnings then go to ``set_aside``), else warn that the tolerance is
+        missed. Returns (rung run, result, reason)."""
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            result = self._only(name).run(ctx, scene)
+        deficit = result.diagnostics.get("lit_facet_deficit") if name != REFERENCE else None
+        if deficit is not None and deficit > self.options.tolerance:
+            outside = (f"; {name}'s albedo measured {deficit:.2g} below its lit facets' (its error is at least about "
+                       f"that, > tolerance {self.options.tolerance:g})")
+            full = self.full_wave_estimate(scene)
+            if full is not None and full.memory_bytes <= memory_budget_bytes(scene):
+                set_aside.extend(caught)
+                return REFERENCE, self._only(REFERENCE).run(ctx, scene), reason + outside + f": escalated to {REFERENCE}"
+            reason += outside + f" and {REFERENCE} cannot run within the task's budget"
+            _warn_tolerance(reason)
+        for w in caught:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        return name, result, reason
 
     def _only(self, name: str) -> Model:
         """Rung ``name``, the others released first (one rung's kept operator in memory at a time)."""
@@ -949,7 +977,7 @@ class AutoModel(Model):
                     break
                 reason += f"; escalated to {up} ({name} and {up} differ by {differ:.3g} > {self.options.tolerance:g})"
                 name = up
-        result = self._only(name).run(ctx, scene)
+        name, result, reason = self._run_measured(ctx, scene, name, reason, check_caught)
         if check_caught:
             result.diagnostics["escalation_check_warnings"] = recorded_warnings(check_caught)
         result.diagnostics.update(model=name, model_reason=reason,

@@ -19,6 +19,7 @@ from __future__ import annotations
 import logging
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +30,7 @@ from wavebrdf.jobs.config import load_config
 from wavebrdf.jobs.plan import plan_study
 from wavebrdf.solver.auto import (FEATURES, REFERENCE, SINGLE_SCATTERING, AutoModel, AutoOptions, Rule, choose,
                                   VALIDATED_TOLERANCE, default_rule, measure_scene, read_table, table_error)
-from wavebrdf.solver.farfield import HemisphereGrid
+from wavebrdf.solver.farfield import HemisphereGrid, albedo
 from wavebrdf.solver.materials import Material
 from wavebrdf.solver.models import SurfaceScene
 from wavebrdf.solver.surface import generate
@@ -230,6 +231,51 @@ def test_a_spot_check_records_the_rules_prediction_only_for_a_material_like_the_
         assert all(("predicted" in m) == like for m in checked.values()), (like, checked)
         fitted = [n for n in checked if n in default_rule().coefficients]  # stam is checked, not fitted
         assert fitted and all(checked[n]["predicted"] is not None for n in fitted if like), checked
+
+
+def _subwavelength_grating(budget: float | None = None) -> SurfaceScene:
+    """Aluminium grating of period 0.4 µm at λ 0.5 µm (only the specular order propagates),
+    amplitude 0.05 µm, 8 µm patch, waist 1.5 µm, normal incidence: the rule, which has seen no
+    grating finer than λ, predicts kirchhoff within 0.05, whose tangent plane drops ≈ 60 % of the
+    power into evanescent orders (tests/test_sampling_validity.py)."""
+    grating = generate("sinusoid", cells=160, size_um=8.0, amplitude_um=0.05, period_um=0.4)
+    return SurfaceScene(grating, 0.5, aluminium(0.5), 0.0, 0.0, 1.5, HemisphereGrid(48), memory_budget_bytes=budget)
+
+
+def _run_auto(cl_ctx, scene: SurfaceScene):
+    auto = AutoModel({"tolerance": TOLERANCE})
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = auto.run(cl_ctx, scene)
+    auto.release()
+    return result, [f"{w.category.__name__}: {w.message}" for w in caught]
+
+
+def test_a_rung_its_own_run_measures_outside_is_not_returned_silently(cl_ctx):
+    """On the sub-wavelength grating with a budget the full wave does not fit, auto runs the rung
+    the rule predicts within tolerance; that run measures its albedo 0.58 below its lit facets'
+    (its error at least about that), so auto says it misses the tolerance — in a ToleranceWarning
+    and the reason — beside the rung's own ValidityWarning."""
+    scene = _subwavelength_grating(budget=3e8)
+    assert choose(scene, TOLERANCE).model not in (REFERENCE,)  # the rule alone would rely on a cheap rung
+    result, said = _run_auto(cl_ctx, scene)
+    name = result.diagnostics["model"]
+    assert name != REFERENCE and result.diagnostics["lit_facet_deficit"] > 0.5
+    assert "below its lit facets'" in result.diagnostics["model_reason"]
+    assert any(w.startswith("ToleranceWarning") and "below its lit facets'" in w for w in said), said
+    assert any(w.startswith("ValidityWarning") and f"{name}: albedo" in w for w in said), said
+
+
+@pytest.mark.slow
+def test_a_rung_its_own_run_measures_outside_is_replaced_by_the_full_wave(cl_ctx):
+    """The same grating within the budget: auto replaces the rung by the full wave, whose albedo
+    is far above what the rung returned (the full wave keeps the evanescent orders' power in the
+    specular one), and the rung's warnings are set aside, not the task's."""
+    result, said = _run_auto(cl_ctx, _subwavelength_grating())
+    assert result.diagnostics["model"] == REFERENCE and "escalated to bem" in result.diagnostics["model_reason"]
+    assert float(np.mean(albedo(result.brdf(), result.grid))) > 0.7
+    assert "lit facet" in result.diagnostics["escalation_check_warnings"]
+    assert not any("lit facet" in w or w.startswith("ToleranceWarning") for w in said), said
 
 
 def test_multiple_scattering_scenes_never_get_a_single_scattering_rung():

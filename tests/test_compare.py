@@ -228,6 +228,36 @@ def test_compare_command_end_to_end(tmp_path, capsys):
     assert len(err) == 1 and "[compare.gs] rays = 0" in err[0]
 
 
+def test_compare_replaces_only_a_previous_comparisons_files(tmp_path, capsys):
+    """`compare --out` at a stem whose .h5 is a study's dataset or a user's file, or beside which a
+    user's Markdown lies with no comparison, is refused before anything runs and nothing changes;
+    a previous comparison at the stem is replaced; --force overwrites."""
+    from wavebrdf.jobs.cli import main
+
+    cfg = tmp_path / "trade.toml"
+    cfg.write_text(COMPARE_STUDY.format(out=tmp_path / "trade.h5"))
+    study = tmp_path / "study.h5"
+    assert main(["run", str(cfg), "-q", "--no-render", "-o", str(study)]) == 0
+    notes = tmp_path / "notes.md"
+    notes.write_text("my notes")
+    with h5py.File(tmp_path / "mine.h5", "w") as h5:
+        h5["x"] = 1
+    before = {p: p.read_bytes() for p in (study, notes, tmp_path / "mine.h5")}
+    capsys.readouterr()
+    for stem, said in ((tmp_path / "study", "is not a file of `wavebrdf compare`"),
+                       (tmp_path / "mine", "is not a file of `wavebrdf compare`"),
+                       (tmp_path / "notes", "has no comparison's .h5 beside it")):
+        assert main(["compare", str(cfg), "-q", "--out", str(stem)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and said in err[0] and "--force" in err[0], err
+    assert all(p.read_bytes() == data for p, data in before.items())
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine.h5", "notes.md", "study.h5", "trade.toml"]
+    for _ in range(2):  # a comparison's own files are replaced
+        assert main(["compare", str(cfg), "-q", "--out", str(tmp_path / "again")]) == 0
+    assert main(["compare", str(cfg), "-q", "--out", str(tmp_path / "notes"), "--force"]) == 0
+    assert notes.read_text().startswith("|")
+
+
 def test_a_measuring_process_that_dies_is_a_failure_and_the_next_model_still_runs(flat_scene):
     """The measuring process killed during a model (as the OOM killer would): that model's row
     says how the process ended; the next model gets a fresh process; each model's peak memory is

@@ -127,6 +127,9 @@ def test_sweep_expands_cases_and_labels(tmp_path):
     "sweep, pattern",
     [
         ('"illumination.wavelengths_um" = [[0.5], [0.6]]', "cannot be swept"),
+        ('"illumination.polarization" = ["s", "p"]', r"cannot be swept \(the dataset labels its BRDF with one"),
+        ('"output.per_polarization" = [true, false]', "cannot be swept"),
+        ('"run.workers" = [1, 2]', r"cannot be swept \(it does not change the results\)"),
         ('"surface.rms_hight_um" = [0.1]', "not a config key"),
         ('"surface.seed" = []', "non-empty list"),
         ('"surface.rms_height_um" = [0.1, -0.1]', r"rms_height_um = -0.1: must be >= 0 \(in the sweep case"),

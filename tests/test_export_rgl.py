@@ -15,6 +15,7 @@ from __future__ import annotations
 import filecmp
 import math
 
+import h5py
 import mitsuba as mi  # the `render` extra; missing = a failure, as every reference package
 import numpy as np
 import pytest
@@ -273,6 +274,52 @@ def test_an_export_never_replaces_a_dataset(iso, tmp_path, capsys):
     for channels in ("spectral", "rgb"):
         assert export(copy, "--channels", channels, "--isotropic", "--resolution", 8) == 0
     assert (tmp_path / "beckmann.bsdf").is_file() and (tmp_path / "beckmann_rgb.bsdf").is_file()
+
+
+def test_an_export_replaces_only_its_own_formats_files(iso, tmp_path, capsys):
+    """-o naming a user's file (a config, an HDF5 file that is not a dataset, a .bsdf that is not a
+    tensor file) is refused and the file stays as it was; a previous export's .bsdf is replaced; a
+    name without the format's suffix is refused, naming it."""
+    path, _ = iso
+    config, foreign, fake = tmp_path / "victim.toml", tmp_path / "meas.h5", tmp_path / "notes.bsdf"
+    config.write_text("[study]\nname = 'x'\n")
+    with h5py.File(foreign, "w") as h5:
+        h5["data"] = np.arange(3)
+    fake.write_text("my notes")
+    before = {p: p.read_bytes() for p in (config, foreign, fake)}
+    for target, said in ((config, "ends in .bsdf"), (foreign, "ends in .bsdf"), (fake, "is not a rgl file")):
+        assert export(path, "-o", target, "--isotropic", "--resolution", 8) == 2
+        assert said in capsys.readouterr().err
+    assert all(p.read_bytes() == data for p, data in before.items())
+    ours = tmp_path / "ours.bsdf"
+    for _ in range(2):
+        assert export(path, "-o", ours, "--isotropic", "--resolution", 8) == 0
+    assert ours.read_bytes().startswith(b"tensor_file\x00")
+
+
+def test_an_export_of_one_polarizations_brdf_says_so(tmp_path, capsys):
+    """A study of the s-polarized BRDF exports that BRDF (the format has no polarization): the
+    summary and the file's description say so; an unpolarized study's say nothing of it."""
+    import wavebrdf
+
+    for polarization in ("s", "unpolarized"):
+        config = {"study": {"name": f"pol_{polarization}", "output": str(tmp_path / f"{polarization}.h5")},
+                  "surface": {"generator": "gaussian", "size_um": 6.0, "cells": 64, "rms_height_um": 0.02,
+                              "correlation_um": 0.8, "seed": 1},
+                  "material": {"name": "aluminium"},
+                  "illumination": {"wavelengths_um": [0.55], "waist_um": 1.2, "polarization": polarization,
+                                   "directions_deg": [[float(t), 0.0] for t in range(0, 90, 10)]},
+                  "model": {"name": "kirchhoff"}, "output": {"resolution": 32}}
+        wavebrdf.run(config).close()
+        out = tmp_path / f"{polarization}.bsdf"
+        capsys.readouterr()
+        assert export(tmp_path / f"{polarization}.h5", "-o", out, "--isotropic", "--resolution", 8) == 0
+        said = capsys.readouterr().out
+        description = out.read_bytes()  # the description field is stored as UTF-8 bytes
+        if polarization == "s":
+            assert "s-polarized" in said and b"s BRDF" in description, said
+        else:
+            assert "-polarized" not in said and b"unpolarized BRDF" in description, said
 
 
 def test_case_is_chosen_by_index_or_swept_value(tmp_path, capsys):

@@ -106,7 +106,7 @@ def test_polarized_plugin_matches_mitsuba_conductor(flat_datasets, material, var
         assert np.abs(theirs[0][..., 1]).sum() / total > 0.1
 
 
-def test_polarized_variant_needs_polarimetry(tmp_path):
+def test_polarized_variant_needs_polarimetry(tmp_path, capsys):
     config = {"study": {"name": "flat_plain", "output": str(tmp_path / "plain.h5")},
               "surface": {"generator": "flat", "size_um": 8.0, "cells": 80}, "material": {"n": 1.5},
               "illumination": {"wavelengths_um": [0.55], "waist_um": 1.5, "directions_deg": [[0, 0], [40, 0]]},
@@ -114,6 +114,13 @@ def test_polarized_variant_needs_polarimetry(tmp_path):
     wavebrdf.run(config).close()
     with pytest.raises(Exception, match=r"polarization = \\?\"jones\\?\""):
         _render("llvm_ad_spectral_polarized", {"type": "wavebrdf", "filename": str(tmp_path / "plain.h5")}, 1, 8, 1)
+    from wavebrdf.jobs.cli import main  # `wavebrdf render --scene` says it in one line, exit 2, no traceback
+
+    capsys.readouterr()
+    assert main(["render", str(tmp_path / "plain.h5"), "--scene", "sphere", "--variant", "scalar_spectral_polarized",
+                 "--spp", "1", "--resolution", "8"]) == 2
+    err = capsys.readouterr().err
+    assert "polarization = \"jones\"" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
 
 
 def _matrix(M) -> np.ndarray:

@@ -135,6 +135,20 @@ def test_item5_run_wait_of_the_same_study_finds_it_up_to_date(tmp_path, finished
     assert "wrote" not in result.stdout
 
 
+def test_a_parts_folder_beside_another_configs_dataset_does_not_let_a_run_replace_it(tmp_path, finished, capsys):
+    """Partial results of study ``b`` beside the output (a run of it stopped there) while the output
+    holds study ``a``'s finished dataset (copied in meanwhile): the run refuses, as without the
+    folder, instead of resuming into that file."""
+    config = write_study(tmp_path, "b", seed=4)
+    output = tmp_path / "out.h5"
+    output.write_bytes(finished.read_bytes())
+    (tmp_path / "out.h5.parts").mkdir()
+    assert run(config) == 2
+    line = error_line(capsys.readouterr().err)
+    assert "another configuration" in line and "surface.seed 3 -> 4" in line, line
+    assert digest(output) == digest(finished)
+
+
 # --- item 6: a file that is not a wavebrdf dataset -------------------------------------------------
 
 

@@ -359,6 +359,68 @@ def test_the_full_waves_beam_warnings_are_foreseen_in_the_words_the_run_uses(cl_
     assert len(raised) == len(expected) and all(marker in m for marker, m in zip(expected, raised)), raised
 
 
+def test_the_diffraction_orders_of_a_periodic_surface_are_point_sampled_too(cl_ctx):
+    """Spherical pits on a 2 µm lattice scatter nearly all the power into diffraction orders, each
+    as narrow as the specular lobe (λ₁/(2πw)). At resolution 16 kirchhoff's albedo is 13 % below
+    its value at 256 and the pixel check says so, naming the orders; at 32, within the check's
+    0.5 %, it says nothing."""
+    surface = generate("spherical-pits", cells=160, size_um=8.0, radius_um=1.0, depth_um=0.3, period_um=2.0)
+    found = {}
+    for resolution in (16, 32, 256):
+        scene = SurfaceScene(surface, 0.4, complex(0.2, -3.5), 0.0, 0.0, 1.5, HemisphereGrid(resolution))
+        model = get_model("kirchhoff")
+        said = [m for m in model.validity(scene) if "point-sampled" in m]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            result = model.run(cl_ctx, scene)
+        found[resolution] = float(np.mean(albedo(result.brdf(), result.grid))), said
+    fine = found[256][0]
+    assert abs(found[16][0] / fine - 1) > 0.1 and len(found[16][1]) == 1 and "diffraction-order" in found[16][1][0]
+    assert abs(found[32][0] / fine - 1) < 0.005 and not found[32][1], found[32]
+
+
+def test_the_lit_facets_albedo_of_a_flat_patch_is_fresnels():
+    """One reflection off each lit facet of a flat patch is the flat interface's reflectance R(θ_i)
+    (independent Fresnel, tests/references.py), for a metal and a dielectric, at any incidence and
+    azimuth, lit by a footprint or a plane wave."""
+    from wavebrdf.solver.footprint import lit_facet_albedo
+
+    flat = generate("gaussian", cells=40, size_um=4.0, rms_height_um=0.0, correlation_um=0.8, seed=2)
+    for index in (complex(0.87, -6.4), complex(1.5)):
+        for theta, phi, waist in ((0.0, 0.0, 1.0), (55.0, 0.7, 1.0), (80.0, 2.0, None)):
+            scene = SurfaceScene(flat, 0.5, index, np.deg2rad(theta), phi, waist, HemisphereGrid(16))
+            expected = np.mean(fresnel_reflectance(1.0, index, np.deg2rad(theta)))
+            assert lit_facet_albedo(scene) == pytest.approx(expected, rel=1e-12), (index, theta)
+
+
+@pytest.mark.parametrize("name", ["kirchhoff", "po", "ws-v", "wm"])
+def test_a_grating_finer_than_the_wavelength_is_warned_by_the_tangent_plane_rungs(cl_ctx, name):
+    """Aluminium grating of period 0.4 µm at λ 0.5 µm, amplitude 0.05 µm, normal incidence: only the
+    specular order propagates, so the full wave keeps the power in it (dense BEM on a 2 µm patch of
+    it: albedo 0.78 against 0.92 flat, docs/approx.md), while the tangent-plane rungs put ≈ 60 % of
+    it into the evanescent ±1 orders (J₁(2kA)² each) and drop it. Each says so: its albedo is
+    recorded that far below the lit facets' (≈ R), with the ValidityWarning; a smooth random
+    patch on the same footing is not warned."""
+    index = complex(0.87, -6.4)
+    flat_r = float(np.mean(fresnel_reflectance(1.0, index, 0.0)))
+    grating = generate("sinusoid", cells=160, size_um=8.0, amplitude_um=0.05, period_um=0.4)
+    smooth = generate("gaussian", cells=160, size_um=8.0, rms_height_um=0.01, correlation_um=1.0, seed=3)
+    for surface, warned in ((grating, True), (smooth, False)):
+        scene = SurfaceScene(surface, 0.5, index, 0.0, 0.0, 1.5, HemisphereGrid(64))
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            result = get_model(name).run(cl_ctx, scene)
+        said = [str(w.message) for w in caught if "lit facet" in str(w.message)]
+        got = float(np.mean(albedo(result.brdf(), result.grid)))
+        deficit = result.diagnostics["lit_facet_deficit"]
+        assert result.diagnostics["lit_facet_albedo"] == pytest.approx(flat_r, rel=0.02)
+        assert deficit == pytest.approx(1 - got / result.diagnostics["lit_facet_albedo"], rel=1e-9)
+        if warned:
+            assert got < 0.5 * flat_r and deficit > 0.5 and len(said) == 1 and name in said[0], (got, said)
+        else:
+            assert abs(deficit) < 0.02 and not said, (deficit, said)
+
+
 def test_plan_prints_the_footprints_spread_before_the_run(tmp_path, capsys):
     """``wavebrdf plan`` at θ_i 0° and 85° (waist 2.3 µm, λ 0.45 µm): the oblique task's warning,
     the normal one none."""

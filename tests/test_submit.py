@@ -143,6 +143,15 @@ def test_bad_time_is_one_line_exit_2(study, bad, capsys):
     assert err.startswith("wavebrdf: error: --time") and err.count("\n") == 1
 
 
+@pytest.mark.parametrize("bad", ["-3", "0", "two"])
+def test_a_shard_count_below_one_is_refused_by_merge_before_it_writes(study, bad, capsys):
+    """`merge --shards K` takes a positive count: 0 or -3 once wrote an all-NaN dataset."""
+    assert main(["merge", str(study), "--shards", bad]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"wavebrdf: error: --shards {bad}") and err.count("\n") == 1
+    assert not Path(load_config(study).output).exists()
+
+
 INJECTIONS = ["x\nrm -rf ~", "a'b", 'a"b', "$(touch pwned)", "a;b", "`id`", "a b"]
 
 

@@ -68,7 +68,7 @@ from wavebrdf.solver.fresnel import fresnel_rs_rp
 from wavebrdf.solver.models import Capabilities, Estimate, Model, SurfaceScene
 from wavebrdf.solver.options import option
 from wavebrdf.solver.precision import Precision
-from wavebrdf.solver.validity import beam_incidence_remedy, check_waist
+from wavebrdf.solver.validity import beam_incidence_remedy, check_lit_facets, check_waist
 
 __all__ = ["WMModel", "WMOptions", "WSVModel", "WSVOptions", "masking_blocks", "wsv_farfield"]
 
@@ -364,6 +364,7 @@ def wsv_farfield(ctx, scene: SurfaceScene, masking: str = "rays", masking_classe
     ff.diagnostics["albedo_excess"] = albedo_excess(ff)
     if not beam:  # the beam's plane waves each reflect at their own angle: no spread error to predict
         check_waist(scene, ff.diagnostics, model, remedy=beam_incidence_remedy(model))
+    check_lit_facets(scene, ff, ff.diagnostics, model, lit)
     return ff
 
 

@@ -41,7 +41,7 @@ from wavebrdf.solver.fresnel import fresnel_rs_rp
 from wavebrdf.solver.models import Capabilities, Estimate, Model, SurfaceScene
 from wavebrdf.solver.precision import Precision
 from wavebrdf.solver.surface import HeightField
-from wavebrdf.solver.validity import check_waist
+from wavebrdf.solver.validity import check_lit_facets, check_waist
 
 logger = logging.getLogger(__name__)
 
@@ -508,6 +508,7 @@ class KirchhoffModel(FootprintModel):
             z_reference=scene.z_reference, precision=scene.precision,
         )
         check_waist(scene, ff.diagnostics, self.name, self.waist_remedy())
+        check_lit_facets(scene, ff, ff.diagnostics, self.name)
         return ff
 
     def waist_remedy(self) -> str | None:

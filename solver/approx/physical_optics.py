@@ -75,7 +75,7 @@ from wavebrdf.solver.fresnel import fresnel_rs_rp
 from wavebrdf.solver.models import Capabilities, Estimate, SurfaceScene
 from wavebrdf.solver.options import option
 from wavebrdf.solver.precision import Precision
-from wavebrdf.solver.validity import beam_incidence_remedy, check_waist
+from wavebrdf.solver.validity import beam_incidence_remedy, check_lit_facets, check_waist
 
 __all__ = [
     "POModel",
@@ -263,6 +263,7 @@ def po_farfield(ctx, scene: SurfaceScene, shadowing: str = "rays", border: str =
     ff.diagnostics["albedo_excess"] = albedo_excess(ff)
     if not beam:  # the beam's plane waves each reflect at their own angle: no spread error to predict
         check_waist(scene, ff.diagnostics, "po", remedy=beam_incidence_remedy("po"))
+    check_lit_facets(scene, ff, ff.diagnostics, "po", lit)
     return ff
 
 

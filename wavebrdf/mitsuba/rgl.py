@@ -58,7 +58,7 @@ import numpy as np
 
 from wavebrdf.mitsuba.tables import DEFENSIVE, Tables, channel_matrix, load_tables
 
-__all__ = ["CHANNELS", "ContinuousWarp", "RGLError", "RGLFile", "rgl_fields", "write_tensor_file"]
+__all__ = ["CHANNELS", "ContinuousWarp", "RGLError", "RGLFile", "is_tensor_file", "rgl_fields", "write_tensor_file"]
 
 CHANNELS = ("spectral", "rgb")
 MAX_THETA_STEP_DEG = 10.0  # largest θ_i gap (also from 0° to the first and from the last to 90°)
@@ -91,6 +91,15 @@ _ALIGN = 8
 _TYPE_CODES = {np.dtype(t): code for code, t in enumerate(
     (np.uint8, np.int8, np.uint16, np.int16, np.uint32, np.int32, np.uint64, np.int64, np.float16, np.float32,
      np.float64), start=1)}
+
+
+def is_tensor_file(path) -> bool:
+    """Whether the file at ``path`` begins with the tensor file's tag (:func:`write_tensor_file`)."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(len(_MAGIC)) == _MAGIC
+    except OSError:
+        return False
 
 
 def write_tensor_file(fh, fields: dict[str, np.ndarray]) -> None:

@@ -162,7 +162,10 @@ def _render_surface(dataset, scene, out, *, spp, resolution, channels, case, env
                     variant, smooth_sigma) -> dict:
     """A "sphere" or "plate" scene with the ``"wavebrdf"`` BSDF."""
     mi = require_mitsuba()
-    tables = tables_for(dataset, channels=channels, case=case, smooth_sigma=smooth_sigma)
+    # the plugin's own tables, loaded here first: a dataset the variant cannot take is refused in
+    # one line rather than from inside Mitsuba's scene parser
+    tables = tables_for(dataset, channels=channels, case=case, smooth_sigma=smooth_sigma,
+                        polarized="polarized" in variant)
     bsdf = {"type": "wavebrdf", "filename": str(Path(dataset).resolve()), "case": int(case)}
     if smooth_sigma is not None:
         bsdf["smooth_sigma"] = float(smooth_sigma)
