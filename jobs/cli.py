@@ -24,17 +24,18 @@ from wavebrdf._version import __version__
 from wavebrdf.jobs.batch import STOPPED_STATUS, Stopped, run_scope, stop_on_sigterm
 from wavebrdf.jobs.config import ConfigError, load_config
 from wavebrdf.jobs.executors import Executor, executor_names, resolve_executor, share_from_root
-from wavebrdf.jobs.export import ExportError, add_export_parser
+from wavebrdf.jobs.export import ExportError, add_case_flags, add_export_parser, select_case
 from wavebrdf.jobs.node import local_rank
 from wavebrdf.jobs.output_path import make_output_folder
 from wavebrdf.jobs.overrides import parse_assignment
 from wavebrdf.jobs.parts import OutputBusy, OutputLock, ResumeError, StorageError
 from wavebrdf.jobs.pictures.common import check_decades
-from wavebrdf.jobs.plan import PlanError, check_memory, device_info, format_bytes, format_number, plan_study
+from wavebrdf.jobs.plan import (PlanError, check_memory, device_info, estimate_tasks, format_bytes, format_number,
+                                plan_study)
 from wavebrdf.jobs.progress import add_verbosity_flags, configure_logging, phi_text
 from wavebrdf.jobs.render import add_render_flags, pictures_folder, render_dataset, render_options
 from wavebrdf.jobs.scheduler import prepare_output, run_plan
-from wavebrdf.jobs.shards import add_merge_parser
+from wavebrdf.jobs.shards import add_merge_parser, same_flags
 from wavebrdf.jobs.spot_checks import expectation_scene, spot_check_summary
 from wavebrdf.jobs.store import Dataset, StoreError, is_comparison, read_comparison
 from wavebrdf.jobs.study_kinds import study_kind
@@ -172,7 +173,7 @@ def _run_and_report(args, plan, executor: Executor, workers: int, comm) -> int:
         return 0
     if args.scope.shard is not None and not summary.failed:
         print(f"shard {args.scope.shard[0]}/{args.scope.shard[1]}: {summary.done} task(s) done in {summary.path}; "
-              f"when every shard is done: wavebrdf merge {args.config}")
+              f"when every shard is done: wavebrdf merge {args.config}{same_flags(args)}")
         return 0
     print(f"wrote {summary.path}")
     if summary.failed:
@@ -194,7 +195,7 @@ def cmd_plan(args) -> int:
     plan = plan_study(config)
     workers = args.workers or resolve_executor(study.run.executor).tasks_per_node(study)  # as `run` counts
     plan.tasks_per_node = workers  # the AIM settings are fitted to the memory each task may use
-    estimates = [plan.estimate(t) for t in plan.tasks]
+    estimates = estimate_tasks(plan)
     budget = check_memory(plan, workers, args.memory_gb or study.run.memory_gb, device=device_info(),
                           estimates=estimates)
     print(f"study {config.name!r} -> {config.output}")
@@ -242,8 +243,8 @@ def cmd_plan(args) -> int:
 
 
 def cmd_compare(args) -> int:
-    from wavebrdf.jobs.compare import check_comparison_outputs, compare_config  # its scipy.ndimage (solver/metrics.py)
-    # costs every command 0.3 s
+    # imported here: its scipy.ndimage (solver/metrics.py) would cost every command 0.3 s
+    from wavebrdf.jobs.compare import check_comparison_outputs, compare_config
 
     config = load_config(args.config)
     models = None if args.models is None else [m.strip() for m in args.models.split(",") if m.strip()]
@@ -438,12 +439,16 @@ def _print_summary_table(ds, coords) -> None:
 
 def cmd_render(args) -> int:
     if getattr(args, "scene", None):
+        with Dataset(args.file) as ds:
+            case = select_case(ds, args.case, args.sweep)  # a swept dataset: the case named, else refused listing them
+            swept = bool(ds.sweep_keys)
         try:
             from wavebrdf.mitsuba import render_scene
 
-            out = Path(args.out) / f"{Path(args.file).stem}_{args.scene}.png" if args.out else None
+            stem = Path(args.file).stem + (f"_case{case}" if swept else "")  # a swept dataset's cases side by side
+            out = (Path(args.out) if args.out else Path(args.file).parent) / f"{stem}_{args.scene}.png"
             result = render_scene(args.file, args.scene, out, spp=args.spp, resolution=args.resolution,
-                                  variant=args.variant)
+                                  variant=args.variant, case=case)
         except (ImportError, ValueError) as exc:
             print(f"wavebrdf: error: {one_line(str(exc))}", file=sys.stderr)
             return 2
@@ -452,7 +457,9 @@ def cmd_render(args) -> int:
         return 0
 
     mitsuba_only = [f"{flag} {value}" for flag, value in (("--spp", args.spp), ("--resolution", args.resolution),
-                                                          ("--variant", args.variant)) if value is not None]
+                                                          ("--variant", args.variant), ("--case", args.case),
+                                                          ("--sweep", " ".join(f"{k}={v}" for k, v in args.sweep or [])
+                                                           or None)) if value is not None]
     if mitsuba_only:
         raise ConfigError(f"{', '.join(mitsuba_only)}: only with --scene (a Mitsuba render)")
     check_decades(args.decades)  # before the dataset is opened
@@ -628,7 +635,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
     add_submit_parser(sub, _count, _gib)
-    add_merge_parser(sub, _count)
+    add_merge_parser(sub, _count, _add_set_flag)
 
     p = sub.add_parser("inspect", help="summarise a dataset")
     p.add_argument("file", type=Path)
@@ -651,6 +658,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--variant", help="with --scene: the Mitsuba variant, e.g. scalar_rgb, llvm_ad_rgb, "
                                      "llvm_ad_spectral (default llvm_ad_rgb where a libLLVM >= 17 is found, else "
                                      "scalar_rgb)")
+    add_case_flags(p, "with --scene: ")
     p.set_defaults(func=cmd_render)
 
     add_export_parser(sub)

@@ -295,7 +295,6 @@ class Comparison:
     def markdown(self) -> str:
         return comparison_markdown(self.rows)
 
-
     def plot(self, path: Path) -> None:
         plot_trade(self.rows, path)
 

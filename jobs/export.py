@@ -31,8 +31,8 @@ from wavebrdf.jobs.parts import atomic_write
 from wavebrdf.jobs.store import Dataset, not_a_dataset
 from wavebrdf.solver.models import model_class, model_names
 
-__all__ = ["FORMATS", "ExportError", "ExportFormat", "add_export_parser", "export_dataset", "non_reciprocal_models",
-           "select_case"]
+__all__ = ["FORMATS", "ExportError", "ExportFormat", "add_case_flags", "add_export_parser", "export_dataset",
+           "non_reciprocal_models", "select_case"]
 
 
 class ExportError(ValueError):
@@ -154,8 +154,7 @@ def _description(ds: Dataset, case: int, fmt: ExportFormat) -> str:
         model = tomllib.loads(ds.config).get("model", {}).get("name", "?")
     except tomllib.TOMLDecodeError:
         model = "?"
-    polarization = ds.h5["brdf"].attrs.get("polarization", "")
-    polarization = polarization.decode() if isinstance(polarization, bytes) else str(polarization)
+    polarization = ds.brdf_polarization
     return (f"wavebrdf {__version__} export ({fmt.name}) of {ds.path.name}: study {ds.attrs.get('study')!r}, "
             f"case {case}{f' ({values})' if values else ''}, model {model}, "
             f"{f'{polarization} BRDF, ' if polarization else ''}created {ds.attrs.get('created')}")
@@ -253,6 +252,15 @@ def cmd_export(args) -> int:
     return 0
 
 
+def add_case_flags(parser, prefix: str = "") -> None:
+    """``--case N`` or ``--sweep KEY=VALUE`` (:func:`select_case`) on ``parser``; ``prefix`` heads
+    their help (e.g. "with --scene: ")."""
+    which = parser.add_mutually_exclusive_group()
+    which.add_argument("--case", type=int, help=f"{prefix}sweep case: flat index in C order over the sweep axes")
+    which.add_argument("--sweep", action="append", type=_sweep_pair, metavar="KEY=VALUE",
+                       help=f"{prefix}sweep case by value, once per swept key (e.g. surface.rms_height_um=0.05)")
+
+
 def add_export_parser(sub) -> None:
     """The ``export`` subcommand on the CLI's subparsers."""
     p = sub.add_parser("export", help="write one case of a dataset in another tool's format: "
@@ -260,10 +268,7 @@ def add_export_parser(sub) -> None:
     p.add_argument("file", type=Path, help="a wavebrdf dataset")
     p.add_argument("--format", "-f", choices=list(FORMATS), default="rgl", help="output format (default rgl)")
     p.add_argument("--output", "-o", type=Path, help="output file (default: <dataset stem>[_case<N>].bsdf beside it)")
-    which = p.add_mutually_exclusive_group()
-    which.add_argument("--case", type=int, help="sweep case: flat index in C order over the sweep axes")
-    which.add_argument("--sweep", action="append", type=_sweep_pair, metavar="KEY=VALUE",
-                       help="sweep case by value, once per swept key (e.g. surface.rms_height_um=0.05)")
+    add_case_flags(p)
     p.add_argument("--channels", choices=["spectral", "rgb"], default="spectral",
                    help="rgl: the dataset's wavelengths (Mitsuba spectral variants, pbrt-v4) or linear sRGB "
                         "(Mitsuba RGB variants); default spectral")

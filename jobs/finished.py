@@ -57,6 +57,19 @@ def _text(value) -> str:
     return value.decode() if isinstance(value, bytes) else str(value)
 
 
+def _parts_of(plan, parts: Path) -> bool:
+    """Whether the parts folder ``parts`` holds partial results of ``plan`` (read only)."""
+    from wavebrdf.jobs.parts import PartsFolder
+
+    if not parts.exists():
+        return False
+    try:
+        PartsFolder(plan).check()
+    except Exception:  # noqa: BLE001 - another configuration's, or no manifest: not this plan's to resume
+        return False
+    return True
+
+
 def up_to_date(plan, force: bool = False, force_flag: str = "--force") -> bool:
     """True when ``plan``'s output already holds its complete results (nothing to run).
     ResumeError (unless ``force``) when the output is not a wavebrdf dataset or holds another
@@ -78,11 +91,15 @@ def up_to_date(plan, force: bool = False, force_flag: str = "--force") -> bool:
         return False  # a damaged dataset of ours: the run replaces it, as before
     if found is None:
         return False
+    parts = output.with_name(output.name + ".parts")
     if _text(found) != plan.fingerprint:
+        # checked before the parts folder: partial results beside a dataset they are not of do not replace it
+        resume = (f" (the partial results in {parts.name} beside it resume with {force_flag}, replacing it)"
+                  if _parts_of(plan, parts) else "")
         raise ResumeError(f"{output} holds the results of another configuration (study {_text(study)!r}, "
                           f"fingerprint {_text(found)}; changed: {changed_keys(_text(config), plan.config.text)}); "
-                          f"add {force_flag} to overwrite it, or set another [study] output")
-    if output.with_name(output.name + ".parts").exists():
+                          f"add {force_flag} to overwrite it, or set another [study] output{resume}")
+    if parts.exists():
         return False  # a run of this configuration to resume
     states = {_text(s) for s in status}
     return len(status) == len(plan.tasks) and states == {"done"}

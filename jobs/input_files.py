@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from wavebrdf.jobs.errors import ConfigError, fail
+from wavebrdf.jobs.ranges import direction_identity
 from wavebrdf.solver.materials import INDEX_COLUMNS, MaterialError, read_index_file
 from wavebrdf.solver.number_rows import RowError, number_rows
 from wavebrdf.solver.options import ANGLE_DEG
@@ -124,10 +125,11 @@ def read_directions_file(value: str, path: Path, angles: str) -> tuple[tuple[flo
                 raise bad(line_no, line, f"theta = {theta:g} {unit} must be in [0, {limit}){hint}")
             if ANGLE_DEG.problem(phi_deg) is not None:
                 raise bad(line_no, line, f"phi = {phi:g} {unit} must lie within ±{'2π rad' if angles == 'rad' else '360°'}")
-            if (theta_deg, phi_deg) in rows:
-                raise bad(line_no, line, f"repeats the direction of line {rows[(theta_deg, phi_deg)]}; directions "
-                                         "must be distinct")
-            rows[(theta_deg, phi_deg)] = line_no
+            identity = direction_identity((theta_deg, phi_deg))
+            if identity in rows:
+                raise bad(line_no, line, f"repeats the direction of line {rows[identity]} (φ modulo 360°; θ = 0 "
+                                         "whatever φ); directions must be distinct")
+            rows[identity] = line_no
             out.append((theta_deg, phi_deg))
     except RowError as exc:
         raise bad(exc.line_no, exc.line, f"{exc.problem}; rows are θ, φ in {unit} (angles = \"{angles}\")") from None

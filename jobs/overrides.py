@@ -26,7 +26,7 @@ from typing import Any, Iterable
 
 from wavebrdf.jobs.errors import ConfigError
 
-__all__ = ["apply_overrides", "check_nesting", "dict_config_text", "dump_toml", "overridden_text",
+__all__ = ["apply_overrides", "assignment_text", "check_nesting", "dict_config_text", "dump_toml", "overridden_text",
            "parse_assignment", "parse_toml"]
 
 BARE_WORD = re.compile(r"[A-Za-z_][A-Za-z0-9_.+-]*")
@@ -88,6 +88,11 @@ def parse_assignment(text: str) -> tuple[str, Any]:
                               "{start = 0.4, stop = 0.7, count = 4})") from None
         value = raw
     return key, value
+
+
+def assignment_text(key: str, value: Any) -> str:
+    """``key=value`` as ``--set`` takes it (:func:`parse_assignment` reads it back as (key, value))."""
+    return f"{key}={_value(value)}"
 
 
 def _key_path(key: str) -> list[str]:

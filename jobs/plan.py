@@ -19,6 +19,7 @@ import hashlib
 import json
 import logging
 import os
+import time
 from dataclasses import dataclass, field
 from functools import cached_property, lru_cache
 
@@ -36,8 +37,10 @@ from wavebrdf.solver.resources import meminfo_bytes
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Plan", "PlanError", "Task", "check_memory", "device_info", "fiber_tasks", "format_bytes",
+__all__ = ["Plan", "PlanError", "Task", "check_memory", "device_info", "estimate_tasks", "fiber_tasks", "format_bytes",
            "format_number", "node_memory_bytes", "plan_study", "surface_tasks"]
+
+ESTIMATE_PROGRESS_S = 10.0  # seconds between the progress lines of estimate_tasks
 
 
 class PlanError(ValueError):
@@ -361,6 +364,23 @@ def _largest(rows, value):
     return max(found, key=lambda x: x[0]) if found else None
 
 
+def estimate_tasks(plan: Plan) -> list[Estimate]:
+    """Every task's estimate, in order, with a line on stderr every :data:`ESTIMATE_PROGRESS_S`
+    while it lasts (a study of thousands of full-wave patches fits its AIM settings per patch:
+    minutes for configs/reference_subareas.toml)."""
+    from wavebrdf.jobs.progress import emit
+
+    out, started = [], time.monotonic()
+    last = started
+    for done, task in enumerate(plan.tasks, 1):
+        out.append(plan.estimate(task))
+        now = time.monotonic()
+        if now - last >= ESTIMATE_PROGRESS_S and done < len(plan.tasks):
+            last = now
+            emit(f"estimated {done} of {len(plan.tasks)} tasks in {now - started:.0f} s")
+    return out
+
+
 def check_memory(plan: Plan, workers_per_node: int, memory_gb: float | None = None, device=None,
                  estimates: list[Estimate] | None = None) -> float:
     """Refuse a plan whose tasks cannot fit; return the node's host memory budget (bytes).
@@ -372,7 +392,7 @@ def check_memory(plan: Plan, workers_per_node: int, memory_gb: float | None = No
     tasks at once against the device's global memory. ``estimates``: those of ``plan.tasks``
     when already computed."""
     budget = (memory_gb * 2**30) if memory_gb else node_memory_bytes()
-    rows = list(zip(estimates or [plan.estimate(t) for t in plan.tasks], plan.tasks))
+    rows = list(zip(estimates or estimate_tasks(plan), plan.tasks))
     need, task, _ = _largest(rows, lambda e: e.memory_bytes)
     gib = 2**30
     if need * workers_per_node > budget:

@@ -14,7 +14,8 @@ A range is ``count`` evenly spaced values from ``start`` to ``stop``, both inclu
 ``.sel(wavelength_um=0.55)`` finds its value; integer ends with an integer step give integers
 (``"surface.seed" = {start = 1, stop = 4, count = 4}``). A direction grid is every (θ, φ) of
 ``theta`` × ``phi`` (each a number, a list or a range), θ-major; θ = 0 is one direction whatever
-φ, so it appears once, with the first φ. Anything else is returned as it is, for the key's own
+φ, and φ + 360° the direction of φ, so each appears once, with its first φ (``phi = {start = 0,
+stop = 360, count = 13}`` gives 12 azimuths). Anything else is returned as it is, for the key's own
 check.
 """
 
@@ -24,7 +25,7 @@ import math
 
 from wavebrdf.jobs.errors import fail
 
-__all__ = ["RANGE_KEYS", "expand_directions", "expand_range"]
+__all__ = ["RANGE_KEYS", "direction_identity", "expand_directions", "expand_range"]
 
 RANGE_KEYS = ("start", "stop", "count")
 
@@ -63,8 +64,22 @@ def expand_directions(section: str, key: str, value):
     for name in ("theta", "phi"):
         axis = expand_range(section, f"{key}.{name}", value[name])
         axes.append(axis if isinstance(axis, list) else [axis])
-    pairs = []
+    pairs, seen = [], set()
     for theta in axes[0]:
-        for phi in axes[1][:1] if theta == 0 else axes[1]:
-            pairs.append([theta, phi])
+        for phi in axes[1]:
+            try:
+                identity = direction_identity((theta, phi))
+            except (TypeError, ValueError):  # not numbers: the key's own check names them
+                identity = object()
+            if identity not in seen:  # θ = 0 whatever φ, or φ a full turn from one listed: once, its first φ
+                seen.add(identity)
+                pairs.append([theta, phi])
     return pairs
+
+
+def direction_identity(direction) -> tuple[float, float]:
+    """An incident direction (θ, φ) in degrees as the direction it is: φ modulo 360°, and θ = 0
+    the one direction whatever φ, both to 10⁻⁹° (two rows with the same identity are one direction
+    listed twice)."""
+    theta, phi = round(float(direction[0]), 9), float(direction[1])
+    return (theta, round(phi % 360.0, 9) % 360.0 if theta > 0 else 0.0)  # 10.1 and 370.1 alike

@@ -115,6 +115,11 @@ def _render(ds: Dataset, path: Path, out_dir: Path, opts: PictureOptions, max_im
     _remove_abandoned(out_dir)
     with ds.reading():
         wanted = pictures(ds, opts, study_kind(ds.kind).pictures)
+    if not wanted:  # e.g. --plots polarization of an intensity dataset: said, not an empty folder
+        raise ConfigError(f"--plots {','.join(opts.plots)}: {path.name} has none of these pictures (polarization "
+                          "needs the Jones or Mueller matrices of [output] polarization = \"jones\" or "
+                          "\"mueller\", spectra several wavelengths, heights a stored surface)")
+    with ds.reading():
         staging = out_dir.with_name(f".{out_dir.name}.{os.getpid()}.tmp")
         names = []
         try:

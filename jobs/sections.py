@@ -22,7 +22,7 @@ from typing import Any
 
 from wavebrdf.jobs.errors import ConfigError
 from wavebrdf.jobs.executors import AUTO, executor_names
-from wavebrdf.jobs.ranges import expand_directions, expand_range
+from wavebrdf.jobs.ranges import direction_identity, expand_directions, expand_range
 from wavebrdf.solver.beams import BEAMS
 from wavebrdf.solver.farfield import POLARIZATION_MODES
 from wavebrdf.solver.materials import INDEX_COLUMNS, INDEX_KAPPA, INDEX_N
@@ -117,7 +117,8 @@ class IlluminationSection:
                                                       doc="vacuum wavelengths (default with material.file: its rows)")
     directions_deg: tuple[tuple[float, float], ...] | None = option(
         None, columns=(("theta_deg", Limits(low=0, high=90, high_open=True, unit="degrees")), ("phi_deg", ANGLE_DEG)),
-        row="direction", distinct=True, expand=expand_directions, doc="[θ, φ] toward the light (surfaces)")
+        row="direction", distinct=direction_identity, expand=expand_directions,
+        doc="[θ, φ] toward the light (surfaces)")
     directions_file: str | None = option(None, doc="the reference simulator's wi.txt: rows θ, φ (surfaces)")
     angles: str | None = option(None, choices=("rad", "deg"), doc="units of directions_file (default rad)")
     waist_um: float | None = option(None, limits=LENGTH_UM, doc="Gaussian footprint exp(−r²/w²) (surfaces)")

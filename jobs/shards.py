@@ -11,18 +11,20 @@ writer as an unsharded run, so the two are equal; the shards' folders are then r
 from __future__ import annotations
 
 import re
+import shlex
 import sys
 from pathlib import Path
 
 from wavebrdf.jobs.config import ConfigError, load_config
 from wavebrdf.jobs.finished import up_to_date
+from wavebrdf.jobs.overrides import assignment_text
 from wavebrdf.jobs.parts import OutputLock, PartsFolder, ResumeError
 from wavebrdf.jobs.plan import Plan, plan_study
 from wavebrdf.jobs.render import render_dataset
 from wavebrdf.jobs.scheduler import prepare_output
 from wavebrdf.jobs.store import write_dataset
 
-__all__ = ["cmd_merge", "parse_shard", "shard_output", "shard_tasks", "with_output"]
+__all__ = ["add_merge_parser", "cmd_merge", "parse_shard", "same_flags", "shard_output", "shard_tasks", "with_output"]
 
 
 def parse_shard(text: str) -> tuple[int, int]:
@@ -102,10 +104,19 @@ def _shard_state(plan, index: int, shards: int) -> tuple[PartsFolder, str | None
     return folder, f"{len(lacking)} of {len(wanted)} task(s) missing{why}"
 
 
+def same_flags(args) -> str:
+    """`` -o OUTPUT --set KEY=VALUE …`` of ``args`` (run's or merge's), shell-quoted: what the other
+    command needs to name the same study."""
+    flags = [] if getattr(args, "output", None) is None else ["-o", str(args.output)]
+    for key, value in getattr(args, "set", None) or []:
+        flags += ["--set", assignment_text(key, value)]
+    return "".join(" " + shlex.quote(flag) for flag in flags)
+
+
 def cmd_merge(args) -> int:
     """``wavebrdf merge CONFIG``: the shards' parts into the study's dataset. Everything is checked
     before anything is written or moved: a refusal leaves the shards' folders as they were."""
-    plan = plan_study(load_config(args.config))
+    plan = plan_study(load_config(args.config, output=args.output, overrides=args.set))
     output = Path(plan.config.output)
     with OutputLock(output).acquire(args.wait):
         if up_to_date(plan, args.force):
@@ -125,7 +136,8 @@ def cmd_merge(args) -> int:
                 print(f"merge of {output} waits for: {lacking}", file=sys.stderr)
                 return 0
             raise ResumeError(f"cannot merge {output}: not finished: {lacking}; finish them with 'wavebrdf run "
-                              f"{args.config} --shard I/{shards}' for I in {', '.join(map(str, missing))}")
+                              f"{args.config}{same_flags(args)} --shard I/{shards}' for I in "
+                              f"{', '.join(map(str, missing))}")
         folders = [folder for folder, _ in states]
         parts = prepare_output(plan)
         device = ""
@@ -151,10 +163,13 @@ def cmd_merge(args) -> int:
     return 0
 
 
-def add_merge_parser(sub, count) -> None:
-    """The ``merge`` subcommand; ``count(flag)`` the CLI's argparse type of a positive integer flag."""
+def add_merge_parser(sub, count, add_set_flag) -> None:
+    """The ``merge`` subcommand; ``count(flag)`` the CLI's argparse type of a positive integer flag,
+    ``add_set_flag(parser)`` its ``--set`` (the shards' run took the same ``--set`` and ``-o``)."""
     p = sub.add_parser("merge", help="merge the shards of 'run --shard i/K' into the study's dataset")
     p.add_argument("config", type=Path)
+    add_set_flag(p)
+    p.add_argument("--output", "-o", type=Path, help="override [study] output, as the shards' run did")
     p.add_argument("--shards", type=count("--shards"), help="K (default: found beside the output)")
     p.add_argument("--if-complete", action="store_true",
                    help="exit 0 without merging while a shard is unfinished (the array jobs' last step)")

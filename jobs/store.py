@@ -870,6 +870,13 @@ class Dataset:
         return self["brdf"]
 
     @property
+    def brdf_polarization(self) -> str:
+        """The polarization the surface dataset's ``brdf`` is of ("unpolarized", "s" or "p"; "" when
+        unrecorded)."""
+        label = self._h5["brdf"].attrs.get("polarization", "") if "brdf" in self._h5 else ""
+        return label.decode() if isinstance(label, bytes) else str(label)
+
+    @property
     def polarimetry(self) -> str:
         """What the surface dataset stores beyond intensities: "jones", "mueller" or "intensity"."""
         return next((name for name in ("jones", "mueller") if name in self._h5), "intensity")

@@ -34,7 +34,7 @@ from importlib import resources
 from pathlib import Path
 
 from wavebrdf.jobs.config import ConfigError, load_config
-from wavebrdf.jobs.plan import node_memory_bytes, plan_study
+from wavebrdf.jobs.plan import estimate_tasks, node_memory_bytes, plan_study
 
 __all__ = ["Layout", "add_submit_parser", "check_script_options", "choose_layout", "cmd_submit", "parse_duration",
            "render_script", "slurm_duration"]
@@ -235,7 +235,7 @@ def cmd_submit(args) -> int:
     config = load_config(args.config)
     study = config.cases[0]
     plan = plan_study(config)
-    estimates = [plan.estimate(t) for t in plan.tasks]
+    estimates = estimate_tasks(plan)
     memory = (args.memory_gb or study.run.memory_gb or node_memory_bytes() / 2**30) * 2**30
     cores = args.cores_per_node or max(os.cpu_count() or 1, (args.ntasks_per_node or 1) * (args.cpus_per_task or 1))
     layout = choose_layout(estimates, nodes=args.nodes, cores_per_node=cores, memory_bytes=memory,

@@ -27,7 +27,8 @@ Field types, and what a value must be:
 - ``tuple[float, float]``: that many numbers; ``tuple[float, ...]``: a non-empty list
   (``distinct``: no value twice); ``float | tuple[float, float]``: a number or a pair;
 - ``tuple[tuple[float, ...], ...]`` with ``columns = ((name, Limits), ...)``: rows, e.g.
-  [[θ, φ], ...] (``row`` names one in messages);
+  [[θ, φ], ...] (``row`` names one in messages; ``distinct``: no row twice, or a function giving
+  each row's identity, e.g. a direction's);
 - anything else through ``parse``: a function that returns the value or raises ValueError
   with the problem.
 
@@ -150,7 +151,7 @@ ANGLE_DEG = Limits(low=-360, high=360, unit="degrees")
 
 def option(default, *, doc: str = "", required: bool = False, low=None, high=None, low_open: bool = False,
            high_open: bool = False, limits: Limits | None = None, choices: Iterable | None = None,
-           length: int | None = None, distinct: bool = False, columns: tuple | None = None, row: str = "row",
+           length: int | None = None, distinct: bool | Callable = False, columns: tuple | None = None, row: str = "row",
            expand: Callable | None = None, parse: Callable | None = None, record_absent: bool = True):
     """A dataclass field with its checks in the metadata (see the module docstring).
 
@@ -226,7 +227,7 @@ class OptionField:
     limits: Limits
     quantity: bool  # limits of a physical quantity (its own span), not a setting's bounds
     choices: Iterable | None
-    distinct: bool
+    distinct: bool | Callable  # rows: a callable gives each row's identity (rows of one identity repeat)
     columns: tuple | None
     row: str
     expand: Callable | None
@@ -335,8 +336,14 @@ class OptionField:
                 if problem is not None:
                     raise _fail(table, self.name, value, f"{name} {problem} (bad: {_fmt(x)} in {_fmt(row)})")
             out.append(tuple(float(x) for x in row))
-        if self.distinct and len(set(out)) != len(out):
-            raise _fail(table, self.name, value, f"{self.row}s must be distinct")
+        if self.distinct:
+            same = self.distinct if callable(self.distinct) else tuple
+            seen = {}
+            for row in out:
+                first = seen.setdefault(same(row), row)
+                if first is not row:
+                    how = f" ({_fmt(list(first))} and {_fmt(list(row))} are one {self.row})" if first != row else ""
+                    raise _fail(table, self.name, value, f"{self.row}s must be distinct{how}")
         return tuple(out)
 
 

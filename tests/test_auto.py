@@ -266,6 +266,42 @@ def test_a_rung_its_own_run_measures_outside_is_not_returned_silently(cl_ctx):
     assert any(w.startswith("ValidityWarning") and f"{name}: albedo" in w for w in said), said
 
 
+def test_a_measured_loss_escalates_only_beyond_the_tolerance_and_its_slack():
+    """A rung's own measure decides beyond tolerance + LIT_FACET_SLACK only (the deficit exceeded
+    the measured error by up to that on the trade table), not where the pixels' sampling explains
+    it, and a task already warned of the tolerance is not warned twice. The rung is a stand-in
+    returning set figures; the full wave does not fit the budget."""
+    from wavebrdf.solver.validity import LIT_FACET_SLACK
+
+    class Figures:
+        def __init__(self, deficit: float, sampling: float = 0.0):
+            self.diagnostics = {"lit_facet_deficit": deficit, "lit_facet_sampling": sampling}
+
+    class StandIn:
+        figures = None
+
+        def run(self, ctx, scene):
+            return StandIn.figures
+
+        def release(self):
+            pass
+
+    scene = _subwavelength_grating(budget=3e8)
+    auto = AutoModel({"tolerance": TOLERANCE})
+    auto._rungs["kirchhoff"] = StandIn()
+    for deficit, sampling, warned, expected in ((TOLERANCE + LIT_FACET_SLACK - 1e-3, 0.0, False, 0),
+                                                (TOLERANCE + LIT_FACET_SLACK + 1e-3, 0.0, False, 1),
+                                                (TOLERANCE + LIT_FACET_SLACK + 1e-3, 0.5, False, 0),
+                                                (TOLERANCE + LIT_FACET_SLACK + 1e-3, 0.0, True, 0)):
+        StandIn.figures = Figures(deficit, sampling)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            name, _, reason = auto._run_measured(None, scene, "kirchhoff", "rule", [], warned=warned)
+        said = [w for w in caught if w.category.__name__ == "ToleranceWarning"]
+        assert name == "kirchhoff" and len(said) == expected, (deficit, sampling, warned, reason)
+        assert ("below its lit facets'" in reason) == (expected == 1 or warned), reason
+
+
 @pytest.mark.slow
 def test_a_rung_its_own_run_measures_outside_is_replaced_by_the_full_wave(cl_ctx):
     """The same grating within the budget: auto replaces the rung by the full wave, whose albedo

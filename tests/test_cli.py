@@ -57,3 +57,18 @@ def test_no_opencl_platform_names_the_fix(tmp_path):
         pytest.skip("an OpenCL ICD is visible despite OCL_ICD_VENDORS (e.g. the pocl wheel)")
     assert result.returncode == 2
     assert "pocl-opencl-icd" in result.stderr and len(result.stderr.strip().splitlines()) == 1
+
+
+def test_plan_reports_progress_while_it_estimates_many_tasks(monkeypatch, capsys):
+    """A long plan (the flagship's 2 025 full-wave patches take minutes) says how far it is on
+    stderr while it estimates; the table itself is unchanged on stdout."""
+    import wavebrdf.jobs.plan as planning
+
+    monkeypatch.setattr(planning, "ESTIMATE_PROGRESS_S", 0.0)
+    config = ROOT / "configs" / "default.toml"
+    assert main(["plan", str(config)]) == 0
+    captured = capsys.readouterr()
+    done = [int(line.split("estimated ")[1].split(" of 9 tasks")[0]) for line in captured.err.splitlines()
+            if "estimated" in line]
+    assert done == list(range(1, 9)), captured.err  # each task, the last one said by the table itself
+    assert "estimated" not in captured.out and "total: 9 tasks" in captured.out

@@ -119,6 +119,27 @@ def test_render_scene_takes_spp_resolution_and_variant(lobe, tmp_path, capsys):
     assert "--spp 0: must be an integer >= 1" in capsys.readouterr().err
 
 
+def test_render_scene_of_a_swept_dataset_names_its_case(tmp_path, capsys):
+    """A dataset of two sweep cases renders the case named (--case or --sweep), in a file that
+    names it; without one it is refused listing the cases, not rendered from case 0 unsaid."""
+    config = {"study": {"name": "swept", "output": str(tmp_path / "swept.h5")},
+              "surface": {"generator": "gaussian", "size_um": 4.0, "cells": 40, "rms_height_um": 0.02,
+                          "correlation_um": 0.8, "seed": 1},
+              "material": {"name": "aluminium"},
+              "illumination": {"wavelengths_um": [0.55], "waist_um": 0.8, "directions_deg": [[0, 0], [30, 0]]},
+              "model": {"name": "kirchhoff"}, "output": {"resolution": 16},
+              "sweep": {"surface.rms_height_um": [0.02, 0.05]}}
+    wavebrdf.run(config).close()
+    dataset, out = tmp_path / "swept.h5", tmp_path / "png"
+    flags = ("--scene", "plate", "--spp", "1", "--resolution", "8", "--variant", "scalar_rgb", "--out", str(out))
+    capsys.readouterr()
+    assert main(render_args(dataset, *flags)) == 2
+    assert "2 sweep cases (surface.rms_height_um = 0.02, 0.05): choose one with --case" in capsys.readouterr().err
+    assert main(render_args(dataset, *flags, "--case", "1")) == 0
+    assert main(render_args(dataset, *flags, "--sweep", "surface.rms_height_um=0.02")) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["swept_case0_plate.png", "swept_case1_plate.png"]
+
+
 def test_missing_mitsuba_says_how_to_install_it(lobe, monkeypatch, capsys):
     """The message names the `render` extra and the requirement pyproject.toml gives it."""
     (requirement,) = PYPROJECT["project"]["optional-dependencies"]["render"]

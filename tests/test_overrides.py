@@ -84,6 +84,12 @@ def test_cli_set_plans_the_overridden_study(capsys):
     assert main(["plan", str(DEFAULT), "--set", "illumination.directions_deg={theta=[0,30],phi=[0,90]}",
                  "--set", "illumination.wavelengths_um=[0.5]", "--set", "output.resolution=64"]) == 0
     assert "total: 3 tasks" in capsys.readouterr().out
+    # a full turn of φ lists φ = 0 once (φ + 360° is the same direction), θ = 0 once whatever φ
+    assert main(["plan", str(DEFAULT), "--set", "illumination.directions_deg={theta=[0,30],phi={start=0,stop=360,"
+                 "count=13}}", "--set", "illumination.wavelengths_um=[0.5]", "--set", "output.resolution=64"]) == 0
+    assert "total: 13 tasks" in capsys.readouterr().out
+    assert main(["plan", str(DEFAULT), "--set", "illumination.directions_deg=[[30,0],[30,360]]"]) == 2
+    assert "[30.0, 0.0] and [30.0, 360.0] are one direction" in capsys.readouterr().err
     for flags, text in ((["--set", "output.resolution=8"], "[output] resolution = 8: must be >= 16"),
                         (["--set", "illumination.wavelengths_um=0.4,0.5"],
                          "--set illumination.wavelengths_um=0.4,0.5: 0.4,0.5 is not a TOML value"),

@@ -228,6 +228,27 @@ def test_item7_merge_refused_for_a_missing_shard_moves_nothing(tmp_path, capsys)
     assert "--shard I/2' for I in 0, 1" in line, line
 
 
+def test_shards_run_with_set_and_output_are_merged_by_the_command_they_print(tmp_path, capsys):
+    """Shards run with --set and -o print the merge command with the same flags, and that command
+    merges them (merge takes --set and -o as run does); without them merge finds no such shards."""
+    import shlex
+
+    config = write_study(tmp_path, "a", seed=3)
+    flags = ["--set", "surface.seed=5", "--set", "illumination.wavelengths_um=[0.55]", "-o", str(tmp_path / "o.h5")]
+    printed = []
+    for shard in ("0/2", "1/2"):
+        capsys.readouterr()
+        assert run(config, *flags, "--shard", shard) == 0
+        printed.append(capsys.readouterr().out.split("when every shard is done: ")[1].strip())
+    assert printed[0] == printed[1] and "--set surface.seed=5" in printed[0] and "-o " in printed[0], printed
+    command = shlex.split(printed[0])
+    assert command[:2] == ["wavebrdf", "merge"]
+    assert main([*command[1:], "--no-render"]) == 0
+    with h5py.File(tmp_path / "o.h5") as h5:
+        assert set(h5["tasks/status"][()].astype(str)) == {"done"} and len(h5["tasks/status"]) == 3
+        assert "seed = 5" in h5.attrs["config"]
+
+
 # --- item 10: messages -------------------------------------------------------------------------
 
 

@@ -124,3 +124,8 @@ def test_options_and_the_cap(datasets, tmp_path, caplog, capsys):
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and text in err, err
     assert not (tmp_path / "c").exists()
+    # a kind the surface dataset has no data for (intensity only): said in one line, no empty folder
+    assert main(["render", str(datasets["surface"]), "--out", str(tmp_path / "d"), "--plots", "polarization"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "has none of these pictures" in err and "damaged" not in err, err
+    assert not (tmp_path / "d").exists()

@@ -197,6 +197,8 @@ def test_wi_file_of_the_reference(tmp_path):
     ("0,0\n0.1\n", "rad", ["line 2", "needs 2 values"]),
     ("0,0\n0.1,x\n", "rad", ["line 2", "'x' is not a number"]),
     ("0.1,0\n0.2,0\n0.1,0\n", "rad", ["line 3", "repeats the direction of line 1"]),
+    ("30,0\n30,360\n", "deg", ["line 2", "repeats the direction of line 1 (φ modulo 360°"]),
+    ("0,0\n0,1.5\n", "rad", ["line 2", "repeats the direction of line 1", "θ = 0 whatever φ"]),
     ("0.1,inf\n", "rad", ["line 1", "finite"]),
     ("# nothing\n", "rad", ["holds no rows"]),
 ])

@@ -53,9 +53,7 @@ class Case:
         self.ds, self.index, self.flat, self.label = ds, case_index, flat, label
         self.coords = ds.coords
         self.brdf = ds.h5["brdf"]
-        self.polarization = self.brdf.attrs.get("polarization", "")
-        if isinstance(self.polarization, bytes):
-            self.polarization = self.polarization.decode()
+        self.polarization = ds.brdf_polarization
 
     def cube(self, inc: int) -> np.ndarray:
         """BRDF (n_λ, res, res) of incidence ``inc``."""

@@ -364,7 +364,7 @@ def wsv_farfield(ctx, scene: SurfaceScene, masking: str = "rays", masking_classe
     ff.diagnostics["albedo_excess"] = albedo_excess(ff)
     if not beam:  # the beam's plane waves each reflect at their own angle: no spread error to predict
         check_waist(scene, ff.diagnostics, model, remedy=beam_incidence_remedy(model))
-    check_lit_facets(scene, ff, ff.diagnostics, model, lit)
+    check_lit_facets(scene, ff, model, lit, masking=masking != "none" and not flat)
     return ff
 
 

@@ -508,7 +508,7 @@ class KirchhoffModel(FootprintModel):
             z_reference=scene.z_reference, precision=scene.precision,
         )
         check_waist(scene, ff.diagnostics, self.name, self.waist_remedy())
-        check_lit_facets(scene, ff, ff.diagnostics, self.name)
+        check_lit_facets(scene, ff, self.name)
         return ff
 
     def waist_remedy(self) -> str | None:

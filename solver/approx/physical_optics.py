@@ -263,7 +263,7 @@ def po_farfield(ctx, scene: SurfaceScene, shadowing: str = "rays", border: str =
     ff.diagnostics["albedo_excess"] = albedo_excess(ff)
     if not beam:  # the beam's plane waves each reflect at their own angle: no spread error to predict
         check_waist(scene, ff.diagnostics, "po", remedy=beam_incidence_remedy("po"))
-    check_lit_facets(scene, ff, ff.diagnostics, "po", lit)
+    check_lit_facets(scene, ff, "po", lit)
     return ff
 
 

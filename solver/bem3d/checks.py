@@ -124,8 +124,9 @@ def beam_spectrum_message(evanescent_fraction: float, theta_i: float, waist_um: 
     Gaussian spectrum at the light cone (None: it does not)."""
     if not evanescent_fraction > SPECTRUM_CUT:
         return None
-    return (f"the exact beam at θ_i = {np.rad2deg(theta_i):.4g}° with waist {waist_um:g} µm (λ = {wavelength_um:g} µm) "
-            f"drops {evanescent_fraction:.2g} of its Gaussian spectrum beyond the light cone (limit {SPECTRUM_CUT:g}): "
+    return (f"the exact beam at θ_i = {np.rad2deg(theta_i):.4g}° with waist {waist_um:g} µm "
+            f"(λ = {wavelength_um:g} µm) drops {evanescent_fraction:.2g} of its Gaussian spectrum beyond the light "
+            f"cone (limit {SPECTRUM_CUT:g}): "
             "its footprint is not the Gaussian of that waist but has long tails along the plane of incidence, "
             "which a pinned patch's edge cuts and which move a flat-continued patch's currents with the extent "
             "of the continuation (at 80°, waist 2.4 µm at λ 0.4 µm: M00 at the mirror by 3-4 %; docs/dataset.md, "

@@ -368,7 +368,7 @@ def load_tables(path: str | Path, *, case: int = 0, channels: str = "rgb", smoot
             brdf = np.stack([np.asarray(ds.mueller(lead + (n,))[:, 0, 0], dtype=np.float64)
                              for n in range(brdf.shape[0])])
         config = case_config(ds.config, {key: coords[key][i] for key, i in zip(ds.sweep_keys, case_index)})
-        polarization = ds.h5["brdf"].attrs.get("polarization", "")
+        polarization = ds.brdf_polarization
         albedo = np.asarray(ds.h5["albedo"][tuple(int(i) for i in case_index)], dtype=float)
     wavelengths = np.asarray(coords["wavelength_um"], dtype=float)
     order = np.argsort(wavelengths)
@@ -419,7 +419,7 @@ def load_tables(path: str | Path, *, case: int = 0, channels: str = "rgb", smoot
         "tables": len(f),
         "resolution": f.shape[-1],
         "wavelengths_um": wavelengths.tolist(),
-        "polarization": polarization.decode() if isinstance(polarization, bytes) else str(polarization),
+        "polarization": polarization,
         "smooth_sigma_u": sigma.tolist(),
         "filled_pixels": filled,
         "rgb_negative_fraction": clipped,
