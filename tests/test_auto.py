@@ -253,7 +253,7 @@ def _run_auto(cl_ctx, scene: SurfaceScene):
 
 def test_a_rung_its_own_run_measures_outside_is_not_returned_silently(cl_ctx):
     """On the sub-wavelength grating with a budget the full wave does not fit, auto runs the rung
-    the rule predicts within tolerance; that run measures its albedo 0.58 below its lit facets'
+    the rule predicts within tolerance; that run measures its albedo 58 % below its lit facets'
     (its error at least about that), so auto says it misses the tolerance — in a ToleranceWarning
     and the reason — beside the rung's own ValidityWarning."""
     scene = _subwavelength_grating(budget=3e8)
