@@ -104,12 +104,13 @@ def lit_facet_albedo(scene, lit: np.ndarray | None = None) -> float:
     χ (the mean of s and p). What a tangent-plane rung returns where its approximation holds: on
     the trade table's 79 scenes its albedo is within 1.4 % of it wherever its error against the
     full wave is ≤ 0.05 (solver/validity.py check_lit_facets, benchmarks/lit_facets.py)."""
+    from wavebrdf.solver.approx.raytrace import node_slopes
     from wavebrdf.solver.fresnel import fresnel_reflectance
 
     surface = scene.surface
     weight = (np.ones_like(surface.z) if scene.waist_um is None
               else gaussian_footprint(surface, scene.waist_um, scene.footprint_centre_um) ** 2)
-    slope_x, slope_y = np.gradient(surface.z, surface.spacing_um)
+    slope_x, slope_y = node_slopes(surface)  # the normals the wave rungs' shadowing uses
     normal = np.stack([-slope_x, -slope_y, np.ones_like(slope_x)], axis=-1)
     normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
     down = -incident_basis(scene.theta_i, scene.phi_i)[0]  # the incident propagation direction

@@ -88,8 +88,8 @@ def check_lit_facets(scene, result, model: str, lit: np.ndarray | None = None, m
     if loss is None or not loss > LIT_FACET_DEFICIT:
         return
     footprint_lit = scene.waist_um is not None and diagnostics.get("incidence", "footprint") != "beam"
-    spread = beyond_horizon(scene.theta_i, scene.wavelength_um / scene.exterior_index / (2 * np.pi * scene.waist_um)
-                            ) if footprint_lit else 0.0
+    spread = (_spread_error(scene.wavelength_um / scene.exterior_index, scene.theta_i, scene.waist_um)[1]
+              if footprint_lit else 0.0)
     parts = ([f"the footprint's spread alone puts {spread:.2g} of the reflected lobe there (a larger waist removes "
               "that part)"] if spread > SPREAD_ERROR else []) + (["masking on the way out removes part of it too"]
                                                                    if masking else [])
