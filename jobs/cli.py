@@ -35,7 +35,7 @@ from wavebrdf.jobs.plan import (PlanError, check_memory, device_info, estimate_t
 from wavebrdf.jobs.progress import add_verbosity_flags, configure_logging, phi_text
 from wavebrdf.jobs.render import add_render_flags, pictures_folder, render_dataset, render_options
 from wavebrdf.jobs.scheduler import prepare_output, run_plan
-from wavebrdf.jobs.shards import add_merge_parser, same_flags
+from wavebrdf.jobs.shards import add_merge_parser, adopt_finished_shards, remove_adopted_shards, same_flags
 from wavebrdf.jobs.spot_checks import expectation_scene, spot_check_summary
 from wavebrdf.jobs.store import Dataset, StoreError, is_comparison, read_comparison
 from wavebrdf.jobs.study_kinds import study_kind
@@ -161,7 +161,10 @@ def _mpi_lock(comm, lock, wait: bool, still_to_run) -> int | None:
 def _run_and_report(args, plan, executor: Executor, workers: int, comm) -> int:
     rank = comm.Get_rank() if comm is not None else 0
     if rank == 0:
-        prepare_output(plan)  # a parts folder that cannot be used is refused before anything starts
+        parts = prepare_output(plan)  # a parts folder that cannot be used is refused before anything starts
+        taken = adopt_finished_shards(plan, parts) if args.scope.shard is None else None
+        if taken:
+            print(taken, file=sys.stderr)
     ctx = create_context(args.device, require_fp64=plan.needs_fp64,
                          local_rank=local_rank())  # one GPU per local rank
     if rank == 0:
@@ -176,6 +179,9 @@ def _run_and_report(args, plan, executor: Executor, workers: int, comm) -> int:
               f"when every shard is done: wavebrdf merge {args.config}{same_flags(args)}")
         return 0
     print(f"wrote {summary.path}")
+    if not summary.failed:
+        for kept in remove_adopted_shards(plan):
+            print(f"{kept} is left: its shard is running (the dataset holds its tasks already)", file=sys.stderr)
     if summary.failed:
         print(f"wavebrdf: {summary.failed} of {summary.tasks} task(s) failed (see 'wavebrdf inspect "
               f"{summary.path}'); their results are NaN. Re-run the same command to retry them.", file=sys.stderr)

@@ -5,7 +5,9 @@
 Shards are contiguous groups of tasks (a steered basic direction's patch and synthesis tasks stay
 together; consecutive tasks share a model's operator). ``wavebrdf merge CONFIG`` verifies every
 shard's parts, adopts them into the output's parts folder and writes the dataset with the same
-writer as an unsharded run, so the two are equal; the shards' folders are then removed.
+writer as an unsharded run, so the two are equal; the shards' folders are then removed. A plain
+``run`` of the study takes the shards' finished tasks the same way (:func:`adopt_finished_shards`)
+and computes only the rest.
 """
 
 from __future__ import annotations
@@ -18,13 +20,13 @@ from pathlib import Path
 from wavebrdf.jobs.config import ConfigError, load_config
 from wavebrdf.jobs.finished import up_to_date
 from wavebrdf.jobs.overrides import assignment_text
-from wavebrdf.jobs.parts import OutputLock, PartsFolder, ResumeError
+from wavebrdf.jobs.parts import OutputBusy, OutputLock, PartsFolder, ResumeError
 from wavebrdf.jobs.plan import Plan, plan_study
 from wavebrdf.jobs.render import render_dataset
 from wavebrdf.jobs.scheduler import prepare_output
 from wavebrdf.jobs.store import write_dataset
 
-__all__ = ["add_merge_parser", "cmd_merge", "parse_shard", "same_flags", "shard_output", "shard_tasks", "with_output"]
+__all__ = ["add_merge_parser", "adopt_finished_shards", "cmd_merge", "remove_adopted_shards", "parse_shard", "same_flags", "shard_output", "shard_tasks", "with_output"]
 
 
 def parse_shard(text: str) -> tuple[int, int]:
@@ -102,6 +104,54 @@ def _shard_state(plan, index: int, shards: int) -> tuple[PartsFolder, str | None
     damaged = len(lacking & set(bad))
     why = f" ({damaged} damaged part(s), recomputed by the shard's run)" if damaged else ""
     return folder, f"{len(lacking)} of {len(wanted)} task(s) missing{why}"
+
+
+def _own_shard_folders(plan) -> tuple[int | None, list[PartsFolder]]:
+    """K and the shard folders beside the output that hold this plan's parts (another
+    configuration's, or of mixed shard counts, are not this run's to take)."""
+    try:
+        shards = found_shards(plan.config.output)
+    except ResumeError:
+        return None, []
+    folders = []
+    for index in range(shards or 0):
+        folder = PartsFolder(_shard_plan(plan, index, shards))
+        try:
+            if folder.path.exists() and folder.check() is not None:
+                folders.append(folder)
+        except ResumeError:
+            continue
+    return shards, folders
+
+
+def adopt_finished_shards(plan, parts: PartsFolder) -> str | None:
+    """An unsharded run of a study whose shards ran (``run --shard i/K``) takes their finished
+    tasks instead of computing them again: each verified part in a shard folder of this plan is
+    copied into ``parts`` (the run's own folder; the caller holds the output's lock). The shards'
+    folders are read, not changed. Returns what was taken, or None."""
+    shards, folders = _own_shard_folders(plan)
+    taken = 0
+    for folder in folders:
+        taken += sum(1 for task in plan.tasks if not parts.done(task) and folder.done(task) and parts.adopt(task, folder))
+    if not taken:
+        return None
+    return (f"took {taken} finished task(s) of {len(plan.tasks)} from the {len(folders)} shard folder(s) of "
+            f"'run --shard i/{shards}' beside {plan.config.output}; computing the rest")
+
+
+def remove_adopted_shards(plan) -> list[Path]:
+    """Once the study's dataset holds every task, its shards' folders hold nothing it lacks:
+    remove each one whose shard is not running (its lock is free). Returns the folders kept."""
+    shards, folders = _own_shard_folders(plan)
+    kept = []
+    for folder in folders:
+        index = int(re.search(r"\.shard-(\d+)-of-", folder.path.name).group(1))
+        try:
+            with OutputLock(shard_output(plan.config.output, index, shards)).acquire(False):
+                folder.remove()
+        except OutputBusy:
+            kept.append(folder.path)
+    return kept
 
 
 def same_flags(args) -> str:

@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["cmf_xyz", "spectral_weights", "xyz_to_linear_srgb", "srgb_encode"]
+__all__ = ["VISIBLE_UM", "cmf_xyz", "outside_visible", "spectral_weights", "xyz_to_linear_srgb", "srgb_encode"]
+
+VISIBLE_UM = (0.38, 0.78)  # the colour matching functions' range (µm)
 
 _LOBES = {
     "x": [(1.056, 599.8, 37.9, 31.0), (0.362, 442.0, 16.0, 26.7), (-0.065, 501.1, 20.4, 26.2)],
@@ -40,6 +42,25 @@ def cmf_xyz(wavelength_nm) -> np.ndarray:
             total = total + amp * np.exp(-0.5 * ((lam - mu) / sigma) ** 2)
         out.append(total)
     return np.array(out)
+
+
+def outside_visible(wavelengths_um) -> str | None:
+    """What colour made of ``wavelengths_um`` means when none of them lies in the visible
+    (:data:`VISIBLE_UM`): the BRDF at the nearest one carried flat across it (a grey), or, with
+    samples on both sides, interpolated linearly across it; None when one lies in it."""
+    lams = np.asarray(wavelengths_um, dtype=float).ravel()
+    if lams.size == 0 or np.any((lams >= VISIBLE_UM[0]) & (lams <= VISIBLE_UM[1])):
+        return None
+    below, above = lams[lams < VISIBLE_UM[0]], lams[lams > VISIBLE_UM[1]]
+    span = f"{lams.min():g}–{lams.max():g} µm" if lams.size > 1 else f"{lams[0]:g} µm"
+    if below.size and above.size:
+        colour = (f"its colour is the BRDF interpolated linearly across the visible between {below.max():g} and "
+                  f"{above.min():g} µm")
+    else:
+        colour = (f"its colour is the BRDF at {(above.min() if above.size else below.max()):g} µm carried flat across "
+                  "the visible, a grey")
+    return (f"no wavelength of the data ({span}) lies in the visible ({VISIBLE_UM[0]:g}–{VISIBLE_UM[1]:g} µm): "
+            f"{colour}, not a measured colour")
 
 
 def spectral_weights(wavelengths_um) -> np.ndarray:

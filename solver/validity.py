@@ -18,6 +18,9 @@ diagnostics). Found by the extremes suite (tests/extremes.py, docs/extremes.md).
   has sent that power beyond the horizon: relief finer than λ₁ (a grating of period below λ,
   white-noise heights) scatters it into evanescent orders, which the full wave returns into the
   propagating ones (a 0.4 µm-period aluminium grating at λ 0.5 µm, 8 µm patch: kirchhoff 0.38, AIM BEM 0.856).
+* :func:`check_geometric_optics` — the ray rungs (gs, gm) are the large-roughness limit of the
+  Kirchhoff lobe: below it (roughness parameter g = (2k₁σ_h cos θ_i)² small) their lobe differs from
+  the wave's by :func:`geometric_limit_error`, and on features narrower than λ₁ rays do not exist.
 """
 
 from __future__ import annotations
@@ -27,15 +30,17 @@ import warnings
 import numpy as np
 
 
-__all__ = ["ENERGY_SLACK", "EVANESCENT_LOSS", "LIT_FACET_DEFICIT", "LIT_FACET_SLACK", "SPREAD_ERROR",
+__all__ = ["ENERGY_SLACK", "EVANESCENT_LOSS", "GO_LOBE_ERROR", "LIT_FACET_DEFICIT", "LIT_FACET_SLACK", "SPREAD_ERROR",
            "SPREAD_COEFFICIENT", "ValidityWarning", "beam_incidence_remedy", "beyond_horizon", "cells_fix",
-           "check_evanescent_loss", "check_lit_facets", "check_waist", "energy_excess_warning", "horizon_loss",
+           "check_evanescent_loss", "check_geometric_optics", "check_lit_facets", "check_waist",
+           "geometric_limit_error", "geometric_optics_figures", "energy_excess_warning", "horizon_loss",
            "lattice_period_um", "point_sampled_error", "recorded_warnings", "waist_spread"]
 
 EVANESCENT_LOSS = 0.01  # OHS: warn when this share of the reflected spectrum is dropped
 SPREAD_COEFFICIENT = 0.3  # albedo error ≈ this × (λ₁/(πw))²/μ_i² (fitted on flat aluminium, see above)
 SPREAD_ERROR = 0.005  # warn above this predicted relative albedo error (the rungs' flat tolerance)
 ENERGY_SLACK = 1e-3  # an albedo above 1 by more than this is energy the model created
+GO_LOBE_ERROR = 0.05  # warn when geometric optics' lobe is predicted this far (relative L2) from Kirchhoff's (g < 13)
 LIT_FACET_DEFICIT = 0.1  # warn when a tangent-plane rung's albedo is this share below its lit facets'
 # (check_lit_facets; benchmarks/lit_facets.py: every warned run of the trade table is off by > 0.1)
 LIT_FACET_SLACK = 0.005  # the most a lit-facet deficit exceeded the error measured against BEM (trade table, 316 runs)
@@ -422,4 +427,67 @@ def check_sampling(model: str, flags, scene) -> list[str]:
         out += _check_pixels(model, scene, figures)
     if "realization" in flags:
         out += _check_realization(model, scene)
+    return out
+
+
+def geometric_limit_error(g: float) -> float:
+    """Relative L2 (over the whole lobe) between the Kirchhoff lobe of a surface of Gaussian-
+    correlated heights with roughness parameter g = (2k₁σ_h cos θ_i)² and its geometric-optics limit.
+
+    Beckmann's series writes the diffuse lobe in v = k₁(ω_o − ω_i)·T as Σ_{m≥1} p_m G_m with
+    Poisson weights p_m = e^{−g} g^m/m! (the m = 0 term, e^{−g}, is the coherent specular lobe)
+    and G_m(v) = exp(−|v|²/4m)/m; geometric optics puts all the reflected power into G_g, the
+    distribution of the slopes. Each G_m carries 4π and ∫G_a G_b = 4π/(a + b), so the error is
+    exact in closed form; it depends on g alone (≈ 0.61/g for large g: 0.067 at g = 10)."""
+    if not g > 0:
+        return float("inf")
+    if g > 400.0:  # the asymptote, to 1e-3 of itself (the sum would need ~g²/4 terms)
+        return geometric_limit_error(400.0) * 400.0 / g
+    from scipy.stats import poisson
+
+    m = np.arange(1, int(g + 12.0 * np.sqrt(g) + 20.0), dtype=float)
+    p = poisson.pmf(m, g)
+    beckmann = float(np.sum(np.outer(p, p) / np.add.outer(m, m)))
+    cross = float(np.sum(p / (m + g)))
+    return float(np.sqrt(max(beckmann - 2.0 * cross + 0.5 / g, 0.0) / beckmann))
+
+
+def geometric_optics_figures(scene) -> dict:
+    """What decides whether rays describe ``scene``: the roughness parameter g, the coherent
+    specular share e^{−g}, :func:`geometric_limit_error` and the correlation length over λ₁ (NaN
+    where the surface has none). Empty for a flat surface (a mirror, which rays describe)."""
+    figures = _SurfaceFigures.of(scene.surface)
+    if figures["flat"]:
+        return {}
+    lambda1 = scene.wavelength_um / scene.exterior_index
+    g = float((4.0 * np.pi / lambda1 * figures["rms_height_um"] * np.cos(scene.theta_i)) ** 2)
+    return {"roughness_g": g, "coherent_share": float(np.exp(-g)), "geometric_limit_error": geometric_limit_error(g),
+            "correlation_over_wavelength": figures["correlation_um"] / lambda1}
+
+
+def check_geometric_optics(model: str, scene) -> list[str]:
+    """Warn where a ray rung's figure is outside geometric optics: a lobe predicted more than
+    GO_LOBE_ERROR from the Kirchhoff lobe it is the limit of (:func:`geometric_limit_error`), or
+    a correlation length below λ₁ (features that diffract rather than reflect rays: on every such
+    surface of the trade table gs and gm were 0.13–1.9 off the full wave, solver/data/trade.csv)."""
+    figures = geometric_optics_figures(scene)
+    if not figures:
+        return []
+    lambda1 = scene.wavelength_um / scene.exterior_index
+    fix = "use a wave rung (kirchhoff, ghs, po) or model = auto, which measures the rungs against the full wave"
+    out = []
+    error, g = figures["geometric_limit_error"], figures["roughness_g"]
+    if error > GO_LOBE_ERROR:
+        out.append(f"{model}: geometric optics is the large-roughness limit (g ≫ 1) of the Kirchhoff lobe, and at "
+                   f"{_where(scene)} this surface has g = (2k₁σ_h cos θ_i)² = {g:.3g} (rms height "
+                   f"{_SurfaceFigures.of(scene.surface)['rms_height_um']:.3g} µm): the wave keeps a share e^−g = "
+                   f"{figures['coherent_share']:.2g} of the reflected power in the coherent specular lobe and "
+                   f"spreads the rest as Beckmann's series, whose lobe differs from the rays' by ≈ {error:.2g} "
+                   f"(relative L2 for Gaussian-correlated heights; above {GO_LOBE_ERROR:g} wherever g < 13); {fix}")
+    ratio = figures["correlation_over_wavelength"]
+    if ratio < 1.0:
+        out.append(f"{model}: the surface's correlation length {ratio * lambda1:.3g} µm is below λ₁ = {lambda1:.3g} µm "
+                   f"at {_where(scene)}: features narrower than a wavelength diffract rather than reflect rays (on "
+                   "every such surface of the trade table, gs and gm were 0.13–1.9 off the full wave, docs/trade.md); "
+                   "use bem or model = auto")
     return out

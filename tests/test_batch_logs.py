@@ -135,6 +135,24 @@ def test_two_shards_merged_equal_the_unsharded_run(finished, tmp_path):
         assert set(b["tasks/status"][()].astype(str)) == {"done"}
 
 
+def test_a_plain_run_takes_the_finished_shards_tasks_and_computes_the_rest(finished, tmp_path, capsys):
+    """Shard 1 of 2 ran; a plain ``run`` copies its 2 tasks, computes shard 0's 2 (their task lines
+    only) and writes the unsharded run's dataset to the bit; the shard's folder is then removed."""
+    _, unsharded, _ = finished
+    cfg = tmp_path / "logs.toml"
+    cfg.write_text(finished[0].read_text().replace(str(unsharded), str(tmp_path / "logs.h5")))
+    assert main(["run", str(cfg), "-q", "--no-render", "--shard", "1/2"]) == 0
+    capsys.readouterr()
+    assert main(["run", str(cfg), "--no-render"]) == 0
+    err = capsys.readouterr().err
+    assert "took 2 finished task(s) of 4 from the 1 shard folder(s) of 'run --shard i/2'" in err, err
+    assert len([line for line in err.splitlines() if TASK_LINE.match(line)]) == 2, err
+    assert not list(tmp_path.glob("*.parts"))
+    with h5py.File(unsharded) as a, h5py.File(tmp_path / "logs.h5") as b:
+        for name in ("brdf", "albedo"):
+            assert np.array_equal(a[name][()], b[name][()], equal_nan=True), name
+
+
 def test_merge_waits_for_unfinished_shards(tmp_path, capsys):
     cfg = write_study(tmp_path, seed=9)
     assert main(["run", str(cfg), "-q", "--no-render", "--shard", "1/2"]) == 0

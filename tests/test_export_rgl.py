@@ -482,3 +482,18 @@ def test_a_non_reciprocal_models_export_says_it_reads_backwards(tmp_path, capsys
         notes[model] = capsys.readouterr().out
     assert "note: po is not reciprocal" in notes["po"] and "camera-side" in notes["po"]
     assert "note:" not in notes["kirchhoff"]
+
+
+def test_an_rgb_export_of_data_outside_the_visible_says_its_colour_is_not_measured(tmp_path, capsys):
+    """Near-infrared data (1.0 and 1.5 µm): the colour matching functions see the BRDF at 1.0 µm held
+    flat over 380–780 nm (solver/spectrum.py), a grey; the summary says so, and the spectral export,
+    which keeps the wavelengths, does not."""
+    path = write_beckmann_dataset(tmp_path / "ir.h5", 0.3, resolution=32, wavelengths_um=[1.0, 1.5],
+                                  directions=THETAS_5)
+    notes = {}
+    for channels in ("rgb", "spectral"):
+        assert export(path, "-o", tmp_path / f"ir_{channels}.bsdf", "--channels", channels, "--isotropic") == 0
+        notes[channels] = capsys.readouterr().out
+    assert "no wavelength of the data (1–1.5 µm) lies in the visible" in notes["rgb"]
+    assert "the BRDF at 1 µm carried flat across the visible, a grey" in notes["rgb"]
+    assert "visible" not in notes["spectral"]

@@ -495,3 +495,17 @@ def test_each_sweep_case_is_blurred_as_its_own_waist_says(tmp_path):
     for case, waist in enumerate((1.0, 1.5)):
         tables = load_tables(path, case=case, channels="mono")
         assert np.isclose(tables.diagnostics["smooth_sigma_u"][0], 0.5 / (2 * np.pi * waist), rtol=1e-12), case
+
+
+def test_colour_tables_of_data_outside_the_visible_say_so(tmp_path, caplog):
+    """rgb or mono tables of near-infrared data are the BRDF at 1.0 µm held flat over the visible
+    (a grey): the tables' diagnostics and the log say so; spectral tables carry no such note."""
+    from wavebrdf.mitsuba.tables import load_tables
+
+    path = write_beckmann_dataset(tmp_path / "ir.h5", 0.3, resolution=32, wavelengths_um=[1.0, 1.5])
+    for channels in ("rgb", "mono"):
+        caplog.clear()
+        note = load_tables(path, channels=channels).diagnostics["channels_note"]
+        assert "no wavelength of the data (1–1.5 µm) lies in the visible" in note and "a grey" in note
+        assert note in caplog.text
+    assert load_tables(path, channels="spectral").diagnostics["channels_note"] == ""

@@ -16,11 +16,11 @@ import warnings
 import numpy as np
 import pytest
 
-from references import fresnel_reflectance
+from references import beckmann_geometric_l2, fresnel_reflectance
 from wavebrdf.solver.farfield import HemisphereGrid, albedo
 from wavebrdf.solver.models import SurfaceScene, get_model
 from wavebrdf.solver.surface import SurfaceError, generate
-from wavebrdf.solver.validity import ValidityWarning
+from wavebrdf.solver.validity import GO_LOBE_ERROR, ValidityWarning, geometric_limit_error
 
 logger = logging.getLogger(__name__)
 
@@ -513,3 +513,37 @@ def test_a_lattice_that_aliases_only_at_another_wavelength_and_angle_is_refused_
     fine = tmp_path / "fine.toml"
     fine.write_text(config.read_text().replace("cells = 28", "cells = 40"))
     load_config(fine)  # resolved at every wavelength and direction
+
+
+@pytest.mark.parametrize("g", [0.3, 1.0, 2.8, 6.3, 13.0, 60.0, 800.0])
+def test_the_geometric_limit_error_is_beckmanns_series_against_its_limit(g):
+    """The closed form (Gaussian overlaps) equals the radial quadrature of the series (references.py)."""
+    assert geometric_limit_error(g) == pytest.approx(beckmann_geometric_l2(g), rel=2e-3)
+
+
+@pytest.mark.parametrize("name", ["gs", "gm"])
+def test_the_ray_rungs_say_where_rays_do_not_describe_the_surface(cl_ctx, name):
+    """The aluminium grating of period 0.4 µm at λ 0.5 µm (A = 0.05 µm: g = (2kA/√2)² = 0.79, features
+    far below λ; gs 0.92 against the full wave's 0.856 and its lobe 1.0 off, docs/approx.md) is warned
+    twice, in plan's words and by the run, with g in the diagnostics; a Gaussian patch in the geometric
+    limit (σ 0.5 µm, T 4 µm at λ 0.5 µm, θ_i 20°: g = 139, where gs is within 7 % of Kirchhoff,
+    tests/approx/test_geometric.py) is not."""
+    grating = generate("sinusoid", cells=160, size_um=8.0, amplitude_um=0.05, period_um=0.4)
+    rough = generate("gaussian", cells=160, size_um=40.0, rms_height_um=0.5, correlation_um=4.0, seed=5)
+    for surface, theta, g, said in ((grating, 0.0, (2 * 2 * np.pi / 0.5 * 0.05 / np.sqrt(2)) ** 2, 2),
+                                    (rough, 20.0, None, 0)):
+        scene = SurfaceScene(surface, 0.5, complex(0.87, -6.4), np.deg2rad(theta), 0.0, 4.0 * surface.size_um / 8.0,
+                             HemisphereGrid(32))
+        model = get_model(name, {"rays": 1 << 14})
+        foreseen = [m for m in model.foreseen_warnings(scene) if "rays" in m]
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            result = model.run(cl_ctx, scene)
+        ran = [str(w.message) for w in caught if issubclass(w.category, ValidityWarning) and "rays" in str(w.message)]
+        assert len(ran) == said and sorted(ran) == sorted(foreseen), (ran, foreseen)
+        if g is not None:
+            assert result.diagnostics["roughness_g"] == pytest.approx(g, rel=0.02)
+            assert result.diagnostics["geometric_limit_error"] > GO_LOBE_ERROR
+            assert any(f"g = (2k₁σ_h cos θ_i)² = {result.diagnostics['roughness_g']:.3g}" in m for m in ran)
+        else:
+            assert result.diagnostics["geometric_limit_error"] < 0.01

@@ -17,7 +17,7 @@ from typing import Callable
 import numpy as np
 
 from wavebrdf.jobs.errors import ConfigError
-from wavebrdf.solver.spectrum import spectral_weights, srgb_encode, xyz_to_linear_srgb
+from wavebrdf.solver.spectrum import VISIBLE_UM, spectral_weights, srgb_encode, xyz_to_linear_srgb
 
 __all__ = ["DECADES", "MAX_CURVES", "MAX_DECADES", "Picture", "PictureOptions", "check_decades", "colours",
            "draw_spectral_image", "figure", "finish", "line_panel", "log_limits", "log_tone_map", "polar_log_slices",
@@ -26,7 +26,6 @@ __all__ = ["DECADES", "MAX_CURVES", "MAX_DECADES", "Picture", "PictureOptions", 
 DECADES = 5.0  # dynamic range shown below the peak
 MAX_DECADES = 100.0  # a log scale over more shows nothing more (and 10^-decades underflows beyond ~300)
 MAX_CURVES = 8  # curves per panel (wavelengths or directions are subsampled evenly beyond)
-VISIBLE_UM = (0.38, 0.78)
 
 
 @dataclass(frozen=True)

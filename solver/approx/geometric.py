@@ -9,6 +9,9 @@ projected-disk pixel of their direction (f = P/(Φ_i A_p)). ``gs`` keeps the fir
 the reflected ray escapes and reports the rest as ``masked_energy_fraction``; ``gm`` follows paths
 up to ``max_depth`` reflections and reports ``truncated_energy_fraction``. Both report the power
 into the material, the footprint-weighted shadowed fraction and the energy per bounce order.
+Rays are the large-roughness limit of the wave: both say where a scene is outside it (the
+roughness parameter g and the lobe error it implies, features narrower than λ₁: solver/validity.py
+``check_geometric_optics``; the figures in the diagnostics, the warning in ``plan`` and the run).
 
 GO depends on the wavelength only through the index: the traced geometry is kept per (surface,
 incidence, footprint, grid, border, rays, seed, depth, precision) in the model instance (the
@@ -28,6 +31,7 @@ from wavebrdf.solver.approx.raytrace import BATCH_RAYS, BORDERS, RAY_BYTES, RECO
 from wavebrdf.solver.farfield import IntensityResult
 from wavebrdf.solver.models import Capabilities, Estimate, Model, SurfaceScene
 from wavebrdf.solver.options import OptionsError, option
+from wavebrdf.solver.validity import check_geometric_optics, geometric_optics_figures
 
 __all__ = ["GMModel", "GMOptions", "GSModel", "GSOptions"]
 
@@ -89,6 +93,12 @@ class GSModel(Model):
             raise OptionsError(f"[{table}] illumination.waist_um = {scene.waist_um!r}: must be > 0 "
                                "(the ray origins follow the footprint)")
 
+    def validity(self, scene) -> list[str]:
+        """The sampling checks and whether rays describe the scene at all
+        (:func:`~wavebrdf.solver.validity.check_geometric_optics`)."""
+        found = super().validity(scene)
+        return found + check_geometric_optics(self.name, scene) if isinstance(scene, SurfaceScene) else found
+
     def _key(self, ctx, scene: SurfaceScene) -> tuple:
         z = np.ascontiguousarray(scene.surface.z)
         return (id(ctx), hashlib.blake2b(z.tobytes(), digest_size=16).hexdigest(), z.shape, scene.surface.size_um,
@@ -113,7 +123,7 @@ class GSModel(Model):
         diagnostics = dict(trace.diagnostics)
         lost = diagnostics.pop("truncated_energy_fraction")
         diagnostics[self._lost_key] = lost
-        diagnostics.update(model=self.name, traces=self.traces)
+        diagnostics.update(model=self.name, traces=self.traces, **geometric_optics_figures(scene))
         result = trace.result()
         result.diagnostics = diagnostics
         return result

@@ -54,7 +54,7 @@ import numpy as np
 from wavebrdf.jobs.store import Dataset
 from wavebrdf.jobs.study_kinds import STUDY_KINDS, study_kind
 from wavebrdf.solver.polarimetry import to_regular_frames
-from wavebrdf.solver.spectrum import spectral_weights, xyz_to_linear_srgb
+from wavebrdf.solver.spectrum import outside_visible, spectral_weights, xyz_to_linear_srgb
 from wavebrdf.solver.surface import GENERATORS, SurfaceError
 
 __all__ = ["CHANNELS", "SCHEMES", "Tables", "case_config", "cell_edges", "channel_matrix", "isotropy_from_config",
@@ -427,6 +427,9 @@ def load_tables(path: str | Path, *, case: int = 0, channels: str = "rgb", smoot
         "albedo_above_one": int(np.sum(albedo > 1.0)),
         "load_seconds": time.perf_counter() - start,
     }
+    diagnostics["channels_note"] = (outside_visible(wavelengths) if channels != "spectral" else None) or ""
+    if diagnostics["channels_note"]:
+        logger.warning("%s, channels = %r: %s", where, channels, diagnostics["channels_note"])
     if diagnostics["albedo_above_one"]:
         logger.warning("%s: %d stored albedo(s) exceed 1 (max %.4f): the model's energy bound is violated",
                        where, diagnostics["albedo_above_one"], diagnostics["albedo_max"])
