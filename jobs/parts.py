@@ -417,10 +417,32 @@ class PartsFolder:
             return False
         source = other._file(task)
         atomic_write(self._file(task), lambda fh: fh.write(source.read_bytes()))
+        ran = other.run_info(task)
+        if ran:
+            self.save_run_info(task, ran)
         return True
 
     def load_diagnostics(self, task) -> dict:
         return self.load_arrays(task)[1]
+
+    # --- how each task ran ------------------------------------------------------------------
+
+    def _run_file(self, task) -> Path:
+        return self.path / f"ran-{task.id:06d}.json"
+
+    def save_run_info(self, task, info: dict) -> None:
+        """Where and how ``task`` ran (rank, threads, dispatch wait, kernel build: the task table's
+        columns), kept beside its part so that a resumed or merged run's dataset has them too."""
+        payload = json.dumps(info).encode()
+        atomic_write(self._run_file(task), lambda fh: fh.write(payload))
+
+    def run_info(self, task) -> dict:
+        """What :meth:`save_run_info` kept for ``task`` ({} where nothing readable was)."""
+        try:
+            found = json.loads(self._run_file(task).read_bytes())
+        except (OSError, ValueError):
+            return {}
+        return found if isinstance(found, dict) else {}
 
     # --- failures ---------------------------------------------------------------------------
 

@@ -142,6 +142,7 @@ class TaskBoard:
         self.done.add(task.id)
         self.run_info[task.id] = {k: diagnostics[k] for k in ("rank", "dispatch_wait_s", "threads", "kernel_build_s")
                                   if k in diagnostics}
+        self.parts.save_run_info(task, self.run_info[task.id])
         self.log.task_done(task, diagnostics)
 
     def fail(self, task: Task, diagnostics: dict, final: bool = False) -> None:

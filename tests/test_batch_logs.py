@@ -151,6 +151,8 @@ def test_a_plain_run_takes_the_finished_shards_tasks_and_computes_the_rest(finis
     with h5py.File(unsharded) as a, h5py.File(tmp_path / "logs.h5") as b:
         for name in ("brdf", "albedo"):
             assert np.array_equal(a[name][()], b[name][()], equal_nan=True), name
+        # how each task ran, the shard's tasks too (kept beside their parts)
+        assert np.all(b["tasks/threads"][()] >= 1) and np.all(np.isfinite(b["tasks/kernel_build_s"][()]))
 
 
 def test_merge_waits_for_unfinished_shards(tmp_path, capsys):
