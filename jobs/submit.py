@@ -4,7 +4,8 @@ The script is ``jobs/templates/<scheduler>.sh`` (with ``prelude.sh`` at ``@PRELU
 ``@NAME@`` fields filled in:
 
 - **time**: ``--time`` read as SLURM reads it (:func:`parse_duration`), written as
-  ``D-HH:MM:SS``, with a warning when it is shorter than the plan's estimate;
+  ``D-HH:MM:SS``, with a warning when it is shorter than the plan's estimate; refused where the
+  cluster's ``sinfo`` says it exceeds the partition's limit (:func:`check_partition_time`);
 - **layout**: ranks per node and threads per rank from the plan's largest task, the node's
   cores and memory (``--cores-per-node``, ``--memory-gb``), or as given; one rank per GPU with
   ``--gpus-per-node`` (each rank takes the GPU of its local rank); ``--mem`` from the plan;
@@ -28,6 +29,8 @@ import math
 import os
 import re
 import shlex
+import shutil
+import subprocess
 import sys
 from dataclasses import dataclass
 from importlib import resources
@@ -70,6 +73,61 @@ def parse_duration(text: str) -> int:
             return seconds
     raise ConfigError(f"--time {text!r}: use minutes, minutes:seconds, hours:minutes:seconds, days-hours, "
                       "days-hours:minutes or days-hours:minutes:seconds (SLURM's formats), longer than 0")
+
+
+def partition_time_limits(sinfo_text: str) -> tuple[dict[str, int | None], str | None]:
+    """The partitions' time limits (seconds; None: infinite or unset) and the default partition,
+    from the lines of ``sinfo --noheader --format "%P %l"`` ("debug* 1:00:00", "long infinite")."""
+    limits, default = {}, None
+    for line in sinfo_text.splitlines():
+        fields = line.split()
+        if len(fields) != 2:
+            continue
+        name, limit = fields
+        if name.endswith("*"):
+            name = default = name[:-1]
+        try:
+            limits[name] = parse_duration(limit)
+        except ConfigError:  # "infinite", "n/a"
+            limits[name] = None
+    return limits, default
+
+
+def cluster_time_limits() -> str | None:
+    """``sinfo``'s partitions and time limits on this machine (None: no SLURM here, or it did not answer)."""
+    sinfo = shutil.which("sinfo")
+    if sinfo is None:
+        return None
+    try:
+        done = subprocess.run([sinfo, "--noheader", "--format", "%P %l"], capture_output=True, text=True, timeout=20)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return done.stdout if done.returncode == 0 else None
+
+
+def check_partition_time(seconds: int, time_text: str, partition: str | None, sinfo_text: str | None) -> None:
+    """Refuse (ConfigError naming the flag) a ``--time`` longer than the limit of every partition the
+    job may run in (``--partition``, a comma list, else the cluster's default), or a partition the
+    cluster does not have: SLURM would leave such a job pending for ever or refuse it. Nothing is
+    checked without ``sinfo_text`` (:func:`cluster_time_limits`: not on the cluster)."""
+    if not sinfo_text:
+        return
+    limits, default = partition_time_limits(sinfo_text)
+    names = partition.split(",") if partition else [default] if default else []
+    unknown = [name for name in names if name not in limits]
+    if unknown:
+        raise ConfigError(f"--partition {partition}: {', '.join(unknown)} is not a partition of this cluster "
+                          f"(sinfo: {', '.join(sorted(limits))})")
+    finite = [limits[name] for name in names]
+    if names and all(limit is not None and seconds > limit for limit in finite):
+        longest = max(finite)
+        which = f"partition {names[0]}" if len(names) == 1 else f"partitions {partition}"
+        which += "" if partition else " (the default)"
+        offered = ", ".join(f"{name} {spoken(limit) if limit else 'infinite'}" for name, limit in sorted(limits.items()))
+        raise ConfigError(f"--time {time_text}: {spoken(seconds)} is longer than the time limit of {which}, "
+                          f"{spoken(longest)} (sinfo): SLURM would leave the job pending or refuse it; give --time "
+                          f"{slurm_duration(longest)} or less (a job stopped at its limit is requeued and resumes) "
+                          f"or a partition with a longer limit ({offered})")
 
 
 def slurm_duration(seconds: int) -> str:
@@ -232,6 +290,8 @@ def cmd_submit(args) -> int:
     if args.gpus_per_node < 0:
         raise ConfigError(f"--gpus-per-node {args.gpus_per_node}: must be an integer >= 0")
     check_script_options(args)
+    if scheduler == "slurm":
+        check_partition_time(seconds, args.time, args.partition, cluster_time_limits())
     config = load_config(args.config)
     study = config.cases[0]
     plan = plan_study(config)

@@ -206,3 +206,13 @@ def test_no_requeue_ends_failed_with_status_143_and_a_second_submission_finishes
     info = wait_for(again)
     assert (info["JobState"], info["ExitCode"]) == ("COMPLETED", "0:0"), logs(folder)
     assert_bit_identical(read(folder / "batch.h5"), reference)
+
+
+def test_submit_reads_the_partitions_from_the_clusters_sinfo(tmp_path, capsys):
+    """tools/slurm-local.sh's one partition, debug, has no time limit: any --time is taken; a
+    partition it does not have is refused before a script is written."""
+    path = study(tmp_path)
+    assert main(["submit", str(path), "--time", "30-00:00:00", "--script", str(tmp_path / "a.sh")]) == 0
+    assert main(["submit", str(path), "--time", "10", "--partition", "nope", "--script", str(tmp_path / "b.sh")]) == 2
+    assert "nope is not a partition of this cluster (sinfo: debug)" in capsys.readouterr().err
+    assert not (tmp_path / "b.sh").exists()

@@ -201,3 +201,37 @@ def test_no_requeue_ends_the_job_with_the_ranks_status_and_a_short_limit_is_warn
     assert "requeue" not in sbatch_options(text) and "scontrol requeue" not in text
     assert 'exit "$status"' in text.rsplit("is not requeued", 1)[1].split("\nfi\n")[0]
     assert "up to 60 s earlier still" in capsys.readouterr().err
+
+
+# `sinfo --noheader --format "%P %l"` as SLURM prints it: "*" marks the default partition, limits
+# in SLURM's duration formats (sinfo(1) %l), "infinite" where there is none; one line per node state
+SINFO = "debug* 1:00:00\nlong infinite\nshort 30:00\nweek 7-00:00:00\ndebug* 1:00:00\n"
+
+
+def test_partition_limits_are_read_from_sinfo():
+    from wavebrdf.jobs.submit import partition_time_limits
+
+    limits, default = partition_time_limits(SINFO)
+    assert default == "debug"
+    assert limits == {"debug": 3600, "long": None, "short": 1800, "week": 7 * 86400}
+
+
+@pytest.mark.parametrize("time, partition, refused", [
+    ("2:00:00", None, "longer than the time limit of partition debug (the default), 1 h"),
+    ("50", None, None),
+    ("8-00:00:00", "long", None),
+    ("8-00:00:00", "week", "give --time 7-00:00:00 or less"),
+    ("2:00:00", "short,debug", "partitions short,debug, 1 h"),
+    ("20", "short,debug", None),
+    ("20", "gpu", "--partition gpu: gpu is not a partition of this cluster (sinfo: debug, long, short, week)"),
+])
+def test_a_time_beyond_the_partitions_limit_is_refused_naming_it(time, partition, refused):
+    from wavebrdf.jobs.config import ConfigError
+    from wavebrdf.jobs.submit import check_partition_time, parse_duration
+
+    if refused is None:
+        check_partition_time(parse_duration(time), time, partition, SINFO)
+        return
+    with pytest.raises(ConfigError) as caught:
+        check_partition_time(parse_duration(time), time, partition, SINFO)
+    assert refused in str(caught.value)
