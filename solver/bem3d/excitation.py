@@ -140,25 +140,32 @@ class BeamExcitation:
     incident_power: np.ndarray
 
 
+def _checked_fractions(inc, beam: str, patch_um: float, continued: bool) -> tuple[float | None, float | None]:
+    """What the beam checks weigh, where they apply: the power outside the patch (not for a plane
+    wave, nor with the flat continuation, whose currents carry beyond the patch) and the exact
+    beam's spectrum beyond the light cone; None where a check does not apply."""
+    outside = inc.outside_fraction(patch_um) if beam != "plane" and not continued else None
+    return outside, (inc.evanescent_fraction if beam == "exact" else None)
+
+
 @functools.lru_cache(maxsize=512)
 def foreseen_beam_warnings(beam: str, wavelength_um: float, theta_i: float, phi_i: float, waist_um: float | None,
                            exterior_index: float, focus_um: tuple[float, float], patch_um: float,
                            continued: bool) -> tuple[str, ...]:
     """The FootprintWarnings :func:`beam_excitation` will raise for this beam on a patch of side
-    ``patch_um`` (µm; angles in radians), in its words, before anything runs: the power outside the
-    patch (not with the flat continuation, ``continued``, whose reach the solve sets) and the exact
-    beam's spectrum cut at the light cone. Cached: a study's tasks share few beams, and the
-    outside fraction is a numerical integral (≈ 0.5 s)."""
+    ``patch_um`` (µm; angles in radians), in its words, before anything runs (the same checks,
+    :func:`_checked_fractions`). Cached: a study's tasks share few beams, and the outside fraction
+    is a numerical integral (≈ 0.5 s)."""
     if beam == "plane":
         return ()
     inc = make_beam(beam, wavelength_um, theta_i, phi_i, waist_um, exterior_index=exterior_index,
                     focus_um=(focus_um[0], focus_um[1], 0.0), patch_size_um=patch_um)
+    outside, evanescent = _checked_fractions(inc, beam, patch_um, continued)
     found = []
-    if not continued:
-        fraction = inc.outside_fraction(patch_um)
-        found += [footprint_message(fraction, theta_i, patch_um, beam)] if footprint_leaks(fraction) else []
-    if beam == "exact":
-        message = beam_spectrum_message(inc.evanescent_fraction, theta_i, waist_um, wavelength_um)
+    if outside is not None and footprint_leaks(outside):
+        found.append(footprint_message(outside, theta_i, patch_um, beam))
+    if evanescent is not None:
+        message = beam_spectrum_message(evanescent, theta_i, waist_um, wavelength_um)
         found += [message] if message else []
     return tuple(found)
 
@@ -178,10 +185,12 @@ def beam_excitation(mesh: BEMMesh, media: Media, theta_i: float, phi_i: float, *
     L = mesh.surface.size_um
     inc = make_beam(beam, media.wavelength_um, theta_i, phi_i, waist_um, exterior_index=media.exterior_index,
                     focus_um=(focus_um[0], focus_um[1], 0.0), patch_size_um=extent_um or L)
-    if beam != "plane" and diagnostics is not None and extent_um is None:
-        check_footprint(inc.outside_fraction(L), theta_i, L, beam, diagnostics)
-    if beam == "exact" and diagnostics is not None:
-        check_beam_spectrum(inc.evanescent_fraction, theta_i, waist_um, media.wavelength_um, diagnostics)
+    if diagnostics is not None:
+        outside, evanescent = _checked_fractions(inc, beam, L, continued=extent_um is not None)
+        if outside is not None:
+            check_footprint(outside, theta_i, L, beam, diagnostics)
+        if evanescent is not None:
+            check_beam_spectrum(evanescent, theta_i, waist_um, media.wavelength_um, diagnostics)
     power = inc.incident_power(L)
     if not np.all(np.isfinite(power) & (power > 0)):
         raise FloatingPointError(
