@@ -181,7 +181,8 @@ def _run_and_report(args, plan, executor: Executor, workers: int, comm) -> int:
     print(f"wrote {summary.path}")
     if not summary.failed:
         for kept in remove_adopted_shards(plan):
-            print(f"{kept} is left: its shard is running (the dataset holds its tasks already)", file=sys.stderr)
+            print(f"{kept} is left: its shard is running or its lock cannot be taken (the dataset holds its "
+                  "tasks already; delete the folder once that shard has stopped)", file=sys.stderr)
     if summary.failed:
         print(f"wavebrdf: {summary.failed} of {summary.tasks} task(s) failed (see 'wavebrdf inspect "
               f"{summary.path}'); their results are NaN. Re-run the same command to retry them.", file=sys.stderr)

@@ -16,7 +16,8 @@
   starts and moves a bad one (foreign, edited, truncated, garbage) to ``rejected/``, with one
   log line, to be recomputed. Files: ``task-<id>.npz`` (result tasks: arrays + JSON
   diagnostics), ``patch-<id>.npz`` (sub-area far fields, kept until the dataset is written),
-  ``failed-<id>.json`` (diagnostics of a task that failed for good).
+  ``failed-<id>.json`` (diagnostics of a task that failed for good), ``ran-<id>.json`` (where and
+  how a finished task ran: rank, threads, dispatch wait, kernel build; the task table's columns).
 
 Temporary names (all removed by the next run on the output, under its lock): ``.<name>.<pid>.tmp``
 (files), ``.<output>.parts.<pid>.new`` / ``.old`` (the folder being created / removed).

@@ -20,7 +20,7 @@ from pathlib import Path
 from wavebrdf.jobs.config import ConfigError, load_config
 from wavebrdf.jobs.finished import up_to_date
 from wavebrdf.jobs.overrides import assignment_text
-from wavebrdf.jobs.parts import OutputBusy, OutputLock, PartsFolder, ResumeError
+from wavebrdf.jobs.parts import OutputBusy, OutputLock, PartsFolder, ResumeError, StorageError
 from wavebrdf.jobs.plan import Plan, plan_study
 from wavebrdf.jobs.render import render_dataset
 from wavebrdf.jobs.scheduler import prepare_output
@@ -106,9 +106,9 @@ def _shard_state(plan, index: int, shards: int) -> tuple[PartsFolder, str | None
     return folder, f"{len(lacking)} of {len(wanted)} task(s) missing{why}"
 
 
-def _own_shard_folders(plan) -> tuple[int | None, list[PartsFolder]]:
-    """K and the shard folders beside the output that hold this plan's parts (another
-    configuration's, or of mixed shard counts, are not this run's to take)."""
+def _own_shard_folders(plan) -> tuple[int | None, list[tuple[int, PartsFolder]]]:
+    """K and the (index, folder) of each shard folder beside the output that holds this plan's
+    parts (another configuration's, or of mixed shard counts, are not this run's to take)."""
     try:
         shards = found_shards(plan.config.output)
     except ResumeError:
@@ -118,7 +118,7 @@ def _own_shard_folders(plan) -> tuple[int | None, list[PartsFolder]]:
         folder = PartsFolder(_shard_plan(plan, index, shards))
         try:
             if folder.path.exists() and folder.check() is not None:
-                folders.append(folder)
+                folders.append((index, folder))
         except ResumeError:
             continue
     return shards, folders
@@ -130,12 +130,13 @@ def adopt_finished_shards(plan, parts: PartsFolder) -> str | None:
     copied into ``parts`` (the run's own folder; the caller holds the output's lock). The shards'
     folders are read, not changed. Returns what was taken, or None."""
     shards, folders = _own_shard_folders(plan)
-    taken = 0
-    for folder in folders:
-        taken += sum(1 for task in plan.tasks if not parts.done(task) and folder.done(task) and parts.adopt(task, folder))
+    taken, sources = 0, 0
+    for _, folder in folders:
+        took = sum(1 for task in plan.tasks if not parts.done(task) and folder.done(task) and parts.adopt(task, folder))
+        taken, sources = taken + took, sources + bool(took)
     if not taken:
         return None
-    return (f"took {taken} finished task(s) of {len(plan.tasks)} from the {len(folders)} shard folder(s) of "
+    return (f"took {taken} finished task(s) of {len(plan.tasks)} from {sources} shard folder(s) of "
             f"'run --shard i/{shards}' beside {plan.config.output}; computing the rest")
 
 
@@ -144,12 +145,11 @@ def remove_adopted_shards(plan) -> list[Path]:
     remove each one whose shard is not running (its lock is free). Returns the folders kept."""
     shards, folders = _own_shard_folders(plan)
     kept = []
-    for folder in folders:
-        index = int(re.search(r"\.shard-(\d+)-of-", folder.path.name).group(1))
+    for index, folder in folders:
         try:
             with OutputLock(shard_output(plan.config.output, index, shards)).acquire(False):
                 folder.remove()
-        except OutputBusy:
+        except (OutputBusy, StorageError):
             kept.append(folder.path)
     return kept
 

@@ -698,7 +698,8 @@ def write_dataset(plan, parts, device: str, run_info: dict | None = None) -> Pat
         for task in plan.tasks:
             if guard.error is not None:  # the disk is full: stop; the file is removed
                 break
-            row = {**kind.task_row(task), **((run_info or {}).get(task.id) or parts.run_info(task))}
+            ran = (run_info or {}).get(task.id) or (parts.run_info(task) if parts.done(task) else {})
+            row = {**kind.task_row(task), **ran}
             failure = parts.failure(task)
             if failure is not None or not parts.done(task):
                 rows.append({**row, "status": "failed", **(failure or {"error": "not run"})})

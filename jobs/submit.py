@@ -4,8 +4,8 @@ The script is ``jobs/templates/<scheduler>.sh`` (with ``prelude.sh`` at ``@PRELU
 ``@NAME@`` fields filled in:
 
 - **time**: ``--time`` read as SLURM reads it (:func:`parse_duration`), written as
-  ``D-HH:MM:SS``, with a warning when it is shorter than the plan's estimate; refused where the
-  cluster's ``sinfo`` says it exceeds the partition's limit (:func:`check_partition_time`);
+  ``D-HH:MM:SS``, with a warning when it is shorter than the plan's estimate, and one where the
+  ``sinfo`` of this machine's SLURM says it exceeds the partition's limit (:func:`check_partition_time`);
 - **layout**: ranks per node and threads per rank from the plan's largest task, the node's
   cores and memory (``--cores-per-node``, ``--memory-gb``), or as given; one rank per GPU with
   ``--gpus-per-node`` (each rank takes the GPU of its local rank); ``--mem`` from the plan;
@@ -99,35 +99,38 @@ def cluster_time_limits() -> str | None:
     if sinfo is None:
         return None
     try:
-        done = subprocess.run([sinfo, "--noheader", "--format", "%P %l"], capture_output=True, text=True, timeout=20)
+        done = subprocess.run([sinfo, "--all", "--noheader", "--format", "%P %l"], capture_output=True, text=True,
+                              timeout=20)
     except (OSError, subprocess.SubprocessError):
         return None
     return done.stdout if done.returncode == 0 else None
 
 
-def check_partition_time(seconds: int, time_text: str, partition: str | None, sinfo_text: str | None) -> None:
-    """Refuse (ConfigError naming the flag) a ``--time`` longer than the limit of every partition the
-    job may run in (``--partition``, a comma list, else the cluster's default), or a partition the
-    cluster does not have: SLURM would leave such a job pending for ever or refuse it. Nothing is
-    checked without ``sinfo_text`` (:func:`cluster_time_limits`: not on the cluster)."""
+def check_partition_time(seconds: int, time_text: str, partition: str | None, sinfo_text: str | None,
+                         requeue: bool = True) -> list[str]:
+    """Warnings where this machine's SLURM (``sinfo_text``, :func:`cluster_time_limits`; None: none
+    here, nothing checked) would leave the job pending for ever: a ``--time`` longer than the limit
+    of every partition the job may run in (``--partition``, a comma list, else the default one), or a
+    partition it does not list. Warnings, not refusals: the script may be meant for another cluster."""
     if not sinfo_text:
-        return
+        return []
     limits, default = partition_time_limits(sinfo_text)
-    names = partition.split(",") if partition else [default] if default else []
+    names = [name for name in partition.split(",") if name] if partition else [default] if default else []
     unknown = [name for name in names if name not in limits]
     if unknown:
-        raise ConfigError(f"--partition {partition}: {', '.join(unknown)} is not a partition of this cluster "
-                          f"(sinfo: {', '.join(sorted(limits))})")
+        return [f"--partition {partition}: {', '.join(unknown)} is not a partition of this machine's SLURM (sinfo: "
+                f"{', '.join(sorted(limits))}); if the script is for this cluster, SLURM will refuse it"]
     finite = [limits[name] for name in names]
-    if names and all(limit is not None and seconds > limit for limit in finite):
-        longest = max(finite)
-        which = f"partition {names[0]}" if len(names) == 1 else f"partitions {partition}"
-        which += "" if partition else " (the default)"
-        offered = ", ".join(f"{name} {spoken(limit) if limit else 'infinite'}" for name, limit in sorted(limits.items()))
-        raise ConfigError(f"--time {time_text}: {spoken(seconds)} is longer than the time limit of {which}, "
-                          f"{spoken(longest)} (sinfo): SLURM would leave the job pending or refuse it; give --time "
-                          f"{slurm_duration(longest)} or less (a job stopped at its limit is requeued and resumes) "
-                          f"or a partition with a longer limit ({offered})")
+    if not names or not all(limit is not None and seconds > limit for limit in finite):
+        return []
+    longest = max(finite)
+    which = f"partition {names[0]}" if len(names) == 1 else f"partitions {partition}"
+    which += "" if partition else " (the default)"
+    offered = ", ".join(f"{name} {spoken(limit) if limit else 'infinite'}" for name, limit in sorted(limits.items()))
+    then = "is requeued and resumes" if requeue else "resumes when submitted again"
+    return [f"--time {time_text}: {spoken(seconds)} is longer than the time limit of {which}, {spoken(longest)} "
+            f"(sinfo): SLURM would leave the job pending or refuse it; give --time {slurm_duration(longest)} or less "
+            f"(a job stopped at its limit {then}) or a partition with a longer limit ({offered})"]
 
 
 def slurm_duration(seconds: int) -> str:
@@ -291,7 +294,9 @@ def cmd_submit(args) -> int:
         raise ConfigError(f"--gpus-per-node {args.gpus_per_node}: must be an integer >= 0")
     check_script_options(args)
     if scheduler == "slurm":
-        check_partition_time(seconds, args.time, args.partition, cluster_time_limits())
+        for warning in check_partition_time(seconds, args.time, args.partition, cluster_time_limits(),
+                                            requeue=not args.no_requeue):
+            print(f"wavebrdf: warning: {warning}", file=sys.stderr)
     config = load_config(args.config)
     study = config.cases[0]
     plan = plan_study(config)

@@ -40,6 +40,7 @@ EVANESCENT_LOSS = 0.01  # OHS: warn when this share of the reflected spectrum is
 SPREAD_COEFFICIENT = 0.3  # albedo error ≈ this × (λ₁/(πw))²/μ_i² (fitted on flat aluminium, see above)
 SPREAD_ERROR = 0.005  # warn above this predicted relative albedo error (the rungs' flat tolerance)
 ENERGY_SLACK = 1e-3  # an albedo above 1 by more than this is energy the model created
+ASYMPTOTIC_G = 400.0  # geometric_limit_error takes its asymptote √6/(4g) beyond this roughness parameter
 GO_LOBE_ERROR = 0.05  # warn when geometric optics' lobe is predicted this far (relative L2) from Kirchhoff's (g < 13)
 LIT_FACET_DEFICIT = 0.1  # warn when a tangent-plane rung's albedo is this share below its lit facets'
 # (check_lit_facets; benchmarks/lit_facets.py: every warned run of the trade table is off by > 0.1)
@@ -438,37 +439,42 @@ def geometric_limit_error(g: float) -> float:
     Poisson weights p_m = e^{−g} g^m/m! (the m = 0 term, e^{−g}, is the coherent specular lobe)
     and G_m(v) = exp(−|v|²/4m)/m; geometric optics puts all the reflected power into G_g, the
     distribution of the slopes. Each G_m carries 4π and ∫G_a G_b = 4π/(a + b), so the error is
-    exact in closed form; it depends on g alone (≈ 0.61/g for large g: 0.067 at g = 10)."""
-    if not g > 0:
-        return float("inf")
-    if g > 400.0:  # the asymptote, to 1e-3 of itself (the sum would need ~g²/4 terms)
-        return geometric_limit_error(400.0) * 400.0 / g
+    exact in closed form; it depends on g alone, not monotonically (0.14 at g ≈ 3.5, a local
+    maximum; 0.05 at g = 13.06; √6/(4g) for large g). Infinite where the series carries nothing (a
+    mirror: the rays' lobe is all of the error)."""
+    if g > ASYMPTOTIC_G:  # the sum needs ~(24√g)² terms; the asymptote is within 0.2 % beyond
+        return float(np.sqrt(6.0) / (4.0 * g))
     from scipy.stats import poisson
 
     m = np.arange(1, int(g + 12.0 * np.sqrt(g) + 20.0), dtype=float)
     p = poisson.pmf(m, g)
     beckmann = float(np.sum(np.outer(p, p) / np.add.outer(m, m)))
+    if not beckmann > 0:
+        return float("inf")
     cross = float(np.sum(p / (m + g)))
     return float(np.sqrt(max(beckmann - 2.0 * cross + 0.5 / g, 0.0) / beckmann))
 
 
 def geometric_optics_figures(scene) -> dict:
     """What decides whether rays describe ``scene``: the roughness parameter g, the coherent
-    specular share e^{−g}, :func:`geometric_limit_error` and the correlation length over λ₁ (NaN
-    where the surface has none). Empty for a flat surface (a mirror, which rays describe)."""
+    specular share e^{−g} (of Gaussian heights), :func:`geometric_limit_error`, and the scale of the
+    relief over λ₁ (the correlation length, or half the period of a periodic surface; NaN where the
+    surface has neither). Empty for a flat surface (a mirror, which rays describe)."""
     figures = _SurfaceFigures.of(scene.surface)
     if figures["flat"]:
         return {}
     lambda1 = scene.wavelength_um / scene.exterior_index
     g = float((4.0 * np.pi / lambda1 * figures["rms_height_um"] * np.cos(scene.theta_i)) ** 2)
+    period = lattice_period_um(scene.surface)
+    scale = 0.5 * period if period else figures["correlation_um"]
     return {"roughness_g": g, "coherent_share": float(np.exp(-g)), "geometric_limit_error": geometric_limit_error(g),
-            "correlation_over_wavelength": figures["correlation_um"] / lambda1}
+            "relief_scale_over_wavelength": scale / lambda1}
 
 
 def check_geometric_optics(model: str, scene) -> list[str]:
     """Warn where a ray rung's figure is outside geometric optics: a lobe predicted more than
     GO_LOBE_ERROR from the Kirchhoff lobe it is the limit of (:func:`geometric_limit_error`), or
-    a correlation length below λ₁ (features that diffract rather than reflect rays: on every such
+    relief on a scale below λ₁ (facets that diffract rather than reflect rays: on every such
     surface of the trade table gs and gm were 0.13–1.9 off the full wave, solver/data/trade.csv)."""
     figures = geometric_optics_figures(scene)
     if not figures:
@@ -478,16 +484,20 @@ def check_geometric_optics(model: str, scene) -> list[str]:
     out = []
     error, g = figures["geometric_limit_error"], figures["roughness_g"]
     if error > GO_LOBE_ERROR:
+        spoken = f"≈ {error:.2g}" if error < 10 else "≫ 1"
         out.append(f"{model}: geometric optics is the large-roughness limit (g ≫ 1) of the Kirchhoff lobe, and at "
                    f"{_where(scene)} this surface has g = (2k₁σ_h cos θ_i)² = {g:.3g} (rms height "
-                   f"{_SurfaceFigures.of(scene.surface)['rms_height_um']:.3g} µm): the wave keeps a share e^−g = "
+                   f"{_SurfaceFigures.of(scene.surface)['rms_height_um']:.3g} µm): the wave keeps about e^−g = "
                    f"{figures['coherent_share']:.2g} of the reflected power in the coherent specular lobe and "
-                   f"spreads the rest as Beckmann's series, whose lobe differs from the rays' by ≈ {error:.2g} "
+                   f"spreads the rest as Beckmann's series, whose lobe differs from the rays' by {spoken} "
                    f"(relative L2 for Gaussian-correlated heights; above {GO_LOBE_ERROR:g} wherever g < 13); {fix}")
-    ratio = figures["correlation_over_wavelength"]
+    ratio = figures["relief_scale_over_wavelength"]
     if ratio < 1.0:
-        out.append(f"{model}: the surface's correlation length {ratio * lambda1:.3g} µm is below λ₁ = {lambda1:.3g} µm "
-                   f"at {_where(scene)}: features narrower than a wavelength diffract rather than reflect rays (on "
-                   "every such surface of the trade table, gs and gm were 0.13–1.9 off the full wave, docs/trade.md); "
-                   "use bem or model = auto")
+        period = lattice_period_um(scene.surface)
+        relief = (f"relief repeats every {period:.3g} µm: its facets, half a period ({0.5 * period:.3g} µm), are"
+                  if period else f"correlation length (1/e of the height autocorrelation) is {ratio * lambda1:.3g} µm,")
+        out.append(f"{model}: the surface's {relief} below λ₁ = {lambda1:.3g} µm at {_where(scene)}: relief that "
+                   "varies on a scale below the wavelength diffracts rather than reflecting rays (on every such "
+                   "surface of the trade table, gs and gm were 0.13–1.9 off the full wave, the worst of s, p and "
+                   "unpolarized; 0.07–1.6 unpolarized; docs/approx.md); use bem or model = auto")
     return out

@@ -145,7 +145,7 @@ def test_a_plain_run_takes_the_finished_shards_tasks_and_computes_the_rest(finis
     capsys.readouterr()
     assert main(["run", str(cfg), "--no-render"]) == 0
     err = capsys.readouterr().err
-    assert "took 2 finished task(s) of 4 from the 1 shard folder(s) of 'run --shard i/2'" in err, err
+    assert "took 2 finished task(s) of 4 from 1 shard folder(s) of 'run --shard i/2'" in err, err
     assert len([line for line in err.splitlines() if TASK_LINE.match(line)]) == 2, err
     assert not list(tmp_path.glob("*.parts"))
     with h5py.File(unsharded) as a, h5py.File(tmp_path / "logs.h5") as b:
@@ -153,6 +153,32 @@ def test_a_plain_run_takes_the_finished_shards_tasks_and_computes_the_rest(finis
             assert np.array_equal(a[name][()], b[name][()], equal_nan=True), name
         # how each task ran, the shard's tasks too (kept beside their parts)
         assert np.all(b["tasks/threads"][()] >= 1) and np.all(np.isfinite(b["tasks/kernel_build_s"][()]))
+
+
+def test_a_plain_run_leaves_another_configurations_shards_and_a_running_shards_folder(tmp_path, capsys):
+    """Shard folders of another configuration beside the output are neither taken nor removed (the
+    run computes all 4 tasks); a shard of this one whose lock is held (it runs) gives its finished
+    tasks but keeps its folder, said so."""
+    from wavebrdf.jobs.parts import OutputLock
+    from wavebrdf.jobs.shards import shard_output
+
+    cfg = write_study(tmp_path, seed=11)
+    assert main(["run", str(cfg), "-q", "--no-render", "--shard", "1/2"]) == 0
+    folder = tmp_path / "logs.shard-1-of-2.h5.parts"
+    before = sorted(p.name for p in folder.iterdir())
+    other = write_study(tmp_path, seed=12)  # the same output, another surface
+    capsys.readouterr()
+    assert main(["run", str(other), "--no-render"]) == 0
+    err = capsys.readouterr().err
+    assert "took" not in err and len([line for line in err.splitlines() if TASK_LINE.match(line)]) == 4, err
+    assert sorted(p.name for p in folder.iterdir()) == before
+    cfg = write_study(tmp_path, seed=11)
+    (tmp_path / "logs.h5").unlink()
+    with OutputLock(shard_output(tmp_path / "logs.h5", 1, 2)).acquire():
+        assert main(["run", str(cfg), "--no-render"]) == 0
+    err = capsys.readouterr().err
+    assert "took 2 finished task(s) of 4" in err and f"{folder} is left: its shard is running" in err, err
+    assert sorted(p.name for p in folder.iterdir()) == before and not list(tmp_path.glob("*.lock"))
 
 
 def test_merge_waits_for_unfinished_shards(tmp_path, capsys):

@@ -20,7 +20,8 @@ from references import beckmann_geometric_l2, fresnel_reflectance
 from wavebrdf.solver.farfield import HemisphereGrid, albedo
 from wavebrdf.solver.models import SurfaceScene, get_model
 from wavebrdf.solver.surface import SurfaceError, generate
-from wavebrdf.solver.validity import GO_LOBE_ERROR, ValidityWarning, geometric_limit_error
+from wavebrdf.solver.validity import (GO_LOBE_ERROR, ValidityWarning, check_geometric_optics, geometric_limit_error,
+                                      geometric_optics_figures)
 
 logger = logging.getLogger(__name__)
 
@@ -547,3 +548,18 @@ def test_the_ray_rungs_say_where_rays_do_not_describe_the_surface(cl_ctx, name):
             assert any(f"g = (2k₁σ_h cos θ_i)² = {result.diagnostics['roughness_g']:.3g}" in m for m in ran)
         else:
             assert result.diagnostics["geometric_limit_error"] < 0.01
+
+
+def test_the_geometric_optics_figures_take_the_exterior_wavelength_and_leave_a_mirror_alone():
+    """g = (4π n₁ σ_h cos θ_i / λ)²: under water (n₁ = 1.33) it is n₁² times the one in air, from the
+    realization's own rms height; a flat patch (a mirror, which rays describe) has no figures and no
+    warning."""
+    rough = generate("gaussian", cells=64, size_um=8.0, rms_height_um=0.05, correlation_um=1.0, seed=1)
+    sigma = float(np.std(rough.z))
+    air = SurfaceScene(rough, 0.5, complex(0.87, -6.4), np.deg2rad(30.0), 0.0, 2.0, HemisphereGrid(16))
+    water = dataclasses.replace(air, exterior_index=1.33)
+    for scene, n1 in ((air, 1.0), (water, 1.33)):
+        expected = (4 * np.pi * n1 / 0.5 * sigma * np.cos(np.deg2rad(30.0))) ** 2
+        assert geometric_optics_figures(scene)["roughness_g"] == pytest.approx(expected, rel=1e-9)
+    mirror = dataclasses.replace(air, surface=generate("flat", cells=16, size_um=8.0))
+    assert geometric_optics_figures(mirror) == {} and check_geometric_optics("gs", mirror) == []

@@ -209,10 +209,10 @@ def test_no_requeue_ends_failed_with_status_143_and_a_second_submission_finishes
 
 
 def test_submit_reads_the_partitions_from_the_clusters_sinfo(tmp_path, capsys):
-    """tools/slurm-local.sh's one partition, debug, has no time limit: any --time is taken; a
-    partition it does not have is refused before a script is written."""
+    """tools/slurm-local.sh's one partition, debug, has no time limit: any --time is taken without
+    a word; a partition it does not list is warned of (the script may be for another cluster)."""
     path = study(tmp_path)
     assert main(["submit", str(path), "--time", "30-00:00:00", "--script", str(tmp_path / "a.sh")]) == 0
-    assert main(["submit", str(path), "--time", "10", "--partition", "nope", "--script", str(tmp_path / "b.sh")]) == 2
-    assert "nope is not a partition of this cluster (sinfo: debug)" in capsys.readouterr().err
-    assert not (tmp_path / "b.sh").exists()
+    assert "warning" not in capsys.readouterr().err
+    assert main(["submit", str(path), "--time", "10", "--partition", "nope", "--script", str(tmp_path / "b.sh")]) == 0
+    assert "nope is not a partition of this machine's SLURM (sinfo: debug)" in capsys.readouterr().err
