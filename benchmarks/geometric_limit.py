@@ -35,8 +35,8 @@ def blurred(result, grid):
 def main() -> None:
     ctx, grid = create_context(), HemisphereGrid(128)
     print(f"glass, λ {WAVELENGTH_UM} µm, θ_i {THETA_DEG:g}°, uniform illumination of a periodic patch\n")
-    print("| T/λ | rms slope | patch (µm, cells) | g | e^−g | predicted (geometric_limit_error) | measured gs vs kirchhoff "
-          "| albedo gs / kirchhoff |")
+    print("| T/λ | rms slope | patch (µm, cells) | g | e^−g | predicted (geometric_limit_error) "
+          "| measured gs vs kirchhoff | albedo gs / kirchhoff |")
     print("|---|---|---|---|---|---|---|---|")
     for t_over, slope in CASES:
         correlation = t_over * WAVELENGTH_UM
@@ -54,8 +54,9 @@ def main() -> None:
         measured = np.sqrt(np.sum((got - ref)[lobe] ** 2) / np.sum(ref[lobe] ** 2))
         figures = geometric_optics_figures(scene)
         ratio = albedo(rays.brdf(), grid).mean() / albedo(kirchhoff.brdf(), grid).mean()
-        print(f"| {t_over} | {slope} | {size:g}, {cells} | {figures['roughness_g']:.3g} | {figures['coherent_share']:.2g} "
-              f"| {figures['geometric_limit_error']:.3f} | {measured:.3f} | {ratio:.3f} |", flush=True)
+        print(f"| {t_over} | {slope} | {size:g}, {cells} | {figures['roughness_g']:.3g} "
+              f"| {figures['coherent_share']:.2g} | {figures['geometric_limit_error']:.3f} | {measured:.3f} "
+              f"| {ratio:.3f} |", flush=True)
 
 
 if __name__ == "__main__":

@@ -26,7 +26,8 @@ from wavebrdf.jobs.render import render_dataset
 from wavebrdf.jobs.scheduler import prepare_output
 from wavebrdf.jobs.store import write_dataset
 
-__all__ = ["add_merge_parser", "adopt_finished_shards", "cmd_merge", "remove_adopted_shards", "parse_shard", "same_flags", "shard_output", "shard_tasks", "with_output"]
+__all__ = ["add_merge_parser", "adopt_finished_shards", "cmd_merge", "parse_shard", "remove_adopted_shards",
+           "same_flags", "shard_output", "shard_tasks", "with_output"]
 
 
 def parse_shard(text: str) -> tuple[int, int]:

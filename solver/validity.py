@@ -495,7 +495,8 @@ def check_geometric_optics(model: str, scene) -> list[str]:
     if ratio < 1.0:
         period = lattice_period_um(scene.surface)
         relief = (f"relief repeats every {period:.3g} µm: its facets, half a period ({0.5 * period:.3g} µm), are"
-                  if period else f"correlation length (1/e of the height autocorrelation) is {ratio * lambda1:.3g} µm,")
+                  if period else
+                  f"correlation length (1/e of the height autocorrelation) is {ratio * lambda1:.3g} µm,")
         out.append(f"{model}: the surface's {relief} below λ₁ = {lambda1:.3g} µm at {_where(scene)}: relief that "
                    "varies on a scale below the wavelength diffracts rather than reflecting rays (on every such "
                    "surface of the trade table, gs and gm were 0.13–1.9 off the full wave, the worst of s, p and "
