@@ -457,25 +457,24 @@ def geometric_limit_error(g: float) -> float:
 
 def geometric_optics_figures(scene) -> dict:
     """What decides whether rays describe ``scene``: the roughness parameter g, the coherent
-    specular share e^{−g} (of Gaussian heights), :func:`geometric_limit_error`, and the scale of the
-    relief over λ₁ (the correlation length, or half the period of a periodic surface; NaN where the
-    surface has neither). Empty for a flat surface (a mirror, which rays describe)."""
+    specular share e^{−g} (of Gaussian heights), :func:`geometric_limit_error`, and the heights'
+    correlation length (1/e) over λ₁ (NaN where they do not decorrelate within the patch). Empty
+    for a flat surface (a mirror, which rays describe)."""
     figures = _SurfaceFigures.of(scene.surface)
     if figures["flat"]:
         return {}
     lambda1 = scene.wavelength_um / scene.exterior_index
     g = float((4.0 * np.pi / lambda1 * figures["rms_height_um"] * np.cos(scene.theta_i)) ** 2)
-    period = lattice_period_um(scene.surface)
-    scale = 0.5 * period if period else figures["correlation_um"]
     return {"roughness_g": g, "coherent_share": float(np.exp(-g)), "geometric_limit_error": geometric_limit_error(g),
-            "relief_scale_over_wavelength": scale / lambda1}
+            "correlation_over_wavelength": figures["correlation_um"] / lambda1}
 
 
 def check_geometric_optics(model: str, scene) -> list[str]:
     """Warn where a ray rung's figure is outside geometric optics: a lobe predicted more than
     GO_LOBE_ERROR from the Kirchhoff lobe it is the limit of (:func:`geometric_limit_error`), or
-    relief on a scale below λ₁ (facets that diffract rather than reflect rays: on every such
-    surface of the trade table gs and gm were 0.13–1.9 off the full wave, solver/data/trade.csv)."""
+    heights that decorrelate within less than λ₁ (relief that diffracts rather than reflects rays:
+    on every such surface of the trade table gs and gm were 0.13–1.9 off the full wave,
+    solver/data/trade.csv; a sinusoid's 1/e length is 0.19 of its period)."""
     figures = geometric_optics_figures(scene)
     if not figures:
         return []
@@ -491,14 +490,11 @@ def check_geometric_optics(model: str, scene) -> list[str]:
                    f"{figures['coherent_share']:.2g} of the reflected power in the coherent specular lobe and "
                    f"spreads the rest as Beckmann's series, whose lobe differs from the rays' by {spoken} "
                    f"(relative L2 for Gaussian-correlated heights; above {GO_LOBE_ERROR:g} wherever g < 13); {fix}")
-    ratio = figures["relief_scale_over_wavelength"]
+    ratio = figures["correlation_over_wavelength"]
     if ratio < 1.0:
-        period = lattice_period_um(scene.surface)
-        relief = (f"relief repeats every {period:.3g} µm: its facets, half a period ({0.5 * period:.3g} µm), are"
-                  if period else
-                  f"correlation length (1/e of the height autocorrelation) is {ratio * lambda1:.3g} µm,")
-        out.append(f"{model}: the surface's {relief} below λ₁ = {lambda1:.3g} µm at {_where(scene)}: relief that "
-                   "varies on a scale below the wavelength diffracts rather than reflecting rays (on every such "
-                   "surface of the trade table, gs and gm were 0.13–1.9 off the full wave, the worst of s, p and "
-                   "unpolarized; 0.07–1.6 unpolarized; docs/approx.md); use bem or model = auto")
+        out.append(f"{model}: the surface's heights decorrelate (to 1/e) within {ratio * lambda1:.3g} µm, less than "
+                   f"λ₁ = {lambda1:.3g} µm, at {_where(scene)}: relief on a scale below the wavelength diffracts "
+                   "rather than reflecting rays (on every such surface of the trade table, gs and gm were 0.13–1.9 "
+                   "off the full wave, the worst of s, p and unpolarized; 0.07–1.6 unpolarized; docs/approx.md); "
+                   "use bem or model = auto")
     return out
