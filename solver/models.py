@@ -262,6 +262,12 @@ class Model(ABC):
             return []
         return check_sampling(self.name, self.sampling, scene)
 
+    def steered_fresnel(self) -> bool:
+        """Whether the figure's Fresnel factors follow the incident direction ω_i rather than each
+        plane wave of the beam: a steered synthesis (jobs/steering.py) then keeps the basic
+        direction's. False: per plane wave (the full wave), or no Fresnel factors to keep."""
+        return False
+
     def waist_remedy(self) -> str | None:
         """What removes the footprint's angular-spread error from this model's albedo besides a
         wider waist, as its run's :func:`~wavebrdf.solver.validity.check_waist` names it; None where

@@ -33,14 +33,15 @@ import numpy as np
 __all__ = ["ENERGY_SLACK", "EVANESCENT_LOSS", "GO_LOBE_ERROR", "LIT_FACET_DEFICIT", "LIT_FACET_SLACK", "SPREAD_ERROR",
            "SPREAD_COEFFICIENT", "ValidityWarning", "beam_incidence_remedy", "beyond_horizon", "cells_fix",
            "check_evanescent_loss", "check_geometric_optics", "check_lit_facets", "check_waist",
-           "geometric_limit_error", "geometric_optics_figures", "energy_excess_warning", "horizon_loss",
-           "lattice_period_um", "point_sampled_error", "recorded_warnings", "waist_spread"]
+           "energy_excess_warning", "geometric_limit_error", "geometric_optics_figures", "horizon_loss",
+           "lattice_period_um", "point_sampled_error", "recorded_warnings", "steered_fresnel_warning", "waist_spread"]
 
 EVANESCENT_LOSS = 0.01  # OHS: warn when this share of the reflected spectrum is dropped
 SPREAD_COEFFICIENT = 0.3  # albedo error ≈ this × (λ₁/(πw))²/μ_i² (fitted on flat aluminium, see above)
 SPREAD_ERROR = 0.005  # warn above this predicted relative albedo error (the rungs' flat tolerance)
 ENERGY_SLACK = 1e-3  # an albedo above 1 by more than this is energy the model created
 ASYMPTOTIC_G = 400.0  # geometric_limit_error takes its asymptote √6/(4g) beyond this roughness parameter
+STEERED_FRESNEL = 0.05  # warn when a steered rung's kept reflectance is this far (relative) from the requested one's
 GO_LOBE_ERROR = 0.05  # warn when geometric optics' lobe is predicted this far (relative L2) from Kirchhoff's (g < 13)
 LIT_FACET_DEFICIT = 0.1  # warn when a tangent-plane rung's albedo is this share below its lit facets'
 # (check_lit_facets; benchmarks/lit_facets.py: every warned run of the trade table is off by > 0.1)
@@ -498,3 +499,28 @@ def check_geometric_optics(model: str, scene) -> list[str]:
                    "off the full wave, the worst of s, p and unpolarized; 0.07–1.6 unpolarized; docs/approx.md); "
                    "use bem or model = auto")
     return out
+
+
+def steered_fresnel_warning(model: str, basic_scene, theta_i: float, polarized: bool) -> str | None:
+    """The warning of a synthesis (jobs/steering.py) from a rung whose Fresnel factors follow the
+    incident direction (``Model.steered_fresnel``), not each plane wave of the beam: steered from the
+    basic direction θ_b to θ_i (radians) it keeps the reflectances of θ_b. The figure is a flat
+    surface's of the material of ``basic_scene``: |R(θ_b)/R(θ_i) − 1| unpolarized, or the worst of
+    s, p and unpolarized for a study that stores them (``polarized``); None below STEERED_FRESNEL."""
+    from wavebrdf.solver.fresnel import fresnel_reflectance
+
+    eta = complex(basic_scene.index) / basic_scene.exterior_index
+    (rs_b, rp_b), (rs, rp) = (fresnel_reflectance(eta, np.cos(t)) for t in (basic_scene.theta_i, theta_i))
+    shifts = {"unpolarized": (rs_b + rp_b) / (rs + rp) - 1.0}
+    if polarized:
+        shifts.update(s=rs_b / rs - 1.0, p=rp_b / rp - 1.0)
+    which = max(shifts, key=lambda k: abs(shifts[k]))
+    if not abs(shifts[which]) > STEERED_FRESNEL:
+        return None
+    ratio = 1.0 + shifts[which]
+    amount = f"{ratio:.3g} times" if not 0.5 < ratio < 2.0 else f"{shifts[which]:+.0%} against"
+    return (f"{model}: steered from its basic direction θ_b = {np.rad2deg(basic_scene.theta_i):.3g}° to θ_i = "
+            f"{np.rad2deg(theta_i):.3g}°, it keeps θ_b's Fresnel factors (they follow the incident direction, "
+            f"not each plane wave of the beam), and a flat patch of this material reflects ({which}) at θ_b "
+            f"{amount} what it reflects at θ_i; use a smaller [steering] hexagon_fill (more basic directions, "
+            "smaller offsets), the full wave (bem), or po with incidence = \"beam\"")

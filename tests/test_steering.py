@@ -249,3 +249,37 @@ def test_flat_surface_synthesized_albedo_is_fresnel(tmp_path, material, index, d
                     albedo_sp[inc], expected)
         assert np.all(rel < 0.01)
     assert max(offsets) > 0.5 * plan.steering[0].tiling.radius  # derived directions, not just basics
+
+
+@pytest.mark.parametrize("model, model_extra, keeps_fresnel", [("kirchhoff", "", True),
+                                                                 ("po", 'incidence = "beam"', False)])
+def test_a_synthesis_says_when_it_keeps_its_basic_directions_fresnel_factors_or_aliases(tmp_path, model, model_extra,
+                                                                                        keeps_fresnel):
+    """Flat glass, λ 0.5 µm, waist 0.5 µm, 3×3 patches, the default hexagon fill: (75°, 0°) and
+    (85°, 268°) are steered from the basic direction θ_b = 58.7°. Kirchhoff's Fresnel factors follow
+    the incident direction, so it keeps θ_b's (a flat patch reflects Rp(θ_b)/Rp(θ_i) = 0.0066 as much
+    in p there: the worst of s, p and unpolarized of a per-polarization study; the steered albedo
+    measured 0.18 in s against Fresnel's 0.40 at 75°); po lit by the beam reflects each plane wave at
+    its own angle and is not warned so. (85°, 268°) lies 1.5× the aliasing limit from its basic
+    direction (the hexagons are pulled toward the 80° cap), which both say."""
+    from references import fresnel_reflectance as reference_reflectance
+
+    directions = [[58.69, 0.0], [75.0, 0.0], [85.0, 268.0]]
+    config, plan, out = run_steering(tmp_path, str(directions), generator="flat", material="n = 1.5", surface_extra="",
+                                     lam=0.5, waist=0.5, size=3.6875, cells=59, patch=2.6875, model=model,
+                                     model_extra=model_extra)
+    import h5py
+
+    with h5py.File(out) as h5:
+        tasks = h5["tasks"]
+        synth = tasks["kind"][()].astype(str) == "synth"
+        said = {int(i): w.decode() for i, w in zip(tasks["incidence_index"][()][synth], tasks["warnings"][()][synth])}
+        over = dict(zip(tasks["incidence_index"][()][synth].astype(int), tasks["steering_offset_over_limit"][()][synth]))
+    with wavebrdf.open(out) as ds:
+        theta_basic = float(ds["theta_basic"][1])
+    assert theta_basic == pytest.approx(58.69, abs=0.01)
+    rp_basic, rp = (reference_reflectance(1.0, 1.5, np.deg2rad(t))[1] for t in (theta_basic, 75.0))
+    fresnel = f"reflects (p) at θ_b {rp_basic / rp:.3g} times what it reflects at θ_i"
+    assert (fresnel in said[1]) == keeps_fresnel and ("Fresnel factors" in said[1]) == keeps_fresnel, said[1]
+    assert over[2] == pytest.approx(1.5, abs=0.05) and "1.50× the aliasing limit" in said[2], said[2]
+    assert over[1] < 1 and "aliasing limit" not in said[1]

@@ -490,6 +490,12 @@ class FootprintModel(Model):
         return footprint_plane_wave(scene.wavelength_um, scene.exterior_index, scene.theta_i, scene.phi_i,
                                     scene.waist_um, scene.footprint_centre_um, points)
 
+    def steered_fresnel(self) -> bool:
+        """Their Fresnel factors follow the footprint's direction ω_i (outside the integral, or at the
+        half vector of ω_i: a steered flat glass patch at 75° from 58.7° measured 0.183 in s, Fresnel's
+        0.166 at 58.7°, 0.251 at the half vector, 0.399 at 75°)."""
+        return True
+
 
 class KirchhoffModel(FootprintModel):
     """Registry adapter: ``[model] name = "kirchhoff"`` (no options of its own)."""

@@ -299,6 +299,11 @@ class POModel(FootprintModel):
     def waist_remedy(self) -> str | None:
         return beam_incidence_remedy(self.name, self.options.incidence)
 
+    def steered_fresnel(self) -> bool:
+        """Lit by the footprint, the currents take Fresnel at ω_i; lit by the beam, each plane wave
+        reflects at its own angle."""
+        return self.options.incidence != "beam"
+
     def incident_fields(self, scene: SurfaceScene, points):
         """The footprint plane wave, or with ``incidence = "beam"`` the full-wave solver's exact beam."""
         if self.options.incidence == "beam" and scene.waist_um is not None:

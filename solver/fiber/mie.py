@@ -18,6 +18,7 @@ strongly absorbing or large fibers do not overflow.
 from __future__ import annotations
 
 import logging
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,10 +26,13 @@ import scipy.special as sp
 
 from wavebrdf.solver.fiber.farfield import sample_scattering
 from wavebrdf.solver.fiber.results import ScatteringResult
+from wavebrdf.solver.validity import ValidityWarning
 
 logger = logging.getLogger(__name__)
 
 __all__ = ["MieCylinder", "MieFiber", "mie_cylinder", "mie_scattering"]
+
+EXTINCTION_PRECISION = 1e-3  # warn when a lossy fiber's C_ext is rounded to more than this share of itself
 
 
 @dataclass(frozen=True)
@@ -63,9 +67,23 @@ class MieCylinder:
         return 2.0 * self.radius_um * q / np.cos(self.theta_i)
 
     @property
+    def lossless(self) -> bool:
+        """κ = 0: nothing is absorbed, and extinction is scattering (optical theorem)."""
+        return complex(self.index).imag == 0
+
+    @property
+    def extinction_precision(self) -> float:
+        """Relative rounding of Q_ext = Re(b₀ + 2Σb_n)·2/x for a lossy fiber: the terms cancel to
+        the order of ξ² (ξ = x cos θ_i), so the sum keeps about ε/ξ² of itself (0 when lossless,
+        where C_ext is C_sca)."""
+        xi = self.size_parameter * np.cos(self.theta_i)
+        return 0.0 if self.lossless else float(np.finfo(float).eps / max(xi * xi, np.finfo(float).tiny))
+
+    @property
     def C_ext(self) -> np.ndarray:
-        """Extinction cross section per unit length (µm), (parallel, perpendicular)."""
-        return self._to_width(self.Q_ext)
+        """Extinction cross section per unit length (µm), (parallel, perpendicular); for a
+        lossless fiber C_sca itself (the series for Q_ext cancels near grazing incidence)."""
+        return self.C_sca if self.lossless else self._to_width(self.Q_ext)
 
     @property
     def C_sca(self) -> np.ndarray:
@@ -73,7 +91,7 @@ class MieCylinder:
 
     @property
     def C_abs(self) -> np.ndarray:
-        return self.C_ext - self.C_sca
+        return np.zeros(2) if self.lossless else self.C_ext - self.C_sca
 
     def dCs_dphi(self, phi_r, phi_i: float = 0.0) -> np.ndarray:
         """dC_s/dφ (µm/rad) at azimuths ``phi_r`` for incidence azimuth ``phi_i``, shape (2, R)."""
@@ -150,6 +168,13 @@ def mie_scattering(wavelength_um: float, radius_um: float, index: complex, theta
     """Mie counterpart of :func:`~wavebrdf.solver.fiber.bem.solve_fiber` (same result type):
     dC_s/dφ at point samples ``phi_r`` or box-averaged over ``bins`` bins; exact cross sections."""
     mie = mie_cylinder(wavelength_um, radius_um, index, theta_i)
+    if mie.extinction_precision > EXTINCTION_PRECISION:
+        xi = mie.size_parameter * np.cos(mie.theta_i)
+        warnings.warn(f"mie: at θ_i = {np.rad2deg(theta_i):.8g}° (λ = {wavelength_um:g} µm, radius {radius_um:g} µm) "
+                      f"the size parameter across the fiber is ξ = k a cos θ_i = {xi:.2g}, where the extinction "
+                      f"series cancels: C_ext and C_abs hold about {mie.extinction_precision:.1g} of themselves "
+                      "(ε/ξ²; C_sca and dC_s/dφ are not affected); use an incidence further from grazing",
+                      ValidityWarning, stacklevel=2)
     phi = np.atleast_1d(np.asarray(phi_i, dtype=float))
 
     def dcs(phi_r_samples):  # (R, 2·P), columns (polarization, φ_i)

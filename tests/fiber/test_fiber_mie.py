@@ -127,3 +127,25 @@ def test_t12_babinet_forward_minimum():
     assert absorbing / (lam / diameter) == pytest.approx(0.96, abs=0.01)
     refractive = _first_forward_minimum(mie_cylinder(lam, diameter / 2, 1.55, 0.0), lam, diameter)
     assert refractive == pytest.approx(0.041, abs=1e-3)
+
+
+def test_near_grazing_incidence_keeps_a_lossless_fiber_lossless_and_says_when_extinction_rounds():
+    """At θ_i = 89.999999° a 0.01 µm fiber has ξ = k a cos θ_i = 2e-9, where Re(b₀ + 2Σb_n)
+    cancels to ε/ξ² ≈ 50 of itself: a lossless fiber must still absorb nothing (C_ext = C_sca; the
+    series gave C_ext 9× C_sca), and a lossy one says how little of C_ext the series keeps; at 60° it
+    is silent."""
+    import warnings
+
+    from wavebrdf.solver.fiber.mie import mie_scattering
+    from wavebrdf.solver.validity import ValidityWarning
+
+    grazing = np.deg2rad(89.999999)
+    lossless = mie_cylinder(0.5, 0.01, 1.55, grazing)
+    assert np.all(lossless.C_abs == 0) and np.allclose(lossless.C_ext, lossless.C_sca, rtol=0)
+    for theta, index, said in ((grazing, 1.55 - 0.1j, True), (np.deg2rad(60.0), 1.55 - 0.1j, False),
+                               (grazing, 1.55, False)):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            mie_scattering(0.5, 0.01, index, theta, bins=36)
+        rounded = [w for w in caught if issubclass(w.category, ValidityWarning) and "extinction series" in str(w.message)]
+        assert len(rounded) == int(said), [str(w.message) for w in caught]
