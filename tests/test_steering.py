@@ -274,7 +274,8 @@ def test_a_synthesis_says_when_it_keeps_its_basic_directions_fresnel_factors_or_
         tasks = h5["tasks"]
         synth = tasks["kind"][()].astype(str) == "synth"
         said = {int(i): w.decode() for i, w in zip(tasks["incidence_index"][()][synth], tasks["warnings"][()][synth])}
-        over = dict(zip(tasks["incidence_index"][()][synth].astype(int), tasks["steering_offset_over_limit"][()][synth]))
+        index = tasks["incidence_index"][()][synth].astype(int)
+        over = dict(zip(index, tasks["steering_offset_over_limit"][()][synth]))
     with wavebrdf.open(out) as ds:
         theta_basic = float(ds["theta_basic"][1])
     assert theta_basic == pytest.approx(58.69, abs=0.01)

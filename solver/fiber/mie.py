@@ -170,7 +170,8 @@ def mie_scattering(wavelength_um: float, radius_um: float, index: complex, theta
     mie = mie_cylinder(wavelength_um, radius_um, index, theta_i)
     if mie.extinction_precision > EXTINCTION_PRECISION:
         xi = mie.size_parameter * np.cos(mie.theta_i)
-        warnings.warn(f"mie: at θ_i = {np.rad2deg(theta_i):.8g}° (λ = {wavelength_um:g} µm, radius {radius_um:g} µm) "
+        warnings.warn(f"mie: at θ_i = {np.rad2deg(theta_i):.8g}° (λ = {wavelength_um:g} µm, radius "
+                      f"{radius_um:g} µm) "
                       f"the size parameter across the fiber is ξ = k a cos θ_i = {xi:.2g}, where the extinction "
                       f"series cancels: C_ext and C_abs hold about {mie.extinction_precision:.1g} of themselves "
                       "(ε/ξ²; C_sca and dC_s/dφ are not affected); use an incidence further from grazing",

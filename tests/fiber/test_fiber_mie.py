@@ -147,5 +147,6 @@ def test_near_grazing_incidence_keeps_a_lossless_fiber_lossless_and_says_when_ex
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             mie_scattering(0.5, 0.01, index, theta, bins=36)
-        rounded = [w for w in caught if issubclass(w.category, ValidityWarning) and "extinction series" in str(w.message)]
+        rounded = [w for w in caught
+                   if issubclass(w.category, ValidityWarning) and "extinction series" in str(w.message)]
         assert len(rounded) == int(said), [str(w.message) for w in caught]
