@@ -54,7 +54,8 @@ GRAZING_CAP_DEG = 80.0
 
 
 def aliasing_limit(wavelength_um: float, waist_um: float, exterior_index: float = 1.0) -> float:
-    """Steering offset (direction cosine) where aliasing sets in: λ₁/(π w)."""
+    """The footprint's angular spread λ₁/(π w) (radians), whose sine is the steering offset (in
+    direction cosines) where aliasing sets in."""
     return wavelength_um / exterior_index / (np.pi * waist_um)
 
 
@@ -413,14 +414,32 @@ def synthesize_task(ctx, plan, task, pool, parts) -> FarField:
                       f"{basic_scene.wavelength_um:g} µm: grating lobes of the patch array carry part of the power "
                       "(a flat mirror lost 55 % to them at 1.6×, docs/batch.md); use a smaller [steering] "
                       "hexagon_fill", ValidityWarning, stacklevel=2)
-    if model.steered_fresnel():
-        study = plan.study
-        polarized = (study.output_options.per_polarization or study.output_options.polarization != "intensity"
-                     or study.illumination.polarization != "unpolarized")
-        said = steered_fresnel_warning(name, basic_scene, theta, polarized=polarized)
+    kept = _kept_fresnel(model, fields)
+    if kept is not None:
+        said = steered_fresnel_warning(name, kept, basic_scene, theta, phi, stored_polarizations(plan.study))
         if said:
             warnings.warn(said, ValidityWarning, stacklevel=2)
     return ff
+
+
+def _kept_fresnel(model, fields: dict) -> str | None:
+    """Where the patch fields' rung takes its Fresnel factors (``Model.steered_fresnel``); for
+    ``auto``, whichever rung ran a patch (its diagnostics' ``model``) that keeps them, "incidence"
+    first."""
+    if not model.capabilities.picks_rung:
+        return model.steered_fresnel()
+    names = {ff.diagnostics.get("model") for ff in fields.values()} - {None, model.name}
+    kinds = {model.rung(name).steered_fresnel() for name in names} - {None}
+    return "incidence" if "incidence" in kinds else next(iter(kinds), None)
+
+
+def stored_polarizations(study) -> tuple[str, ...]:
+    """The incident polarizations whose figures a study stores: its [illumination] polarization,
+    and s and p too with per-polarization or polarimetric outputs."""
+    stored = (study.illumination.polarization,)
+    if study.output_options.per_polarization or study.output_options.polarization != "intensity":
+        stored += ("s", "p")
+    return tuple(dict.fromkeys(stored))
 
 
 def estimate_synthesis(plan, task) -> Estimate:

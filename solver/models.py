@@ -262,11 +262,12 @@ class Model(ABC):
             return []
         return check_sampling(self.name, self.sampling, scene)
 
-    def steered_fresnel(self) -> bool:
-        """Whether the figure's Fresnel factors follow the incident direction ω_i rather than each
-        plane wave of the beam: a steered synthesis (jobs/steering.py) then keeps the basic
-        direction's. False: per plane wave (the full wave), or no Fresnel factors to keep."""
-        return False
+    def steered_fresnel(self) -> str | None:
+        """Where the figure's Fresnel factors are taken when they follow the incident direction ω_i
+        rather than each plane wave of the beam: "incidence" (at ω_i) or "half vector" (of ω_i and
+        ω_o). A steered synthesis (jobs/steering.py) then keeps the basic direction in them. None:
+        per plane wave (the full wave), or no Fresnel factors to keep."""
+        return None
 
     def waist_remedy(self) -> str | None:
         """What removes the footprint's angular-spread error from this model's albedo besides a

@@ -34,7 +34,8 @@ __all__ = ["ENERGY_SLACK", "EVANESCENT_LOSS", "GO_LOBE_ERROR", "LIT_FACET_DEFICI
            "SPREAD_COEFFICIENT", "ValidityWarning", "beam_incidence_remedy", "beyond_horizon", "cells_fix",
            "check_evanescent_loss", "check_geometric_optics", "check_lit_facets", "check_waist",
            "energy_excess_warning", "geometric_limit_error", "geometric_optics_figures", "horizon_loss",
-           "lattice_period_um", "point_sampled_error", "recorded_warnings", "steered_fresnel_warning", "waist_spread"]
+           "lattice_period_um", "point_sampled_error", "recorded_warnings", "STEERED_FRESNEL",
+           "steered_fresnel_warning", "waist_spread"]
 
 EVANESCENT_LOSS = 0.01  # OHS: warn when this share of the reflected spectrum is dropped
 SPREAD_COEFFICIENT = 0.3  # albedo error ≈ this × (λ₁/(πw))²/μ_i² (fitted on flat aluminium, see above)
@@ -501,26 +502,40 @@ def check_geometric_optics(model: str, scene) -> list[str]:
     return out
 
 
-def steered_fresnel_warning(model: str, basic_scene, theta_i: float, polarized: bool) -> str | None:
+def steered_fresnel_warning(model: str, kept: str, basic_scene, theta_i: float, phi_i: float,
+                            polarizations: tuple[str, ...]) -> str | None:
     """The warning of a synthesis (jobs/steering.py) from a rung whose Fresnel factors follow the
-    incident direction (``Model.steered_fresnel``), not each plane wave of the beam: steered from the
-    basic direction θ_b to θ_i (radians) it keeps the reflectances of θ_b. The figure is a flat
-    surface's of the material of ``basic_scene``: |R(θ_b)/R(θ_i) − 1| unpolarized, or the worst of
-    s, p and unpolarized for a study that stores them (``polarized``); None below STEERED_FRESNEL."""
+    incident direction (``Model.steered_fresnel``: ``kept`` "incidence" or "half vector"), not each
+    plane wave of the beam: steered from the basic direction ω_b to ω_i = (θ_i, φ_i) (radians) it
+    keeps ω_b in them. On a flat patch of the material of ``basic_scene`` the angle they are taken
+    at is θ_b, or at the half vector of ω_b and ω_i's mirror direction arccos √((1 + ω_b·ω_o)/2),
+    which lies between θ_b and θ_i (so its figure is a lower bound for such a rung). The figure is
+    the largest |ln(R(kept)/R(θ_i))| over ``polarizations`` (of "unpolarized", "s", "p": those the
+    study stores); None below ln(1 + STEERED_FRESNEL)."""
     from wavebrdf.solver.fresnel import fresnel_reflectance
 
+    def towards(theta, phi, sign=1.0):
+        return np.array([sign * np.sin(theta) * np.cos(phi), sign * np.sin(theta) * np.sin(phi), np.cos(theta)])
+
+    angle = float(basic_scene.theta_i)
+    if kept == "half vector":
+        cosine = (1.0 + towards(basic_scene.theta_i, basic_scene.phi_i) @ towards(theta_i, phi_i, -1.0)) / 2.0
+        angle = float(np.arccos(np.sqrt(np.clip(cosine, 0.0, 1.0))))
     eta = complex(basic_scene.index) / basic_scene.exterior_index
-    (rs_b, rp_b), (rs, rp) = (fresnel_reflectance(eta, np.cos(t)) for t in (basic_scene.theta_i, theta_i))
-    shifts = {"unpolarized": (rs_b + rp_b) / (rs + rp) - 1.0}
-    if polarized:
-        shifts.update(s=rs_b / rs - 1.0, p=rp_b / rp - 1.0)
-    which = max(shifts, key=lambda k: abs(shifts[k]))
-    if not abs(shifts[which]) > STEERED_FRESNEL:
+    (rs_k, rp_k), (rs, rp) = (fresnel_reflectance(eta, np.cos(t)) for t in (angle, theta_i))
+    pairs = {"unpolarized": (rs_k + rp_k, rs + rp), "s": (rs_k, rs), "p": (rp_k, rp)}
+    tiny = np.finfo(float).tiny
+    logs = {k: abs(float(np.log(max(pairs[k][0], tiny) / max(pairs[k][1], tiny)))) for k in polarizations}
+    which = max(logs, key=logs.get)
+    if not logs[which] > np.log1p(STEERED_FRESNEL):
         return None
-    ratio = 1.0 + shifts[which]
-    amount = f"{ratio:.3g} times" if not 0.5 < ratio < 2.0 else f"{shifts[which]:+.0%} against"
+    ratio = max(pairs[which][0], tiny) / max(pairs[which][1], tiny)
+    amount = f"{ratio:.3g} times" if not 0.5 < ratio < 2.0 else f"{ratio - 1.0:+.0%} of"
+    where = (f"θ_b = {np.rad2deg(basic_scene.theta_i):.3g}°" if kept == "incidence" else
+             f"the half vector of ω_b and the mirror direction, {np.rad2deg(angle):.3g}° on a flat patch (the figure "
+             "follows an angle between it and θ_b: this is the least it is off)")
     return (f"{model}: steered from its basic direction θ_b = {np.rad2deg(basic_scene.theta_i):.3g}° to θ_i = "
-            f"{np.rad2deg(theta_i):.3g}°, it keeps θ_b's Fresnel factors (they follow the incident direction, "
-            f"not each plane wave of the beam), and a flat patch of this material reflects ({which}) at θ_b "
-            f"{amount} what it reflects at θ_i; use a smaller [steering] hexagon_fill (more basic directions, "
-            "smaller offsets), the full wave (bem), or po with incidence = \"beam\"")
+            f"{np.rad2deg(theta_i):.3g}°, it keeps the basic direction in its Fresnel factors (taken at the "
+            f"{kept}, not per plane wave of the beam): at {where} a flat patch of this material reflects "
+            f"({which}) {amount} what it reflects at θ_i; use a smaller [steering] hexagon_fill (more basic "
+            "directions, smaller offsets), the full wave (bem), or po with incidence = \"beam\"")

@@ -12,7 +12,6 @@ import dataclasses
 import itertools
 import logging
 import warnings
-
 from pathlib import Path
 
 import numpy as np

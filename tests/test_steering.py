@@ -251,36 +251,60 @@ def test_flat_surface_synthesized_albedo_is_fresnel(tmp_path, material, index, d
     assert max(offsets) > 0.5 * plan.steering[0].tiling.radius  # derived directions, not just basics
 
 
-@pytest.mark.parametrize("model, model_extra, keeps_fresnel", [("kirchhoff", "", True),
-                                                                 ("po", 'incidence = "beam"', False)])
+@pytest.mark.parametrize("model, model_extra, kept", [("kirchhoff", "", "half vector"), ("ohs", "", "incidence"),
+                                                       ("po", 'incidence = "beam"', None)])
 def test_a_synthesis_says_when_it_keeps_its_basic_directions_fresnel_factors_or_aliases(tmp_path, model, model_extra,
-                                                                                        keeps_fresnel):
+                                                                                        kept):
     """Flat glass, λ 0.5 µm, waist 0.5 µm, 3×3 patches, the default hexagon fill: (75°, 0°) and
-    (85°, 268°) are steered from the basic direction θ_b = 58.7°. Kirchhoff's Fresnel factors follow
-    the incident direction, so it keeps θ_b's (a flat patch reflects Rp(θ_b)/Rp(θ_i) = 0.0066 as much
-    in p there: the worst of s, p and unpolarized of a per-polarization study; the steered albedo
-    measured 0.18 in s against Fresnel's 0.40 at 75°); po lit by the beam reflects each plane wave at
-    its own angle and is not warned so. (85°, 268°) lies 1.5× the aliasing limit from its basic
-    direction (the hexagons are pulled toward the 80° cap), which both say."""
+    (85°, 268°) are steered from the basic direction θ_b = 58.7°. ohs takes Fresnel at the incident
+    direction, so it keeps θ_b's; kirchhoff at the half vector of ω_b and the mirror direction, in
+    the plane of incidence (θ_b + θ_i)/2 = 66.8° (the steered kirchhoff albedo measured 0.0115 in p,
+    between Fresnel's 0.0007 at θ_b and 0.021 at 66.8°; 0.107 at 75°). Each says how much a flat
+    patch reflects at that angle against θ_i in p (the worst of s, p and unpolarized of a
+    per-polarization study); po lit by the beam reflects each plane wave at its own angle and is not
+    warned so. (85°, 268°) lies 1.5× the aliasing limit from its basic direction (the hexagons are
+    pulled toward the 80° cap), which all say."""
+    import h5py
     from references import fresnel_reflectance as reference_reflectance
 
     directions = [[58.69, 0.0], [75.0, 0.0], [85.0, 268.0]]
     config, plan, out = run_steering(tmp_path, str(directions), generator="flat", material="n = 1.5", surface_extra="",
                                      lam=0.5, waist=0.5, size=3.6875, cells=59, patch=2.6875, model=model,
                                      model_extra=model_extra)
-    import h5py
-
     with h5py.File(out) as h5:
         tasks = h5["tasks"]
         synth = tasks["kind"][()].astype(str) == "synth"
-        said = {int(i): w.decode() for i, w in zip(tasks["incidence_index"][()][synth], tasks["warnings"][()][synth])}
         index = tasks["incidence_index"][()][synth].astype(int)
+        said = {int(i): w.decode() for i, w in zip(index, tasks["warnings"][()][synth])}
         over = dict(zip(index, tasks["steering_offset_over_limit"][()][synth]))
     with wavebrdf.open(out) as ds:
         theta_basic = float(ds["theta_basic"][1])
     assert theta_basic == pytest.approx(58.69, abs=0.01)
-    rp_basic, rp = (reference_reflectance(1.0, 1.5, np.deg2rad(t))[1] for t in (theta_basic, 75.0))
-    fresnel = f"reflects (p) at θ_b {rp_basic / rp:.3g} times what it reflects at θ_i"
-    assert (fresnel in said[1]) == keeps_fresnel and ("Fresnel factors" in said[1]) == keeps_fresnel, said[1]
+    if kept is not None:
+        angle = theta_basic if kept == "incidence" else 0.5 * (theta_basic + 75.0)
+        rp_kept, rp = (reference_reflectance(1.0, 1.5, np.deg2rad(t))[1] for t in (angle, 75.0))
+        assert f"reflects (p) {rp_kept / rp:.3g} times what it reflects at θ_i" in said[1], said[1]
+        assert f"taken at the {kept}" in said[1]
+    else:
+        assert "Fresnel factors" not in said[1], said[1]
     assert over[2] == pytest.approx(1.5, abs=0.05) and "1.50× the aliasing limit" in said[2], said[2]
     assert over[1] < 1 and "aliasing limit" not in said[1]
+
+
+def test_auto_is_checked_for_the_rungs_that_ran_its_patches():
+    """A steered auto study's patches ran the rungs auto chose (their diagnostics' model): the
+    synthesis keeps the Fresnel factors of any of them that takes them at the incidence or the half
+    vector, and of none where the full wave ran every patch."""
+    from types import SimpleNamespace
+
+    from wavebrdf.jobs.steering import _kept_fresnel
+    from wavebrdf.solver.models import get_model
+
+    auto = get_model("auto")
+    ran = {(0, 0): "bem", (0, 1): "kirchhoff"}
+    fields = {patch: SimpleNamespace(diagnostics={"model": name}) for patch, name in ran.items()}
+    assert _kept_fresnel(auto, fields) == "half vector"
+    fields[(1, 1)] = SimpleNamespace(diagnostics={"model": "po"})
+    assert _kept_fresnel(auto, fields) == "incidence"
+    assert _kept_fresnel(auto, {(0, 0): SimpleNamespace(diagnostics={"model": "bem"})}) is None
+    assert _kept_fresnel(get_model("po", {"incidence": "beam"}), fields) is None

@@ -299,10 +299,10 @@ class POModel(FootprintModel):
     def waist_remedy(self) -> str | None:
         return beam_incidence_remedy(self.name, self.options.incidence)
 
-    def steered_fresnel(self) -> bool:
+    def steered_fresnel(self) -> str | None:
         """Lit by the footprint, the currents take Fresnel at ω_i; lit by the beam, each plane wave
         reflects at its own angle."""
-        return self.options.incidence != "beam"
+        return None if self.options.incidence == "beam" else "incidence"
 
     def incident_fields(self, scene: SurfaceScene, points):
         """The footprint plane wave, or with ``incidence = "beam"`` the full-wave solver's exact beam."""
