@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from wavebrdf.solver.farfield import FarField
+from wavebrdf.solver.metrics import direction_to_u
 from wavebrdf.solver.models import Estimate
 from wavebrdf.solver.validity import ValidityWarning, steered_fresnel_warning
 from wavebrdf.solver.surface import GaussianEnsemble, HeightField, SurfaceError, checked_heights, generate
@@ -402,9 +403,7 @@ def synthesize_task(ctx, plan, task, pool, parts) -> FarField:
     )
     ff = synthesize(fields, st.layout, theta, phi, power)
     ff.excitation_rad = (basic_scene.theta_i, basic_scene.phi_i)  # the patch beams' polarizations
-    offset = float(np.hypot(
-        *(np.sin(theta) * np.array([np.cos(phi), np.sin(phi)])
-          - np.sin(basic_scene.theta_i) * np.array([np.cos(basic_scene.phi_i), np.sin(basic_scene.phi_i)]))))
+    offset = float(np.hypot(*(direction_to_u(theta, phi) - direction_to_u(basic_scene.theta_i, basic_scene.phi_i))))
     limit = np.sin(aliasing_limit(basic_scene.wavelength_um, basic_scene.waist_um, basic_scene.exterior_index))
     ff.diagnostics.update(steering_offset=offset, steering_offset_over_limit=offset / limit)
     name = plan.model_spec(task).name

@@ -34,7 +34,7 @@ __all__ = ["ENERGY_SLACK", "EVANESCENT_LOSS", "GO_LOBE_ERROR", "LIT_FACET_DEFICI
            "SPREAD_COEFFICIENT", "ValidityWarning", "beam_incidence_remedy", "beyond_horizon", "cells_fix",
            "check_evanescent_loss", "check_geometric_optics", "check_lit_facets", "check_waist",
            "energy_excess_warning", "geometric_limit_error", "geometric_optics_figures", "horizon_loss",
-           "lattice_period_um", "point_sampled_error", "recorded_warnings", "STEERED_FRESNEL",
+           "lattice_period_um", "point_sampled_error", "recorded_warnings", "roughness_parameter", "STEERED_FRESNEL",
            "steered_fresnel_warning", "waist_spread"]
 
 EVANESCENT_LOSS = 0.01  # OHS: warn when this share of the reflected spectrum is dropped
@@ -332,6 +332,13 @@ def lattice_period_um(surface) -> float | None:
     return None
 
 
+def roughness_parameter(scene, rms_height_um: float) -> float:
+    """g = (2k₁σ_h cos θ_i)² of heights of rms ``rms_height_um`` at the scene's λ₁ and θ_i: e^{−g} is
+    the share of the reflected power a Gaussian-correlated surface keeps in the specular lobe."""
+    k1 = 2 * np.pi * scene.exterior_index / scene.wavelength_um
+    return float((2 * k1 * rms_height_um * np.cos(scene.theta_i)) ** 2)
+
+
 def lobes(scene, figures: dict) -> list[tuple[str, float, float, bool]]:
     """The narrowest lobes of a scene: (name, share of the reflected power, σ in direction
     cosines, whether the footprint alone sets σ). The specular lobe: share e^{−g},
@@ -342,7 +349,7 @@ def lobes(scene, figures: dict) -> list[tuple[str, float, float, bool]]:
     if scene.waist_um is None:  # a plane wave: lobes of the patch's width, not point-sampled here
         return []
     k = 2 * np.pi * scene.exterior_index / scene.wavelength_um
-    g = (2 * k * figures["rms_height_um"] * np.cos(scene.theta_i)) ** 2
+    g = roughness_parameter(scene, figures["rms_height_um"])
     out = [("specular", float(np.exp(-g)), 1.0 / (k * scene.waist_um), True)]
     period = lattice_period_um(scene.surface)
     if g > 0 and period:
@@ -466,7 +473,7 @@ def geometric_optics_figures(scene) -> dict:
     if figures["flat"]:
         return {}
     lambda1 = scene.wavelength_um / scene.exterior_index
-    g = float((4.0 * np.pi / lambda1 * figures["rms_height_um"] * np.cos(scene.theta_i)) ** 2)
+    g = roughness_parameter(scene, figures["rms_height_um"])
     return {"roughness_g": g, "coherent_share": float(np.exp(-g)), "geometric_limit_error": geometric_limit_error(g),
             "correlation_over_wavelength": figures["correlation_um"] / lambda1}
 
@@ -512,14 +519,12 @@ def steered_fresnel_warning(model: str, kept: str, basic_scene, theta_i: float, 
     which lies between θ_b and θ_i (so its figure is a lower bound for such a rung). The figure is
     the largest |ln(R(kept)/R(θ_i))| over ``polarizations`` (of "unpolarized", "s", "p": those the
     study stores); None below ln(1 + STEERED_FRESNEL)."""
+    from wavebrdf.solver.farfield import direction
     from wavebrdf.solver.fresnel import fresnel_reflectance
 
-    def towards(theta, phi, sign=1.0):
-        return np.array([sign * np.sin(theta) * np.cos(phi), sign * np.sin(theta) * np.sin(phi), np.cos(theta)])
-
     angle = float(basic_scene.theta_i)
-    if kept == "half vector":
-        cosine = (1.0 + towards(basic_scene.theta_i, basic_scene.phi_i) @ towards(theta_i, phi_i, -1.0)) / 2.0
+    if kept == "half vector":  # ω_b and the mirror direction of ω_i, (θ_i, φ_i + π)
+        cosine = (1.0 + direction(basic_scene.theta_i, basic_scene.phi_i) @ direction(theta_i, phi_i + np.pi)) / 2.0
         angle = float(np.arccos(np.sqrt(np.clip(cosine, 0.0, 1.0))))
     eta = complex(basic_scene.index) / basic_scene.exterior_index
     (rs_k, rp_k), (rs, rp) = (fresnel_reflectance(eta, np.cos(t)) for t in (angle, theta_i))

@@ -72,12 +72,16 @@ class MieCylinder:
         return complex(self.index).imag == 0
 
     @property
+    def xi(self) -> float:
+        """ξ = x cos θ_i, the size parameter across the fiber (x = 2πa/λ)."""
+        return self.size_parameter * np.cos(self.theta_i)
+
+    @property
     def extinction_precision(self) -> float:
         """Relative rounding of the series' cross sections near grazing incidence: the terms of
         Q_ext = Re(b₀ + 2Σb_n)·2/x cancel to the order of ξ² (ξ = x cos θ_i), so the sums are
         uncertain to about ε/ξ² (measured: C_sca 8 % off for n = 1.55 at ξ = 2·10⁻⁹)."""
-        xi = self.size_parameter * np.cos(self.theta_i)
-        return float(np.finfo(float).eps / max(xi * xi, np.finfo(float).tiny))
+        return float(np.finfo(float).eps / max(self.xi**2, np.finfo(float).tiny))
 
     @property
     def C_ext(self) -> np.ndarray:
@@ -171,11 +175,10 @@ def mie_scattering(wavelength_um: float, radius_um: float, index: complex, theta
     rounding = mie.extinction_precision
     absorbed = 0.0 if mie.lossless else rounding * float(np.max(mie.C_ext / np.maximum(np.abs(mie.C_abs), 1e-300)))
     if max(rounding, absorbed) > EXTINCTION_PRECISION:
-        xi = mie.size_parameter * np.cos(mie.theta_i)
         small = "" if mie.lossless else f"; C_abs, the small difference C_ext − C_sca, to about {absorbed:.1g}"
         warnings.warn(f"mie: at θ_i = {np.rad2deg(theta_i):.8g}° (λ = {wavelength_um:g} µm, radius "
-                      f"{radius_um:g} µm) the size parameter across the fiber is ξ = k a cos θ_i = {xi:.2g}, where "
-                      f"the series cancels: its cross sections are uncertain to about {rounding:.1g} (relative, "
+                      f"{radius_um:g} µm) the size parameter across the fiber is ξ = k a cos θ_i = {mie.xi:.2g}, "
+                      f"where the series cancels: its cross sections are uncertain to about {rounding:.1g} (relative, "
                       f"ε/ξ²{small}); use an incidence further from grazing", ValidityWarning, stacklevel=2)
     phi = np.atleast_1d(np.asarray(phi_i, dtype=float))
 
