@@ -30,7 +30,6 @@ from wavebrdf.jobs.output_path import make_output_folder
 from wavebrdf.jobs.parts import atomic_write
 from wavebrdf.jobs.store import Dataset, not_a_dataset
 from wavebrdf.solver.models import model_class, model_names
-from wavebrdf.solver.spectrum import outside_visible
 
 __all__ = ["FORMATS", "ExportError", "ExportFormat", "add_case_flags", "add_export_parser", "export_dataset",
            "non_reciprocal_models", "select_case"]
@@ -84,9 +83,8 @@ def _build_rgl(path: Path, case: int, options: ExportOptions):
     summary = (f"RGL {d['channels']} ({what}), {'isotropic' if d['isotropic'] else 'anisotropic'} "
                f"({why}): {len(d['theta_i_deg'])} θ_i × {len(d['phi_i_deg'])} φ_i, sample space "
                f"{d['sample_resolution']}², {d['bytes'] / 2**20:.1f} MiB")
-    grey = outside_visible(lams) if d["channels"] == "rgb" else None
-    if grey:
-        summary += f"; note: {grey} (--channels spectral keeps the data's own wavelengths)"
+    if d["channels_note"]:  # the tables' (wavebrdf/mitsuba/tables.py): colour made of no visible wavelength
+        summary += f"; note: {d['channels_note']} (--channels spectral keeps the data's own wavelengths)"
     if d["polarization"] not in ("", "unpolarized"):  # the format is read as unpolarized
         summary += (f"; note: the dataset's BRDF is {d['polarization']}-polarized ([illumination] polarization = "
                     f"\"{d['polarization']}\"), and so is the file's: not the unpolarized BRDF a renderer expects")
