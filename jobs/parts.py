@@ -398,18 +398,14 @@ class PartsFolder:
                   "scalars": np.array([ff.wavelength_um, ff.exterior_index, ff.theta_i, ff.phi_i])}
         if ff.H is not None:
             arrays["H"] = ff.H
-        if ff.excitation_rad is not None:
-            arrays["excitation_rad"] = np.asarray(ff.excitation_rad, dtype=float)
         self.save_arrays(task, diagnostics, **arrays)
 
     def load_farfield(self, task) -> FarField:
         arrays, diagnostics = self.load_arrays(task)
         lam, n1, theta, phi = arrays["scalars"]
-        excitation = arrays.get("excitation_rad")
         return FarField(grid=self.plan.grid, wavelength_um=float(lam), exterior_index=float(n1),
                         theta_i=float(theta), phi_i=float(phi), E=arrays["E"], H=arrays.get("H"),
-                        incident_power=arrays["incident_power"], diagnostics=diagnostics,
-                        excitation_rad=None if excitation is None else tuple(float(x) for x in excitation))
+                        incident_power=arrays["incident_power"], diagnostics=diagnostics)
 
     def adopt(self, task, other: PartsFolder) -> bool:
         """Copy ``task``'s part from ``other`` (a folder of the same plan, e.g. a shard's) into

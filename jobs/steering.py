@@ -15,7 +15,9 @@
    (e^{+jk p·ω_o}).
 3. **Synthesis** of a requested ω_i: E = Σ a_ab E_ab with a_ab = e^{+jk p_ab·ω_i} (same for H);
    the incident power is that of the summed beams, a_ab·beam(x − p_ab), evaluated on the flat
-   plane z = 0 of the global surface (§10.3). The result is valid while the steering offset
+   plane z = 0 of the global surface (§10.3). The patch beams carry the basic direction's ŝ, p̂; the
+   synthesis answers the requested direction's (``polarimetry.in_stated_frame``), so its s, p,
+   Jones and Mueller figures are all in ω_i's frame. The result is valid while the steering offset
    |u_i − u_b| stays well inside the beam divergence λ/(π w): beyond it the array factor's
    grating lobes (spacing λ/s in direction cosine) alias the BRDF.
 
@@ -35,6 +37,7 @@ import numpy as np
 from wavebrdf.solver.farfield import FarField
 from wavebrdf.solver.metrics import direction_to_u
 from wavebrdf.solver.models import Estimate
+from wavebrdf.solver.polarimetry import in_stated_frame
 from wavebrdf.solver.validity import ValidityWarning, steered_fresnel_warning
 from wavebrdf.solver.surface import GaussianEnsemble, HeightField, SurfaceError, checked_heights, generate
 
@@ -401,8 +404,9 @@ def synthesize_task(ctx, plan, task, pool, parts) -> FarField:
         lambda pts: model.incident_fields(basic_scene, pts), st.layout, basic_scene.surface.spacing_um,
         basic_scene.wavelength_um, basic_scene.exterior_index, theta, phi,
     )
-    ff = synthesize(fields, st.layout, theta, phi, power)
-    ff.excitation_rad = (basic_scene.theta_i, basic_scene.phi_i)  # the patch beams' polarizations
+    kept = _kept_fresnel(model, fields)
+    ff = in_stated_frame(synthesize(fields, st.layout, theta, phi, power), (basic_scene.theta_i, basic_scene.phi_i),
+                         beam=kept is None)  # the patch beams carry the basic direction's polarizations
     offset = float(np.hypot(*(direction_to_u(theta, phi) - direction_to_u(basic_scene.theta_i, basic_scene.phi_i))))
     limit = np.sin(aliasing_limit(basic_scene.wavelength_um, basic_scene.waist_um, basic_scene.exterior_index))
     ff.diagnostics.update(steering_offset=offset, steering_offset_over_limit=offset / limit)
@@ -413,7 +417,6 @@ def synthesize_task(ctx, plan, task, pool, parts) -> FarField:
                       f"{basic_scene.wavelength_um:g} µm: grating lobes of the patch array carry part of the power "
                       "(a flat mirror lost 55 % to them at 1.6×, docs/batch.md); use a smaller [steering] "
                       "hexagon_fill", ValidityWarning, stacklevel=2)
-    kept = _kept_fresnel(model, fields)
     if kept is not None:
         said = steered_fresnel_warning(name, kept, basic_scene, theta, phi, stored_polarizations(plan.study))
         if said:

@@ -176,9 +176,8 @@ class FarField(BRDFResult):
     ``H = None`` means a transverse plane-wave far field, H = (n₁/η₀) ω_o × E (true for any
     radiated field in a lossless exterior); BRDFs then use |½Re(E×H*)| = n₁|E|²/(2η₀).
     incident_power: Φ_i per polarization (W, with the model's |E₀| normalisation), shape (2,).
-    theta_i, phi_i: direction toward the light (radians).
-    excitation_rad: (θ, φ) whose ê_s, ê_p excited the s and p fields, when not (theta_i, phi_i): a
-    steered synthesis keeps its basic direction's polarizations (solver/polarimetry.py ``jones``).
+    theta_i, phi_i: direction toward the light (radians); the s and p fields answer E ∥ ŝ_i and
+    E ∥ −p̂_i of that direction (solver/polarimetry.py ``incident_frame``).
     """
 
     grid: HemisphereGrid
@@ -190,7 +189,6 @@ class FarField(BRDFResult):
     incident_power: np.ndarray
     H: np.ndarray | None = None
     diagnostics: dict = field(default_factory=dict)
-    excitation_rad: tuple[float, float] | None = None
 
     def __post_init__(self):
         res = self.grid.resolution
@@ -229,7 +227,6 @@ class FarField(BRDFResult):
             H=None if self.H is None else self.H * phase,
             incident_power=self.incident_power.copy(),
             diagnostics=dict(self.diagnostics),
-            excitation_rad=self.excitation_rad,
         )
 
 

@@ -25,21 +25,25 @@ of Jᵀ, and D negates U and V).
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
-from wavebrdf.solver.farfield import ETA0, FarField, transverse_basis
+from wavebrdf.solver.farfield import ETA0, FarField, direction, transverse_basis
 
 __all__ = [
     "POLARIMETRY",
     "STOKES",
     "degree_of_polarization",
     "depolarization_index",
+    "in_stated_frame",
     "incident_frame",
     "jones",
     "mueller",
     "outgoing_frames",
     "regular_axis",
     "reversed_path",
+    "steered_frame_change",
     "stokes_rotation",
     "to_regular_frames",
 ]
@@ -68,12 +72,7 @@ def outgoing_frames(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
 
 def jones(field: FarField) -> np.ndarray:
-    """J[b, a, i, j] (complex, √(1/sr)) of a FarField on its grid; 0 outside the unit disk.
-
-    Where the fields were excited with another direction's polarizations (``excitation_rad``: a
-    steered synthesis, whose patch beams carry the basic direction's ê_s, ê_p), the response to
-    the stated incident frame is the combination J_exc C, C[a, a'] = â_exc · â'_i (the two frames
-    differ by the steering offset, well inside the beam's spread)."""
+    """J[b, a, i, j] (complex, √(1/sr)) of a FarField on its grid; 0 outside the unit disk."""
     grid = field.grid
     U, V = grid.uv
     s_out, p_out = outgoing_frames(U, V)
@@ -82,16 +81,63 @@ def jones(field: FarField) -> np.ndarray:
     scale = np.zeros((2,) + mu.shape)
     for a in range(2):
         scale[a][inside] = np.sqrt(field.exterior_index / (2.0 * ETA0 * field.incident_power[a] * mu[inside]))
-    excitation_sign = np.array([1.0, -1.0])  # the models' p excitation is −p̂_i
-    E = field.E * (excitation_sign * 1.0)[:, None, None, None]  # (a, xyz, i, j)
+    E = field.E * _EXCITATION_SIGN[:, None, None, None]  # (a, xyz, i, j)
     out = np.empty((2, 2) + mu.shape, dtype=complex)
     for b, basis in enumerate((s_out, p_out)):
         out[b] = np.einsum("axij,ijx->aij", E, basis) * scale
-    if field.excitation_rad is not None:
-        excited = np.array(incident_frame(*field.excitation_rad))
-        stated = np.array(incident_frame(field.theta_i, field.phi_i))
-        out = np.einsum("baij,ac->bcij", out, excited @ stated.T)
     return out
+
+
+_EXCITATION_SIGN = np.array([1.0, -1.0])  # the models' s and p excitations are ŝ_i and −p̂_i
+
+
+def steered_frame_change(excited_rad: tuple[float, float], stated_rad: tuple[float, float],
+                         beam: bool) -> np.ndarray:
+    """T[a, a'] (2×2, real, s|p of :func:`incident_frame`): the response per unit incident power
+    to the stated direction's polarization a' is Σ_a T[a, a'] times the response to the excited
+    direction's a (θ, φ in radians toward the light; a steered synthesis excites its patches with
+    the basic direction's polarizations).
+
+    ``beam`` True: exact beams (transverse plane waves: bem, po lit by the beam). The plane wave
+    along ω_i in the summed beams carries â_exc projected on the plane normal to ω_i, with stated
+    components P[a, a'] = â_exc · â'_i; the synthesis normalizes by that wave's power, so the
+    responses are J V̂ᵀ (V̂: P with unit rows) and T = (V̂ᵀ)⁻¹.
+    ``beam`` False: locally plane footprints keep â_exc, and their rungs answer in the excited
+    frame (Fresnel factors included): T is that frame carried to ω_i by the rotation about
+    ω_exc × ω_i that turns ω_exc into ω_i, dotted with the stated frame (orthogonal, so Σ|J|² and
+    M[0, 0] are kept)."""
+    excited = np.array(incident_frame(*excited_rad))
+    stated = np.array(incident_frame(*stated_rad))
+    if beam:
+        projected = excited @ stated.T
+        lengths = np.linalg.norm(projected, axis=1, keepdims=True)
+        if np.min(lengths) < 1e-6:
+            raise ValueError(f"steered_frame_change: a polarization of {excited_rad} (rad) has no component "
+                             f"normal to {stated_rad}")
+        return np.linalg.inv((projected / lengths).T)
+    w_exc, w_i = direction(*excited_rad), direction(*stated_rad)
+    axis, cos = np.cross(w_exc, w_i), float(np.dot(w_exc, w_i))
+    if cos <= -1.0 + 1e-12:
+        raise ValueError(f"steered_frame_change: directions {excited_rad} and {stated_rad} (rad) are opposite")
+    cross = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    rotation = np.eye(3) + cross + cross @ cross / (1.0 + cos)  # Rodrigues: R ω_exc = ω_i
+    return (excited @ rotation.T) @ stated.T
+
+
+def in_stated_frame(field: FarField, excited_rad: tuple[float, float], beam: bool) -> FarField:
+    """``field`` (excited with the polarizations of ``excited_rad``, radians) as the response to
+    its own direction's s and p (:func:`steered_frame_change`), with the mean incident power of
+    the two excitations for both."""
+    T = _EXCITATION_SIGN[:, None] * steered_frame_change(excited_rad, (field.theta_i, field.phi_i), beam) \
+        * _EXCITATION_SIGN[None, :]  # in the models' excitations ŝ, −p̂
+    power = np.asarray(field.incident_power, dtype=float)
+    weights = T * np.sqrt(np.mean(power) / power)[:, None]
+
+    def changed(X):
+        return None if X is None else np.einsum("a...,ab->b...", X, weights)
+
+    return dataclasses.replace(field, E=changed(field.E), H=changed(field.H),
+                               incident_power=np.full(2, np.mean(power)), diagnostics=dict(field.diagnostics))
 
 
 def mueller(J: np.ndarray) -> np.ndarray:
