@@ -94,10 +94,8 @@ def _merged(path: Path, new_rows: list, rerun: set) -> tuple[list, Counter, list
     order), the verdict counts of the result, and every case."""
     old = [line for line in path.read_text().splitlines() if line.startswith("| ") and not line.startswith("| case")]
     by_case: dict = {}
-    for line in old + new_rows:
-        case = line.split("|")[1].strip()
-        if line in new_rows or case not in rerun:
-            by_case.setdefault(case, []).append(line)
+    for line in [line for line in old if line.split("|")[1].strip() not in rerun] + new_rows:
+        by_case.setdefault(line.split("|")[1].strip(), []).append(line)
     rows = [line for c in CASES for line in by_case.get(c.id, [])]
     counts = Counter(line.split("|")[3].strip().strip("*") for line in rows)
     return rows, counts, CASES

@@ -32,7 +32,7 @@ from wavebrdf.jobs.parts import OutputBusy, OutputLock, ResumeError, StorageErro
 from wavebrdf.jobs.pictures.common import check_decades
 from wavebrdf.jobs.plan import (PlanError, check_memory, device_info, estimate_tasks, format_bytes, format_number,
                                 plan_study)
-from wavebrdf.jobs.progress import add_verbosity_flags, configure_logging, phi_text
+from wavebrdf.jobs.progress import add_verbosity_flags, configure_logging, degrees_text, phi_text
 from wavebrdf.jobs.render import add_render_flags, pictures_folder, render_dataset, render_options
 from wavebrdf.jobs.scheduler import prepare_output, run_plan
 from wavebrdf.jobs.shards import add_merge_parser, adopt_finished_shards, remove_adopted_shards, same_flags
@@ -228,7 +228,7 @@ def cmd_plan(args) -> int:
         if est.detail:
             model += f" ({est.detail})"
         phi = phi_text(plan, task).rstrip("°")
-        print(f"{task.id:6d} {task.kind:6} {task.case:4d} {lam:7.3f} {theta:7.2f} {phi:>7} {patch:>6} "
+        print(f"{task.id:6d} {task.kind:6} {task.case:4d} {lam:7.3f} {degrees_text(theta, 2):>7} {phi:>7} {patch:>6} "
               f"{format_number(est.memory_bytes / 2**30, 12)} {format_number(est.seconds, 9)}  {model}")
     total = sum(e.seconds for e in estimates)
     peak = max(e.memory_bytes for e in estimates)

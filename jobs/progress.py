@@ -100,10 +100,17 @@ def task_where(plan, task) -> str:
     """λ, θ_i, φ_i and patch of ``task`` (fiber tasks solve every φ_i: their count)."""
     theta, phi = np.rad2deg(plan.direction_rad(task))
     lam = plan.wavelengths_um[task.wavelength]
-    text = f"λ {lam:.4g} µm, θ_i {theta:.1f}°, φ_i {phi_text(plan, task)}"
+    text = f"λ {lam:.4g} µm, θ_i {degrees_text(theta, 1)}°, φ_i {phi_text(plan, task)}"
     if task.patch:
         text += f", patch {'x'.join(map(str, task.patch))}"
     return text
+
+
+def degrees_text(value: float, decimals: int) -> str:
+    """``value`` (degrees) with ``decimals`` decimals, or with as many as it needs (up to 7
+    significant digits) where those would round it by more than 10⁻⁶° — 89.9999° is not 90.0°."""
+    text = f"{value:.{decimals}f}"
+    return text if abs(float(text) - value) <= 1e-6 else f"{value:.7g}"
 
 
 def phi_text(plan, task) -> str:

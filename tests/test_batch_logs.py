@@ -295,3 +295,13 @@ def test_plan_phi_column_for_fibers_and_workers_as_run(tmp_path, capsys):
     assert len(rows) == 2 and all(line.split()[5:7] == ["all", "12"] for line in rows), out
     cpus = len(os.sched_getaffinity(0))  # what `run --executor processes` uses without --workers
     assert f"on {cpus} worker(s)" in out
+
+
+def test_angles_are_printed_with_the_digits_that_tell_them_apart():
+    """89.9999° (a near-grazing study) must not read as 90.00° in ``plan`` or 90.0° in progress
+    lines; rounding noise of a degree-radian round trip must not add digits."""
+    from wavebrdf.jobs.progress import degrees_text
+
+    assert degrees_text(89.9999, 2) == "89.9999" and degrees_text(89.9999, 1) == "89.9999"
+    assert degrees_text(float(np.rad2deg(np.deg2rad(30.0))), 2) == "30.00"
+    assert degrees_text(12.25, 1) == "12.25" and degrees_text(40.0, 1) == "40.0"

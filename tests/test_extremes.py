@@ -89,3 +89,17 @@ def test_rayleigh_reference_agrees_with_treams():
         closed = cylinder_rayleigh_widths(0.5, radius, m)
         series = cylinder_widths_treams(0.5, radius, m, 0.0, orders=6)
         np.testing.assert_allclose(closed, series, rtol=rtol)
+
+
+def test_update_replaces_the_rerun_cases_rows_once(tmp_path):
+    """``python -m benchmarks.extremes --update --cases …`` keeps the other cases' rows and puts
+    each rerun row in once (a rerun row identical to the old one was kept twice)."""
+    from benchmarks.extremes import _merged
+
+    first, second = CASES[0].id, CASES[1].id
+    page = tmp_path / "extremes.md"
+    page.write_text("| case | model | verdict |\n|---|---|---|\n"
+                    f"| {first} | po | **ok** |\n| {first} | ohs | **warned** |\n| {second} | po | **ok** |\n")
+    rows, counts, _ = _merged(page, [f"| {first} | po | **ok** |", f"| {first} | ohs | **ok** |"], {first})
+    assert rows == [f"| {first} | po | **ok** |", f"| {first} | ohs | **ok** |", f"| {second} | po | **ok** |"]
+    assert counts == {"ok": 3}
