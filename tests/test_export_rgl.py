@@ -441,7 +441,8 @@ def compare_renders(path, files, variant, resolution, spp):
     return error, noise
 
 
-@pytest.mark.parametrize("variant, resolution, spp", [("scalar_rgb", 16, 256), ("scalar_spectral", 16, 256)])
+@pytest.mark.parametrize("variant, resolution, spp", [
+    ("scalar_rgb", 16, 256), pytest.param("scalar_spectral", 16, 256, marks=pytest.mark.slow)])  # CI: rgb (and llvm below)
 def test_sphere_matches_the_plugin(iso, variant, resolution, spp):
     error, noise = compare_renders(*iso, variant, resolution, spp)
     assert noise < 0.05  # the metric resolves a few per cent

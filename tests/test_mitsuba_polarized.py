@@ -80,10 +80,14 @@ def _below(resolution: int, theta_max_deg: float) -> np.ndarray:
     return np.sqrt(45.0) * np.sin(alpha) <= np.sin(np.deg2rad(theta_max_deg))
 
 
-@pytest.mark.parametrize("variant,resolution,spp", [("llvm_ad_spectral_polarized", 64, 128),
-                                                    ("llvm_ad_mono_polarized", 48, 128),
-                                                    ("scalar_spectral_polarized", 12, 16)])
-@pytest.mark.parametrize("material", list(MATERIALS))
+_VARIANTS = [("llvm_ad_spectral_polarized", 64, 128), ("llvm_ad_mono_polarized", 48, 128),
+             ("scalar_spectral_polarized", 12, 16)]
+_CI_LLVM = {("aluminium", "llvm_ad_spectral_polarized"), ("glass", "llvm_ad_mono_polarized")}  # each llvm variant once
+
+
+@pytest.mark.parametrize("material,variant,resolution,spp", [
+    (m, *v) if v[0].startswith("scalar") or (m, v[0]) in _CI_LLVM else pytest.param(m, *v, marks=pytest.mark.slow)
+    for v in _VARIANTS for m in MATERIALS])
 def test_polarized_plugin_matches_mitsuba_conductor(flat_datasets, material, variant, resolution, spp):
     n, kappa = MATERIALS[material]
     ours = [_render(variant, {"type": "wavebrdf", "filename": str(flat_datasets[material])}, seed, resolution, spp)

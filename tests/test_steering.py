@@ -216,8 +216,9 @@ def test_flat_surface_aliasing_appears_beyond_the_limit(tmp_path):
         ("n = 1.5", 1.5, [[0.0, 0.0], [1.5, 30.0], [2.5, 200.0], [2.8, 90.0]], "kirchhoff", ""),
         ('name = "aluminium-bemsim"', 0.46582 - 4.7119j, [[45.0, 20.0], [46.5, 20.0], [43.0, 24.0], [45.6, 17.5]],
          "kirchhoff", ""),
-        ('name = "aluminium-bemsim"', 0.46582 - 4.7119j, [[45.0, 20.0], [46.5, 20.0], [43.0, 24.0], [45.6, 17.5]],
-         "po", 'incidence = "beam"'),
+        pytest.param('name = "aluminium-bemsim"', 0.46582 - 4.7119j,
+                     [[45.0, 20.0], [46.5, 20.0], [43.0, 24.0], [45.6, 17.5]], "po", 'incidence = "beam"',
+                     marks=pytest.mark.slow),  # CI: po lit by the beam steered in test_polarimetry.py
     ],
     ids=["glass-near-normal", "aluminium-45deg", "aluminium-45deg-po-lit-by-the-beam"],
 )

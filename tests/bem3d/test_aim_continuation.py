@@ -69,8 +69,10 @@ def test_flat_rooftop_radiation_is_the_direct_quadrature_sum():
     assert np.max(np.abs(flat_rooftop_integrals(mesh, x, k * U, k * V) - expected)) < 1e-12 * scale
 
 
-@pytest.mark.parametrize("theta_deg,waist_um", [(20.0, 0.6), (70.0, 3.6), (80.0, 2.4)])
-@pytest.mark.parametrize("index", [1.5, AL_400])
+@pytest.mark.parametrize("index, theta_deg, waist_um", [  # CI: one glass and one metal case
+    (1.5, 20.0, 0.6), (AL_400, 80.0, 2.4),
+    *(pytest.param(n, t, w, marks=pytest.mark.slow)
+      for n, t, w in [(1.5, 70.0, 3.6), (1.5, 80.0, 2.4), (AL_400, 20.0, 0.6), (AL_400, 70.0, 3.6)])])
 def test_whole_plane_radiation_meets_fresnel_at_the_mirror(index, theta_deg, waist_um):
     """The far field of the flat-interface currents on the whole plane (closed form), read at the
     mirror direction of a 1024² grid, against Fresnel's Mueller matrix with r_p/r_s scaled by the
@@ -113,7 +115,8 @@ def test_rooftop_form_factor_is_the_rooftop_fourier_transform():
         assert abs(quadrature.imag) < 1e-9
 
 
-@pytest.mark.parametrize("theta_deg, waist, tails", [(0.0, 1.6, "none"), (70.0, 3.6, "small"), (80.0, 2.4, "large")])
+@pytest.mark.parametrize("theta_deg, waist, tails", [(0.0, 1.6, "none"), pytest.param(70.0, 3.6, "small", marks=pytest.mark.slow),
+                                                     (80.0, 2.4, "large")])
 def test_continuation_measures_the_flux_its_margin_leaves(theta_deg, waist, tails):
     """The margin's own check stops at the beam's lattice period, where the copies fill the square;
     ``flux_beyond`` measures one beam's flux outside it. Within FLUX_LEFT (×2) where the light cone
@@ -141,7 +144,8 @@ def test_continuation_measures_the_flux_its_margin_leaves(theta_deg, waist, tail
         assert not warned and "warnings" not in diagnostics
 
 
-@pytest.mark.parametrize("lam, index, theta, cells", [(0.5, 1.5, 0.0, 64), (0.5, 1.5, 0.5, 64), (0.5, 1.5, 0.9, 100),
+@pytest.mark.parametrize("lam, index, theta, cells", [(0.5, 1.5, 0.0, 64), (0.5, 1.5, 0.5, 64),
+                                                     pytest.param(0.5, 1.5, 0.9, 100, marks=pytest.mark.slow),
                                                      (0.4, AL_400, 0.0, 64)])
 def test_flat_interface_currents_match_a_wide_pinned_solve(cl_ctx, lam, index, theta, cells):
     """The Galerkin currents of a plane wave are its samples over the rooftop's form factor: bare
@@ -163,7 +167,7 @@ def test_flat_interface_currents_match_a_wide_pinned_solve(cl_ctx, lam, index, t
     assert err < 0.006
 
 
-@pytest.mark.parametrize("index, theta", [(1.5, 0.0), (AL_400, 0.5)])
+@pytest.mark.parametrize("index, theta", [pytest.param(1.5, 0.0, marks=pytest.mark.slow), (AL_400, 0.5)])
 def test_flat_continuation_meets_fresnel_where_the_pinned_edge_does_not(cl_ctx, index, theta):
     """The reference simulator's geometry (4 µm flat patch, waist 1.6 µm: border at 1.25 w) at
     d = λ/8, λ = 0.5 µm: the albedo against the exact beam's Fresnel reflectance, bar 0.5%

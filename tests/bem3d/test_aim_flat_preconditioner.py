@@ -148,8 +148,9 @@ def test_they_cut_gmres_products_on_rough_aluminium(cl_ctx):
         assert np.linalg.norm(result.x - x) / np.linalg.norm(x) < 1e-3
 
 
-@pytest.mark.parametrize("name, kind, per_unknown", [("flat", FlatCirculantPreconditioner, 600),
-                                                      ("flat-patch", FlatPatchPreconditioner, 1000)])
+@pytest.mark.parametrize("name, kind, per_unknown", [
+    pytest.param("flat", FlatCirculantPreconditioner, 600, marks=pytest.mark.slow),  # CI: the patch's, which contains it
+    ("flat-patch", FlatPatchPreconditioner, 1000)])
 def test_the_flat_options_end_to_end_give_the_near_lu_result(cl_ctx, name, kind, per_unknown):
     """``preconditioner = "flat"`` and ``"flat-patch"`` through BEMSolver: the BRDF of the
     LU-preconditioned solve within the Krylov tolerance's reach, the preconditioner's memory a few

@@ -135,7 +135,8 @@ def test_dense_matrix_is_complex_symmetric(rough_setup):
 
 
 def test_dense_matrix_opencl_matches_numpy_twins(cl_ctx, references):
-    surface = generate("gaussian", cells=5, size_um=0.25, seed=4, rms_height_um=0.03, correlation_um=0.1)
+    """3 × 3 cells: every kind of pair (self, edge, vertex, far) at the twins' cost of seconds per element."""
+    surface = generate("gaussian", cells=3, size_um=0.15, seed=4, rms_height_um=0.03, correlation_um=0.1)
     mesh = BEMMesh(surface)
     media = Media(references["wavelength"], references["al_400"])
     Z, _ = assemble_dense(cl_ctx, mesh, media)
@@ -257,8 +258,9 @@ def test_tables_of_overlapping_lists_match_a_fresh_computation(cl_ctx, curved_me
     fresh = el.ElementIntegrals(curved_mesh, ctx=cl_ctx).tables(second_t, second_s, ks)
     assert sorted(index.tolist()) == list(range(len(second_t)))
     assert np.array_equal(tables[index], fresh)
-    reference = el.ElementIntegrals(curved_mesh, ctx=None).tables(second_t, second_s, ks)
-    assert _rel(fresh, reference) < 1e-10
+    every = slice(None, None, 5)  # the NumPy twins on every fifth pair, far and touching (they take seconds per pair)
+    reference = el.ElementIntegrals(curved_mesh, ctx=None).tables(second_t[every], second_s[every], ks)
+    assert _rel(fresh[every], reference) < 1e-10
 
 
 def test_static_tables_serve_another_wavelength_of_their_geometry_and_no_other(cl_ctx, curved_mesh, rng, references):
@@ -275,7 +277,9 @@ def test_static_tables_serve_another_wavelength_of_their_geometry_and_no_other(c
     tables = again.tables(near_t, near_s, other_k)
     assert again.counts["static"] == 0 and again.timings["static_s"] == 0.0
     assert np.array_equal(tables, el.ElementIntegrals(curved_mesh, ctx=cl_ctx).tables(near_t, near_s, other_k))
-    assert _rel(tables, el.ElementIntegrals(curved_mesh, ctx=None).tables(near_t, near_s, other_k)) < 1e-10
+    every = slice(None, None, 5)  # the NumPy twins on every fifth pair
+    assert _rel(tables[every], el.ElementIntegrals(curved_mesh, ctx=None).tables(near_t[every], near_s[every],
+                                                                                 other_k)) < 1e-10
     # the mesh geometry is the heights minus the reference: another reference is another key
     shifted = BEMMesh(curved_mesh.surface, z_reference=float(np.mean(curved_mesh.surface.z)) + 0.01)
     assert not first.static.serves(shifted, first.options.static_order)
