@@ -381,6 +381,9 @@ class PartsFolder:
                            f"({task.key})")
         if str(stored) != checksum(arrays):
             raise _BadPart("its arrays do not match their checksum (edited or damaged)")
+        if "excitation_rad" in arrays:
+            raise _BadPart("a steered synthesis still in its basic direction's polarization frame (written by a "
+                           "version before syntheses answered the requested direction's s and p)")
         return arrays
 
     def load_arrays(self, task) -> tuple[dict, dict]:

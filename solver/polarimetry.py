@@ -168,14 +168,18 @@ def stokes_rotation(two_chi: np.ndarray) -> np.ndarray:
     return np.array([[one, zero, zero, zero], [zero, c, s, zero], [zero, -s, c, zero], [zero, zero, zero, one]])
 
 
-def to_regular_frames(M: np.ndarray, u: np.ndarray, v: np.ndarray, phi_i: float) -> np.ndarray:
+def to_regular_frames(M: np.ndarray, u: np.ndarray, v: np.ndarray, phi_i: float,
+                      reference_phi: float = 0.0) -> np.ndarray:
     """M (4, 4, ..., res, res) from the s/p frames to frames whose first axes are
     :func:`regular_axis` of ω_i (incident, azimuth ``phi_i``) and of each ω_o = (u, v) (the pixel
-    grid, (res, res) each). In the s/p frames (x = φ̂, second axis k̂ × x) the regular axis is turned
-    by 2χ = π + 2φ_i (incident, k̂ = −ω_i) and π − 2φ_o (outgoing)."""
+    grid, (res, res) each), taken in the frame turned by ``reference_phi`` about z (radians). In the
+    s/p frames (x = φ̂, second axis k̂ × x) the regular axis is turned by 2χ = π + 2(φ_i − φ_ref)
+    (incident, k̂ = −ω_i) and π − 2(φ_o − φ_ref) (outgoing); so the frames of two references a and
+    b differ by the same turn everywhere: M_b = S(2(b − a)) M_a S(2(b − a)), S = :func:`stokes_rotation`.
+    With φ_ref = φ_i they turn with the incidence, as the s/p frames do, and stay smooth at ω_o's pole."""
     phi_o = np.where(np.hypot(u, v) > 0, np.arctan2(v, u), 0.0)
-    out = stokes_rotation(np.pi - 2.0 * phi_o)
-    back = stokes_rotation(-(np.pi + 2.0 * phi_i))
+    out = stokes_rotation(np.pi - 2.0 * (phi_o - reference_phi))
+    back = stokes_rotation(-(np.pi + 2.0 * (phi_i - reference_phi)))
     return np.einsum("mk...ij,kl...ij,ln->mn...ij", out, M, back)
 
 

@@ -39,8 +39,11 @@ Directions are in the shading frame (x, y, z) = (s, t, n); u = x, v = y as in th
   path's matrix R Mᵀ R (``polarimetry.reversed_path``) is taken; it is then rotated from the
   tables' frames to Mitsuba's Stokes bases with ``mueller.rotate_mueller_basis``, as Mitsuba's own
   conductors do. The tables hold the matrices in the regular frames of ``polarimetry.regular_axis``
-  (smooth across the pole, where the dataset's s/p frames turn with φ), and the relation
-  R Mᵀ R holds in them too (each direction has one first axis, as incidence and as exitance).
+  taken about each table's incidence azimuth (smooth across ω_o's pole, where the dataset's s/p
+  frames turn with φ; turning with the incidence as those do), read as the frames about the
+  query's azimuth (:meth:`Evaluator.frame`; a θ = 0 table's, fixed, are turned to them:
+  :meth:`Evaluator._turned`), and the relation R Mᵀ R holds in them too (each direction has one
+  first axis, as incidence and as exitance).
 * **Below the horizon and back faces**: zero (a one-sided reflector, like Mitsuba's conductors);
   wrap it in Mitsuba's ``twosided`` BSDF to use the same tables on both sides.
 """
@@ -191,6 +194,11 @@ class Evaluator:
         self.a_np = np.column_stack([a, np.cos(tables.theta)])
         self.wavelengths_nm = ops.floats(tables.wavelengths_um * 1000.0)
         self.ratio = None if tables.mueller_ratio is None else ops.floats(tables.mueller_ratio)
+        # θ = 0 tables of anisotropic schemes: their ratio frames are fixed (turned by φ_k), not the query's
+        fixed = (tables.theta <= 1e-12) & (tables.scheme != "isotropic")
+        self.fixed_frames = bool(fixed.any())
+        self.fixed = ops.floats(fixed.astype(float))
+        self.frame_cos, self.frame_sin = ops.floats(np.cos(tables.phi)), ops.floats(np.sin(tables.phi))
         self.gain = ops.floats(tables.shift_gain)
         self.gain_n = tables.shift_gain.shape[-1]
         self.gain_step = tables.shift_step
@@ -202,9 +210,7 @@ class Evaluator:
         sin_t = ops.sqrt(ax * ax + ay * ay)
         theta = ops.atan2(sin_t, az)
         if t.scheme == "isotropic":
-            safe = ops.maximum(sin_t, 1e-12)
-            c = ops.select(sin_t > 1e-12, ax / safe, 1.0)
-            s = ops.select(sin_t > 1e-12, ay / safe, 0.0)
+            c, s = self.frame(ax, ay)
             terms = []
             for k, w in self._linear(self.grid_theta, len(t.grid_theta), theta):
                 sin_k = ops.gather(self.a_u, k)  # canonical tables: a_k = (sin θ_k, 0)
@@ -214,6 +220,35 @@ class Evaluator:
         if t.scheme == "grid":
             return self._grid(ax, ay, theta)
         return self._nearest(ax, ay, az)
+
+    def frame(self, ax, ay):
+        """(cos, sin) of the query's incidence azimuth ((1, 0) at the pole): the ratio tables' frames
+        are the regular frames taken about it (Tables.mueller_ratio)."""
+        ops = self.ops
+        sin_t = ops.sqrt(ax * ax + ay * ay)
+        safe = ops.maximum(sin_t, 1e-12)
+        return ops.select(sin_t > 1e-12, ax / safe, 1.0), ops.select(sin_t > 1e-12, ay / safe, 0.0)
+
+    def _turned(self, values: list, k, frame) -> list:
+        """One component's 15 ratio contributions (element-major, channel-minor), from the fixed
+        frames of a θ = 0 table (taken about its φ_k) to those about the query's azimuth φ:
+        S(2Δ) M S(2Δ), Δ = φ − φ_k (``polarimetry.to_regular_frames``); unchanged for other tables."""
+        ops = self.ops
+        fixed = ops.gather(self.fixed, k) > 0.5
+        cr, sr = ops.gather(self.frame_cos, k), ops.gather(self.frame_sin, k)
+        cos_d, sin_d = frame[0] * cr + frame[1] * sr, frame[1] * cr - frame[0] * sr
+        C = ops.select(fixed, cos_d * cos_d - sin_d * sin_d, 1.0)
+        S = ops.select(fixed, 2.0 * sin_d * cos_d, 0.0)
+        n = len(values) // 15
+        out = list(values)
+        for c in range(n):
+            m = [[0.0] + [values[(i - 1) * n + c] for i in range(1, 4)]] + \
+                [[values[(4 * r + col - 1) * n + c] for col in range(4)] for r in range(1, 4)]
+            t = [m[0], [C * a + S * b for a, b in zip(m[1], m[2])], [C * b - S * a for a, b in zip(m[1], m[2])], m[3]]
+            turned = [[row[0], row[1] * C - row[2] * S, row[1] * S + row[2] * C, row[3]] for row in t]
+            for i in range(1, 16):
+                out[(i - 1) * n + c] = turned[i // 4][i % 4]
+        return out
 
     def _linear(self, grid, n, x):
         return linear_nodes(self.ops, grid, n, x)
@@ -268,10 +303,11 @@ class Evaluator:
         j0 = ops.clip(ops.floor_int(gy), 0, res - 2)
         return i0, j0, ops.clip(gx - i0, 0.0, 1.0), ops.clip(gy - j0, 0.0, 1.0)
 
-    def lookup(self, terms: list[_Component], ox, oy, channel_terms, ratios: bool = False) -> list:
+    def lookup(self, terms: list[_Component], ox, oy, channel_terms, ratios: bool = False, frame=None) -> list:
         """Σ_k w_k f_k at query ω_o = (ox, oy) for each output channel; ``channel_terms`` lists,
         per output channel, [(table channel index, weight)] (λ interpolation or identity).
-        ``ratios``: the Mueller ratio tables instead (channel index e·C + c; no shift gain)."""
+        ``ratios``: the Mueller ratio tables instead (channel index e·C + c, all 15 elements of each
+        output channel; no shift gain), in the regular frames about ``frame`` (:meth:`frame`)."""
         ops, res, plane = self.ops, self.res, self.res * self.res
         f = self.ratio if ratios else self.f
         n_chan = self.n_chan * 15 if ratios else self.n_chan
@@ -287,11 +323,15 @@ class Evaluator:
                 w = ops.select(inside, w, 0.0)
             w00, w10, w01, w11 = w * (1 - tx) * (1 - ty), w * tx * (1 - ty), w * (1 - tx) * ty, w * tx * ty
             base = term.k * (n_chan * plane) + i0 * res + j0
+            values = [0.0] * len(channel_terms)
             for n, chans in enumerate(channel_terms):
                 for c, wc in chans:
                     b = base + c * plane
-                    out[n] = out[n] + wc * (w00 * ops.gather(f, b) + w10 * ops.gather(f, b + res)
-                                            + w01 * ops.gather(f, b + 1) + w11 * ops.gather(f, b + res + 1))
+                    values[n] = values[n] + wc * (w00 * ops.gather(f, b) + w10 * ops.gather(f, b + res)
+                                                  + w01 * ops.gather(f, b + 1) + w11 * ops.gather(f, b + res + 1))
+            if ratios and self.fixed_frames:
+                values = self._turned(values, term.k, frame)
+            out = [o + v for o, v in zip(out, values)]
         return out
 
     def _gain(self, term: _Component):
@@ -422,14 +462,15 @@ def make_plugin_class(mi, load):
                 return mi.Spectrum(*values)
             n = len(chans)
             ratio_terms = [[(e * self.ev.n_chan + c, w) for c, w in terms_c] for e in range(15) for terms_c in chans]
-            ratios = self.ev.lookup(terms, wo.x, wo.y, ratio_terms, ratios=True)
+            frame = self.ev.frame(si.wi.x, si.wi.y)  # the tables' frames are taken about wi's azimuth
+            ratios = self.ev.lookup(terms, wo.x, wo.y, ratio_terms, ratios=True, frame=frame)
             elements = [values] + [[values[c] * ratios[e * n + c] for c in range(n)] for e in range(15)]
             radiance = ctx is None or ctx.mode == mi.TransportMode.Radiance
             if radiance:  # light wo → wi: the reciprocal path, R Mᵀ R with R = diag(1, 1, −1, 1)
                 sign = (1.0, 1.0, -1.0, 1.0)
                 elements = [[sign[r] * sign[c] * x for x in elements[4 * c + r]] for r in range(4) for c in range(4)]
             matrix = mi.Spectrum(*[mi.UnpolarizedSpectrum(*e) for e in elements])
-            c, s = terms[0].c, terms[0].s  # the rotation into the table frame (shared by the terms)
+            c, s = frame
             axis_wi, axis_wo = _regular_axis(si.wi, c, s), _regular_axis(wo, c, s)
             (light_in, axis_in), (light_out, axis_out) = (((wo, axis_wo), (si.wi, axis_wi)) if radiance
                                                           else ((si.wi, axis_wi), (wo, axis_wo)))

@@ -27,8 +27,9 @@ Nothing here imports Mitsuba: :func:`load_tables` reads one sweep case of a surf
 Polarized variants (``polarized=True``): f is the unpolarized BRDF M₀₀ of the dataset's Mueller
 matrices (stored, or derived from its Jones matrices; frames of ``solver/polarimetry.py``) and
 ``mueller_ratio`` holds the 15 other elements over M₀₀, in the regular frames of
-``solver/polarimetry.py`` (first axes ``regular_axis`` of ω_i and ω_o in the table frame: smooth
-across the pole, unlike the dataset's s/p frames), each blurred like f and combined over
+``solver/polarimetry.py`` (first axes ``regular_axis`` of ω_i and ω_o in the table frame, turned by
+the table's incidence azimuth φ_k: smooth across ω_o's pole, unlike the dataset's s/p frames, and
+turning with the incidence like them), each blurred like f and combined over
 wavelengths into channels before the division (|ratio| ≤ 1); read one wavelength at a time. The
 isotropic mirror v → −v negates the elements that couple (I, Q) with (U, V) (a mirror flips U and
 V); it and the rotation to φ_i = 0 are done in the s/p frames, which turn with the geometry.
@@ -449,8 +450,11 @@ def _mueller_ratio(path, case_index: tuple, order: np.ndarray, theta_deg: np.nda
     time (``order``: the dataset's wavelength indices in ascending λ): the Mueller matrices filled
     outside the disk, made canonical like f (isotropic: rotated to φ_i = 0, averaged per θ,
     mirror-symmetrised with MIRROR_SIGN), turned from the s/p frames to the regular frames of
-    ``solver/polarimetry.py`` (smooth across the pole, so blur and bilinear lookup are meaningful
-    there), blurred within the disk (no albedo rescaling: it cancels in the ratio), combined over
+    ``solver/polarimetry.py`` taken about each table's own incidence azimuth φ_k (``to_regular_frames``
+    with reference φ_k: smooth across ω_o's pole, so blur and bilinear lookup are meaningful there,
+    and turning with the incidence like the s/p frames, so tables of neighbouring φ_k blend in the
+    query's frames; the plugin turns a θ = 0 table's to the query's azimuth, since there the frames
+    do not follow the incidence), blurred within the disk (no albedo rescaling: it cancels in the ratio), combined over
     wavelengths into channels, divided, clipped to [−1, 1]; 0 outside the disk."""
     from scipy.ndimage import gaussian_filter
 
@@ -469,7 +473,8 @@ def _mueller_ratio(path, case_index: tuple, order: np.ndarray, theta_deg: np.nda
             centres = _pixel_centres(res)
             U, V = np.meshgrid(centres, centres, indexing="ij")
             inside = U**2 + V**2 < 1.0
-            M = np.stack([to_regular_frames(m.reshape(4, 4, res, res), U, V, phi) for m, phi in zip(M, table_phi)])
+            M = np.stack([to_regular_frames(m.reshape(4, 4, res, res), U, V, phi, reference_phi=phi)
+                          for m, phi in zip(M, table_phi)])
             if sigma_u[n] > 0:
                 width = sigma_u[n] * res / 2.0
                 weight = np.maximum(gaussian_filter(inside.astype(float), width, mode="constant"), 1e-300)
