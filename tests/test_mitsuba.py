@@ -509,3 +509,29 @@ def test_colour_tables_of_data_outside_the_visible_say_so(tmp_path, caplog):
         assert "no wavelength of the data (1–1.5 µm) lies in the visible" in note and "a grey" in note
         assert note in caplog.text
     assert load_tables(path, channels="spectral").diagnostics["channels_note"] == ""
+
+
+def test_tables_of_one_polarizations_brdf_say_so(tmp_path, caplog):
+    """An [illumination] polarization = "s" study stores R_s-like lobes, which the unpolarized
+    variants would render as the unpolarized BRDF (flat glass at 60°: 0.177 against 0.089): the
+    tables' diagnostics and the log say so; an unpolarized study's tables carry no such note."""
+    import warnings
+
+    import wavebrdf
+    from wavebrdf.mitsuba.tables import load_tables
+
+    def study(polarization):
+        config = {"study": {"name": f"flat_{polarization}", "output": str(tmp_path / f"flat_{polarization}.h5")},
+                  "surface": {"generator": "flat", "size_um": 8.0, "cells": 40}, "material": {"n": 1.5},
+                  "illumination": {"wavelengths_um": [0.55], "directions_deg": [[60, 0]], "waist_um": 2.0,
+                                   "polarization": polarization},
+                  "model": {"name": "kirchhoff"}, "output": {"resolution": 32}}
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            wavebrdf.run(config).close()
+        return tmp_path / f"flat_{polarization}.h5"
+
+    caplog.clear()
+    note = load_tables(study("s"), channels="mono").diagnostics["polarization_note"]
+    assert "s-polarized" in note and "renders as the unpolarized BRDF" in note and note in caplog.text
+    assert "polarization_note" not in load_tables(study("unpolarized"), channels="mono").diagnostics
