@@ -85,6 +85,8 @@ def _build_rgl(path: Path, case: int, options: ExportOptions):
                f"{d['sample_resolution']}², {d['bytes'] / 2**20:.1f} MiB")
     if d["channels_note"]:  # the tables' (wavebrdf/mitsuba/tables.py): colour made of no visible wavelength
         summary += f"; note: {d['channels_note']} (--channels spectral keeps the data's own wavelengths)"
+    if d.get("albedo_note"):  # wavebrdf/mitsuba/rgl.py: a slice's albedo off its table's
+        summary += f"; note: {d['albedo_note']}"
     if d["polarization"] not in ("", "unpolarized"):  # the format is read as unpolarized
         summary += (f"; note: the dataset's BRDF is {d['polarization']}-polarized ([illumination] polarization = "
                     f"\"{d['polarization']}\"), and so is the file's: not the unpolarized BRDF a renderer expects")

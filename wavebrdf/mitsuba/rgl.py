@@ -49,6 +49,7 @@ the config that fills them.
 
 from __future__ import annotations
 
+import logging
 import math
 import struct
 from dataclasses import dataclass, field
@@ -63,10 +64,13 @@ __all__ = ["CHANNELS", "ContinuousWarp", "RGLError", "RGLFile", "is_tensor_file"
 CHANNELS = ("spectral", "rgb")
 MAX_THETA_STEP_DEG = 10.0  # largest θ_i gap (also from 0° to the first and from the last to 90°)
 MAX_PHI_STEP_DEG = 30.0  # largest φ_i gap of anisotropic data (around the circle)
+logger = logging.getLogger("wavebrdf")
+
 RESOLUTION = {True: 128, False: 64}  # default sample-space nodes per axis: isotropic, anisotropic data
 RESOLUTION_RANGE = (4, 1024)  # the sample-space nodes per axis a file may have
 NDF_RESOLUTION = 128  # u_m grid nodes per axis (ndf, vndf)
 SIGMA_RESOLUTION = 64  # σ grid nodes per axis (2 along φ for isotropic data)
+ALBEDO_TOLERANCE = 0.02  # a slice whose albedo differs more from its table's is said (relative, luminance)
 RENDER_READY = "configs/render_ready.toml"
 _SRGB_Y = np.array([0.2126, 0.7152, 0.0722])  # luminance of linear sRGB (D65)
 _ANGLE_TOL_DEG = 1e-6
@@ -469,4 +473,35 @@ def rgl_fields(path: str | Path, *, case: int = 0, channels: str = "spectral", r
     diagnostics = {**tables.diagnostics, "channels": channels, "sample_resolution": int(resolution),
                    "theta_i_deg": np.rad2deg(thetas).tolist(), "phi_i_deg": np.rad2deg(phis).tolist(),
                    "bytes": int(sum(a.nbytes for a in fields.values()))}
+    diagnostics.update(_albedo_check(tables, nodes, slices, y_weights, resolution))
     return RGLFile(fields, diagnostics)
+
+
+def _albedo_check(tables: Tables, nodes: list[list[_Node]], slices: list[list[dict]], y_weights: np.ndarray,
+                  resolution: int) -> dict:
+    """The file's albedo per incidence node against its table's, luminance-weighted: a reader's
+    albedo ∫ f cos θ_o dω_o = ∫ R D ⟨ω_i·m⟩/σ dm is the mean of R over the sample square (the
+    warp's density is the visible normals' D⟨ω_i·m⟩/σ), the trapezoid rule over the nodes; the
+    table's is Σ f Δu² over its pixels. A narrow lobe near grazing is under-resolved by the sample
+    grid (flat glass at θ_i 80°: −4.5 % at 128², −8.8 % at 64² by Mitsuba's sampling of the file;
+    this estimate −4.9 % at 128²): above ALBEDO_TOLERANCE the figure and a remedy are logged and
+    kept (``albedo_note``; ``export`` prints it). The table's own rim loss (its lookup next to the
+    disk's rim, −1.5 % at 70°–85° for a broad lobe) is not in this figure."""
+    weights = _trapezoid_weights(resolution, resolution)
+    worst, where = 0.0, None
+    for row_nodes, row in zip(nodes, slices):
+        for node, sl in zip(row_nodes, row):
+            table = float(np.tensordot(y_weights, tables.f[node.table].astype(np.float64).sum(axis=(-2, -1)),
+                                       axes=1)) * tables.pixel**2
+            file = float(np.tensordot(y_weights, np.sum(sl["spectra"].astype(np.float64) * weights, axis=(-2, -1)),
+                                      axes=1))
+            if table > 0 and abs(file / table - 1.0) > abs(worst):
+                worst, where = file / table - 1.0, node
+    out = {"albedo_vs_tables": worst}
+    if where is not None and abs(worst) > ALBEDO_TOLERANCE:
+        out["albedo_note"] = (f"at θ_i = {np.rad2deg(where.theta):.4g}°, φ_i = {np.rad2deg(where.phi):.4g}° the file's "
+                              f"albedo (estimated from its nodes) is {worst:+.1%} off its table's: a lobe narrower "
+                              f"than its {resolution}² sample grid resolves, typically near grazing; export with a "
+                              "larger --resolution")
+        logger.warning("[rgl export] %s", out["albedo_note"])
+    return out
