@@ -298,7 +298,7 @@ def cmd_inspect(args) -> int:
                 print(f"  {name:10s} {dict(zip(dims, ds.h5[name].shape))}")
         coords = ds.coords
         for key in ds.sweep_keys:
-            print(f"  sweep {key}: {list(coords[key])}")
+            print(f"  sweep {key}: {np.asarray(coords[key]).tolist()}")
         print(f"  wavelengths (µm): {np.round(coords['wavelength_um'], 6).tolist()}")
         _print_summary_table(ds, coords)
         tasks = ds.tasks

@@ -36,6 +36,7 @@ import numpy as np
 from wavebrdf.jobs.errors import ConfigError, fmt
 from wavebrdf.jobs.pictures import fiber as fiber_pictures
 from wavebrdf.jobs.pictures import surface as surface_pictures
+from wavebrdf.jobs.progress import degrees_text
 from wavebrdf.jobs.plan import fiber_tasks, surface_tasks
 from wavebrdf.jobs.store import FiberDatasetWriter, SurfaceDatasetWriter
 from wavebrdf.jobs.study import FiberSpec, Study, SurfaceSpec
@@ -178,8 +179,9 @@ class SurfaceKind(StudyKind):
 
     def summary_table(self, ds, coords):
         a = ds.albedo
-        rows = [f"{t:6.2f} {p:7.2f}" for t, p in zip(coords["theta_i"], coords["phi_i"])]
-        return ("albedo (rows: incidence θi/φi (deg); columns: wavelengths):", rows,
+        rows = [f"{degrees_text(t, 2):>6} {degrees_text(p, 2):>7}" for t, p in zip(coords["theta_i"], coords["phi_i"])]
+        polarization = ds.brdf_polarization or "unpolarized"
+        return (f"albedo, {polarization} (rows: incidence θi/φi (deg); columns: wavelengths):", rows,
                 lambda ci, r: a[ci + (slice(None), r)], None)
 
 

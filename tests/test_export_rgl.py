@@ -322,6 +322,8 @@ def test_an_export_of_one_polarizations_brdf_says_so(tmp_path, capsys):
             assert "s-polarized" in said and b"s BRDF" in description, said
         else:
             assert "-polarized" not in said and b"unpolarized BRDF" in description, said
+        assert main(["inspect", str(tmp_path / f"{polarization}.h5")]) == 0  # its albedo table says which
+        assert f"albedo, {polarization} (rows:" in capsys.readouterr().out
 
 
 def test_case_is_chosen_by_index_or_swept_value(tmp_path, capsys):
@@ -341,6 +343,9 @@ def test_case_is_chosen_by_index_or_swept_value(tmp_path, capsys):
     assert filecmp.cmp(by_value, by_index, shallow=False)
     assert export(path, "--isotropic", "--resolution", 16, "--case", 0, "-o", tmp_path / "c0.bsdf") == 0
     assert not filecmp.cmp(by_value, tmp_path / "c0.bsdf", shallow=False)
+    capsys.readouterr()
+    assert main(["inspect", str(path)]) == 0  # the swept values as numbers, not reprs
+    assert "sweep model.alpha: [0.2, 0.5]" in capsys.readouterr().out
 
 
 # -- anisotropic data: a θ × φ grid ---------------------------------------------------------------------------
