@@ -234,6 +234,17 @@ def checksum(arrays: dict[str, np.ndarray]) -> str:
     return digest.hexdigest()
 
 
+SYNTHESIS_FRAME = "requested"  # a synth part's diagnostics["polarization_frame"] (jobs/steering.py)
+
+
+def _diagnostics(arrays: dict) -> dict:
+    try:
+        found = json.loads(str(arrays.get("diagnostics", "{}")))
+    except ValueError:
+        return {}
+    return found if isinstance(found, dict) else {}
+
+
 class PartsFolder:
     """Finished task outputs next to the dataset (see the module docstring)."""
 
@@ -381,9 +392,9 @@ class PartsFolder:
                            f"({task.key})")
         if str(stored) != checksum(arrays):
             raise _BadPart("its arrays do not match their checksum (edited or damaged)")
-        if "excitation_rad" in arrays:
-            raise _BadPart("a steered synthesis still in its basic direction's polarization frame (written by a "
-                           "version before syntheses answered the requested direction's s and p)")
+        if task.kind == "synth" and _diagnostics(arrays).get("polarization_frame") != SYNTHESIS_FRAME:
+            raise _BadPart("a steered synthesis in its basic direction's polarization frame (written before "
+                           "syntheses answered the requested direction's s and p)")
         return arrays
 
     def load_arrays(self, task) -> tuple[dict, dict]:

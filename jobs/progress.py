@@ -107,10 +107,13 @@ def task_where(plan, task) -> str:
 
 
 def degrees_text(value: float, decimals: int) -> str:
-    """``value`` (degrees) with ``decimals`` decimals, or with as many as it needs (up to 7
-    significant digits) where those would round it by more than 10⁻⁶° — 89.9999° is not 90.0°."""
-    text = f"{value:.{decimals}f}"
-    return text if abs(float(text) - value) <= 1e-6 else f"{value:.7g}"
+    """``value`` (degrees) with ``decimals`` decimals, or more (up to 6) where fewer would round it
+    by more than 10⁻⁶° — 89.9999° is not 90.0°."""
+    for places in range(decimals, max(decimals, 6) + 1):
+        text = f"{value:.{places}f}"
+        if abs(float(text) - value) <= 1e-6:
+            break
+    return text
 
 
 def phi_text(plan, task) -> str:

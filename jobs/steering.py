@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from wavebrdf.jobs.parts import SYNTHESIS_FRAME
 from wavebrdf.solver.farfield import FarField
 from wavebrdf.solver.metrics import direction_to_u
 from wavebrdf.solver.models import Estimate
@@ -405,8 +406,11 @@ def synthesize_task(ctx, plan, task, pool, parts) -> FarField:
         basic_scene.wavelength_um, basic_scene.exterior_index, theta, phi,
     )
     kept = _kept_fresnel(model, fields)
+    # the patch beams carry the basic direction's polarizations; with mixed rungs (auto) the footprint's
+    # rotation serves every patch (it differs from the exact beams' inverse at second order in the offset)
     ff = in_stated_frame(synthesize(fields, st.layout, theta, phi, power), (basic_scene.theta_i, basic_scene.phi_i),
-                         beam=kept is None)  # the patch beams carry the basic direction's polarizations
+                         beam=kept is None)
+    ff.diagnostics["polarization_frame"] = SYNTHESIS_FRAME
     offset = float(np.hypot(*(direction_to_u(theta, phi) - direction_to_u(basic_scene.theta_i, basic_scene.phi_i))))
     limit = np.sin(aliasing_limit(basic_scene.wavelength_um, basic_scene.waist_um, basic_scene.exterior_index))
     ff.diagnostics.update(steering_offset=offset, steering_offset_over_limit=offset / limit)

@@ -154,7 +154,7 @@ class SurfaceKind(StudyKind):
         return plan.surface_direction_rad(task)
 
     def phi_text(self, plan, task):
-        return f"{np.rad2deg(plan.direction_rad(task)[1]):.1f}°"
+        return f"{degrees_text(float(np.rad2deg(plan.direction_rad(task)[1])), 1)}°"
 
     def input_files(self, study):
         return [] if study.surface.file is None else [("surface", "file", study.surface.file)]
@@ -180,8 +180,8 @@ class SurfaceKind(StudyKind):
     def summary_table(self, ds, coords):
         a = ds.albedo
         rows = [f"{degrees_text(t, 2):>6} {degrees_text(p, 2):>7}" for t, p in zip(coords["theta_i"], coords["phi_i"])]
-        polarization = ds.brdf_polarization or "unpolarized"
-        return (f"albedo, {polarization} (rows: incidence θi/φi (deg); columns: wavelengths):", rows,
+        polarization = f", {ds.brdf_polarization}" if ds.brdf_polarization else ""
+        return (f"albedo{polarization} (rows: incidence θi/φi (deg); columns: wavelengths):", rows,
                 lambda ci, r: a[ci + (slice(None), r)], None)
 
 
@@ -237,7 +237,7 @@ class FiberKind(StudyKind):
     def phi_text(self, plan, task):
         """Every φ_i of the table: "all 36", or the one value."""
         phis = self.phi_i_axis_deg(plan.study)
-        return f"{phis[0]:.1f}°" if len(phis) == 1 else f"all {len(phis)}"
+        return f"{degrees_text(float(phis[0]), 1)}°" if len(phis) == 1 else f"all {len(phis)}"
 
     def input_files(self, study):
         return [] if study.fiber.points_file is None else [("fiber", "points_file", study.fiber.points_file)]

@@ -71,6 +71,9 @@ def outgoing_frames(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return phi_hat, -theta_hat
 
 
+_EXCITATION_SIGN = np.array([1.0, -1.0])  # the models' s and p excitations are ŝ_i and −p̂_i
+
+
 def jones(field: FarField) -> np.ndarray:
     """J[b, a, i, j] (complex, √(1/sr)) of a FarField on its grid; 0 outside the unit disk."""
     grid = field.grid
@@ -86,9 +89,6 @@ def jones(field: FarField) -> np.ndarray:
     for b, basis in enumerate((s_out, p_out)):
         out[b] = np.einsum("axij,ijx->aij", E, basis) * scale
     return out
-
-
-_EXCITATION_SIGN = np.array([1.0, -1.0])  # the models' s and p excitations are ŝ_i and −p̂_i
 
 
 def steered_frame_change(excited_rad: tuple[float, float], stated_rad: tuple[float, float],

@@ -303,5 +303,6 @@ def test_angles_are_printed_with_the_digits_that_tell_them_apart():
     from wavebrdf.jobs.progress import degrees_text
 
     assert degrees_text(89.9999, 2) == "89.9999" and degrees_text(89.9999, 1) == "89.9999"
+    assert degrees_text(89.999998, 2) == "89.999998" and degrees_text(1.23e-5, 2) == "0.000012"
     assert degrees_text(float(np.rad2deg(np.deg2rad(30.0))), 2) == "30.00"
     assert degrees_text(12.25, 1) == "12.25" and degrees_text(40.0, 1) == "40.0"

@@ -489,7 +489,7 @@ def test_a_non_reciprocal_models_export_says_it_reads_backwards(tmp_path, capsys
         assert export(tmp_path / f"{model}.h5", "-o", tmp_path / f"{model}.bsdf", "--resolution", 8) == 0
         notes[model] = capsys.readouterr().out
     assert "note: po is not reciprocal" in notes["po"] and "camera-side" in notes["po"]
-    assert "note:" not in notes["kirchhoff"]
+    assert "is not reciprocal" not in notes["kirchhoff"]  # (the 8² grid's albedo note may be there)
 
 
 def test_an_rgb_export_of_data_outside_the_visible_says_its_colour_is_not_measured(tmp_path, capsys):

@@ -256,7 +256,7 @@ def test_anisotropic_tables_blend_in_the_querys_frames(tmp_path):
     """Tables on a θ × φ grid (``isotropic = false``: the "grid" scheme) blend neighbouring φ_k. (a)
     Flat glass at φ_i every 90°: between the nodes (φ = 45°, 130°) at the mirror direction M/M00 is
     Mitsuba's Fresnel within 0.002 at the tabulated θ 30° and 60° (blended in frames fixed to x̂,
-    where a flat surface's matrix turns with φ_i, it was off by up to 0.3 with 30° steps). (b) A
+    where a flat surface's matrix turns with φ_i, it would be off by a large share of M00). (b) A
     glass sinusoidal grating (period 0.7 µm along x, amplitude 0.1 µm, λ 0.55 µm: anisotropic, and
     its order +1 polarizes, M01/M00 ≈ 0.28 under PO): just off the normal at φ = 45° the matrix in
     that order is the normal-incidence table's, within 0.01 of M00 (that table's frames do not turn

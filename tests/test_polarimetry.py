@@ -255,11 +255,12 @@ def test_steered_figures_are_in_the_requested_incident_frame(tmp_path, incidence
     direction. po lit by the exact beam reflects each plane wave at its own angle: M/M00 is Fresnel's
     at θ_i within 0.015 and the s/p BRDF ratio Fresnel's within 4 % (measured 0.0056, 0.0006, 0.013
     and +1.1 %, −0.03 %, +2.6 %: the synthesis at 0.66× its aliasing limit with a waist of λ; the
-    basic frame's s is the requested p at φ_i = 90°, which gave s/p = R_p/R_s, −11 % at 8°). po lit
+    basic frame's s is the requested p at φ_i = 90°, where s/p read in the basic frame is R_p/R_s,
+    −11 % at 8°). po lit
     by the footprint keeps the basic direction's Fresnel factors (warned), so its figures are those
     of normal incidence carried to ω_i: M/M00 within 0.005 of Fresnel's at 0° (measured ≤ 0.0016),
     s/p 1 within 0.5 %. M00 is the unpolarized BRDF in every pixel (the plain projections of one
-    frame on the other lost 1–3 % of it)."""
+    frame on the other, not orthogonal, would lose 1–3 % of it)."""
     import warnings
 
     import wavebrdf
@@ -330,3 +331,38 @@ def test_steered_frame_changes_agree_to_second_order_in_the_offset():
     slopes = np.diff(np.log(gaps)) / np.log(2.0)
     logger.info("|inverse − rotation| at offsets 1, 2, 4, 8°: %s (log-log slopes %s)", np.round(gaps, 6), np.round(slopes, 2))
     assert np.all(slopes > 1.8) and gaps[0] < 1e-3
+
+
+def test_in_stated_frame_recovers_a_known_jones_matrix():
+    """Fields built from a known Jones matrix J (random per pixel, in the stated frame (37°, 31°))
+    as the responses to another direction's (29°, 17°) polarizations, per unit power of incident
+    powers 2 and 3 W: exact beams carry â_exc projected on the plane normal to ω_i, so the response
+    to excitation a is J v̂_a (v̂_a = the projection's stated components, normalized); footprint
+    rungs answer J Tᵀ with T the rotation carrying the frames. ``in_stated_frame`` then ``jones``
+    give J back to rounding in both cases (the models' −p̂ excitation and the powers included)."""
+    from wavebrdf.solver.farfield import ETA0, FarField
+    from wavebrdf.solver.polarimetry import incident_frame, in_stated_frame, outgoing_frames, steered_frame_change
+
+    grid = HemisphereGrid(16)
+    rng = np.random.default_rng(5)
+    J = rng.normal(size=(2, 2, 16, 16)) + 1j * rng.normal(size=(2, 2, 16, 16))
+    basic, stated = np.deg2rad([29.0, 17.0]), np.deg2rad([37.0, 31.0])
+    power = np.array([2.0, 3.0])
+    s_out, p_out = outgoing_frames(*grid.uv)
+    amplitude = np.zeros((2,) + grid.mu.shape)
+    for a in range(2):
+        amplitude[a][grid.inside] = np.sqrt(2.0 * ETA0 * power[a] * grid.mu[grid.inside])
+    projected = np.array(incident_frame(*basic)) @ np.array(incident_frame(*stated)).T
+    cases = {"beam": projected / np.linalg.norm(projected, axis=1, keepdims=True),  # J_exc[:, a] = J v̂_a
+             "footprint": steered_frame_change(tuple(basic), tuple(stated), beam=False)}  # J_exc = J Tᵀ
+    for name, V in cases.items():
+        J_exc = np.einsum("bcij,ac->baij", J, V)
+        E = np.stack([(1.0, -1.0)[a] * amplitude[a][..., None] * (J_exc[0, a][..., None] * s_out
+                                                                    + J_exc[1, a][..., None] * p_out)
+                      for a in range(2)])  # (a, i, j, xyz) of the excitations ŝ, −p̂
+        field = FarField(grid=grid, wavelength_um=0.5, exterior_index=1.0, theta_i=float(stated[0]),
+                         phi_i=float(stated[1]), E=np.moveaxis(E, -1, 1), incident_power=power)
+        recovered = jones(in_stated_frame(field, tuple(basic), beam=name == "beam"))
+        error = np.max(np.abs(recovered - J)[:, :, grid.inside]) / np.max(np.abs(J))
+        logger.info("%s: max |J recovered − J| = %.2e of max |J|", name, error)
+        assert error < 1e-12

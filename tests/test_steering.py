@@ -309,3 +309,27 @@ def test_auto_is_checked_for_the_rungs_that_ran_its_patches():
     assert _kept_fresnel(auto, fields) == "incidence"
     assert _kept_fresnel(auto, {(0, 0): SimpleNamespace(diagnostics={"model": "bem"})}) is None
     assert _kept_fresnel(get_model("po", {"incidence": "beam"}), fields) is None
+
+
+def test_a_synthesis_part_in_the_basic_directions_frame_is_not_merged(steered):
+    """A synth part must say its s and p are the requested direction's (diagnostics
+    polarization_frame): one that does not (written while syntheses kept the basic direction's
+    frame, in which s and p are swapped at φ_i = 90° from the normal) is refused on resume, so the
+    task is computed again instead of merged."""
+    import shutil
+
+    from wavebrdf.jobs.parts import PartsFolder
+
+    _, _, plan, _ = steered
+    parts = PartsFolder(plan)
+    parts.open()
+    try:
+        synth = next(t for t in plan.tasks if t.kind == "synth")
+        res = plan.grid.resolution
+        arrays = {"brdf_sp": np.zeros((2, res, res), np.float32), "albedo_sp": np.zeros(2)}
+        parts.save_arrays(synth, {"kind": "synth"}, **arrays)
+        assert "basic direction's polarization frame" in parts.problem(synth)
+        parts.save_arrays(synth, {"kind": "synth", "polarization_frame": "requested"}, **arrays)
+        assert parts.problem(synth) is None
+    finally:
+        shutil.rmtree(parts.path)

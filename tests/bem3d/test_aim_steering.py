@@ -40,6 +40,7 @@ from wavebrdf.solver.beams import make_beam
 from wavebrdf.solver.bem3d.driver import BEMSolver
 from wavebrdf.solver.farfield import ETA0, FarField
 from wavebrdf.solver.metrics import blur, lobe_mask, relative_l2
+from wavebrdf.solver.polarimetry import in_stated_frame
 
 logger = logging.getLogger(__name__)
 
@@ -161,8 +162,10 @@ class Steered:
     def direct(self, solver, omega_i: np.ndarray, beam_direction=None) -> np.ndarray:
         """BRDF (s, p) of the whole surface under Σ_p a_p·beam(x − p), a_p = e^{+jk p·ω_i}, beams
         toward ``beam_direction`` (default the basic direction), from one solve per shifted beam
-        (the BEM is linear in the incident field)."""
+        (the BEM is linear in the incident field); s and p of ω_i's frame, as the synthesis states
+        them (beams toward the basic direction carry its polarizations: ``polarimetry.in_stated_frame``)."""
         theta, phi = beam_direction or (self.theta_b, self.phi_b)
+        requested = (float(np.arccos(np.clip(omega_i[2], -1.0, 1.0))), float(np.arctan2(omega_i[1], omega_i[0])))
         a = np.exp(1j * 2 * np.pi / LAMBDA * self.centres @ omega_i)
         fields = self.basic_fields if beam_direction is None else None
         if fields is None:
@@ -170,9 +173,11 @@ class Steered:
                                       focus_um=tuple(p[:2])) for p in self.centres]
             if beam_direction is None:
                 self.basic_fields = fields
-        return FarField(grid=self.plan.grid, wavelength_um=LAMBDA, exterior_index=1.0, theta_i=theta, phi_i=phi,
-                        E=sum(w * ff.E for w, ff in zip(a, fields)), H=sum(w * ff.H for w, ff in zip(a, fields)),
-                        incident_power=self.summed_power(omega_i, beam_direction)).brdf()
+        summed = FarField(grid=self.plan.grid, wavelength_um=LAMBDA, exterior_index=1.0, theta_i=requested[0],
+                          phi_i=requested[1], E=sum(w * ff.E for w, ff in zip(a, fields)),
+                          H=sum(w * ff.H for w, ff in zip(a, fields)),
+                          incident_power=self.summed_power(omega_i, beam_direction))
+        return in_stated_frame(summed, (theta, phi), beam=True).brdf()
 
 
 def unit(theta: float, phi: float) -> np.ndarray:

@@ -134,9 +134,10 @@ def test_dense_matrix_is_complex_symmetric(rough_setup):
     assert np.linalg.norm(Z - Z.T) / np.linalg.norm(Z) < 1e-10
 
 
-def test_dense_matrix_opencl_matches_numpy_twins(cl_ctx, references):
-    """3 × 3 cells: every kind of pair (self, edge, vertex, far) at the twins' cost of seconds per element."""
-    surface = generate("gaussian", cells=3, size_um=0.15, seed=4, rms_height_um=0.03, correlation_um=0.1)
+@pytest.mark.parametrize("cells", [3, pytest.param(5, marks=pytest.mark.slow)])
+def test_dense_matrix_opencl_matches_numpy_twins(cl_ctx, references, cells):
+    """CI: 3 × 3 cells, every kind of pair (self, edge, vertex, far) at the twins' cost of seconds per element."""
+    surface = generate("gaussian", cells=cells, size_um=0.05 * cells, seed=4, rms_height_um=0.03, correlation_um=0.1)
     mesh = BEMMesh(surface)
     media = Media(references["wavelength"], references["al_400"])
     Z, _ = assemble_dense(cl_ctx, mesh, media)

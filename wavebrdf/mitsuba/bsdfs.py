@@ -4,6 +4,7 @@ tables they read, loaded once per (file, options, channel kind) and kept (:data:
 
 from __future__ import annotations
 
+import logging
 import os
 from pathlib import Path
 
@@ -17,6 +18,7 @@ __all__ = ["MITSUBA_REQUIREMENT", "clear_cache", "fiber_radius", "fiber_tables_f
 
 MITSUBA_REQUIREMENT = "mitsuba>=3.6"  # the `render` extra's requirement (pyproject.toml)
 
+logger = logging.getLogger("wavebrdf")
 _CACHE: dict = {}
 
 
@@ -71,9 +73,12 @@ def _load_from_props(props, channels: str, polarized: bool = False) -> Tables:
     path = _dataset_path(props, "wavebrdf", "surface")
     sigma = props.get("smooth_sigma", None)
     iso = props.get("isotropic", None)
-    return tables_for(path, channels=channels, case=int(props.get("case", 0)),
-                      smooth_sigma=None if sigma is None else float(sigma),
-                      isotropic=None if iso is None else bool(iso), polarized=polarized)
+    tables = tables_for(path, channels=channels, case=int(props.get("case", 0)),
+                        smooth_sigma=None if sigma is None else float(sigma),
+                        isotropic=None if iso is None else bool(iso), polarized=polarized)
+    if tables.diagnostics.get("polarization_note"):
+        logger.warning("[wavebrdf plugin] filename = %r: %s", path, tables.diagnostics["polarization_note"])
+    return tables
 
 
 def fiber_tables_for(filename, *, channels: str, case: int = 0):

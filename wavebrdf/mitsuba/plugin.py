@@ -56,7 +56,7 @@ from array import array
 
 import numpy as np
 
-from wavebrdf.mitsuba.tables import Tables, cell_edges
+from wavebrdf.mitsuba.tables import ANGLE_TOL_DEG, Tables, cell_edges
 
 __all__ = ["linear_nodes", "make_plugin_class", "pick_interval"]
 
@@ -195,7 +195,7 @@ class Evaluator:
         self.wavelengths_nm = ops.floats(tables.wavelengths_um * 1000.0)
         self.ratio = None if tables.mueller_ratio is None else ops.floats(tables.mueller_ratio)
         # θ = 0 tables of anisotropic schemes: their ratio frames are fixed (turned by φ_k), not the query's
-        fixed = (tables.theta <= 1e-12) & (tables.scheme != "isotropic")
+        fixed = (tables.theta <= np.deg2rad(ANGLE_TOL_DEG)) & (tables.scheme != "isotropic")
         self.fixed_frames = bool(fixed.any())
         self.fixed = ops.floats(fixed.astype(float))
         self.frame_cos, self.frame_sin = ops.floats(np.cos(tables.phi)), ops.floats(np.sin(tables.phi))
@@ -330,6 +330,8 @@ class Evaluator:
                     values[n] = values[n] + wc * (w00 * ops.gather(f, b) + w10 * ops.gather(f, b + res)
                                                   + w01 * ops.gather(f, b + 1) + w11 * ops.gather(f, b + res + 1))
             if ratios and self.fixed_frames:
+                if frame is None:
+                    raise ValueError("Evaluator.lookup(ratios=True): the query's frame (Evaluator.frame) is needed")
                 values = self._turned(values, term.k, frame)
             out = [o + v for o, v in zip(out, values)]
         return out

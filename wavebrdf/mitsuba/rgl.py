@@ -49,7 +49,6 @@ the config that fills them.
 
 from __future__ import annotations
 
-import logging
 import math
 import struct
 from dataclasses import dataclass, field
@@ -64,8 +63,6 @@ __all__ = ["CHANNELS", "ContinuousWarp", "RGLError", "RGLFile", "is_tensor_file"
 CHANNELS = ("spectral", "rgb")
 MAX_THETA_STEP_DEG = 10.0  # largest θ_i gap (also from 0° to the first and from the last to 90°)
 MAX_PHI_STEP_DEG = 30.0  # largest φ_i gap of anisotropic data (around the circle)
-logger = logging.getLogger("wavebrdf")
-
 RESOLUTION = {True: 128, False: 64}  # default sample-space nodes per axis: isotropic, anisotropic data
 RESOLUTION_RANGE = (4, 1024)  # the sample-space nodes per axis a file may have
 NDF_RESOLUTION = 128  # u_m grid nodes per axis (ndf, vndf)
@@ -484,8 +481,8 @@ def _albedo_check(tables: Tables, nodes: list[list[_Node]], slices: list[list[di
     warp's density is the visible normals' D⟨ω_i·m⟩/σ), the trapezoid rule over the nodes; the
     table's is Σ f Δu² over its pixels. A narrow lobe near grazing is under-resolved by the sample
     grid (flat glass at θ_i 80°: −4.5 % at 128², −8.8 % at 64² by Mitsuba's sampling of the file;
-    this estimate −4.9 % at 128²): above ALBEDO_TOLERANCE the figure and a remedy are logged and
-    kept (``albedo_note``; ``export`` prints it). The table's own rim loss (its lookup next to the
+    this estimate −4.9 % at 128²): above ALBEDO_TOLERANCE the figure and a remedy are kept
+    (``albedo_note``; ``export`` prints it). The table's own rim loss (its lookup next to the
     disk's rim, −1.5 % at 70°–85° for a broad lobe) is not in this figure."""
     weights = _trapezoid_weights(resolution, resolution)
     worst, where = 0.0, None
@@ -503,5 +500,4 @@ def _albedo_check(tables: Tables, nodes: list[list[_Node]], slices: list[list[di
                               f"albedo (estimated from its nodes) is {worst:+.1%} off its table's: a lobe narrower "
                               f"than its {resolution}² sample grid resolves, typically near grazing; export with a "
                               "larger --resolution")
-        logger.warning("[rgl export] %s", out["albedo_note"])
     return out

@@ -429,13 +429,12 @@ def load_tables(path: str | Path, *, case: int = 0, channels: str = "rgb", smoot
         "load_seconds": time.perf_counter() - start,
     }
     diagnostics["channels_note"] = (outside_visible(wavelengths) if channels != "spectral" else None) or ""
-    if not polarized and polarization not in ("", "unpolarized"):
+    if not polarized and polarization not in ("", "unpolarized"):  # logged by the plugin (bsdfs.py)
         diagnostics["polarization_note"] = (
             f"the dataset's BRDF is {polarization}-polarized ([illumination] polarization = \"{polarization}\") and "
             "renders as the unpolarized BRDF a renderer expects (for flat glass at 60°, R_s = 0.177 against "
             "(R_s + R_p)/2 = 0.089): run the study unpolarized, or with [output] polarization = \"jones\" for the "
             "polarized variants")
-        logger.warning("%s: %s", where, diagnostics["polarization_note"])
     if diagnostics["channels_note"]:
         logger.warning("%s, channels = %r: %s", where, channels, diagnostics["channels_note"])
     if diagnostics["albedo_above_one"]:
