@@ -41,6 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wavebrdf.jobs.progress import degrees_text
 from wavebrdf.jobs.store import StoreError, is_comparison, write_comparison
 from wavebrdf.solver.farfield import HemisphereGrid, albedo
 from wavebrdf.solver.metrics import (
@@ -662,7 +663,8 @@ def _check_runnable(plan, names: list[str], given: str) -> None:
 
 def plan_scenes(plan) -> list[tuple[str, object]]:
     """(label, SurfaceScene) of every direct task of a surface plan; the label names the case (and
-    its swept values), λ and θ_i — the ``scene`` column of the comparison table."""
+    its swept values), λ, θ_i and φ_i (where not 0), each with the digits that tell it apart — the
+    ``scene`` column of the comparison table, one per scene."""
     scenes = []
     for task in plan.tasks:
         if task.kind != "direct":
@@ -670,7 +672,9 @@ def plan_scenes(plan) -> list[tuple[str, object]]:
         scene = plan.scene(task)
         case = plan.config.cases[task.case]
         where = ", ".join(f"{k}={v}" for k, v in case.sweep_values.items())
+        phi = float(np.rad2deg(scene.phi_i)) % 360.0
+        azimuth = f" φi={degrees_text(phi, 0)}°" if min(phi, 360.0 - phi) > 1e-6 else ""
         label = (f"{case.name}{' (' + where + ')' if where else ''} λ={scene.wavelength_um:g} µm "
-                 f"θi={np.rad2deg(scene.theta_i):.0f}°")
+                 f"θi={degrees_text(float(np.rad2deg(scene.theta_i)), 0)}°{azimuth}")
         scenes.append((label, scene))
     return scenes

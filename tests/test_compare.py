@@ -319,3 +319,20 @@ def test_the_progress_reporter_limits_its_rate_and_a_file_it_cannot_write_ends_t
     lost("krylov", None, residual=0.5)
     assert lost.path is None
     lost("far field", 0.0)  # no further attempt, no exception
+
+
+def test_every_scene_has_its_own_label(tmp_path):
+    """Directions that differ only in φ_i, or in θ_i by less than a degree, are other scenes: their
+    labels (the table's ``scene`` column, the key of the stored BRDFs) differ; φ_i = 0 adds nothing
+    (the trade table's labels)."""
+    from wavebrdf.jobs.compare import plan_scenes
+    from wavebrdf.jobs.config import load_config
+    from wavebrdf.jobs.plan import plan_study
+
+    cfg = tmp_path / "scenes.toml"
+    cfg.write_text(COMPARE_STUDY.format(out=tmp_path / "scenes.h5").replace(
+        "directions_deg = [[20, 0]]", "directions_deg = [[20, 0], [20, 90], [20.5, 0], [30, 359.9999]]"))
+    labels = [label for label, _ in plan_scenes(plan_study(load_config(cfg)))]
+    assert len(set(labels)) == len(labels) == 4, labels
+    assert labels[0] == "trade λ=0.5 µm θi=20°" and labels[1] == "trade λ=0.5 µm θi=20° φi=90°", labels
+    assert labels[2] == "trade λ=0.5 µm θi=20.5°" and labels[3].endswith("θi=30° φi=359.9999°"), labels

@@ -14,6 +14,7 @@ import pytest
 import wavebrdf
 from test_mitsuba import merged_chi_square
 from wavebrdf.jobs.cli import main
+from wavebrdf.solver.validity import ValidityWarning
 
 FIBER = """
 [study]
@@ -268,3 +269,37 @@ def test_jit_variant_matches_scalar(datasets, variant, name):
     for a, b in zip(results[scalar], results[variant]):
         b = b.reshape(a.shape)
         np.testing.assert_allclose(b, a, rtol=2e-3, atol=1e-4 * max(1.0, np.abs(a).max()))
+
+
+def test_a_table_of_one_phi_i_is_read_at_its_own_azimuth(datasets, tmp_path):
+    """A circle computed at one explicit φ_i = 30° holds φ_r for that incidence (forward peak at
+    210°): read at any φ_i it is the circle's table turned by φ_i − 30°, so ``bcsdf`` and the plugin
+    equal the φ_i = 0 circle's everywhere (they read it as if stored for φ_i = 0, 30° off: 5 %
+    at the forward peak). A non-circular cross section computed at one φ_i says it is read as if
+    rotation invariant."""
+    turned = make_dataset(tmp_path, "circle30", 'shape = "circle"\nradius_um = 0.5', "mie", [0.45, 0.55, 0.65],
+                          "[0, 30, 60]\nphi_i_deg = [30]")  # the template's theta_i_deg line, then φ_i
+    plain, turned = wavebrdf.open(datasets["circle"]), wavebrdf.open(turned)
+    phi_r = np.deg2rad(turned.h5["phi_r"][()])
+    assert np.isclose(np.rad2deg(phi_r[np.argmax(turned.h5["bcsdf"][0, 0, 0])]), 210.0, atol=5.0)
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        theta_i, theta_r = np.radians(rng.uniform(-60, 60, 2))
+        phi_i, phi_r_query = rng.uniform(-np.pi, np.pi, 2)
+        a = turned.bcsdf(theta_i, theta_r, phi_i, phi_r_query, 0.55)
+        b = plain.bcsdf(theta_i, theta_r, phi_i, phi_r_query, 0.55)
+        assert float(a) == pytest.approx(float(b), rel=1e-6)
+    use("scalar_spectral")
+    bsdfs = [mi.load_dict({"type": "wavebrdf_fiber", "filename": str(p)}) for p in (datasets["circle"], turned.path)]
+    ctx = mi.BSDFContext()
+    for psi_i, u in ((10.0, 0.1), (-40.0, 0.7)):
+        si = interaction(30.0, psi_i, u)
+        si.wavelengths = mi.Spectrum([550.0] * 4)
+        for t, p in ((0.2, 0.5), (-0.4, 2.8), (0.1, -1.2)):
+            wo = mi.Vector3f(float(np.cos(t) * np.sin(p)), float(np.sin(t)), float(np.cos(t) * np.cos(p)))
+            values = [float(np.array(b.eval(ctx, si, wo))[0]) for b in bsdfs]
+            assert values[1] == pytest.approx(values[0], rel=1e-5)
+    ellipse = make_dataset(tmp_path, "ellipse1", 'shape = "ellipse"\nsemi_axes_um = [0.4, 0.25]\nsegments = 48',
+                           "fiber-bem", [0.55], "[0]\nphi_i_deg = [20]")
+    with pytest.warns(ValidityWarning, match=r"one φ_i \(20°\) of a cross section that is not a circle"):
+        wavebrdf.open(ellipse).bcsdf(0.0, 0.0, 0.3, 1.0, 0.55)

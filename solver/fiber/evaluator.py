@@ -24,9 +24,12 @@ upper edges) and :func:`~wavebrdf.solver.fiber.bcsdf.longitudinal_cdf` (θ_r for
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from wavebrdf.solver.fiber.bcsdf import longitudinal_m0
+from wavebrdf.solver.validity import ValidityWarning
 
 __all__ = ["FiberBCSDF", "M0_CDF_EDGES_DEG", "azimuthal_cdf"]
 
@@ -41,6 +44,12 @@ def azimuthal_cdf(bcsdf: np.ndarray) -> np.ndarray:
     total = cdf[..., -1:]
     uniform = np.broadcast_to(np.arange(1, n.shape[-1] + 1) / n.shape[-1], n.shape)
     return np.where(total > 0, cdf / np.where(total > 0, total, 1.0), uniform)
+
+
+def _is_circle(nodes: np.ndarray, tolerance: float = 1e-3) -> bool:
+    """Whether polygon ``nodes`` (N, 2) lie on one circle about their mean, to ``tolerance`` of its radius."""
+    radii = np.hypot(*(np.asarray(nodes, dtype=float) - np.mean(nodes, axis=0)).T)
+    return bool(np.ptp(radii) <= tolerance * np.max(radii))
 
 
 def _clamped(grid: np.ndarray, x: np.ndarray):
@@ -121,6 +130,12 @@ class FiberBCSDF:
         if not (np.isfinite(table).all() and np.isfinite(c_eff).all()):
             raise ValueError(f"{ds.path}: the table of case {case} has missing (NaN) entries: failed tasks; "
                              "rerun the study")
+        nodes = ds.case_variable(int(case))
+        if h5["phi_i"].shape[0] == 1 and nodes is not None and not _is_circle(nodes[()]):
+            warnings.warn(f"{ds.path}: case {case} holds one φ_i ({float(h5['phi_i'][0]):g}°) of a cross section "
+                          "that is not a circle: other φ_i are read from it as if the fiber were rotation invariant; "
+                          "compute the study with [output] phi_i_bins or several [illumination] phi_i_deg",
+                          ValidityWarning, stacklevel=2)
         return cls(h5["wavelength_um"][()], np.deg2rad(h5["theta_i"][()]), np.deg2rad(h5["phi_i"][()]), table,
                    c_eff, float(variance), phi_i_binned=sampling.startswith("bin"),
                    cdf=h5["phi_r_cdf"][where] if "phi_r_cdf" in h5 else None, C_geom=h5["C_geom"][where])
@@ -152,7 +167,8 @@ class FiberBCSDF:
         """N_wave (1/rad), interpolated; arrays broadcast together."""
         theta_i, phi_i, phi_r, lam = self._broadcast(theta_i, phi_i, phi_r, wavelength_um)
         R = self.table.shape[-1]
-        rel = phi_r - phi_i if self.table.shape[2] == 1 else phi_r  # circles: rotation invariant
+        # one φ_i (circles, rotation invariant): the table holds φ_r for its own φ_i, turned with the query's
+        rel = phi_r - (phi_i - self.phi_i[0]) if self.table.shape[2] == 1 else phi_r
         r0, r1, wr = _periodic(R, rel)
         out = np.zeros(theta_i.shape)
         for w, l, t, p in self._incidence_nodes(theta_i, phi_i, lam):

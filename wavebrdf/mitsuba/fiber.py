@@ -152,7 +152,7 @@ class FiberEvaluator:
         return linear_nodes(self.ops, self.wavelengths_nm, self.S, hero_nm)
 
     def relative(self, phi_i, phi_r):
-        return phi_r - phi_i if self.t.rotation_invariant else phi_r
+        return phi_r - (phi_i - float(self.t.phi_i[0])) if self.t.rotation_invariant else phi_r
 
     def _bins(self, phi):
         """Nodes (r0, r1, w) between φ_r bin centres, periodic."""
@@ -355,7 +355,7 @@ def make_fiber_plugin_class(mi, load):
                 return self._null(si, null_weight, p_null)
             u = ops.clip((sample1 - p_null) / ops.maximum(1.0 - p_null, 1e-12), 0.0, 1.0 - 1e-7)
             rel, u2 = ev.sample_phi(g["corners"], g["slots"], u, sample2.x)
-            phi_r = rel + g["phi_i"] if self.tables.rotation_invariant else rel
+            phi_r = rel + (g["phi_i"] - float(self.tables.phi_i[0])) if self.tables.rotation_invariant else rel
             sin_r, cos_r = ev.sample_theta(g["sin_i"], g["cos_i"], sample2.y, u2)
             wo = mi.Vector3f(*ev.direction(sin_r, cos_r, phi_r, g["alpha"]))
             value, pdf = self._value_pdf(g, wo)

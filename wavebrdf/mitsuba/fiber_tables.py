@@ -58,7 +58,8 @@ class FiberTables:
 
     @property
     def rotation_invariant(self) -> bool:
-        """One φ_i (circles): N_wave depends on φ_r - φ_i only."""
+        """One φ_i (circles): N_wave depends on φ_r − φ_i only; the table holds φ_r for its own
+        φ_i (``phi_i[0]``), so a query's φ_r is read at φ_r − (φ_i − phi_i[0])."""
         return self.phi_i.size == 1
 
 
