@@ -277,9 +277,14 @@ def test_a_table_of_one_phi_i_is_read_at_its_own_azimuth(datasets, tmp_path):
     equal the φ_i = 0 circle's everywhere (they read it as if stored for φ_i = 0, 30° off: 5 %
     at the forward peak). A non-circular cross section computed at one φ_i says it is read as if
     rotation invariant."""
+    import warnings
+
     turned = make_dataset(tmp_path, "circle30", 'shape = "circle"\nradius_um = 0.5', "mie", [0.45, 0.55, 0.65],
                           "[0, 30, 60]\nphi_i_deg = [30]")  # the template's theta_i_deg line, then φ_i
     plain, turned = wavebrdf.open(datasets["circle"]), wavebrdf.open(turned)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ValidityWarning)  # a circle at one φ_i is rotation invariant: no warning
+        turned.bcsdf(0.0, 0.0, 0.0, 0.0, 0.55)
     phi_r = np.deg2rad(turned.h5["phi_r"][()])
     assert np.isclose(np.rad2deg(phi_r[np.argmax(turned.h5["bcsdf"][0, 0, 0])]), 210.0, atol=5.0)
     rng = np.random.default_rng(3)
@@ -299,6 +304,11 @@ def test_a_table_of_one_phi_i_is_read_at_its_own_azimuth(datasets, tmp_path):
             wo = mi.Vector3f(float(np.cos(t) * np.sin(p)), float(np.sin(t)), float(np.cos(t) * np.cos(p)))
             values = [float(np.array(b.eval(ctx, si, wo))[0]) for b in bsdfs]
             assert values[1] == pytest.approx(values[0], rel=1e-5)
+    use("scalar_rgb")  # and samples what it evaluates (the φ_r bins sit at φ_i + k·10° in ψ_o)
+    si = interaction(10.0, 20.0, 0.0)
+    p, cells = chi_square_p_value(mi.load_dict({"type": "wavebrdf_fiber", "filename": str(turned.path)}), si,
+                                  offset=np.radians(20.0), bins_phi=36)
+    assert cells > 30 and p > 0.01
     ellipse = make_dataset(tmp_path, "ellipse1", 'shape = "ellipse"\nsemi_axes_um = [0.4, 0.25]\nsegments = 48',
                            "fiber-bem", [0.55], "[0]\nphi_i_deg = [20]")
     with pytest.warns(ValidityWarning, match=r"one φ_i \(20°\) of a cross section that is not a circle"):

@@ -82,7 +82,7 @@ class FiberBCSDF:
                  cdf=None, C_geom=None):
         self.wavelength_um = np.asarray(wavelength_um, dtype=float)
         self.theta_i = np.asarray(theta_i, dtype=float)
-        self.phi_i = np.asarray(phi_i, dtype=float)
+        self.phi_i = np.atleast_1d(np.asarray(phi_i, dtype=float))
         self.table = np.asarray(bcsdf, dtype=np.float64)
         self.C_eff = np.asarray(C_eff, dtype=np.float64)
         self.cdf = azimuthal_cdf(self.table) if cdf is None else np.asarray(cdf, dtype=np.float64)  # sampling

@@ -20,6 +20,7 @@ MITSUBA_REQUIREMENT = "mitsuba>=3.6"  # the `render` extra's requirement (pyproj
 
 logger = logging.getLogger("wavebrdf")
 _CACHE: dict = {}
+_NOTED: set = set()  # the cached tables whose polarization note was logged
 
 
 def require_mitsuba():
@@ -67,6 +68,7 @@ def _cached(filename, options: tuple, load):
 
 def clear_cache() -> None:
     _CACHE.clear()
+    _NOTED.clear()
 
 
 def _load_from_props(props, channels: str, polarized: bool = False) -> Tables:
@@ -76,7 +78,8 @@ def _load_from_props(props, channels: str, polarized: bool = False) -> Tables:
     tables = tables_for(path, channels=channels, case=int(props.get("case", 0)),
                         smooth_sigma=None if sigma is None else float(sigma),
                         isotropic=None if iso is None else bool(iso), polarized=polarized)
-    if tables.diagnostics.get("polarization_note"):
+    if tables.diagnostics.get("polarization_note") and id(tables) not in _NOTED:  # once per loaded tables
+        _NOTED.add(id(tables))
         logger.warning("[wavebrdf plugin] filename = %r: %s", path, tables.diagnostics["polarization_note"])
     return tables
 
