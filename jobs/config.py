@@ -241,7 +241,10 @@ def parse_config(text: str, path: Path | None = None, output: str | Path | None 
             raise ConfigError(f"[sweep] {dotted}: cannot be swept ({NOT_SWEEPABLE[dotted]})")
         if not isinstance(values, list) or not values:
             raise ConfigError(f"[sweep] {dotted} = {fmt(values)}: must be a non-empty list of values")
-        if len(set(map(repr, values))) != len(values):
+        def identity(v):  # 2 and 2.0 are one value (True and 1 are not)
+            return repr(float(v)) if isinstance(v, (int, float)) and not isinstance(v, bool) else repr(v)
+
+        if len(set(map(identity, values))) != len(values):
             raise ConfigError(f"[sweep] {dotted} = {fmt(values)}: values must be distinct")
         if any(isinstance(v, (list, dict)) for v in values):  # e.g. correlation_um = [T_x, T_y]
             raise ConfigError(f"[sweep] {dotted} = {fmt(values)}: values must be single numbers or strings "

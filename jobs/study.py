@@ -21,7 +21,7 @@ from wavebrdf.jobs.steering import GlobalSurface
 from wavebrdf.solver.materials import Material
 from wavebrdf.solver.models import get_model, model_class
 from wavebrdf.solver.precision import Precision
-from wavebrdf.solver.surface import HeightField, SurfaceError, generate, load_heights
+from wavebrdf.solver.surface import GENERATORS, HeightField, SurfaceError, generate, load_heights
 
 __all__ = ["FiberSpec", "IlluminationSpec", "MaterialSpec", "ModelSpec", "Study", "StudyConfig", "SurfaceSpec"]
 
@@ -56,6 +56,10 @@ class SurfaceSpec:
                                       f"be ignored ({why}); remove {key}")
         else:
             parameters = parse_generator(s.generator, generator_keys)
+            if "seed" in given and not GENERATORS[s.generator].Options(**parameters).draws_at_random:
+                raise ConfigError(f"[surface] seed = {fmt(given['seed'])} and generator = {fmt(s.generator)}: seed "
+                                  "would be ignored (this generator draws nothing at random: every seed gives the "
+                                  "same surface); remove seed")
             if isinstance(size, tuple) or isinstance(cells, tuple):  # a rectangle: L_x/N_x = L_y/N_y
                 sides = size if isinstance(size, tuple) else (size, size)
                 counts = cells if isinstance(cells, tuple) else (cells, cells)

@@ -241,8 +241,13 @@ class HeightField:
 
     @property
     def periodic(self) -> tuple[bool, bool]:
-        """Whether the last row (x) / column (y) repeats the first (a seamless tile), to 1e-9 of
-        the peak-to-valley height."""
+        """Whether the surface continues seamlessly across the x / y edges: as its generator recorded
+        it (``parameters["periodic"]``: a sinusoid whose period does not divide the patch can repeat
+        its edge row and still have a slope jump there), else whether the last row (x) / column (y)
+        repeats the first, to 1e-9 of the peak-to-valley height."""
+        recorded = (self.parameters or {}).get("periodic")
+        if isinstance(recorded, str):
+            return "x" in recorded, "y" in recorded
         return _periodic_axes(self.z)
 
     def statistics(self) -> dict[str, float]:
@@ -333,6 +338,21 @@ class HeightField:
         half = self.cells // 2
         return tuple(float(_first_crossing(line[: half + 1], np.exp(-1.0)) * self.spacing_um)
                      for line in self.autocorrelation())
+
+
+MIN_FEATURE_SPACINGS = 4  # grid spacings across a feature (hemisphere, pit, cube) below which it is refused
+
+
+def _check_resolved(width_um: float, key: str, what: str, cells: int, size_um: float) -> None:
+    """SurfaceError unless a feature ``width_um`` wide spans MIN_FEATURE_SPACINGS grid spacings:
+    below that its slopes and heights are the grid's, not the feature's (corner cubes a = 3.2
+    spacings: rms slope 0.46 for faces of slope √2), and nothing downstream would say so."""
+    spacing = size_um / cells
+    if width_um < MIN_FEATURE_SPACINGS * spacing * (1 - 1e-12):
+        fewest = int(np.ceil(MIN_FEATURE_SPACINGS * size_um / width_um))
+        raise SurfaceError(f"surface.{key}: {what} = {width_um:.4g} µm spans {width_um / spacing:.3g} grid spacings "
+                           f"(size_um/cells = {spacing:.4g} µm), fewer than {MIN_FEATURE_SPACINGS}: the grid cannot hold "
+                           f"its shape (its slopes and heights would be the grid's); use surface.cells ≥ {fewest}")
 
 
 def _periodic_axes(z: np.ndarray) -> tuple[bool, bool]:
@@ -473,9 +493,12 @@ def _gaussian_tile(cells: int, size_um: float, rng, rms_height_um: float, correl
 class GeneratorOptions:
     """Base of every generator's options dataclass. ``isotropic``: whether the surfaces they
     describe are statistically invariant under rotations about z (the Mitsuba tables then use
-    rotation invariance in φ_i); no, unless a generator's options say so."""
+    rotation invariance in φ_i); no, unless a generator's options say so. ``draws_at_random``:
+    whether the seed changes the surface (a seed given to a generator that draws nothing would be
+    ignored, and a sweep over it would repeat one surface)."""
 
     isotropic = False
+    draws_at_random = False
 
 
 @dataclass(frozen=True)
@@ -552,6 +575,7 @@ def _flat(cells: int, size_um: float, rng, options: FlatOptions) -> np.ndarray:
 
 @dataclass(frozen=True)
 class GaussianOptions(GeneratorOptions):
+    draws_at_random = True
     rms_height_um: float = _rms_height()
     correlation_um: float | tuple[float, float] = _length("1/e length T of exp(−r²/T²), or [T_x', T_y'] along axes "
                                                           "rotated by angle_deg")
@@ -586,6 +610,7 @@ BRUSHED_ALONG_FRACTION = 0.25  # default along-groove correlation length, as a f
 
 @dataclass(frozen=True)
 class BrushedOptions(GeneratorOptions):
+    draws_at_random = True
     rms_height_um: float = _rms_height()
     correlation_um: float | tuple[float, float] | None = _length("[along, across] grooves (default [L/4, L/40])",
                                                                  required=False)
@@ -643,8 +668,10 @@ def _sinusoid(cells: int, size_um: float, rng, options: SinusoidOptions) -> np.n
                            f"surface.cells ≥ {fewest}")
     x = -0.5 * size_um + size_um / cells * np.arange(cells + 1)
     X, Y = np.meshgrid(x, x, indexing="ij")
-    a = np.deg2rad(angle_deg)
-    return amplitude_um * np.cos(2 * np.pi * (X * np.cos(a) + Y * np.sin(a)) / period_um)
+    periods = size_um * np.abs([np.cos(a), np.sin(a)]) / period_um  # along x and y
+    whole = np.abs(periods - np.round(periods)) <= 1e-9 * np.maximum(periods, 1.0)
+    z = amplitude_um * np.cos(2 * np.pi * (X * np.cos(a) + Y * np.sin(a)) / period_um)
+    return z, None, {"periodic": "".join(axis for axis, w in zip("xy", whole) if w)}
 
 
 CUBE_FACE_SLOPE = np.sqrt(2.0)  # tan of the 54.74° (arccos 1/√3) between a face normal and the cube axis ẑ
@@ -746,6 +773,7 @@ def _corner_cubes(cells: int, size_um: float, rng, options: CornerCubeOptions):
     if not np.isfinite(cant_azimuth_deg):
         raise SurfaceError(f"surface.cant_azimuth_deg = {cant_azimuth_deg!r}: must be a finite angle in degrees")
     n_x = _cells_per_period(size_um, period_um)
+    _check_resolved(period_um, "period_um", "the cubes' period a", cells, size_um)
     X, Y = np.meshgrid(*(size_um / cells * np.arange(cells + 1),) * 2, indexing="ij")
     if shape == "triangular":
         normals = corner_cube_normals()[:, :2] / np.sqrt(2.0 / 3.0)  # unit horizontal directions
@@ -797,6 +825,7 @@ def _spherical_pits(cells: int, size_um: float, rng, options: SphericalPitOption
     if 2 * rim > period_um * (1 + 1e-12):
         raise SurfaceError(f"surface.period_um = {period_um:g}: the pits' rim diameter 2√(2RD − D²) = {2 * rim:.6g} µm "
                            f"(radius_um = {radius_um:g}, depth_um = {depth_um:g}) does not fit the cell")
+    _check_resolved(2 * rim, "radius_um", "the pits' rim diameter 2√(2RD − D²)", cells, size_um)
     X, Y = _tile_coordinates(cells, size_um)
     rho2 = _cell_offset(X, period_um) ** 2 + _cell_offset(Y, period_um) ** 2
     cap = (radius_um - depth_um) - np.sqrt(np.clip(radius_um**2 - rho2, 0.0, None))
@@ -825,6 +854,10 @@ class HemisphereOptions(GeneratorOptions):
                          doc="area fraction the footprints cover")
     placement: str = option("square", choices=PLACEMENTS, doc="a square lattice, or random non-overlapping")
 
+    @property
+    def draws_at_random(self) -> bool:
+        return self.placement == "random"
+
 
 @generator("hemispheres", HemisphereOptions)
 def _hemispheres(cells: int, size_um: float, rng, options: HemisphereOptions):
@@ -839,6 +872,7 @@ def _hemispheres(cells: int, size_um: float, rng, options: HemisphereOptions):
     radius_um, fill, placement = options.radius_um, options.fill, options.placement
     if radius_um <= 0:
         raise SurfaceError(f"surface.radius_um must be > 0, got {radius_um}")
+    _check_resolved(2 * radius_um, "radius_um", "the hemispheres' diameter 2r", cells, size_um)
     X, Y = _tile_coordinates(cells, size_um)
     if placement == "square":
         if not 0 < fill <= np.pi / 4:

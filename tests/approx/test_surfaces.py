@@ -393,8 +393,9 @@ DATASET_CASES = {
     "brushed": 'rms_height_um = 0.05\ncorrelation_um = [2.0, 0.4]\nangle_deg = 45.0',
     "corner-cubes": 'period_um = 2.0',
     "spherical-pits": 'radius_um = 1.0\ndepth_um = 0.3\nperiod_um = 2.5',
-    "hemispheres": 'radius_um = 0.5\nfill = 0.2',
+    "hemispheres": 'radius_um = 0.5\nfill = 0.2\nplacement = "random"',
 }
+SEEDED = ("gaussian", "brushed", "hemispheres")  # the cases that draw at random (a seed elsewhere is refused)
 STAT_KEYS = ("rms_height_um", "peak_to_valley_um", "rms_slope", "max_slope", "correlation_length_x_um",
              "correlation_length_y_um")
 
@@ -404,22 +405,25 @@ def test_dataset_records_statistics_and_parameters(tmp_path, capsys, generator):
     """wavebrdf run → surface/height_0 attributes: the measured statistics (those of the HeightField the
     study used), the generator's name and parameters, and the ensemble of random generators."""
     cfg = tmp_path / f"{generator}.toml"
-    cfg.write_text(_config(f'generator = "{generator}"\nseed = 3\n' + DATASET_CASES[generator], tmp_path))
+    seed = 3 if generator in SEEDED else 0
+    cfg.write_text(_config(f'generator = "{generator}"\n' + (f"seed = {seed}\n" if seed else "")
+                           + DATASET_CASES[generator], tmp_path))
     assert main(["run", str(cfg), "-q", "--no-render"]) == 0, capsys.readouterr().err
     capsys.readouterr()
     with h5py.File(tmp_path / "out.h5", "r") as h5:
         attrs = dict(h5["surface/height_0"].attrs)
         heights = h5["surface/height_0"][()]
     params = dict(line.split(" = ") for line in DATASET_CASES[generator].splitlines())
-    surface = generate(generator, cells=40, size_um=10.0, seed=3,
+    surface = generate(generator, cells=40, size_um=10.0, seed=seed,
                        **{k: eval(v) if not v.startswith('"') else v.strip('"') for k, v in params.items()})
     assert np.array_equal(heights, surface.z)
     expected = surface.statistics()
     for key in STAT_KEYS:
         assert np.isfinite(attrs[key]) and attrs[key] == pytest.approx(expected[key], rel=1e-12), key
-    assert attrs["generator"] == generator and attrs["generator_seed"] == 3
+    assert attrs["generator"] == generator and attrs["generator_seed"] == seed
     for key, value in params.items():
-        assert np.allclose(attrs[f"generator_{key}"], eval(value)), key
+        stored = attrs[f"generator_{key}"]
+        assert (stored == value.strip('"')) if value.startswith('"') else np.allclose(stored, eval(value)), key
     assert attrs["generator_periodic"] == surface.parameters["periodic"]
     if generator in ("gaussian", "brushed"):
         assert attrs["ensemble"] == "gaussian" and attrs["ensemble_rms_height_um"] == 0.05
@@ -512,3 +516,56 @@ def test_subdivided_surface_is_the_same_bilinear_surface_on_a_finer_mesh():
     for bad in (1.5, 0):
         with pytest.raises(SurfaceError, match=f"factor must be an integer >= 1, got {bad}"):
             subdivided(coarse, bad)
+
+
+def test_a_sinusoid_is_periodic_only_where_its_period_divides_the_patch():
+    """A sinusoid repeats its edge row whatever its period (the patch is centred, cos is even), but
+    continues seamlessly only where whole periods fit: 3.33 periods along x are not periodic (a
+    slope jump at the seam), and its correlation length along x is the non-periodic estimate's,
+    within 2 % of the closed form Λ·arccos(1/e)/(2π) (the wrapped autocorrelation was 7 % off);
+    12 µm holds 4 periods: periodic; at 30° whole periods fit along y only."""
+    closed = 3.0 * np.arccos(1.0 / np.e) / (2.0 * np.pi)
+    odd = generate("sinusoid", cells=128, size_um=10.0, amplitude_um=0.1, period_um=3.0)
+    assert odd.periodic == (False, True) and odd.parameters["periodic"] == "y"
+    assert odd.statistics()["correlation_length_x_um"] == pytest.approx(closed, rel=0.02)
+    whole = generate("sinusoid", cells=128, size_um=12.0, amplitude_um=0.1, period_um=3.0)
+    assert whole.periodic == (True, True)
+    assert whole.statistics()["correlation_length_x_um"] == pytest.approx(closed, rel=0.002)
+    turned = generate("sinusoid", cells=128, size_um=12.0, amplitude_um=0.1, period_um=3.0, angle_deg=30.0)
+    assert turned.periodic == (False, True)
+
+
+@pytest.mark.parametrize("generator, keys, message", [
+    ("hemispheres", {"radius_um": 0.05, "fill": 0.3}, "the hemispheres' diameter 2r = 0.1 µm spans 0.64"),
+    ("corner-cubes", {"period_um": 0.5}, "the cubes' period a = 0.5 µm spans 3.2"),
+    ("spherical-pits", {"radius_um": 0.1, "depth_um": 0.05, "period_um": 0.625}, "the pits' rim diameter"),
+])
+def test_features_the_grid_cannot_hold_are_refused(generator, keys, message):
+    """A hemisphere, pit or cube narrower than four grid spacings has the grid's slopes, not its own
+    (cubes of period 3.2 spacings: rms slope 0.46 for faces of slope √2): refused, naming the cells
+    that would hold it."""
+    with pytest.raises(SurfaceError, match="fewer than 4") as info:
+        generate(generator, cells=64, size_um=10.0, **keys)
+    assert message in str(info.value) and "use surface.cells ≥" in str(info.value), str(info.value)
+
+
+def test_a_seed_that_changes_nothing_is_refused(tmp_path):
+    """A seed given to a generator that draws nothing (sinusoid, pits, cubes, flat, hemispheres on a
+    lattice) would be ignored, and a sweep over it would repeat one surface as "realizations"."""
+    sinusoid = 'generator = "sinusoid"\namplitude_um = 0.1\nperiod_um = 2.0'
+    with pytest.raises(ConfigError, match=r'seed = 3 and generator = "sinusoid": seed would be ignored'):
+        parse_config(_config(sinusoid + "\nseed = 3", tmp_path))
+    with pytest.raises(ConfigError, match="seed would be ignored"):
+        parse_config(_config(sinusoid, tmp_path) + '[sweep]\n"surface.seed" = [1, 2]\n')
+    lattice = 'generator = "hemispheres"\nradius_um = 0.5\nfill = 0.3'
+    with pytest.raises(ConfigError, match="seed would be ignored"):
+        parse_config(_config(lattice + "\nseed = 3", tmp_path))
+    assert len(parse_config(_config(lattice + '\nplacement = "random"', tmp_path)
+                            + '[sweep]\n"surface.seed" = [1, 2]\n').cases) == 2
+
+
+def test_sweep_values_equal_as_numbers_are_one_value(tmp_path):
+    """2 and 2.0 are the same index: a sweep over them would run one case twice."""
+    base = _config('generator = "gaussian"\nrms_height_um = 0.05\ncorrelation_um = 1.0', tmp_path)
+    with pytest.raises(ConfigError, match="values must be distinct"):
+        parse_config(base + '[sweep]\n"material.n" = [2, 2.0]\n')
