@@ -81,6 +81,7 @@ def test_a_failed_solve_or_one_fitted_to_the_memory_at_hand_is_not_kept(trade, t
     assert not list(tmp_path.iterdir())
 
 
+# hemispheres 0.54 µm across: 4 grid spacings at the 12 cells of the pair below the config (16 cells)
 TINY_SCENE = """
 [study]
 name = "tiny_hemispheres"
@@ -90,7 +91,7 @@ output = "{out}"
 size_um = 1.6
 cells = 16
 generator = "hemispheres"
-radius_um = 0.25
+radius_um = 0.27
 fill = 0.3
 placement = "random"
 seed = 3
@@ -199,7 +200,7 @@ def test_a_random_realization_keeps_its_digest_at_its_own_cells_and_is_refused_b
     config = tmp_path / "suite" / "rough.toml"
     config.parent.mkdir()
     config.write_text(TINY_SCENE.format(out=tmp_path / "rough.h5").replace(
-        'generator = "hemispheres"\nradius_um = 0.25\nfill = 0.3\nplacement = "random"',
+        'generator = "hemispheres"\nradius_um = 0.27\nfill = 0.3\nplacement = "random"',
         'generator = "gaussian"\nrms_height_um = 0.03\ncorrelation_um = 0.4'))
     ran = models_run
     with pytest.raises(SurfaceError, match="'gaussian' realization is drawn on its grid"):
