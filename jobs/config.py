@@ -220,6 +220,11 @@ def _set_dotted(data: dict, dotted: str, value: Any) -> None:
     data.setdefault(section, {})[key] = value
 
 
+def _sweep_identity(value) -> str:
+    """What makes two sweep values the same: 2 and 2.0 are one number (True and 1 are not)."""
+    return repr(float(value)) if isinstance(value, (int, float)) and not isinstance(value, bool) else repr(value)
+
+
 def parse_config(text: str, path: Path | None = None, output: str | Path | None = None) -> StudyConfig:
     """Parse and validate config ``text`` (from ``path`` if given, for relative file paths);
     ``output`` replaces ``[study] output`` (it alone is checked)."""
@@ -241,10 +246,7 @@ def parse_config(text: str, path: Path | None = None, output: str | Path | None 
             raise ConfigError(f"[sweep] {dotted}: cannot be swept ({NOT_SWEEPABLE[dotted]})")
         if not isinstance(values, list) or not values:
             raise ConfigError(f"[sweep] {dotted} = {fmt(values)}: must be a non-empty list of values")
-        def identity(v):  # 2 and 2.0 are one value (True and 1 are not)
-            return repr(float(v)) if isinstance(v, (int, float)) and not isinstance(v, bool) else repr(v)
-
-        if len(set(map(identity, values))) != len(values):
+        if len(set(map(_sweep_identity, values))) != len(values):
             raise ConfigError(f"[sweep] {dotted} = {fmt(values)}: values must be distinct")
         if any(isinstance(v, (list, dict)) for v in values):  # e.g. correlation_um = [T_x, T_y]
             raise ConfigError(f"[sweep] {dotted} = {fmt(values)}: values must be single numbers or strings "

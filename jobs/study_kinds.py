@@ -36,8 +36,8 @@ import numpy as np
 from wavebrdf.jobs.errors import ConfigError, fmt
 from wavebrdf.jobs.pictures import fiber as fiber_pictures
 from wavebrdf.jobs.pictures import surface as surface_pictures
-from wavebrdf.jobs.progress import degrees_text
 from wavebrdf.jobs.plan import fiber_tasks, surface_tasks
+from wavebrdf.jobs.progress import degrees_text
 from wavebrdf.jobs.store import FiberDatasetWriter, SurfaceDatasetWriter
 from wavebrdf.jobs.study import FiberSpec, Study, SurfaceSpec
 from wavebrdf.jobs.study_checks import check_model, check_surface, rectangle_outside_steering

@@ -502,6 +502,8 @@ class KirchhoffModel(FootprintModel):
     summary = ("scalar Kirchhoff (tangent-plane) approximation of a rough surface: single scattering, Fresnel at "
                "the half vector; fast")
     sampling = frozenset({"lattice", "pixels", "realization"})
+    capabilities = Capabilities(takes="height_field", returns="fields", polarized=True, steerable=True,
+                                reciprocal=True, conserves_energy=False, rung=4, single_scattering=True)
 
     def steered_fresnel(self) -> str | None:
         """Fresnel at the half vector of ω_i and ω_o: steered from ω_b, at the half vector of ω_b and
@@ -509,8 +511,6 @@ class KirchhoffModel(FootprintModel):
         in s and 0.0115 in p: between Fresnel's at 58.7°, 0.166 / 0.0007, and at that half vector,
         66.8°, 0.251 / 0.021; at 75°, 0.399 / 0.107)."""
         return "half vector"
-    capabilities = Capabilities(takes="height_field", returns="fields", polarized=True, steerable=True,
-                                reciprocal=True, conserves_energy=False, rung=4, single_scattering=True)
 
     def run(self, ctx, scene: SurfaceScene) -> FarField:
         ff = kirchhoff_farfield(
