@@ -365,6 +365,26 @@ def synthesize(patch_fields: dict, layout: PatchLayout, theta_i: float, phi_i: f
     )
 
 
+def synthesize_in_stated_frame(patch_fields: dict, exact_beam: dict, layout: PatchLayout, theta_i: float,
+                               phi_i: float, incident_power: np.ndarray, excited_rad: tuple[float, float]) -> FarField:
+    """:func:`synthesize` answering the requested direction's s and p: the patch beams carry the
+    excited (basic) direction's polarizations, and each patch's response is carried to the
+    requested frame by its own rung's change (``exact_beam[patch]``: True for exact beams, False
+    for locally plane footprints; ``polarimetry.steered_frame_change``), then summed."""
+    groups = {}
+    for patch, patch_field in patch_fields.items():
+        groups.setdefault(bool(exact_beam[patch]), {})[patch] = patch_field
+    fields = [in_stated_frame(synthesize(group, layout, theta_i, phi_i, incident_power), excited_rad, beam=beam)
+              for beam, group in sorted(groups.items())]
+    total = fields[0]
+    for other in fields[1:]:
+        total.E += other.E
+        if total.H is not None:
+            total.H += other.H
+    total.diagnostics["patches"] = len(patch_fields)
+    return total
+
+
 def synthesized_incident_power(incident_fields, layout: PatchLayout, spacing_um: float, wavelength_um: float,
                                exterior_index: float, theta_i: float, phi_i: float) -> np.ndarray:
     """Φ_i (per polarization) of Σ_ab a_ab·beam(x − p_ab) through the plane z = 0.
@@ -406,10 +426,9 @@ def synthesize_task(ctx, plan, task, pool, parts) -> FarField:
         basic_scene.wavelength_um, basic_scene.exterior_index, theta, phi,
     )
     kept = _kept_fresnel(model, fields)
-    # the patch beams carry the basic direction's polarizations; with mixed rungs (auto) the footprint's
-    # rotation serves every patch (it differs from the exact beams' inverse at second order in the offset)
-    ff = in_stated_frame(synthesize(fields, st.layout, theta, phi, power), (basic_scene.theta_i, basic_scene.phi_i),
-                         beam=kept is None)
+    ff = synthesize_in_stated_frame(fields, {patch: _patch_rung(model, f).steered_fresnel() is None
+                                             for patch, f in fields.items()},
+                                    st.layout, theta, phi, power, (basic_scene.theta_i, basic_scene.phi_i))
     ff.diagnostics["polarization_frame"] = SYNTHESIS_FRAME
     offset = float(np.hypot(*(direction_to_u(theta, phi) - direction_to_u(basic_scene.theta_i, basic_scene.phi_i))))
     limit = np.sin(aliasing_limit(basic_scene.wavelength_um, basic_scene.waist_um, basic_scene.exterior_index))
@@ -428,14 +447,18 @@ def synthesize_task(ctx, plan, task, pool, parts) -> FarField:
     return ff
 
 
+def _patch_rung(model, patch_field: FarField):
+    """The model that computed one patch field: under ``auto``, the rung named in its diagnostics."""
+    name = patch_field.diagnostics.get("model")
+    if not model.capabilities.picks_rung or name in (None, model.name):
+        return model
+    return model.rung(name)
+
+
 def _kept_fresnel(model, fields: dict) -> str | None:
-    """Where the patch fields' rung takes its Fresnel factors (``Model.steered_fresnel``); for
-    ``auto``, whichever rung ran a patch (its diagnostics' ``model``) that keeps them, "incidence"
-    first."""
-    if not model.capabilities.picks_rung:
-        return model.steered_fresnel()
-    names = {ff.diagnostics.get("model") for ff in fields.values()} - {None, model.name}
-    kinds = {model.rung(name).steered_fresnel() for name in names} - {None}
+    """Where the patch fields' rungs take their Fresnel factors (``Model.steered_fresnel``;
+    under ``auto`` each patch's own rung), "incidence" first."""
+    kinds = {_patch_rung(model, ff).steered_fresnel() for ff in fields.values()} - {None}
     return "incidence" if "incidence" in kinds else next(iter(kinds), None)
 
 
