@@ -337,6 +337,7 @@ BAD = [
     ("hemispheres", dict(radius_um=0.5, fill=0.3, placement="hexagonal"), "surface.placement"),
     ("gaussian", dict(rms_height_um=0.1, correlation_um=[1.0, 2.0, 3.0]), "surface.correlation_um"),
     ("gaussian", dict(rms_height_um=0.1, correlation_um=1.0, angle_deg=20.0), "surface.angle_deg = 20"),
+    ("gaussian", dict(rms_height_um=0.1, correlation_um=[1.0, 1.0], angle_deg=20.0), "equal lengths: isotropic"),
     ("brushed", dict(rms_height_um=0.1, correlation_um=[0.2, 2.0]), "surface.correlation_um"),
     ("brushed", dict(rms_height_um=0.1, correlation_um=0.5), "surface.correlation_um"),
     ("gaussian", dict(rms_height_um=0.1, correlation_um=1.0, fill=0.2), "surface.fill"),
