@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from wavebrdf.solver.options import shortened
+
 __all__ = ["ConfigError", "exactly_one", "fail", "fmt"]
 
 
@@ -15,9 +17,8 @@ class ConfigError(ValueError):
 
 def fmt(value: Any) -> str:
     """``value`` as a refusal shows it: strings in double quotes, others as ``repr``, at most 80
-    characters."""
-    text = repr(value) if not isinstance(value, str) else f'"{value}"'
-    return text if len(text) <= 80 else text[:77] + "..."
+    characters (cut in the middle)."""
+    return shortened(repr(value) if not isinstance(value, str) else f'"{value}"')
 
 
 def fail(section: str, key: str, value: Any, problem: str) -> ConfigError:

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from wavebrdf.jobs.errors import ConfigError
+from wavebrdf.solver.options import shortened
 
 __all__ = ["apply_overrides", "assignment_text", "check_nesting", "dict_config_text", "dump_toml", "overridden_text",
            "parse_assignment", "parse_toml"]
@@ -39,7 +40,7 @@ def _show(value: Any) -> str:
         text = _value(value)
     except TypeError:
         text = repr(value)
-    return text if len(text) <= 80 else text[:77] + "..."
+    return shortened(text)
 
 
 def check_nesting(data: Any, where: str = "") -> None:

@@ -174,9 +174,17 @@ def option(default, *, doc: str = "", required: bool = False, low=None, high=Non
     return field(default=default, metadata=metadata)
 
 
+def shortened(text: str, limit: int = 80) -> str:
+    """``text`` cut in the middle to at most ``limit`` characters, keeping both ends (a long path
+    keeps its file name)."""
+    if len(text) <= limit:
+        return text
+    head = (limit - 3) // 2
+    return text[:head] + "..." + text[len(text) - (limit - 3 - head):]
+
+
 def _fmt(value: Any) -> str:
-    text = f'"{value}"' if isinstance(value, str) else repr(value)
-    return text if len(text) <= 80 else text[:77] + "..."
+    return shortened(f'"{value}"' if isinstance(value, str) else repr(value))
 
 
 def _fail(table: str, key: str, value: Any, problem: str) -> OptionsError:

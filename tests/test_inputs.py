@@ -282,6 +282,19 @@ def test_surface_file_with_keys_it_ignores_is_refused(tmp_path, extra):
     assert load_config(config).cases[0].surface.file is not None
 
 
+def test_a_long_path_in_a_refusal_keeps_its_file_name(tmp_path):
+    """Refusals show at most 80 characters of a value, cut in the middle: a file deep in a long
+    folder keeps its name (cut at the end, the name was what went)."""
+    deep = tmp_path / ("a_long_folder_name_" * 6) / "heights_of_sample_7.npy"
+    deep.parent.mkdir()
+    np.save(deep, np.zeros((13, 9)))
+    config = {**copy.deepcopy(BASE), "surface": {"file": str(deep), "size_um": 3.0}}
+    with pytest.raises(ConfigError) as info:
+        load_config(config)
+    message = str(info.value)
+    assert "heights_of_sample_7.npy" in message and "..." in message and str(deep) not in message, message
+
+
 # --- tracebacks turned into messages ---------------------------------------------------------------
 
 def _plan_refusal(argv: list[str], capsys, folder: Path, *words: str) -> str:

@@ -410,7 +410,7 @@ def test_defect6_plan_checks_the_device_limits(tmp_path, capsys, monkeypatch):
     from wavebrdf.solver import models
     from wavebrdf.solver.opencl import choose_device, list_devices
 
-    models.register("buffered-test", f"{__name__}:BufferedModel")
+    monkeypatch.setitem(models._REGISTRY, "buffered-test", f"{__name__}:BufferedModel")  # gone after the test
     device = choose_device("auto", list_devices())
     cfg = write_study(tmp_path)
     cfg.write_text(cfg.read_text().replace('name = "kirchhoff"', 'name = "buffered-test"'))

@@ -213,7 +213,7 @@ class FlakyModel(KirchhoffModel):
 
 
 def test_failed_tasks_are_retried_recorded_and_rerun(tmp_path, monkeypatch):
-    models.register("flaky-test", f"{__name__}:FlakyModel")
+    monkeypatch.setitem(models._REGISTRY, "flaky-test", f"{__name__}:FlakyModel")  # gone after the test
     cfg = write_study(tmp_path, "flaky", model="flaky-test")
     from wavebrdf.jobs.config import load_config
 
