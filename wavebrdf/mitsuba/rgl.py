@@ -482,14 +482,12 @@ def _albedo_check(tables: Tables, nodes: list[list[_Node]], slices: list[list[di
     table's is Σ f Δu² over its pixels. A narrow lobe near grazing is under-resolved by the sample
     grid (flat glass at θ_i 80°: −4.5 % at 128², −8.8 % at 64² by Mitsuba's sampling of the file;
     this estimate −4.9 % at 128²): above ALBEDO_TOLERANCE the figure and a remedy are kept
-    (``albedo_note``; ``export`` prints it). The table's own rim loss (its lookup next to the
-    disk's rim, −1.5 % at 70°–85° for a broad lobe) is not in this figure."""
+    (``albedo_note``; ``export`` prints it)."""
     weights = _trapezoid_weights(resolution, resolution)
     worst, where = 0.0, None
     for row_nodes, row in zip(nodes, slices):
         for node, sl in zip(row_nodes, row):
-            table = float(np.tensordot(y_weights, tables.f[node.table].astype(np.float64).sum(axis=(-2, -1)),
-                                       axes=1)) * tables.pixel**2
+            table = float(np.tensordot(y_weights, tables.albedo(node.table), axes=1))
             file = float(np.tensordot(y_weights, np.sum(sl["spectra"].astype(np.float64) * weights, axis=(-2, -1)),
                                       axes=1))
             if table > 0 and abs(file / table - 1.0) > abs(worst):
