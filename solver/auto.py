@@ -61,7 +61,7 @@ from wavebrdf.solver.models import (Capabilities, Estimate, Model, ModelsWith, S
                                     model_names, rungs)
 from wavebrdf.solver.options import option
 from wavebrdf.solver.precision import Precision
-from wavebrdf.solver.validity import LIT_FACET_SLACK, horizon_loss, recorded_warnings
+from wavebrdf.solver.validity import LIT_FACET_SLACK, horizon_loss, recorded_warnings, under_auto
 
 __all__ = ["AutoModel", "CheckUnit", "Choice", "Rule", "SceneFeatures", "ToleranceWarning", "check_slope", "choose",
            "measure_scene", "polarization_contrast", "select_spot_checks", "table_error", "TRADE_TABLE"]
@@ -726,13 +726,15 @@ class AutoModel(Model):
         shows; spot checks and the escalation check may run others, each through its own validity."""
         if not isinstance(scene, SurfaceScene):
             return []
-        return self.rung(self.choice(like or scene, checked=like is not None).model).validity(scene)
+        return [under_auto(m) for m in
+                self.rung(self.choice(like or scene, checked=like is not None).model).validity(scene)]
 
     def foreseen_warnings(self, scene, like: SurfaceScene | None = None) -> list[str]:
         """As :meth:`validity`: those of the rung the rule expects (for ``like``, given)."""
         if not isinstance(scene, SurfaceScene):
             return []
-        return self.rung(self.choice(like or scene, checked=like is not None).model).foreseen_warnings(scene)
+        return [under_auto(m) for m in
+                self.rung(self.choice(like or scene, checked=like is not None).model).foreseen_warnings(scene)]
 
     def incident_fields(self, scene: SurfaceScene, points):
         """The full-wave reference's beam: the steerable rungs' patch fields are normalized to the
@@ -936,7 +938,10 @@ class AutoModel(Model):
             if not warned:
                 _warn_tolerance(reason)
         for w in caught:  # the rung's own warnings, now the task's
-            warnings.warn(w.message, stacklevel=2)
+            message = w.message
+            if isinstance(message, Warning):
+                message = type(message)(under_auto(str(message)))
+            warnings.warn(message, stacklevel=2)
         return name, result, reason
 
     def _only(self, name: str) -> Model:

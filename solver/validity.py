@@ -35,7 +35,7 @@ __all__ = ["ENERGY_SLACK", "EVANESCENT_LOSS", "GO_LOBE_ERROR", "LIT_FACET_DEFICI
            "check_evanescent_loss", "check_geometric_optics", "check_lit_facets", "check_waist",
            "energy_excess_warning", "geometric_limit_error", "geometric_optics_figures", "horizon_loss",
            "lattice_period_um", "point_sampled_error", "recorded_warnings", "roughness_parameter", "STEERED_FRESNEL",
-           "steered_fresnel_warning", "waist_spread"]
+           "steered_fresnel_warning", "under_auto", "waist_spread"]
 
 EVANESCENT_LOSS = 0.01  # OHS: warn when this share of the reflected spectrum is dropped
 SPREAD_COEFFICIENT = 0.3  # albedo error ≈ this × (λ₁/(πw))²/μ_i² (fitted on flat aluminium, see above)
@@ -478,6 +478,18 @@ def geometric_optics_figures(scene) -> dict:
             "correlation_over_wavelength": figures["correlation_um"] / lambda1}
 
 
+GO_ADVICE = "use a wave rung (kirchhoff, ghs, po) or model = auto, which measures the rungs against the full wave"
+GO_DIFFRACTION_ADVICE = "use bem or model = auto"
+
+
+def under_auto(message: str) -> str:
+    """A rung's warning as ``auto`` reports it: advice to use ``auto`` becomes what changes its
+    choice (the ray rungs' :func:`check_geometric_optics`)."""
+    took = "auto took this ray rung by its rule; a lower [model] tolerance, or "
+    return message.replace(GO_ADVICE, took + "a wave rung (kirchhoff, ghs, po), avoids it").replace(
+        GO_DIFFRACTION_ADVICE, took + "bem, avoids it")
+
+
 def check_geometric_optics(model: str, scene) -> list[str]:
     """Warn where a ray rung's figure is outside geometric optics: a lobe predicted more than
     GO_LOBE_ERROR from the Kirchhoff lobe it is the limit of (:func:`geometric_limit_error`), or
@@ -488,7 +500,7 @@ def check_geometric_optics(model: str, scene) -> list[str]:
     if not figures:
         return []
     lambda1 = scene.wavelength_um / scene.exterior_index
-    fix = "use a wave rung (kirchhoff, ghs, po) or model = auto, which measures the rungs against the full wave"
+    fix = GO_ADVICE
     out = []
     error, g = figures["geometric_limit_error"], figures["roughness_g"]
     if error > GO_LOBE_ERROR:
@@ -505,7 +517,7 @@ def check_geometric_optics(model: str, scene) -> list[str]:
                    f"λ₁ = {lambda1:.3g} µm, at {_where(scene)}: relief on a scale below the wavelength diffracts "
                    "rather than reflecting rays (on every such surface of the trade table, gs and gm were 0.13–1.9 "
                    "off the full wave, the worst of s, p and unpolarized; 0.07–1.6 unpolarized; docs/approx.md); "
-                   "use bem or model = auto")
+                   + GO_DIFFRACTION_ADVICE)
     return out
 
 

@@ -588,3 +588,27 @@ def test_every_trade_table_scene_the_rays_miss_is_warned():
                 seen.add(label)
                 assert check_geometric_optics("gs", scene), label
     assert seen == missed and len(seen) >= 70
+
+
+def test_under_auto_a_ray_rungs_warning_does_not_advise_auto(cl_ctx, monkeypatch):
+    """When auto takes gs on a surface rays do not describe (heights decorrelating within λ, g ≪ 1),
+    plan's foreseen warnings and the run's say so with what changes auto's choice, not "use model =
+    auto" (which the study already is)."""
+    from wavebrdf.solver import auto as auto_module
+    from wavebrdf.solver.auto import Choice
+
+    rough = generate("gaussian", cells=64, size_um=8.0, rms_height_um=0.01, correlation_um=0.3, seed=1)
+    scene = SurfaceScene(rough, 0.5, complex(0.87, -6.4), np.deg2rad(30.0), 0.0, 2.0, HemisphereGrid(16))
+    own = check_geometric_optics("gs", scene)
+    assert len(own) == 2 and all("model = auto" in m for m in own), own
+    monkeypatch.setattr(auto_module, "choose", lambda scene, tolerance, **_: Choice(
+        "gs", 0.01, {"gs": (0.01, 0.1)}, None, "gs within the tolerance (a test's choice)"))
+    model = get_model("auto")
+    foreseen = [m for m in model.foreseen_warnings(scene) if "rays" in m or "geometric optics" in m]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        model.run(cl_ctx, scene)
+    ran = [str(w.message) for w in caught if "rays" in str(w.message) or "geometric optics" in str(w.message)]
+    for said in (foreseen, ran):
+        assert len(said) == 2 and not any("model = auto" in m for m in said), said
+        assert all("auto took this ray rung by its rule; a lower [model] tolerance" in m for m in said), said
