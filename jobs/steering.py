@@ -365,23 +365,34 @@ def synthesize(patch_fields: dict, layout: PatchLayout, theta_i: float, phi_i: f
     )
 
 
-def synthesize_in_stated_frame(patch_fields: dict, exact_beam: dict, layout: PatchLayout, theta_i: float,
-                               phi_i: float, incident_power: np.ndarray, excited_rad: tuple[float, float]) -> FarField:
-    """:func:`synthesize` answering the requested direction's s and p: the patch beams carry the
-    excited (basic) direction's polarizations, and each patch's response is carried to the
-    requested frame by its own rung's change (``exact_beam[patch]``: True for exact beams, False
-    for locally plane footprints; ``polarimetry.steered_frame_change``), then summed."""
-    groups = {}
-    for patch, patch_field in patch_fields.items():
-        groups.setdefault(bool(exact_beam[patch]), {})[patch] = patch_field
-    fields = [in_stated_frame(synthesize(group, layout, theta_i, phi_i, incident_power), excited_rad, beam=beam)
-              for beam, group in sorted(groups.items())]
-    total = fields[0]
-    for other in fields[1:]:
-        total.E += other.E
+@dataclass(frozen=True)
+class RungGroup:
+    """The patch fields one rung computed for a synthesis, whether its patch beams are exact
+    (True: bem, po lit by the beam) or locally plane footprints (False), and the incident power
+    (W, per polarization) of the summed patch beams of that rung's kind (``synthesized_incident_power``)."""
+
+    patch_fields: dict
+    exact_beam: bool
+    incident_power: np.ndarray
+
+
+def synthesize_in_stated_frame(groups: list[RungGroup], layout: PatchLayout, theta_i: float, phi_i: float,
+                               excited_rad: tuple[float, float]) -> FarField:
+    """:func:`synthesize` answering the requested direction's s and p, per unit incident power:
+    the patch beams carry the excited (basic) direction's polarizations; each rung's sub-areas are
+    summed, divided by the power of its own kind of summed beam and carried to the requested frame
+    by its own frame change (``polarimetry.steered_frame_change``: the exact beams' projection or
+    the footprints' rotation), then the groups are added (in the first group's power). One group:
+    a single rung; several: ``auto`` with mixed rungs."""
+    parts = [in_stated_frame(synthesize(g.patch_fields, layout, theta_i, phi_i, g.incident_power), excited_rad,
+                             beam=g.exact_beam) for g in groups]
+    total = parts[0]
+    for part in parts[1:]:
+        scale = float(np.sqrt(total.incident_power[0] / part.incident_power[0]))  # both powers equal per part
+        total.E += scale * part.E
         if total.H is not None:
-            total.H += other.H
-    total.diagnostics["patches"] = len(patch_fields)
+            total.H += scale * part.H
+    total.diagnostics["patches"] = sum(len(g.patch_fields) for g in groups)
     return total
 
 
@@ -421,14 +432,15 @@ def synthesize_task(ctx, plan, task, pool, parts) -> FarField:
     fields = {tuple(p.patch): parts.load_farfield(p) for p in (plan.tasks[i] for i in task.depends)}
     basic_scene = plan.scene(task, basic=task.basic)
     theta, phi = plan.direction_rad(task)
-    power = synthesized_incident_power(
-        lambda pts: model.incident_fields(basic_scene, pts), st.layout, basic_scene.surface.spacing_um,
-        basic_scene.wavelength_um, basic_scene.exterior_index, theta, phi,
-    )
+    by_rung = {}
+    for patch, patch_field in fields.items():
+        rung = _patch_rung(model, patch_field)
+        by_rung.setdefault(rung.name, (rung, {}))[1][patch] = patch_field
+    groups = [RungGroup(group, rung.steered_fresnel() is None, synthesized_incident_power(
+        lambda pts, rung=rung: rung.incident_fields(basic_scene, pts), st.layout, basic_scene.surface.spacing_um,
+        basic_scene.wavelength_um, basic_scene.exterior_index, theta, phi)) for _, (rung, group) in sorted(by_rung.items())]
     kept = _kept_fresnel(model, fields)
-    ff = synthesize_in_stated_frame(fields, {patch: _patch_rung(model, f).steered_fresnel() is None
-                                             for patch, f in fields.items()},
-                                    st.layout, theta, phi, power, (basic_scene.theta_i, basic_scene.phi_i))
+    ff = synthesize_in_stated_frame(groups, st.layout, theta, phi, (basic_scene.theta_i, basic_scene.phi_i))
     ff.diagnostics["polarization_frame"] = SYNTHESIS_FRAME
     offset = float(np.hypot(*(direction_to_u(theta, phi) - direction_to_u(basic_scene.theta_i, basic_scene.phi_i))))
     limit = np.sin(aliasing_limit(basic_scene.wavelength_um, basic_scene.waist_um, basic_scene.exterior_index))

@@ -737,8 +737,8 @@ class AutoModel(Model):
                 self.rung(self.choice(like or scene, checked=like is not None).model).foreseen_warnings(scene)]
 
     def incident_fields(self, scene: SurfaceScene, points):
-        """The full-wave reference's beam: the steerable rungs' patch fields are normalized to the
-        same incident power within O((λ/πw)²), so one beam serves sub-areas of mixed rungs."""
+        """The full-wave reference's beam (a steered synthesis of mixed rungs divides each rung's
+        sub-areas by the power of that rung's own summed beams: jobs/steering.py)."""
         return self.rung(REFERENCE).incident_fields(scene, points)
 
     def estimate(self, scene: SurfaceScene, like: SurfaceScene | None = None) -> Estimate:
@@ -843,10 +843,8 @@ class AutoModel(Model):
                 with warnings.catch_warnings(record=True) as caught:  # the rung's warnings are not the result's
                     warnings.simplefilter("always")
                     result = self.rung(name).run(ctx, scene)
-                brdf_sp = result.brdf()
-                if scene.coherent:  # a synthesis divides the summed fields by the reference beam's power
-                    brdf_sp = brdf_sp * (np.asarray(result.incident_power) / np.asarray(reference.incident_power))[:, None, None]
-                errors = speckle_errors(brdf_sp, reference_sp, scene.grid, sigma)
+                # each rung's own power: a steered synthesis divides each rung's sub-areas by that of its own beams
+                errors = speckle_errors(result.brdf(), reference_sp, scene.grid, sigma)
             except Exception as exc:  # noqa: BLE001 - a rung that fails here is not measured, not chosen
                 measured[name] = {"error": None, "failure": f"{type(exc).__name__}: {exc}"[:300],
                                   "seconds": choice.candidates[name][1]}
@@ -893,7 +891,7 @@ class AutoModel(Model):
             outside: list = []
             name, result, reason = self._run_measured(ctx, scene, name, reason, outside)
             if outside:
-                result.diagnostics["escalation_check_warnings"] = recorded_warnings(outside)
+                result.diagnostics["escalation_check_warnings"] = under_auto(recorded_warnings(outside))
             error = error if name != REFERENCE else 0.0
         elif (full := self.full_wave_estimate(scene)) is not None and full.memory_bytes <= memory_budget_bytes(scene):
             name, error = REFERENCE, 0.0
@@ -937,11 +935,9 @@ class AutoModel(Model):
             reason += outside + f" and {REFERENCE} cannot run within the task's budget"
             if not warned:
                 _warn_tolerance(reason)
-        for w in caught:  # the rung's own warnings, now the task's
-            message = w.message
-            if isinstance(message, Warning):
-                message = type(message)(under_auto(str(message)))
-            warnings.warn(message, stacklevel=2)
+        for w in caught:  # the rung's own warnings, now the task's (in auto's words)
+            text = under_auto(str(w.message))
+            warnings.warn(w.message if text == str(w.message) else w.category(text), stacklevel=2)
         return name, result, reason
 
     def _only(self, name: str) -> Model:
@@ -988,7 +984,7 @@ class AutoModel(Model):
                 name = up
         name, result, reason = self._run_measured(ctx, scene, name, reason, check_caught, warned=not choice.within)
         if check_caught:
-            result.diagnostics["escalation_check_warnings"] = recorded_warnings(check_caught)
+            result.diagnostics["escalation_check_warnings"] = under_auto(recorded_warnings(check_caught))
         result.diagnostics.update(model=name, model_reason=reason,
                                   model_predicted_error=(float("nan") if choice.unlike and name != REFERENCE
                                                          else choice.candidates.get(name, (0.0,))[0]))

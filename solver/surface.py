@@ -598,7 +598,7 @@ def _gaussian(cells: int, size_um: float, rng, options: GaussianOptions):
     if angle_deg is not None and np.ndim(correlation) == 0:
         raise SurfaceError(f"surface.angle_deg = {angle_deg:g} has no effect with a scalar surface.correlation_um "
                            f"= {correlation:g} (isotropic); give correlation_um = [T_x, T_y] to rotate")
-    if angle_deg is not None and np.ndim(correlation) == 1 and np.isclose(*correlation, rtol=1e-12, atol=0.0):
+    if angle_deg is not None and np.ndim(correlation) == 1 and options.isotropic:
         raise SurfaceError(f"surface.angle_deg = {angle_deg:g} has no effect with surface.correlation_um = "
                            f"{list(correlation)} (equal lengths: isotropic); give unequal lengths to rotate")
     angle = 0.0 if angle_deg is None else float(angle_deg)

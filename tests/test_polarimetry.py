@@ -390,33 +390,42 @@ def test_in_stated_frame_recovers_a_known_jones_matrix():
 
 def test_a_synthesis_of_mixed_rungs_changes_each_patchs_frame_by_its_own_rung():
     """``auto`` in a steered study may run one patch with an exact beam (bem) and its neighbour
-    with a footprint rung (kirchhoff): patch (0, 0) answers the stated direction's Jones matrix J₀
-    through the exact beams' projection, patch (1, 0) J₁ through the footprint's rotation. The
-    synthesis in the stated frame is Σ e^{+jk p·ω_i} J_p to rounding; one frame change for both
-    patches (either kind) misses it by the two changes' difference (6·10⁻³ of the largest element
-    here, second order in the 8°–14° offset)."""
-    from wavebrdf.jobs.steering import PatchLayout, synthesize_in_stated_frame
+    with a footprint rung (kirchhoff), each normalized by its own kind of summed beam: patch (0, 0)
+    answers the stated direction's Jones matrix J₀ through the exact beams' projection per unit of
+    powers (2, 3) W, patch (1, 0) J₁ through the footprint's rotation per unit of (4, 5) W. The
+    synthesis in the stated frame is Σ e^{+jk p·ω_i} J_p to rounding. The construction takes the
+    footprint's rotation from ``steered_frame_change`` itself (the known-Jones test above and the
+    flat-surface steering tests check the changes): this checks the grouping, the powers and the
+    sum. One frame change for both patches misses by the two changes' difference (6·10⁻³ of the
+    largest element at this 8°–14° offset, second order in it), one power for both by 1 − √(P₀/P₁)."""
+    from wavebrdf.jobs.steering import PatchLayout, RungGroup, synthesize_in_stated_frame
 
     grid = HemisphereGrid(16)
     rng = np.random.default_rng(6)
     basic, stated = np.deg2rad([29.0, 17.0]), np.deg2rad([37.0, 31.0])
-    power = np.array([2.0, 3.0])
     layout = PatchLayout((2, 1), 2.0, 0.8)
     omega_i = np.array([np.sin(stated[0]) * np.cos(stated[1]), np.sin(stated[0]) * np.sin(stated[1]),
                         np.cos(stated[0])])
     k = 2 * np.pi / 0.5
-    fields, expected, beams = {}, 0.0, {(0, 0): True, (1, 0): False}
-    for patch, beam in beams.items():
+    out = np.stack([grid.uv[0], grid.uv[1], grid.mu], axis=-1)
+    patches = {(0, 0): (True, np.array([2.0, 3.0])), (1, 0): (False, np.array([4.0, 5.0]))}
+    fields, expected = {}, 0.0
+    for patch, (beam, power) in patches.items():
         J = rng.normal(size=(2, 2, 16, 16)) + 1j * rng.normal(size=(2, 2, 16, 16))
         centre = layout.centre(patch)
         fields[patch] = _responses_to(grid, _excited_by(J, basic, stated, beam), power, stated, centre)
-        out = np.stack([grid.uv[0], grid.uv[1], grid.mu], axis=-1)
         expected = expected + np.exp(1j * k * float(centre @ omega_i)) * np.exp(-1j * k * (out @ centre)) * J
-    for kinds, tolerance in ((beams, 1e-12), ({p: True for p in beams}, None), ({p: False for p in beams}, None)):
-        synthesized = synthesize_in_stated_frame(fields, kinds, layout, *stated, power, tuple(basic))
-        error = np.max(np.abs(jones(synthesized) - expected)[:, :, grid.inside]) / np.max(np.abs(expected))
-        logger.info("exact beam per patch %s: max |J − Σ J_p| = %.2e of max", kinds, error)
-        if tolerance is None:
-            assert error > 1e-3
-        else:
-            assert error < tolerance
+
+    def error(beams, powers):
+        groups = [RungGroup({p: fields[p]}, beams[p], powers[p]) for p in patches]
+        J = jones(synthesize_in_stated_frame(groups, layout, *stated, tuple(basic)))
+        return np.max(np.abs(J - expected)[:, :, grid.inside]) / np.max(np.abs(expected))
+
+    beams, powers = {p: b for p, (b, _) in patches.items()}, {p: w for p, (_, w) in patches.items()}
+    right = error(beams, powers)
+    wrong = {"all exact": error({p: True for p in patches}, powers),
+             "all footprint": error({p: False for p in patches}, powers),
+             "one power": error(beams, {p: powers[(0, 0)] for p in patches})}
+    logger.info("max |J − Σ J_p| / max: own frames and powers %.2e; %s", right,
+                {name: f"{e:.2e}" for name, e in wrong.items()})
+    assert right < 1e-12 and min(wrong.values()) > 1e-3

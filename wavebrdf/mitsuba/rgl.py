@@ -479,7 +479,7 @@ def _albedo_check(tables: Tables, nodes: list[list[_Node]], slices: list[list[di
     """The file's albedo per incidence node against its table's, luminance-weighted: a reader's
     albedo ∫ f cos θ_o dω_o = ∫ R D ⟨ω_i·m⟩/σ dm is the mean of R over the sample square (the
     warp's density is the visible normals' D⟨ω_i·m⟩/σ), the trapezoid rule over the nodes; the
-    table's is Σ f Δu² over its pixels. A narrow lobe near grazing is under-resolved by the sample
+    table's is Σ f Δu² over the disk's pixels (Tables.albedo). A narrow lobe near grazing is under-resolved by the sample
     grid (flat glass at θ_i 80°: −4.5 % at 128², −8.8 % at 64² by Mitsuba's sampling of the file;
     this estimate −4.9 % at 128²): above ALBEDO_TOLERANCE the figure and a remedy are kept
     (``albedo_note``; ``export`` prints it)."""

@@ -484,7 +484,8 @@ def _mueller_ratio(path, case_index: tuple, order: np.ndarray, theta_deg: np.nda
     and turning with the incidence like the s/p frames, so tables of neighbouring φ_k blend in the
     query's frames; the plugin turns a θ = 0 table's to the query's azimuth, since there the frames
     do not follow the incidence), blurred within the disk (no albedo rescaling: it cancels in the ratio), combined over
-    wavelengths into channels, divided, clipped to [−1, 1]; 0 outside the disk."""
+    wavelengths into channels, divided, clipped to [−1, 1]; 0 beyond the lookup's ring
+    (:func:`_lookup_support`)."""
     from scipy.ndimage import gaussian_filter
 
     combined, centres = None, None
