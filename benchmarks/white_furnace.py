@@ -56,6 +56,14 @@ def main(argv=None) -> int:
     import wavebrdf.mitsuba as wm
 
     wm.register()
+    from wavebrdf.jobs.store import Dataset
+    from wavebrdf.mitsuba.tables import case_config, isotropy_from_config
+
+    with Dataset(args.dataset) as ds:
+        isotropic, why = isotropy_from_config(case_config(ds.config))
+    if not isotropic:
+        raise SystemExit(f"{args.dataset}: not declared isotropic ({why}); this furnace reads tables at φ_i = 0 "
+                         "averaged over azimuth")
     with h5py.File(args.dataset, "r") as h5:
         stored, thetas, wavelengths = h5["albedo"][()], h5["theta_i"][()], h5["wavelength_um"][()]
     stored = stored.reshape(-1, *stored.shape[-2:])[0]  # (λ, incidence) of the first sweep case
