@@ -87,10 +87,12 @@ class TaskKind:
 
 def _run_model(ctx, plan, task, pool, parts):
     """The task's model on the task's scene (surface or fiber); a task with spot checks gives its
-    model their measurements (and the full-wave result of a check of this very scene)."""
+    model their measurements (and the full-wave result of a check of this very scene). Where one of
+    its checks failed, the task runs on the rule's choice (and its escalation check): the checks
+    left would represent it at some wavelengths only."""
     model = pool.get(plan.model_spec(task))
-    checks = [plan.tasks[i] for i in task.checks if parts.done(plan.tasks[i])]  # a failed check is left out
-    if not checks:
+    checks = [plan.tasks[i] for i in task.checks]
+    if not checks or not all(parts.done(c) for c in checks):
         return model.run(ctx, plan.model_scene(task))
     twin = twin_of(plan, task)
     full_wave = None if twin is None or twin not in checks else (lambda: parts.load_farfield(twin))

@@ -598,9 +598,10 @@ def select_spot_checks(units: list[CheckUnit], share: float, mix_wavelengths: bo
     checks' full-wave estimates add up to at most ``share`` of the all-full-wave estimate of the
     units where it fits.
 
-    A unit is represented by the checks at the nearest θ_i at or above its own and, among those, the
-    nearest slope at or above its own (within :data:`SLOPE_TIE`; the tangent-plane rungs' errors
-    grow with both), at every checked λ — or, with ``mix_wavelengths``, only the nearest checked λ;
+    A unit is represented, at each checked λ, by the checks there at the nearest θ_i at or above its
+    own and, among those, the nearest slope at or above its own (within :data:`SLOPE_TIE`; the
+    tangent-plane rungs' errors grow with both) — or, with ``mix_wavelengths``, at the nearest
+    checked λ only;
     a unit no check covers so (its own full wave does not fit, or it occurs at a middle λ only) by
     every check no other covers, the worst of them. Along λ an error may grow either way (with λ/ℓ
     where a rung's curvature limit binds, with h/λ where its phase does), so both ends of the
@@ -654,23 +655,32 @@ def _staircase(units: list[CheckUnit]) -> list[CheckUnit]:
 
 
 def _representatives(unit: CheckUnit, checks: list[CheckUnit], mix_wavelengths: bool) -> tuple[int, ...]:
-    """Indices of the checks that represent ``unit`` (select_spot_checks): of those that cover it,
-    the nearest θ_i, then the nearest slope; none covers it (its own full wave does not fit, or it
-    occurs only at a middle λ): every check no other one covers strictly, the most oblique to the
-    steepest, whose worst measured error then stands for it. With ``mix_wavelengths``, only the
-    nearest checked λ."""
-    pool = [i for i, c in enumerate(checks) if _covers(c, unit)]
-    keys = (lambda c: c.theta_i, lambda c: c.slope)
-    if not pool:
-        pool = [i for i, c in enumerate(checks)
-                if not any(_covers(o, c) and not _covers(c, o) for o in checks)]
-        keys = ()
+    """Indices of the checks that represent ``unit`` (select_spot_checks): at every checked λ (with
+    ``mix_wavelengths`` only the nearest checked λ), of the checks there that cover it, the nearest
+    θ_i, then the nearest slope; none covers it (its own full wave does not fit, or it occurs only
+    at a middle λ): every check no other one covers strictly, the most oblique to the steepest,
+    whose worst measured error then stands for it (with ``mix_wavelengths`` those at the nearest
+    checked λ). Without ``mix_wavelengths`` they do not depend on the unit's λ: one rung per series."""
+    covering = [i for i, c in enumerate(checks) if _covers(c, unit)]
+    if not covering:
+        pool = [i for i, c in enumerate(checks) if not any(_covers(o, c) and not _covers(c, o) for o in checks)]
+        return tuple(_nearest(pool, checks, (lambda c: abs(c.wavelength_um - unit.wavelength_um),)
+                              if mix_wavelengths else ()))
     if mix_wavelengths:
-        keys += (lambda c: abs(c.wavelength_um - unit.wavelength_um),)
+        covering = _nearest(covering, checks, (lambda c: abs(c.wavelength_um - unit.wavelength_um),))
+    out = []
+    for lam in sorted({round(checks[i].wavelength_um, 9) for i in covering}):
+        at = [i for i in covering if round(checks[i].wavelength_um, 9) == lam]
+        out += _nearest(at, checks, (lambda c: c.theta_i, lambda c: c.slope))
+    return tuple(sorted(out))
+
+
+def _nearest(pool: list[int], checks: list[CheckUnit], keys) -> list[int]:
+    """The indices of ``pool`` nearest by each key in turn (ties within :data:`ROUNDING` kept)."""
     for key in keys:
         nearest = min(key(checks[i]) for i in pool)
         pool = [i for i in pool if key(checks[i]) <= nearest + ROUNDING]
-    return tuple(pool)
+    return pool
 
 
 class AutoModel(Model):

@@ -45,6 +45,24 @@ def units(thetas, lams, slopes=(0.1,), seconds=10.0):
     return out
 
 
+def test_a_task_is_represented_at_every_checked_wavelength_by_its_nearest_covering_check():
+    """Checks at (25°, λ 0.5), (25°, λ 0.65) and (0°, λ 0.5) — a larger share adds the third: the
+    task at (0°, λ 0.65) is represented by (0°, 0.5) and by (25°, 0.65), the nearest covering check
+    at each checked λ. Taking the nearest θ_i over all λ first left only (0°, 0.5): a rung measured
+    0.038 there was taken at λ 0.65, where it measured 0.086 (a probe's silent miss at 0.05)."""
+    from wavebrdf.solver.auto import _representatives
+
+    def unit(task, theta_deg, lam):
+        return CheckUnit(task, (np.deg2rad(theta_deg), 0.1), lam, np.deg2rad(theta_deg), 0.1, 10.0, True)
+
+    checks = [unit(1, 25.0, 0.5), unit(3, 25.0, 0.65), unit(0, 0.0, 0.5)]
+    red = unit(2, 0.0, 0.65)
+    assert _representatives(red, checks, mix_wavelengths=False) == (1, 2)
+    assert _representatives(red, checks, mix_wavelengths=True) == (1,)  # the nearest checked λ only
+    assert _representatives(unit(0, 0.0, 0.5), checks, mix_wavelengths=False) == (1, 2)  # one rung per series
+    assert _representatives(unit(5, 10.0, 0.5), checks, mix_wavelengths=False) == (0, 1)
+
+
 def test_spot_checks_span_the_study_within_their_share():
     study = units(thetas=(0.0, 0.2, 0.5, 1.0), lams=(0.4, 0.5, 0.6))
     total = sum(u.full_wave_seconds for u in study)
@@ -59,8 +77,9 @@ def test_spot_checks_span_the_study_within_their_share():
         for u in study:
             reps = [checks[i] for i in represented[u.task]]
             assert reps and all(c.theta_i >= u.theta_i for c in reps)  # never represented by an easier check
-            assert len({c.theta_i for c in reps}) == 1  # the nearest checked θ_i at or above
-            assert {c.wavelength_um for c in reps} == {c.wavelength_um for c in checks if c.theta_i == reps[0].theta_i}
+            for lam in {c.wavelength_um for c in checks}:  # at every checked λ, the nearest checked θ_i at or above
+                above = [c.theta_i for c in checks if c.wavelength_um == lam and c.theta_i >= u.theta_i]
+                assert {c.theta_i for c in reps if c.wavelength_um == lam} == ({min(above)} if above else set())
     checks, represented = select_spot_checks(study, 1.0)
     assert {(c.theta_i, c.wavelength_um) for c in checks} == {(t, l) for t in (0.0, 0.5, 1.0) for l in (0.4, 0.6)}
     normal = next(u for u in study if u.theta_i == 0.0 and u.wavelength_um == 0.5)
@@ -84,7 +103,8 @@ def test_an_end_of_the_spectrum_without_the_listed_angles_is_still_checked_and_t
     total = sum(u.full_wave_seconds for u in study)
     checks, represented = select_spot_checks(study, 0.25)  # 17.5 s: the two forced checks only (20 s)
     assert [(c.theta_i, c.wavelength_um) for c in checks] == [(0.6, 0.4), (0.15, 0.7)]
-    assert [checks[i].task for i in represented[6]] == [6]  # its own scene: the nearest θ_i at or above
+    # at each checked λ the nearest θ_i at or above: its own scene at λ 0.7, the hardest check at λ 0.4
+    assert [checks[i].task for i in represented[6]] == [4, 6]
     # the forced checks are charged first: one more fits 31.5 s (20 + 10), not 28 s
     assert len(select_spot_checks(study, 0.4)[0]) == 2
     checks, _ = select_spot_checks(study, 0.45)
@@ -123,7 +143,8 @@ def test_spot_checks_of_sub_areas_take_the_steepest_and_represent_by_slope():
         reps = [checks[i] for i in represented[u.task]]
         assert all(c.slope >= u.slope and c.theta_i >= u.theta_i for c in reps)
     gentle = next(u for u in study if u.slope == 0.05 and u.theta_i == 0.3)
-    assert {checks[i].slope for i in represented[gentle.task]} == {0.2}  # the nearest steeper check
+    # at each checked λ the nearest steeper check there: the median sub-area at λ 0.4, the steepest at 0.7
+    assert {(checks[i].slope, checks[i].wavelength_um) for i in represented[gentle.task]} == {(0.2, 0.4), (0.4, 0.7)}
 
 
 def test_a_less_oblique_but_steeper_task_is_checked_too():
@@ -390,14 +411,21 @@ def test_mixed_wavelengths_report_their_spectral_seams(tmp_path):
     assert shown.count(" → ") == changes and (changes == 0) == ("spectral seams" not in shown), shown
 
 
-def test_a_failed_spot_check_leaves_its_tasks_to_the_rule(tmp_path, monkeypatch):
+@pytest.mark.parametrize("lost", ["every check", "the long end's check"])
+def test_a_failed_spot_check_leaves_its_tasks_to_the_rule(tmp_path, monkeypatch, lost):
     """A spot check that fails (here: its full wave raises) fails alone; the tasks it would have
-    represented run on the rule's choice, and the dataset is complete."""
+    represented run on the rule's choice, also where another of their checks was measured (that
+    one represents them at its own wavelength only: a probe's tasks took a rung measured 0.0495 at
+    λ 0.5 µm and missed 0.0625 at 0.65 µm, 0.086, without a word), and the dataset is complete."""
     import wavebrdf
     from wavebrdf.solver.auto import AutoModel
 
+    spot_check = AutoModel.spot_check
+
     def broken(self, ctx, scene):
-        raise RuntimeError("full wave lost (test)")
+        if lost == "every check" or scene.wavelength_um > 0.6:
+            raise RuntimeError("full wave lost (test)")
+        return spot_check(self, ctx, scene)
 
     monkeypatch.setattr(AutoModel, "spot_check", broken)
     config = write_study(tmp_path, "broken", "auto", options="tolerance = 0.05\nspot_check_share = 0.5")
@@ -407,9 +435,14 @@ def test_a_failed_spot_check_leaves_its_tasks_to_the_rule(tmp_path, monkeypatch)
     rows = task_table(tmp_path / "broken.h5")
     status = dict(zip(rows["id"], rows["status"]))
     checks = [i for i, k in zip(rows["id"], rows["kind"]) if k == "check"]
-    decided = [i for i, k in zip(rows["id"], rows["kind"]) if k == "direct"]
-    assert checks and all(status[i] == "failed" for i in checks)
-    assert all(status[i] == "done" for i in decided), status
+    decided = [n for n, k in enumerate(rows["kind"]) if k == "direct"]
+    failed = [i for i in checks if status[i] == "failed"]
+    assert failed and len(failed) == (len(checks) if lost == "every check" else 1), status
+    assert all(status[rows["id"][n]] == "done" for n in decided), status
+    measured = rows.get("model_measured_error", [np.nan] * len(rows["kind"]))  # no column: nothing measured
+    for n in decided:  # every task had the failed check among its representatives: the rule decided
+        assert "spot check" not in rows["model_reason"][n], rows["model_reason"][n]
+        assert not np.isfinite(measured[n]), measured[n]
     with h5py.File(tmp_path / "broken.h5") as h5:
         assert np.all(np.isfinite(h5["albedo"][()]))
 
