@@ -460,7 +460,7 @@ def test_a_steered_auto_study_is_within_tolerance_of_the_steered_full_wave(tmp_p
         (tmp_path / f"{name}.toml").write_text(text)
         run(tmp_path, "run", tmp_path / f"{name}.toml", "-q", "--no-render")
     rows = task_table(tmp_path / "steer_auto.h5")
-    assert "check" in rows["kind"] and all(rows["model"][i] in {"bem", "kirchhoff", "po", "ghs"}
+    assert "check" in rows["kind"] and all(rows["model"][i] in {"bem", "kirchhoff", "po", "ghs", "ohs"}
                                            for i, k in enumerate(rows["kind"]) if k == "patch")
     with h5py.File(tmp_path / "steer_auto.h5") as a, h5py.File(tmp_path / "steer_bem.h5") as b:
         grid = HemisphereGrid(32)
