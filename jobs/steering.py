@@ -390,8 +390,8 @@ def synthesize_in_stated_frame(groups: list[RungGroup], layout: PatchLayout, the
     for part in parts[1:]:
         scale = float(np.sqrt(total.incident_power[0] / part.incident_power[0]))  # both powers equal per part
         total.E += scale * part.E
-        if total.H is not None:
-            total.H += scale * part.H
+        # H where every rung gave it (bem does; the footprint rungs and po do not)
+        total.H = None if total.H is None or part.H is None else total.H + scale * part.H
     total.diagnostics["patches"] = sum(len(g.patch_fields) for g in groups)
     return total
 

@@ -17,6 +17,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 
 import numpy as np
@@ -414,6 +415,8 @@ def test_a_synthesis_of_mixed_rungs_changes_each_patchs_frame_by_its_own_rung():
         J = rng.normal(size=(2, 2, 16, 16)) + 1j * rng.normal(size=(2, 2, 16, 16))
         centre = layout.centre(patch)
         fields[patch] = _responses_to(grid, _excited_by(J, basic, stated, beam), power, stated, centre)
+        if beam:  # bem's far fields carry H, the footprint rungs' do not
+            fields[patch] = dataclasses.replace(fields[patch], H=np.zeros_like(fields[patch].E))
         expected = expected + np.exp(1j * k * float(centre @ omega_i)) * np.exp(-1j * k * (out @ centre)) * J
 
     def error(beams, powers):
