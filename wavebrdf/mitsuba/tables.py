@@ -253,8 +253,7 @@ def _smooth(cube: np.ndarray, sigma_u: np.ndarray) -> np.ndarray:
     from scipy.ndimage import gaussian_filter
 
     res = cube.shape[-1]
-    centres = _pixel_centres(res)
-    inside = (centres[:, None] ** 2 + centres[None, :] ** 2 < 1.0).astype(float)
+    inside = _disk(res).astype(float)
     out = cube.copy()
     for wl, sigma in enumerate(sigma_u):
         if sigma > 0:
@@ -488,7 +487,7 @@ def _mueller_ratio(path, case_index: tuple, order: np.ndarray, theta_deg: np.nda
     (:func:`_lookup_support`)."""
     from scipy.ndimage import gaussian_filter
 
-    combined, centres = None, None
+    combined = None
     with Dataset(path) as ds:
         for n, l in enumerate(order):
             M = np.asarray(ds.mueller(case_index + (int(l),)), dtype=np.float32)  # (n_inc, 4, 4, res, res)
@@ -502,7 +501,7 @@ def _mueller_ratio(path, case_index: tuple, order: np.ndarray, theta_deg: np.nda
                 table_phi = np.deg2rad(phi_deg)
             centres = _pixel_centres(res)
             U, V = np.meshgrid(centres, centres, indexing="ij")
-            inside = U**2 + V**2 < 1.0
+            inside = _disk(res)
             M = np.stack([to_regular_frames(m.reshape(4, 4, res, res), U, V, phi, reference_phi=phi)
                           for m, phi in zip(M, table_phi)])
             if sigma_u[n] > 0:
